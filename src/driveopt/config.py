@@ -1,0 +1,205 @@
+"""Static configuration of the planner: frozen, hashable dataclasses.
+
+Every field carries its unit. Instances are used as static arguments of the
+jit-compiled planning function, so two equal configs share one compilation.
+Defaults follow P1 (bi-level planner) unless a comment says otherwise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+
+class ConfigError(ValueError):
+    """A configuration value is malformed or out of range."""
+
+
+def _require(cond: bool, message: str) -> None:
+    if not cond:
+        raise ConfigError(message)
+
+
+@dataclass(frozen=True)
+class BasisConfig:
+    """Bernstein polynomial trajectory basis."""
+
+    order: int = 10  # polynomial order (order + 1 coefficients per axis)
+    horizon: float = 15.0  # [s] planning horizon T
+    num_nodes: int = 100  # time nodes on [0, T], both ends included
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.order, int) and 3 <= self.order <= 20, "basis.order must be an int in [3, 20]")
+        _require(math.isfinite(self.horizon) and self.horizon > 0, "basis.horizon must be > 0 [s]")
+        _require(isinstance(self.num_nodes, int) and self.num_nodes >= 8, "basis.num_nodes must be an int >= 8")
+        _require(self.num_nodes % 4 == 0, "basis.num_nodes must be divisible by 4 (one segment per set-point)")
+
+    @property
+    def num_coeffs(self) -> int:
+        return self.order + 1
+
+    @property
+    def dt(self) -> float:
+        """[s] spacing of the time nodes."""
+        return self.horizon / (self.num_nodes - 1)
+
+
+@dataclass(frozen=True)
+class QPConfig:
+    """Set-point QP (DESIGN §2.2): smoothness + PD set-point tracking."""
+
+    w_smooth: float = 0.1  # [-] weight of ||x''||^2 + ||y''||^2
+    w_speed: float = 1.0  # [-] weight of the speed-tracking residual
+    w_lateral: float = 1.0  # [-] weight of the lateral-tracking residual
+    k_pv: float = 20.0  # [1/s] P gain of speed tracking
+    k_p: float = 20.0  # [1/s^2] P gain of lateral tracking
+    k_d: float = 2.0 * math.sqrt(20.0)  # [1/s] D gain of lateral tracking
+    terminal_lateral_acceleration: bool = False  # also impose y''(T) = 0
+    terminal_position: bool = False  # also impose x(T) = x_f, y(T) = y_f (goal-sampling baseline)
+
+    def __post_init__(self) -> None:
+        for name in ("w_smooth", "w_speed", "w_lateral", "k_pv", "k_p", "k_d"):
+            value = getattr(self, name)
+            _require(math.isfinite(value) and value >= 0, f"qp.{name} must be finite and >= 0")
+        _require(self.w_smooth > 0, "qp.w_smooth must be > 0 (it keeps the QP strictly convex)")
+
+
+@dataclass(frozen=True)
+class ProjectionConfig:
+    """Batch projection onto the constraint set (DESIGN §2.3)."""
+
+    max_iterations: int = 20  # [-] alternating-minimisation iterations
+    tolerance: float = 1e-3  # [-] early stop when every sample is feasible or has stopped moving
+    rho_obstacle: float = 1.0  # [-] penalty weight of the obstacle rows
+    rho_velocity: float = 1.0  # [-] penalty weight of the velocity rows
+    rho_acceleration: float = 1.0  # [-] penalty weight of the acceleration rows
+    rho_lane: float = 1.0  # [-] penalty weight of the lane rows
+    v_min: float = 0.1  # [m/s] speed lower bound
+    v_max: float = 30.0  # [m/s] speed upper bound
+    a_max: float = 18.0  # [m/s^2] acceleration-magnitude bound
+    kappa_max: float = 0.23  # [1/m] path-curvature bound (0 disables it)
+    centripetal_max: float = 4.0  # [m/s^2] bound on v^2 * |road curvature|
+    barrier: bool = False  # P2's discrete-time barrier forms for obstacles and lanes
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.max_iterations, int) and self.max_iterations >= 1, "projection.max_iterations must be an int >= 1")
+        _require(self.tolerance >= 0, "projection.tolerance must be >= 0")
+        for name in ("rho_obstacle", "rho_velocity", "rho_acceleration", "rho_lane"):
+            _require(getattr(self, name) > 0, f"projection.{name} must be > 0")
+        _require(0 <= self.v_min < self.v_max, "projection needs 0 <= v_min < v_max [m/s]")
+        _require(self.a_max > 0, "projection.a_max must be > 0 [m/s^2]")
+        _require(self.kappa_max >= 0, "projection.kappa_max must be >= 0 [1/m]")
+        _require(self.centripetal_max > 0, "projection.centripetal_max must be > 0 [m/s^2]")
+
+
+@dataclass(frozen=True)
+class CostConfig:
+    """Weights of the upper-level driving cost terms (each term is a mean over the nodes)."""
+
+    speed: float = 1.0  # [1/(m/s)^2] (|v| - v_des)^2
+    lateral_acceleration: float = 0.2  # [1/(m/s^2)^2] y''^2
+    heading: float = 20.0  # [1/rad^2] heading^2 relative to the road
+    curvature: float = 10.0  # [m^2] curvature^2 (steering effort proxy)
+    lane_centering: float = 0.5  # [1/m^2] squared distance of y(t) to the nearest lane centre
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            _require(math.isfinite(value) and value >= 0, f"cost.{f.name} must be finite and >= 0")
+
+
+@dataclass(frozen=True)
+class SamplerConfig:
+    """Bi-level cross-entropy sampler (P1 Alg. 1, eq. 6)."""
+
+    num_samples: int = 1000  # [-] n-bar, samples per iteration
+    num_iterations: int = 5  # [-] N, sampler iterations
+    num_constraint_elites: int = 100  # [-] n, lowest-residual samples kept
+    num_elites: int = 40  # [-] q, lowest (cost + residual) samples of those
+    temperature: float = 0.9  # [-] gamma of eq. 6c
+    learning_rate: float = 0.6  # [-] eta of eq. 6a/6b
+    covariance_jitter: float = 0.01  # [-] added to the covariance diagonal after each update
+    speed_std: float = math.sqrt(30.0)  # [m/s] initial std of every speed set-point
+    lateral_std: float = math.sqrt(46.0)  # [m] initial std of every lateral set-point
+    residual_tolerance: float = 0.05  # [-] total residual under which a sample counts as feasible
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.num_samples, int) and self.num_samples >= 2, "sampler.num_samples must be an int >= 2")
+        _require(isinstance(self.num_iterations, int) and self.num_iterations >= 1, "sampler.num_iterations must be an int >= 1")
+        _require(
+            1 <= self.num_elites <= self.num_constraint_elites <= self.num_samples,
+            "sampler needs 1 <= num_elites <= num_constraint_elites <= num_samples",
+        )
+        _require(self.temperature > 0, "sampler.temperature must be > 0")
+        _require(0 < self.learning_rate <= 1, "sampler.learning_rate must be in (0, 1]")
+        _require(self.covariance_jitter >= 0, "sampler.covariance_jitter must be >= 0")
+        _require(self.speed_std > 0 and self.lateral_std > 0, "sampler std values must be > 0")
+        _require(self.residual_tolerance >= 0, "sampler.residual_tolerance must be >= 0")
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Everything static about one planner. Hashable: used as a jit static argument."""
+
+    basis: BasisConfig = field(default_factory=BasisConfig)
+    qp: QPConfig = field(default_factory=QPConfig)
+    projection: ProjectionConfig = field(default_factory=ProjectionConfig)
+    sampler: SamplerConfig = field(default_factory=SamplerConfig)
+    cost: CostConfig = field(default_factory=CostConfig)
+    fallback_deceleration: float = 3.0  # [m/s^2] comfortable braking of the fallback plan
+
+    def __post_init__(self) -> None:
+        _require(self.fallback_deceleration > 0, "fallback_deceleration must be > 0 [m/s^2]")
+
+    def replace(self, **sections: Mapping[str, Any] | Any) -> "PlannerConfig":
+        """Copy with sections replaced; a mapping value updates fields of that section.
+
+        >>> PlannerConfig().replace(sampler={"num_samples": 250}).sampler.num_samples
+        250
+        """
+        return from_dict(sections, base=self)
+
+
+_SECTIONS = {
+    "basis": BasisConfig,
+    "qp": QPConfig,
+    "projection": ProjectionConfig,
+    "sampler": SamplerConfig,
+    "cost": CostConfig,
+}
+
+
+def from_dict(data: Mapping[str, Any], base: PlannerConfig | None = None) -> PlannerConfig:
+    """Build a PlannerConfig from a nested mapping, rejecting unknown keys with a clear message."""
+    base = base or PlannerConfig()
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"planner config must be a mapping, got {type(data).__name__}")
+    updates: dict[str, Any] = {}
+    for key, value in data.items():
+        if key in _SECTIONS:
+            section = getattr(base, key)
+            if isinstance(value, _SECTIONS[key]):
+                updates[key] = value
+                continue
+            if not isinstance(value, Mapping):
+                raise ConfigError(f"config section '{key}' must be a mapping")
+            known = {f.name for f in dataclasses.fields(section)}
+            unknown = sorted(set(value) - known)
+            if unknown:
+                raise ConfigError(f"unknown key(s) in '{key}': {unknown}; valid: {sorted(known)}")
+            try:
+                updates[key] = dataclasses.replace(section, **value)
+            except TypeError as exc:
+                raise ConfigError(f"bad value in '{key}': {exc}") from None
+        elif key == "fallback_deceleration":
+            updates[key] = float(value)
+        else:
+            raise ConfigError(f"unknown config section '{key}'; valid: {sorted([*_SECTIONS, 'fallback_deceleration'])}")
+    return dataclasses.replace(base, **updates)
+
+
+def to_dict(config: PlannerConfig) -> dict[str, Any]:
+    """Plain nested dict (JSON-serialisable) of a PlannerConfig."""
+    return dataclasses.asdict(config)

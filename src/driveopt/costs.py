@@ -1,0 +1,71 @@
+"""Upper-level driving cost c_u (P1 §V) as named terms, and trajectory read-outs.
+
+Each term is a mean over the time nodes so that weights do not depend on the node count.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from driveopt.config import CostConfig
+from driveopt.problem import PlanningProblem
+from driveopt.qp import TrajectoryModel, split
+
+COST_TERMS = ("speed", "lateral_acceleration", "heading", "curvature", "lane_centering")
+
+
+class Trajectory(NamedTuple):
+    """Trajectory read-out at the nodes; every field (..., K)."""
+
+    t: jnp.ndarray  # [s]
+    x: jnp.ndarray  # [m]
+    y: jnp.ndarray  # [m]
+    vx: jnp.ndarray  # [m/s]
+    vy: jnp.ndarray  # [m/s]
+    ax: jnp.ndarray  # [m/s^2]
+    ay: jnp.ndarray  # [m/s^2]
+    speed: jnp.ndarray  # [m/s]
+    heading: jnp.ndarray  # [rad] relative to the road direction
+    curvature: jnp.ndarray  # [1/m] signed path curvature
+    acceleration: jnp.ndarray  # [m/s^2] tangential (along the path)
+
+
+def evaluate(model: TrajectoryModel, coeffs: jnp.ndarray) -> Trajectory:
+    """Positions, velocities, accelerations, heading and curvature of coefficients (..., 2n)."""
+    c_x, c_y = split(coeffs)
+    x, vx, ax = c_x @ model.W.T, c_x @ model.Wd.T, c_x @ model.Wdd.T
+    y, vy, ay = c_y @ model.W.T, c_y @ model.Wd.T, c_y @ model.Wdd.T
+    speed = jnp.sqrt(vx * vx + vy * vy)
+    safe_speed = jnp.maximum(speed, 1e-3)
+    curvature = (vx * ay - vy * ax) / safe_speed**3
+    heading = jnp.arctan2(vy, jnp.where(speed < 1e-3, 1.0, vx))
+    acceleration = (vx * ax + vy * ay) / safe_speed
+    t = jnp.broadcast_to(model.t, x.shape)
+    return Trajectory(t, x, y, vx, vy, ax, ay, speed, heading, curvature, acceleration)
+
+
+def nearest_lane_center(problem: PlanningProblem, y: jnp.ndarray) -> jnp.ndarray:
+    """[m] centre of the lane nearest to each lateral position y."""
+    index = jnp.clip(jnp.round((y - problem.lane_center0) / problem.lane_width), 0, problem.num_lanes - 1)
+    return problem.lane_center0 + index * problem.lane_width
+
+
+def cost_terms(traj: Trajectory, problem: PlanningProblem) -> dict[str, jnp.ndarray]:
+    """Unweighted cost terms, each (...,): means over the nodes."""
+    lane_offset = traj.y - nearest_lane_center(problem, traj.y)
+    # Curvature is only meaningful when moving; cap its influence at crawling speeds.
+    curvature = jnp.clip(traj.curvature, -1.0, 1.0)
+    return {
+        "speed": jnp.mean((traj.speed - problem.v_des) ** 2, axis=-1),
+        "lateral_acceleration": jnp.mean(traj.ay**2, axis=-1),
+        "heading": jnp.mean(traj.heading**2, axis=-1),
+        "curvature": jnp.mean(curvature**2, axis=-1),
+        "lane_centering": jnp.mean(lane_offset**2, axis=-1),
+    }
+
+
+def weighted_cost(terms: dict[str, jnp.ndarray], weights: CostConfig) -> jnp.ndarray:
+    """Sum of the weighted terms (...,)."""
+    return sum(getattr(weights, name) * terms[name] for name in COST_TERMS)

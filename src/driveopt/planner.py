@@ -1,0 +1,279 @@
+"""One planning call: bi-level sampling optimiser (P1 Alg. 1) over set-point QP + batch projection.
+
+    result = plan(problem, config, key=key)            # PlanResult
+    result = plan(problem, config, key=key2, warm_start=result.mean)
+
+Per iteration: draw set-points, solve the set-point QP for the batch, project the
+batch onto the constraints, keep the ``num_constraint_elites`` lowest residuals,
+rank those by cost + residual, keep ``num_elites``, update the Gaussian (eq. 6).
+The chosen trajectory is, over all iterations, the lowest cost + residual among
+elites whose total residual is within ``sampler.residual_tolerance``; when there
+is none, the status is INFEASIBLE, the lowest-residual elite is reported and a
+fallback plan (keep the nearest lane centre, brake at ``fallback_deceleration``)
+is offered in ``result.fallback``.
+"""
+
+from __future__ import annotations
+
+import enum
+import functools
+import time
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from driveopt.config import PlannerConfig
+from driveopt.costs import COST_TERMS, Trajectory, cost_terms, evaluate, nearest_lane_center, weighted_cost
+from driveopt.problem import PlanningProblem, ProblemError, check_problem
+from driveopt.projection import FAMILIES, constraint_residuals, project
+from driveopt.qp import NUM_SEGMENTS, TrajectoryModel, boundary_values, make_model, solve_setpoint_qp
+from driveopt.sampler import GaussianPrior, cem_update, clip_setpoints, sample_gaussian, select_lowest
+
+_INFEASIBLE_PENALTY = 1e6
+
+
+class PlanStatus(enum.IntEnum):
+    SUCCESS = 0
+    INFEASIBLE = 1
+    NUMERICAL_ERROR = 2
+
+    @property
+    def message(self) -> str:
+        return {
+            PlanStatus.SUCCESS: "a sampled trajectory meets every constraint within the residual tolerance",
+            PlanStatus.INFEASIBLE: "no sampled trajectory met the residual tolerance; use result.fallback",
+            PlanStatus.NUMERICAL_ERROR: "the optimiser produced non-finite values; use result.fallback",
+        }[self]
+
+
+class Snapshot(NamedTuple):
+    """The whole batch of one sampler iteration (for plots and videos)."""
+
+    setpoints: jnp.ndarray  # (B, 8)
+    qp_coeffs: jnp.ndarray  # (B, 2n) set-point QP solutions
+    projected_coeffs: jnp.ndarray  # (B, 2n) after projection
+    residual: jnp.ndarray  # (B,) total residual after projection
+    elite_index: jnp.ndarray  # (q,) indices of the elite set
+
+
+class History(NamedTuple):
+    """Per-iteration scalars, each (num_iterations,)."""
+
+    best_score: jnp.ndarray  # cost + residual of the best feasible-first elite so far
+    elite_cost: jnp.ndarray  # mean cost + residual over the elite set
+    min_residual: jnp.ndarray  # smallest total residual in the batch
+    num_feasible: jnp.ndarray  # samples within the residual tolerance
+    projection_iterations: jnp.ndarray
+
+
+class _Best(NamedTuple):
+    score: jnp.ndarray  # () feasibility-first key: cost + residual (+ penalty when infeasible)
+    setpoints: jnp.ndarray  # (8,)
+    coeffs: jnp.ndarray  # (2n,)
+    residuals: jnp.ndarray  # (4,) per family
+    terms: jnp.ndarray  # (len(COST_TERMS),)
+    cost: jnp.ndarray  # () weighted cost
+
+
+class _RawResult(NamedTuple):
+    best: _Best
+    mean: jnp.ndarray
+    cov: jnp.ndarray
+    history: History
+    first: Snapshot
+    last: Snapshot
+    fallback_coeffs: jnp.ndarray
+    fallback_residuals: jnp.ndarray  # (4,)
+    fallback_terms: jnp.ndarray  # (len(COST_TERMS),)
+    fallback_cost: jnp.ndarray
+
+
+class PlanResult(NamedTuple):
+    """What one planning call returns (numpy arrays, planning frame shifted back to the road frame)."""
+
+    status: PlanStatus
+    setpoints: np.ndarray  # (8,) chosen (v_1..v_4 [m/s], y_1..y_4 [m])
+    coeffs: np.ndarray  # (2n,) chosen Bernstein coefficients (x in the planning frame, ego at x = 0)
+    trajectory: Trajectory  # chosen trajectory in the road frame
+    fallback: Trajectory  # brake-in-lane plan, always finite
+    costs: dict[str, float]  # weighted total under "total", plus every unweighted term
+    residuals: dict[str, float]  # per family and "total"
+    iterations: int  # sampler iterations run
+    mean: np.ndarray  # (8,) final sampling mean: pass as warm_start to the next call
+    history: History
+    first: Snapshot
+    last: Snapshot
+    x_offset: float  # [m] road-frame x of the planning-frame origin
+
+    @property
+    def message(self) -> str:
+        return self.status.message
+
+    @property
+    def safe_trajectory(self) -> Trajectory:
+        """The chosen trajectory when it is feasible, else the fallback."""
+        return self.trajectory if self.status == PlanStatus.SUCCESS else self.fallback
+
+
+def fallback_setpoints(problem: PlanningProblem, cfg: PlannerConfig) -> jnp.ndarray:
+    """(8,) keep the nearest lane centre; speed falls at fallback_deceleration, never below 0."""
+    quarter = cfg.basis.horizon / NUM_SEGMENTS
+    ends = quarter * jnp.arange(1, NUM_SEGMENTS + 1, dtype=jnp.float32)
+    speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
+    v = jnp.maximum(speed - cfg.fallback_deceleration * ends, 0.0)
+    y = jnp.full(NUM_SEGMENTS, nearest_lane_center(problem, problem.init_y[0]))
+    return jnp.concatenate([v, y])
+
+
+def _iteration(model, problem, cfg: PlannerConfig, setpoints, b_x, b_y):
+    """QP + projection + ranking for one batch of set-points."""
+    s = cfg.sampler
+    qp_coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
+    proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection)
+    traj = evaluate(model, proj.coeffs)
+    terms = cost_terms(traj, problem)
+    cost = weighted_cost(terms, cfg.cost)
+    residual = proj.residuals.total
+    score = cost + residual
+    feasible = residual <= s.residual_tolerance
+    # ConstraintEliteSet: lowest residuals, where every feasible sample ties, so feasible samples come
+    # first ordered by score, then infeasible ones by residual.
+    key_score = jnp.where(feasible, score, _INFEASIBLE_PENALTY + residual)
+    constraint_elites = select_lowest(key_score, s.num_constraint_elites)
+    ranked = constraint_elites[select_lowest(score[constraint_elites], s.num_elites)]
+    pick = ranked[jnp.argmin(key_score[ranked])]
+
+    best = _Best(
+        key_score[pick],
+        setpoints[pick],
+        proj.coeffs[pick],
+        jnp.stack(list(proj.residuals))[:, pick],
+        jnp.stack([terms[k] for k in COST_TERMS])[:, pick],
+        cost[pick],
+    )
+    stats = (jnp.min(best.score), jnp.mean(score[ranked]), jnp.min(residual), jnp.sum(feasible), proj.iterations)
+    snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked)
+    return best, snapshot, score, stats
+
+
+def _better(a: _Best, b: _Best) -> _Best:
+    return jax.tree_util.tree_map(lambda u, v: jnp.where(a.score <= b.score, u, v), a, b)
+
+
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def _plan_jit(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: PlannerConfig) -> _RawResult:
+    model = make_model(cfg.basis, cfg.qp)
+    s = cfg.sampler
+    b_x, b_y = boundary_values(problem.init_x, problem.init_y, cfg.qp)
+    key_prior, key_loop = jax.random.split(key)
+    proposal = prior.propose(problem, key_prior, s.num_samples, warm_mean)
+
+    def adapt(mean, cov, snapshot, score):
+        elites = snapshot.setpoints[snapshot.elite_index]
+        return cem_update(mean, cov, elites, score[snapshot.elite_index], s)
+
+    best, first, score, stats = _iteration(model, problem, cfg, proposal.samples, b_x, b_y)
+    mean, cov = adapt(proposal.mean, proposal.cov, first, score)
+
+    def body(carry, iteration_key):
+        mean, cov, best, _ = carry
+        setpoints = clip_setpoints(sample_gaussian(iteration_key, mean, cov, s.num_samples), problem, cfg.projection.v_max)
+        cand, snapshot, score, stats = _iteration(model, problem, cfg, setpoints, b_x, b_y)
+        best = _better(best, cand)
+        mean, cov = adapt(mean, cov, snapshot, score)
+        stats = (best.score,) + stats[1:]
+        return (mean, cov, best, snapshot), stats
+
+    keys = jax.random.split(key_loop, s.num_iterations - 1)
+    (mean, cov, best, last), rest = jax.lax.scan(body, (mean, cov, best, first), keys)
+    history = History(*(jnp.concatenate([jnp.atleast_1d(a), b]) for a, b in zip(stats, rest)))
+    fallback = solve_setpoint_qp(model, fallback_setpoints(problem, cfg)[None], b_x, b_y)
+    fb_residuals = constraint_residuals(model, problem, fallback, cfg.projection)
+    fb_terms = cost_terms(evaluate(model, fallback), problem)
+    return _RawResult(
+        best, mean, cov, history, first, last, fallback[0],
+        jnp.stack([r[0] for r in fb_residuals]),
+        jnp.stack([fb_terms[k][0] for k in COST_TERMS]),
+        weighted_cost(fb_terms, cfg.cost)[0],
+    )
+
+
+def _shift(traj: Trajectory, dx: float) -> Trajectory:
+    return traj._replace(x=traj.x + dx)
+
+
+def plan(
+    problem: PlanningProblem,
+    config: PlannerConfig = PlannerConfig(),
+    *,
+    key: jax.Array,
+    prior: Any = None,
+    warm_start: np.ndarray | None = None,
+    x_offset: float = 0.0,
+) -> PlanResult:
+    """Plan one trajectory. Raises ProblemError on malformed or non-finite input; never returns NaN.
+
+    problem: from ``build_problem`` (planning frame, ego at x = 0).
+    key: JAX PRNG key; split it between calls so that every call draws fresh samples.
+    prior: first-iteration proposal distribution (default: GaussianPrior from ``config.sampler``).
+    warm_start: (8,) mean from a previous result (``result.mean``) to centre the first proposal.
+    x_offset: [m] added to x of the returned trajectories (the ego's road-frame x).
+    """
+    check_problem(problem, config.basis)
+    if prior is None:
+        prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
+    if warm_start is not None:
+        warm_start = np.asarray(warm_start, dtype=np.float32)
+        if warm_start.shape != (2 * NUM_SEGMENTS,) or not np.all(np.isfinite(warm_start)):
+            raise ProblemError(f"warm_start must be 8 finite numbers, got shape {warm_start.shape}")
+        warm_start = jnp.asarray(warm_start)
+    raw = jax.device_get(_plan_jit(problem, key, warm_start, prior, config))
+    return _finish(raw, problem, config, float(x_offset))
+
+
+def _finish(raw: _RawResult, problem: PlanningProblem, config: PlannerConfig, x_offset: float) -> PlanResult:
+    model = make_model(config.basis, config.qp)
+    best = raw.best
+    finite = all(np.all(np.isfinite(np.asarray(a))) for a in (best.coeffs, best.residuals, best.terms, raw.mean))
+    if not finite:
+        status = PlanStatus.NUMERICAL_ERROR
+    elif best.score < _INFEASIBLE_PENALTY:
+        status = PlanStatus.SUCCESS
+    else:
+        status = PlanStatus.INFEASIBLE
+    fallback = _shift(jax.tree_util.tree_map(np.asarray, evaluate(model, raw.fallback_coeffs)), x_offset)
+    if status == PlanStatus.NUMERICAL_ERROR:  # report the fallback itself
+        setpoints = np.asarray(fallback_setpoints(problem, config))
+        coeffs, trajectory, mean = np.asarray(raw.fallback_coeffs), fallback, setpoints
+        chosen_residuals, chosen_terms, cost = raw.fallback_residuals, raw.fallback_terms, float(raw.fallback_cost)
+    else:
+        coeffs, setpoints, mean = np.asarray(best.coeffs), np.asarray(best.setpoints), np.asarray(raw.mean)
+        trajectory = _shift(jax.tree_util.tree_map(np.asarray, evaluate(model, best.coeffs)), x_offset)
+        chosen_residuals, chosen_terms, cost = best.residuals, best.terms, float(best.cost)
+    residuals = {f: float(v) for f, v in zip(FAMILIES, chosen_residuals)}
+    terms = {k: float(v) for k, v in zip(COST_TERMS, chosen_terms)}
+    residuals["total"] = float(sum(residuals.values()))
+    return PlanResult(
+        status=status,
+        setpoints=setpoints,
+        coeffs=coeffs,
+        trajectory=trajectory,
+        fallback=fallback,
+        costs={"total": cost, **terms},
+        residuals=residuals,
+        iterations=config.sampler.num_iterations,
+        mean=mean,
+        history=jax.tree_util.tree_map(np.asarray, raw.history),
+        first=jax.tree_util.tree_map(np.asarray, raw.first),
+        last=jax.tree_util.tree_map(np.asarray, raw.last),
+        x_offset=x_offset,
+    )
+
+
+def timed_plan(problem: PlanningProblem, config: PlannerConfig, *, key: jax.Array, **kwargs) -> tuple[PlanResult, float]:
+    """plan() and its wall time [s] (includes compilation on the first call for a config)."""
+    start = time.perf_counter()
+    result = plan(problem, config, key=key, **kwargs)
+    return result, time.perf_counter() - start

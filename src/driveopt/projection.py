@@ -1,0 +1,311 @@
+"""Batch projection of sampled trajectories onto the constraint set (DESIGN §2.3, P1 App. IV, P2 App. VII).
+
+Solves, for every sample j of the batch at once and approximately,
+
+    min 0.5 |xi - xi_bar_j|^2   s.t.  A_eq xi = b_j,  obstacle ellipses, speed, acceleration,
+                                     curvature, centripetal and lane bounds
+
+by alternating minimisation on an augmented Lagrangian in polar form. Each
+iteration is: a linear solve with a KKT matrix that is constant during the call
+(inverted once per call, it depends only on which obstacles are present and on
+``gamma_lane``); closed-form angles/lengths from normalised vectors (no trig);
+slack and multiplier updates. Residuals are Euclidean distances to the feasible
+set per constraint family, in physical units: obstacle [m], velocity [m/s],
+acceleration [m/s^2], lane [m], each an L2 norm over the nodes.
+
+Two loop modes share one step function: ``unroll=False`` stops early
+(``lax.while_loop``) for planning; ``unroll=True`` runs exactly
+``max_iterations`` steps with ``lax.scan`` and is reverse-mode differentiable
+(for learning initialisations and barrier parameters, P2 §III-C).
+"""
+
+from __future__ import annotations
+
+import enum
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from driveopt.config import ProjectionConfig
+from driveopt.problem import PlanningProblem
+from driveopt.qp import TrajectoryModel, split
+
+_EPS = 1e-6
+FAMILIES = ("obstacle", "velocity", "acceleration", "lane")
+
+
+class ProjectionStatus(enum.IntEnum):
+    CONVERGED = 0
+    MAX_ITERATIONS = 1
+
+    @property
+    def message(self) -> str:
+        return {
+            ProjectionStatus.CONVERGED: "no sample's coefficients moved by more than the tolerance in the last iteration",
+            ProjectionStatus.MAX_ITERATIONS: "iteration limit reached before every sample settled",
+        }[self]
+
+
+class Residuals(NamedTuple):
+    """Per-sample distances to the feasible set, one array (B,) per constraint family."""
+
+    obstacle: jnp.ndarray  # [m]
+    velocity: jnp.ndarray  # [m/s]
+    acceleration: jnp.ndarray  # [m/s^2]
+    lane: jnp.ndarray  # [m]
+
+    @property
+    def total(self) -> jnp.ndarray:
+        return self.obstacle + self.velocity + self.acceleration + self.lane
+
+
+class ProjectionResult(NamedTuple):
+    coeffs: jnp.ndarray  # (B, 2n) projected coefficients
+    multipliers: jnp.ndarray  # (B, 2n) final lambda (a warm start for the next call)
+    residuals: Residuals  # per family, (B,) each
+    iterations: jnp.ndarray  # () iterations run
+    status: jnp.ndarray  # () ProjectionStatus value
+    error: jnp.ndarray  # () max over samples of the coefficient change in the last iteration
+
+
+class _Operators(NamedTuple):
+    """Per-call constants of the alternating minimisation; axis 0 of stacked arrays is (x, y)."""
+
+    solve: jnp.ndarray  # (2, n, n) coefficient block of the inverse KKT matrix of each axis
+    boundary: tuple[jnp.ndarray, jnp.ndarray]  # (n, mx), (n, my) boundary block of each inverse
+    forward: jnp.ndarray  # (n, 3K): c -> (position, velocity, acceleration) at the nodes
+    penalty: jnp.ndarray  # (2, n, n): rho F'F of each axis
+    lane_gamma: jnp.ndarray  # () gamma of the lane rows (1 in plain mode)
+    lane_bounds: jnp.ndarray  # (2, K-1) upper-row and lower-row bounds e
+
+
+class _State(NamedTuple):
+    coeffs: jnp.ndarray  # (2, B, n)
+    lam: jnp.ndarray  # (2, B, n)
+    pull: jnp.ndarray  # (2, B, n) rho F' h for the current (alpha, d)
+    d_obs: jnp.ndarray  # (N, B, K) obstacle distance ratios for the barrier bound; (0, B, K) in plain mode
+    d_acc: jnp.ndarray  # (B, K) acceleration lengths (curvature bound uses them)
+    iteration: jnp.ndarray
+    error: jnp.ndarray  # () max over samples of the coefficient change of the last step
+
+
+def lane_constraint(model: TrajectoryModel, y_lb, y_ub, gamma_lane, barrier: bool) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """Lane rows G (2(K-1), n) and bounds e with G c_y <= e, on nodes 1..K-1 (node 0 is fixed by A_eq).
+
+    Plain: y[k] <= y_ub, -y[k] <= -y_lb. Barrier (P2 eq. 16-19):
+    y[k+1] - y_ub <= (1 - g)(y[k] - y_ub) and its mirror; g = 1 recovers the plain rows.
+    """
+    g = gamma_lane if barrier else 1.0
+    W = jnp.asarray(model.W)
+    upper = W[1:] - (1.0 - g) * W[:-1]
+    ones = jnp.ones(upper.shape[0], upper.dtype)
+    return jnp.concatenate([upper, -upper]), jnp.concatenate([g * y_ub * ones, -g * y_lb * ones])
+
+
+def _lane_rows_apply(y: jnp.ndarray, g) -> jnp.ndarray:
+    """Upper lane rows applied to node values y (B, K): y[k+1] - (1 - g) y[k], shape (B, K-1)."""
+    return y[:, 1:] - (1.0 - g) * y[:, :-1]
+
+
+def _lane_rows_adjoint(u: jnp.ndarray, g) -> jnp.ndarray:
+    """Node-space vector w with W' w = G_upper' u, for u (B, K-1)."""
+    zero = jnp.zeros_like(u[:, :1])
+    return jnp.concatenate([zero, u], axis=1) - (1.0 - g) * jnp.concatenate([u, zero], axis=1)
+
+
+def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig, gamma_lane) -> _Operators:
+    n_active = jnp.sum(problem.obstacle_mask)
+    W, Wd, Wdd = (jnp.asarray(a) for a in (model.W, model.Wd, model.Wdd))
+    G, e = lane_constraint(model, problem.y_lb, problem.y_ub, gamma_lane, cfg.barrier)
+    penalty_x = (
+        cfg.rho_obstacle * n_active * W.T @ W + cfg.rho_velocity * Wd.T @ Wd + cfg.rho_acceleration * Wdd.T @ Wdd
+    )
+    penalty_y = penalty_x + cfg.rho_lane * G.T @ G
+    n = W.shape[1]
+    eye = jnp.eye(n, dtype=W.dtype)
+
+    def kkt_inverse(penalty, A):
+        A = jnp.asarray(A)
+        m = A.shape[0]
+        kkt = jnp.block([[eye + penalty, A.T], [A, jnp.zeros((m, m), A.dtype)]])
+        return jnp.linalg.inv(kkt)
+
+    inv_x = kkt_inverse(penalty_x, model.A_x)
+    inv_y = kkt_inverse(penalty_y, model.A_y)
+    return _Operators(
+        solve=jnp.stack([inv_x[:n, :n], inv_y[:n, :n]]),
+        boundary=(inv_x[:n, n:], inv_y[:n, n:]),
+        forward=jnp.concatenate([W, Wd, Wdd]).T,
+        penalty=jnp.stack([penalty_x, penalty_y]),
+        lane_gamma=jnp.asarray(gamma_lane if cfg.barrier else 1.0, W.dtype),
+        lane_bounds=e.reshape(2, -1),
+    )
+
+
+def _normalise(ux, uy):
+    """Length and unit direction of (ux, uy); direction (1, 0) where the length vanishes."""
+    norm = jnp.sqrt(jnp.maximum(ux * ux + uy * uy, _EPS * _EPS))
+    tiny = norm <= _EPS
+    return norm, jnp.where(tiny, 1.0, ux / norm), jnp.where(tiny, 0.0, uy / norm)
+
+
+def _analysis_step(
+    coeffs, d_obs_prev, d_acc_prev, ops: _Operators, problem: PlanningProblem, cfg: ProjectionConfig, gamma_obs,
+    with_residuals: bool = True,
+):
+    """Closed-form (alpha, d), slack, rho F'h (and residuals) for the trajectories ``coeffs`` (2, B, n)."""
+    K = ops.forward.shape[1] // 3
+    nodes = coeffs @ ops.forward  # (2, B, 3K)
+    x, vx, ax = nodes[0, :, :K], nodes[0, :, K:2 * K], nodes[0, :, 2 * K:]
+    y, vy, ay = nodes[1, :, :K], nodes[1, :, K:2 * K], nodes[1, :, 2 * K:]
+
+    # Obstacles: x - x_o = a d cos(alpha), y - y_o = b d sin(alpha), d >= lower bound. A static loop over
+    # obstacles of (B, K) slices fuses far better on CPU than (B, N, K) arrays reduced over N.
+    h_ox = jnp.zeros_like(x)
+    h_oy = jnp.zeros_like(y)
+    obstacle_sq = jnp.zeros_like(x)
+    d_obs = []
+    inv_a, inv_b = 1.0 / problem.obstacle_a, 1.0 / problem.obstacle_b
+    for i in range(problem.obstacle_x.shape[0]):
+        ox, oy = problem.obstacle_x[i], problem.obstacle_y[i]
+        dx, dy = x - ox, y - oy
+        inv_ratio = jax.lax.rsqrt(jnp.maximum((dx * inv_a[i]) ** 2 + (dy * inv_b[i]) ** 2, _EPS * _EPS))
+        if cfg.barrier:
+            prev = jnp.concatenate([jnp.ones_like(d_obs_prev[i][:, :1]), d_obs_prev[i][:, :-1]], axis=1)
+            lower = 1.0 + (1.0 - gamma_obs) * (prev - 1.0)
+            d_i = jnp.maximum(1.0 / inv_ratio, lower)
+            d_obs.append(d_i)
+            scale = d_i * inv_ratio  # h - x_o = (x - x_o) * d / ratio
+        else:
+            scale = jnp.maximum(inv_ratio, 1.0)
+        m = problem.obstacle_mask[i]
+        h_ox = h_ox + m * (ox + dx * scale)
+        h_oy = h_oy + m * (oy + dy * scale)
+        if with_residuals:
+            obstacle_sq = obstacle_sq + m * (dx * dx + dy * dy) * (1.0 - scale) ** 2
+    d_obs_next = jnp.stack(d_obs) if cfg.barrier else d_obs_prev
+
+    # Velocity and acceleration in polar form; curvature/centripetal bounds become bounds on lengths.
+    speed, uvx, uvy = _normalise(vx, vy)
+    acc, uax, uay = _normalise(ax, ay)
+    if d_acc_prev is None:  # evaluating a given trajectory: its own acceleration sets the curvature bound
+        d_acc_prev = acc
+    sin_va = jnp.abs(uvx * uay - uvy * uax)
+    v_lo = jnp.full_like(speed, cfg.v_min)
+    if cfg.kappa_max > 0:
+        v_lo = jnp.maximum(v_lo, jnp.sqrt(d_acc_prev * sin_va / cfg.kappa_max))
+    road_k = jnp.abs(problem.road_curvature)
+    v_hi = jnp.minimum(cfg.v_max, jnp.sqrt(cfg.centripetal_max / jnp.maximum(uvx * uvx * road_k, _EPS)))
+    d_vel = jnp.minimum(jnp.maximum(speed, v_lo), v_hi)
+    a_hi = jnp.full_like(acc, cfg.a_max)
+    if cfg.kappa_max > 0:
+        a_hi = jnp.minimum(a_hi, cfg.kappa_max * d_vel * d_vel / jnp.maximum(sin_va, _EPS))
+    d_acc = jnp.clip(acc, 0.0, a_hi)
+
+    # Lane rows with slack s = max(0, e - G c_y); the rows act on node values, so no extra matmul.
+    g = ops.lane_gamma
+    upper_rows = _lane_rows_apply(y, g)
+    target_ub = jnp.minimum(upper_rows, ops.lane_bounds[0])  # e - s of the upper rows
+    target_lb = jnp.minimum(-upper_rows, ops.lane_bounds[1])  # e - s of the lower rows
+    lane_sq = jnp.sum((upper_rows - target_ub) ** 2 + (-upper_rows - target_lb) ** 2, axis=1)
+    lane_pull = _lane_rows_adjoint(target_ub - target_lb, g)
+
+    pos_y = cfg.rho_obstacle * h_oy + cfg.rho_lane * lane_pull
+    vectors = jnp.stack([
+        jnp.concatenate([cfg.rho_obstacle * h_ox, cfg.rho_velocity * d_vel * uvx, cfg.rho_acceleration * d_acc * uax], 1),
+        jnp.concatenate([pos_y, cfg.rho_velocity * d_vel * uvy, cfg.rho_acceleration * d_acc * uay], 1),
+    ])
+    pull = vectors @ ops.forward.T  # (2, B, n)
+    if not with_residuals:
+        return pull, d_obs_next, d_acc, None
+    residuals = Residuals(
+        obstacle=jnp.sqrt(jnp.sum(obstacle_sq, axis=1)),
+        velocity=jnp.sqrt(jnp.sum((speed - d_vel) ** 2, axis=1)),
+        acceleration=jnp.sqrt(jnp.sum((acc - d_acc) ** 2, axis=1)),
+        lane=jnp.sqrt(lane_sq),
+    )
+    return pull, d_obs_next, d_acc, residuals
+
+
+def _stacked(coeffs: jnp.ndarray) -> jnp.ndarray:
+    """(B, 2n) -> (2, B, n)."""
+    return jnp.stack(split(coeffs))
+
+
+def _flat(stacked: jnp.ndarray) -> jnp.ndarray:
+    """(2, B, n) -> (B, 2n)."""
+    return jnp.concatenate([stacked[0], stacked[1]], axis=1)
+
+
+def project(
+    model: TrajectoryModel,
+    problem: PlanningProblem,
+    target: jnp.ndarray,
+    b_x: jnp.ndarray,
+    b_y: jnp.ndarray,
+    cfg: ProjectionConfig = ProjectionConfig(),
+    *,
+    gamma_obs=1.0,
+    gamma_lane=1.0,
+    init_coeffs: jnp.ndarray | None = None,
+    init_multipliers: jnp.ndarray | None = None,
+    unroll: bool = False,
+) -> ProjectionResult:
+    """Project the batch ``target`` (B, 2n) onto the constraint set.
+
+    b_x (B, mx) or (mx,), b_y likewise: equality right-hand sides (see qp.boundary_values).
+    gamma_obs, gamma_lane: barrier parameters in (0, 1], used when ``cfg.barrier``.
+    init_coeffs, init_multipliers: optional (B, 2n) warm start (P2 learns them); default target, 0.
+    unroll: run exactly ``cfg.max_iterations`` steps with lax.scan (differentiable) instead of
+    stopping early.
+    """
+    B = target.shape[0]
+    N, K = problem.obstacle_x.shape
+    ops = _operators(model, problem, cfg, gamma_lane)
+    # The boundary part of the linear solve never changes: compute it once.
+    fixed = jnp.stack([
+        jnp.broadcast_to(b_x, (B, b_x.shape[-1])) @ ops.boundary[0].T,
+        jnp.broadcast_to(b_y, (B, b_y.shape[-1])) @ ops.boundary[1].T,
+    ])
+    target_s = _stacked(target)
+    solve_t = jnp.swapaxes(ops.solve, 1, 2)
+
+    def analyse(coeffs, d_obs, d_acc, with_residuals=False):
+        return _analysis_step(coeffs, d_obs, d_acc, ops, problem, cfg, gamma_obs, with_residuals)
+
+    def step(state: _State) -> _State:
+        coeffs = (target_s + state.lam + state.pull) @ solve_t + fixed
+        pull, d_obs, d_acc, _ = analyse(coeffs, state.d_obs, state.d_acc)
+        # lambda <- lambda - rho F'(F xi - h) = lambda - rho F'F xi + rho F'h
+        lam = state.lam - coeffs @ ops.penalty + pull
+        error = jnp.sqrt(jnp.max(jnp.sum((coeffs - state.coeffs) ** 2, axis=(0, 2))))
+        return _State(coeffs, lam, pull, d_obs, d_acc, state.iteration + 1, error)
+
+    coeffs0 = target_s if init_coeffs is None else _stacked(init_coeffs)
+    lam0 = jnp.zeros_like(target_s) if init_multipliers is None else _stacked(init_multipliers)
+    d_obs0 = jnp.ones((N, B, K) if cfg.barrier else (0, B, K), target.dtype)
+    pull0, d_obs0, d_acc0, _ = analyse(coeffs0, d_obs0, jnp.zeros((B, K), target.dtype))
+    state = _State(coeffs0, lam0, pull0, d_obs0, d_acc0, jnp.asarray(0), jnp.asarray(jnp.inf, target.dtype))
+
+    if unroll:
+        state, _ = jax.lax.scan(lambda s, _: (step(s), None), state, None, length=cfg.max_iterations)
+    else:
+        state = jax.lax.while_loop(
+            lambda s: (s.iteration < cfg.max_iterations) & (s.error > cfg.tolerance), step, state
+        )
+    # Residuals of the final iterate (the curvature bound uses the trajectory's own acceleration).
+    residuals = analyse(state.coeffs, state.d_obs, None, with_residuals=True)[3]
+    status = jnp.where(state.error <= cfg.tolerance, ProjectionStatus.CONVERGED, ProjectionStatus.MAX_ITERATIONS)
+    return ProjectionResult(_flat(state.coeffs), _flat(state.lam), residuals, state.iteration, status, state.error)
+
+
+
+def constraint_residuals(
+    model: TrajectoryModel, problem: PlanningProblem, coeffs: jnp.ndarray, cfg: ProjectionConfig = ProjectionConfig()
+) -> Residuals:
+    """Distances of trajectories (B, 2n) to the feasible set, per family, without projecting them."""
+    ops = _operators(model, problem, cfg, 1.0)
+    B, K = coeffs.shape[0], model.W.shape[0]
+    d_obs = jnp.ones((problem.obstacle_x.shape[0] if cfg.barrier else 0, B, K), coeffs.dtype)
+    return _analysis_step(_stacked(coeffs), d_obs, None, ops, problem, cfg, 1.0)[3]

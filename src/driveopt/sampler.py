@@ -1,0 +1,101 @@
+"""Sampling distributions over behavioural set-points and the cross-entropy update (P1 Alg. 1, eq. 6).
+
+Set-points are ``p = (v_1..v_4, y_1..y_4)``: desired speed [m/s] and lateral
+position [m] (road frame) for each quarter of the horizon.
+
+A *prior* proposes the first batch of set-points of a planning call. Any object
+with the method ``propose(problem, key, num, warm_mean) -> Proposal`` that is a
+JAX pytree can be a prior: the planner passes it through ``jit`` as data, so a
+learned prior carries its weights as leaves and slots in without any change to
+the optimiser. Later iterations sample the adapted Gaussian
+``N(mean, cov)`` that the first proposal's moments initialise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple, Protocol
+
+import jax
+import jax.numpy as jnp
+
+from driveopt.config import SamplerConfig
+from driveopt.problem import PlanningProblem
+from driveopt.qp import NUM_SEGMENTS
+
+SETPOINT_DIM = 2 * NUM_SEGMENTS
+
+
+class Proposal(NamedTuple):
+    samples: jnp.ndarray  # (num, 8) set-points
+    mean: jnp.ndarray  # (8,) mean of the distribution they came from
+    cov: jnp.ndarray  # (8, 8) its covariance
+
+
+class Prior(Protocol):
+    def propose(self, problem: PlanningProblem, key: jax.Array, num: int, warm_mean: jnp.ndarray | None) -> Proposal:
+        ...
+
+
+def clip_setpoints(p: jnp.ndarray, problem: PlanningProblem, v_max: float) -> jnp.ndarray:
+    """Keep speeds in [0, v_max] [m/s] and lateral set-points inside the lane bounds [m]."""
+    v = jnp.clip(p[..., :NUM_SEGMENTS], 0.0, v_max)
+    y = jnp.clip(p[..., NUM_SEGMENTS:], problem.y_lb, problem.y_ub)
+    return jnp.concatenate([v, y], axis=-1)
+
+
+def default_mean(problem: PlanningProblem) -> jnp.ndarray:
+    """Current speed and lateral position, held over the horizon."""
+    speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
+    return jnp.concatenate([jnp.full(NUM_SEGMENTS, speed), jnp.full(NUM_SEGMENTS, problem.init_y[0])])
+
+
+def sample_gaussian(key: jax.Array, mean: jnp.ndarray, cov: jnp.ndarray, num: int) -> jnp.ndarray:
+    """(num, 8) draws of N(mean, cov); cov is symmetrised and floored on its diagonal first."""
+    cov = 0.5 * (cov + cov.T) + 1e-6 * jnp.eye(cov.shape[0], dtype=cov.dtype)
+    chol = jnp.linalg.cholesky(cov)
+    return mean + jax.random.normal(key, (num, mean.shape[0]), mean.dtype) @ chol.T
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class GaussianPrior:
+    """Diagonal Gaussian around the warm-start mean (or the current speed and lane position)."""
+
+    speed_std: float = dataclasses.field(default=SamplerConfig.speed_std, metadata=dict(static=True))  # [m/s]
+    lateral_std: float = dataclasses.field(default=SamplerConfig.lateral_std, metadata=dict(static=True))  # [m]
+    v_max: float = dataclasses.field(default=30.0, metadata=dict(static=True))  # [m/s]
+
+    @classmethod
+    def from_config(cls, sampler: SamplerConfig, v_max: float) -> "GaussianPrior":
+        return cls(sampler.speed_std, sampler.lateral_std, v_max)
+
+    def covariance(self) -> jnp.ndarray:
+        var = jnp.array([self.speed_std**2] * NUM_SEGMENTS + [self.lateral_std**2] * NUM_SEGMENTS, jnp.float32)
+        return jnp.diag(var)
+
+    def propose(self, problem, key, num, warm_mean=None) -> Proposal:
+        mean = default_mean(problem) if warm_mean is None else warm_mean
+        cov = self.covariance()
+        samples = clip_setpoints(sample_gaussian(key, mean, cov, num), problem, self.v_max)
+        return Proposal(samples, mean, cov)
+
+
+def select_lowest(values: jnp.ndarray, count: int) -> jnp.ndarray:
+    """Indices of the ``count`` smallest values, smallest first."""
+    return jax.lax.top_k(-values, count)[1]
+
+
+def cem_update(
+    mean: jnp.ndarray, cov: jnp.ndarray, elites: jnp.ndarray, elite_costs: jnp.ndarray, cfg: SamplerConfig
+) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """P1 eq. 6 with weights exp(-(c - min c) / temperature) (the minimum is subtracted first)."""
+    shifted = elite_costs - jnp.min(elite_costs)
+    weights = jnp.exp(-shifted / cfg.temperature)
+    weights = weights / jnp.sum(weights)
+    new_mean = (1.0 - cfg.learning_rate) * mean + cfg.learning_rate * weights @ elites
+    centred = elites - new_mean
+    spread = (weights[:, None] * centred).T @ centred
+    new_cov = (1.0 - cfg.learning_rate) * cov + cfg.learning_rate * spread
+    new_cov = new_cov + cfg.covariance_jitter * jnp.eye(mean.shape[0], dtype=mean.dtype)
+    return new_mean, new_cov
