@@ -73,8 +73,8 @@ class ProjectionConfig:
     max_iterations: int = 20  # [-] alternating-minimisation iterations
     tolerance: float = 1e-3  # [-] early stop when every sample is feasible or has stopped moving
     rho_obstacle: float = 1.0  # [-] penalty weight of the obstacle rows
-    rho_velocity: float = 1.0  # [-] penalty weight of the velocity rows
-    rho_acceleration: float = 1.0  # [-] penalty weight of the acceleration rows
+    rho_velocity: float = 10.0  # [-] penalty weight of the velocity rows
+    rho_acceleration: float = 10.0  # [-] penalty weight of the acceleration rows
     rho_lane: float = 1.0  # [-] penalty weight of the lane rows
     v_min: float = 0.1  # [m/s] speed lower bound
     v_max: float = 30.0  # [m/s] speed upper bound

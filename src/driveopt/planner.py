@@ -64,6 +64,7 @@ class History(NamedTuple):
     best_score: jnp.ndarray  # cost + residual of the best feasible-first elite so far
     elite_cost: jnp.ndarray  # mean cost + residual over the elite set
     min_residual: jnp.ndarray  # smallest total residual in the batch
+    median_residual: jnp.ndarray  # median total residual in the batch
     num_feasible: jnp.ndarray  # samples within the residual tolerance
     projection_iterations: jnp.ndarray
 
@@ -84,6 +85,8 @@ class _RawResult(NamedTuple):
     history: History
     first: Snapshot
     last: Snapshot
+    trajectory: Trajectory  # of the best coefficients (planning frame)
+    fallback_trajectory: Trajectory
     fallback_coeffs: jnp.ndarray
     fallback_residuals: jnp.ndarray  # (4,)
     fallback_terms: jnp.ndarray  # (len(COST_TERMS),)
@@ -153,7 +156,11 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, b_x, b_y):
         jnp.stack([terms[k] for k in COST_TERMS])[:, pick],
         cost[pick],
     )
-    stats = (jnp.min(best.score), jnp.mean(score[ranked]), jnp.min(residual), jnp.sum(feasible), proj.iterations)
+    stats = (
+        jnp.min(best.score), jnp.mean(score[ranked]), jnp.min(residual), jnp.median(residual), jnp.sum(feasible),
+        proj.iterations,
+    )
+
     snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked)
     return best, snapshot, score, stats
 
@@ -193,7 +200,8 @@ def _plan_jit(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: P
     fb_residuals = constraint_residuals(model, problem, fallback, cfg.projection)
     fb_terms = cost_terms(evaluate(model, fallback), problem)
     return _RawResult(
-        best, mean, cov, history, first, last, fallback[0],
+        best, mean, cov, history, first, last,
+        evaluate(model, best.coeffs), evaluate(model, fallback[0]), fallback[0],
         jnp.stack([r[0] for r in fb_residuals]),
         jnp.stack([fb_terms[k][0] for k in COST_TERMS]),
         weighted_cost(fb_terms, cfg.cost)[0],
@@ -234,7 +242,6 @@ def plan(
 
 
 def _finish(raw: _RawResult, problem: PlanningProblem, config: PlannerConfig, x_offset: float) -> PlanResult:
-    model = make_model(config.basis, config.qp)
     best = raw.best
     finite = all(np.all(np.isfinite(np.asarray(a))) for a in (best.coeffs, best.residuals, best.terms, raw.mean))
     if not finite:
@@ -243,14 +250,15 @@ def _finish(raw: _RawResult, problem: PlanningProblem, config: PlannerConfig, x_
         status = PlanStatus.SUCCESS
     else:
         status = PlanStatus.INFEASIBLE
-    fallback = _shift(jax.tree_util.tree_map(np.asarray, evaluate(model, raw.fallback_coeffs)), x_offset)
+    fallback = _shift(raw.fallback_trajectory, x_offset)
     if status == PlanStatus.NUMERICAL_ERROR:  # report the fallback itself
         setpoints = np.asarray(fallback_setpoints(problem, config))
         coeffs, trajectory, mean = np.asarray(raw.fallback_coeffs), fallback, setpoints
         chosen_residuals, chosen_terms, cost = raw.fallback_residuals, raw.fallback_terms, float(raw.fallback_cost)
     else:
         coeffs, setpoints, mean = np.asarray(best.coeffs), np.asarray(best.setpoints), np.asarray(raw.mean)
-        trajectory = _shift(jax.tree_util.tree_map(np.asarray, evaluate(model, best.coeffs)), x_offset)
+        trajectory = _shift(raw.trajectory, x_offset)
+
         chosen_residuals, chosen_terms, cost = best.residuals, best.terms, float(best.cost)
     residuals = {f: float(v) for f, v in zip(FAMILIES, chosen_residuals)}
     terms = {k: float(v) for k, v in zip(COST_TERMS, chosen_terms)}

@@ -143,7 +143,14 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
     )
 
 
+def _safe_sqrt(x):
+    """sqrt with a finite gradient at 0 (values below 1e-12 read as 0)."""
+    positive = x > 1e-12
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
+
+
 def _normalise(ux, uy):
+
     """Length and unit direction of (ux, uy); direction (1, 0) where the length vanishes."""
     norm = jnp.sqrt(jnp.maximum(ux * ux + uy * uy, _EPS * _EPS))
     tiny = norm <= _EPS
@@ -171,14 +178,14 @@ def _analysis_step(
         ox, oy = problem.obstacle_x[i], problem.obstacle_y[i]
         dx, dy = x - ox, y - oy
         inv_ratio = jax.lax.rsqrt(jnp.maximum((dx * inv_a[i]) ** 2 + (dy * inv_b[i]) ** 2, _EPS * _EPS))
+        # d = max(ratio, lower bound), and h - x_o = (x - x_o) * d / ratio = (x - x_o) * scale.
         if cfg.barrier:
             prev = jnp.concatenate([jnp.ones_like(d_obs_prev[i][:, :1]), d_obs_prev[i][:, :-1]], axis=1)
             lower = 1.0 + (1.0 - gamma_obs) * (prev - 1.0)
-            d_i = jnp.maximum(1.0 / inv_ratio, lower)
-            d_obs.append(d_i)
-            scale = d_i * inv_ratio  # h - x_o = (x - x_o) * d / ratio
+            scale = jnp.maximum(1.0, lower * inv_ratio)
+            d_obs.append(scale / inv_ratio)
         else:
-            scale = jnp.maximum(inv_ratio, 1.0)
+            scale = jnp.maximum(1.0, inv_ratio)
         m = problem.obstacle_mask[i]
         h_ox = h_ox + m * (ox + dx * scale)
         h_oy = h_oy + m * (oy + dy * scale)
@@ -194,7 +201,7 @@ def _analysis_step(
     sin_va = jnp.abs(uvx * uay - uvy * uax)
     v_lo = jnp.full_like(speed, cfg.v_min)
     if cfg.kappa_max > 0:
-        v_lo = jnp.maximum(v_lo, jnp.sqrt(d_acc_prev * sin_va / cfg.kappa_max))
+        v_lo = jnp.maximum(v_lo, _safe_sqrt(d_acc_prev * sin_va / cfg.kappa_max))
     road_k = jnp.abs(problem.road_curvature)
     v_hi = jnp.minimum(cfg.v_max, jnp.sqrt(cfg.centripetal_max / jnp.maximum(uvx * uvx * road_k, _EPS)))
     d_vel = jnp.minimum(jnp.maximum(speed, v_lo), v_hi)
@@ -220,10 +227,10 @@ def _analysis_step(
     if not with_residuals:
         return pull, d_obs_next, d_acc, None
     residuals = Residuals(
-        obstacle=jnp.sqrt(jnp.sum(obstacle_sq, axis=1)),
-        velocity=jnp.sqrt(jnp.sum((speed - d_vel) ** 2, axis=1)),
-        acceleration=jnp.sqrt(jnp.sum((acc - d_acc) ** 2, axis=1)),
-        lane=jnp.sqrt(lane_sq),
+        obstacle=_safe_sqrt(jnp.sum(obstacle_sq, axis=1)),
+        velocity=_safe_sqrt(jnp.sum((speed - d_vel) ** 2, axis=1)),
+        acceleration=_safe_sqrt(jnp.sum((acc - d_acc) ** 2, axis=1)),
+        lane=_safe_sqrt(lane_sq),
     )
     return pull, d_obs_next, d_acc, residuals
 

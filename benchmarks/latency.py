@@ -1,0 +1,107 @@
+"""Planning latency benchmark (issue 2 targets).
+
+    python benchmarks/latency.py --json out/latency.json [--calls 30] [--resume]
+
+For each batch size in {250, 500, 1000} and (sampler iterations x projection
+iterations) in {(5, 20), (1, 100)}, on the built-in 10-neighbour problem
+``dense-snapshot`` with 100 nodes: compile time (first call minus the
+steady-state median) and the steady-state median / p90 wall time of a full
+``plan()`` call over ``--calls`` calls with fresh PRNG keys, plus samples per
+second. Results are appended to the JSON file after every case, so an
+interrupted run resumes (``--resume``) without repeating finished cases.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from tqdm import tqdm
+
+from driveopt.config import PlannerConfig
+from driveopt.planner import plan
+from driveopt.problem import build_problem, load_scene
+
+BATCHES = (250, 500, 1000)
+SCHEDULES = ((5, 20), (1, 100))
+
+
+def case_name(batch: int, iterations: int, projection: int) -> str:
+    return f"{batch}x{iterations}x{projection}"
+
+
+def run_case(batch: int, iterations: int, projection: int, calls: int) -> dict:
+    config = PlannerConfig().replace(
+        sampler={"num_samples": batch, "num_iterations": iterations, "num_constraint_elites": min(100, batch), "num_elites": 40},
+        projection={"max_iterations": projection, "tolerance": 0.0},  # fixed work per call
+    )
+    scene = load_scene("dense-snapshot")
+    problem = build_problem(scene, config.basis)
+    start = time.perf_counter()
+    plan(problem, config, key=jax.random.PRNGKey(0))
+    first = time.perf_counter() - start
+    times = []
+    for i in range(calls):
+        start = time.perf_counter()
+        plan(problem, config, key=jax.random.PRNGKey(i + 1))
+        times.append(time.perf_counter() - start)
+    median = float(np.median(times))
+    return {
+        "case": case_name(batch, iterations, projection),
+        "samples": batch,
+        "sampler_iterations": iterations,
+        "projection_iterations": projection,
+        "neighbours": len(scene.neighbours),
+        "nodes": config.basis.num_nodes,
+        "calls": calls,
+        "compile_s": max(first - median, 0.0),
+        "median_ms": 1e3 * median,
+        "p90_ms": 1e3 * float(np.percentile(times, 90)),
+        "samples_per_s": batch * iterations / median,
+    }
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--json", default="out/latency.json", help="results file (updated after every case)")
+    parser.add_argument("--calls", type=int, default=30, help="steady-state calls per case (>= 30 for the README)")
+    parser.add_argument("--resume", action="store_true", help="keep finished cases of an existing results file")
+    parser.add_argument("--batches", type=int, nargs="+", default=list(BATCHES))
+    args = parser.parse_args(argv)
+    if args.calls < 1:
+        parser.error("--calls must be >= 1")
+
+    path = Path(args.json)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    report = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__, "device": str(jax.devices()[0])}, "results": []}
+    if args.resume and path.exists():
+        try:
+            report["results"] = json.loads(path.read_text())["results"]
+        except (json.JSONDecodeError, KeyError) as exc:
+            print(f"latency: error: cannot resume from {path}: {exc}", file=sys.stderr)
+            return 2
+    done = {r["case"] for r in report["results"]}
+    cases = [(b, i, p) for b in args.batches for i, p in SCHEDULES if case_name(b, i, p) not in done]
+    for batch, iterations, projection in tqdm(cases, desc="latency", unit="case"):
+        result = run_case(batch, iterations, projection, args.calls)
+        report["results"].append(result)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(report, indent=1))
+        tmp.replace(path)  # atomic: an interrupted run never leaves a half-written file
+        tqdm.write(
+            f"{result['case']:>12}: compile {result['compile_s']:.2f} s, median {result['median_ms']:.1f} ms, "
+            f"p90 {result['p90_ms']:.1f} ms, {result['samples_per_s']:.0f} samples/s"
+        )
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

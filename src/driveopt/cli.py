@@ -1,0 +1,160 @@
+"""Command-line interface: ``driveopt plan``, ``driveopt problems``.
+
+Errors in user input (unknown problem, malformed file or config) print one line
+``driveopt: error: ...`` on stderr and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from driveopt.config import ConfigError, PlannerConfig, from_dict, to_dict
+from driveopt.problem import ProblemError, build_problem, builtin_problems, load_scene, scene_to_dict
+
+
+class UsageError(Exception):
+    """A user-facing error: reported on one line, exit status 2."""
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return value
+
+
+def _load_config(path: str | None, args: argparse.Namespace) -> PlannerConfig:
+    config = PlannerConfig()
+    if path:
+        try:
+            data = json.loads(Path(path).read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise UsageError(f"cannot read config {path}: {exc}") from None
+        config = from_dict(data)
+    sampler: dict[str, Any] = {}
+    if args.samples is not None:
+        sampler["num_samples"] = args.samples
+        sampler["num_constraint_elites"] = min(config.sampler.num_constraint_elites, args.samples)
+        sampler["num_elites"] = min(config.sampler.num_elites, sampler["num_constraint_elites"])
+    if args.iterations is not None:
+        sampler["num_iterations"] = args.iterations
+    sections: dict[str, Any] = {"sampler": sampler} if sampler else {}
+    if args.projection_iterations is not None:
+        sections["projection"] = {"max_iterations": args.projection_iterations}
+    return config.replace(**sections)
+
+
+def _tolist(a: Any) -> Any:
+    return np.asarray(a).round(6).tolist()
+
+
+def plan_report(result, scene, config: PlannerConfig, timing: dict[str, float]) -> dict[str, Any]:
+    """The JSON document of ``driveopt plan --json`` (documented in README)."""
+    traj = result.trajectory
+    keys = ("t", "x", "y", "speed", "heading", "curvature", "acceleration", "vx", "vy")
+    return {
+        "status": result.status.name,
+        "message": result.message,
+        "trajectory": {k: _tolist(getattr(traj, k)) for k in keys},
+        "fallback": {k: _tolist(getattr(result.fallback, k)) for k in keys},
+        "setpoints": {"speed": _tolist(result.setpoints[:4]), "lateral": _tolist(result.setpoints[4:])},
+        "residuals": result.residuals,
+        "costs": result.costs,
+        "iterations": result.iterations,
+        "history": {k: _tolist(v) for k, v in result.history._asdict().items()},
+        "timing": timing,
+        "problem": scene_to_dict(scene),
+        "config": to_dict(config),
+    }
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    import jax
+
+    from driveopt.planner import plan
+
+    scene = load_scene(args.problem)
+    config = _load_config(args.config, args)
+    problem = build_problem(scene, config.basis, args.max_obstacles)
+    key = jax.random.PRNGKey(args.seed)
+    start = time.perf_counter()
+    result = plan(problem, config, key=key, x_offset=scene.ego.x)
+    first = time.perf_counter() - start
+    solves = []
+    for _ in range(args.repeats):
+        start = time.perf_counter()
+        plan(problem, config, key=key, x_offset=scene.ego.x)
+        solves.append(time.perf_counter() - start)
+    solve = float(np.median(solves)) if solves else first
+    timing = {"compile_s": max(first - solve, 0.0), "solve_s": solve, "first_call_s": first}
+    traj = result.trajectory
+    print(f"{scene.name}: {result.status.name} - {result.message}")
+    fmt = lambda values: ", ".join(f"{v:.1f}" for v in values)  # noqa: E731
+    print(f"  set-points: speed [{fmt(result.setpoints[:4])}] m/s, lateral [{fmt(result.setpoints[4:])}] m")
+
+    print(f"  residual {result.residuals['total']:.4f}, cost {result.costs['total']:.3f}; end speed {traj.speed[-1]:.1f} m/s, end y {traj.y[-1]:.2f} m")
+    print(f"  timing: compile {timing['compile_s']:.2f} s, solve {1e3 * solve:.1f} ms (median of {len(solves)})")
+    if args.json:
+        path = Path(args.json)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(plan_report(result, scene, config, timing), indent=1))
+        print(f"  wrote {path}")
+    if args.plot:
+        from driveopt.viz.plan_plot import plot_plan
+
+        print(f"  wrote {plot_plan(result, scene, config, args.plot)}")
+    return 0
+
+
+def cmd_problems(args: argparse.Namespace) -> int:
+    for name in builtin_problems():
+        scene = load_scene(name)
+        print(f"{name}: {len(scene.neighbours)} neighbours, {scene.road.num_lanes} lanes, ego {scene.ego.vx:.0f} m/s")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="driveopt", description="Bi-level motion planning for dense highway traffic.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("plan", help="plan once on a built-in problem or a problem JSON file")
+    p.add_argument("--problem", default="static-blockage", help="built-in name (see `driveopt problems`) or JSON file")
+    p.add_argument("--samples", type=_positive_int, help="samples per sampler iteration (default 1000)")
+    p.add_argument("--iterations", type=_positive_int, help="sampler iterations (default 5)")
+    p.add_argument("--projection-iterations", type=_positive_int, help="projection iterations (default 20)")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed")
+    p.add_argument("--config", help="planner config JSON (nested sections: basis, qp, projection, sampler, cost)")
+    p.add_argument("--max-obstacles", type=_positive_int, default=10, help="nearest neighbours considered")
+    p.add_argument("--repeats", type=int, default=3, help="extra timed calls after the first (compile) call")
+    p.add_argument("--json", help="write the result as JSON here")
+    p.add_argument("--plot", help="write a plot (PNG) here")
+    p.set_defaults(func=cmd_plan)
+
+    p = sub.add_parser("problems", help="list built-in problems")
+    p.set_defaults(func=cmd_problems)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (UsageError, ProblemError, ConfigError) as exc:
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"driveopt: error: {message}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

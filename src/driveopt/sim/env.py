@@ -1,0 +1,235 @@
+"""Thin adapter over upstream highway-env: one registered gymnasium env per road layout.
+
+    env = make_env(get_scenario("four-lane-d3.0"))
+    env.reset(seed=42)                       # same seed -> same traffic
+    outcome = step_env(env, action)          # action: ContinuousAction in [-1, 1]^2
+    outcome.crashed, outcome.off_road, outcome.done
+
+The subclasses below only add what the scenarios need and upstream has no config key for:
+
+- a neighbour speed limit written on every lane (upstream hard-codes 30 m/s on highway-v0),
+  and neighbour IDM target speeds drawn in ``target_speed_fraction * speed_limit`` from the
+  env's seeded generator, with each neighbour's initial speed set to its target;
+- the ego's initial speed (upstream: 25 m/s on highway-v0, 30 m/s on two-way-v0 and merge-v0);
+- highway: neighbours shifted ahead so none spawns within ``min_initial_gap`` of the ego
+  (at high density upstream can spawn the first neighbour overlapping the ego);
+- truncation after ``duration`` seconds on every road, counted in integer simulation steps
+  (upstream accumulates ``1 / policy_frequency`` in a float; two-way-v0 and merge-v0 never truncate);
+- rewards that do not read DiscreteMetaAction-only state (upstream two-way-v0 reads
+  ``vehicle.speed_index``; merge-v0 tests ``action in [0, 2]``, which raises for array actions).
+
+gymnasium 1.x wrappers hide attributes: reach the simulator through ``env.unwrapped``.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, NamedTuple
+
+import gymnasium as gym
+import numpy as np
+from highway_env import utils
+from highway_env.envs.highway_env import HighwayEnv
+from highway_env.envs.merge_env import MergeEnv
+from highway_env.envs.two_way_env import TwoWayEnv
+
+from driveopt.sim.scenarios import Scenario
+
+ENV_IDS = {"highway": "driveopt/highway-v0", "two-way": "driveopt/two-way-v0", "merge": "driveopt/merge-v0"}
+"""gymnasium id of the adapter env of each road layout."""
+
+
+class _ScenarioTraffic:
+    """Mixin over an upstream env: speed limit, neighbour target speeds, ego speed, duration."""
+
+    @classmethod
+    def default_config(cls) -> dict:
+        config = super().default_config()  # type: ignore[misc]
+        config.update(
+            {
+                "speed_limit": None,  # [m/s] written on every lane; None keeps upstream's limits
+                "target_speed_fraction": (0.7, 0.8),  # [-] neighbour target speed ~ U(lo, hi) * speed_limit
+                "ego_initial_speed": None,  # [m/s] None keeps upstream's
+                "min_initial_gap": 0.0,  # [m] highway only
+                "duration": 40.0,  # [s]
+            }
+        )
+        return config
+
+    def _apply_speed_limit(self) -> None:
+        limit = self.config["speed_limit"]
+        if limit is None:
+            return
+        for tos in self.road.network.graph.values():
+            for lanes in tos.values():
+                for lane in lanes:
+                    lane.speed_limit = float(limit)
+
+    def _apply_traffic(self) -> None:
+        """Ego initial speed; neighbours' target (and initial) speeds, drawn in road.vehicles order."""
+        if self.config["ego_initial_speed"] is not None:
+            self.vehicle.speed = float(self.config["ego_initial_speed"])
+        limit = self.config["speed_limit"]
+        if limit is None:
+            return
+        lo, hi = self.config["target_speed_fraction"]
+        for vehicle in self.road.vehicles:
+            if vehicle is not self.vehicle and hasattr(vehicle, "target_speed"):
+                vehicle.target_speed = float(self.np_random.uniform(lo * limit, hi * limit))
+                vehicle.speed = vehicle.target_speed
+
+    def _is_truncated(self) -> bool:
+        steps = round(self.config["duration"] * self.config["simulation_frequency"])
+        return self.steps >= steps
+
+
+class DriveoptHighwayEnv(_ScenarioTraffic, HighwayEnv):
+    """highway-v0 (straight multi-lane highway, neighbours spawned ahead of the ego) with scenario traffic."""
+
+    def _reset(self) -> None:
+        self._create_road()
+        self._apply_speed_limit()  # before spawning: upstream draws initial speeds and gaps from the limit
+        self._create_vehicles()
+        self._keep_initial_gap()
+        self._apply_traffic()
+
+    def _keep_initial_gap(self) -> None:
+        """Shift every neighbour forward so that none is within min_initial_gap [m] ahead of the ego."""
+        gap = float(self.config["min_initial_gap"])
+        others = [v for v in self.road.vehicles if v is not self.vehicle]
+        if gap <= 0 or not others:
+            return
+        lane = self.vehicle.lane
+        ego_s = lane.local_coordinates(self.vehicle.position)[0]
+        nearest = min(lane.local_coordinates(v.position)[0] - ego_s for v in others)
+        if nearest < gap:
+            shift = (gap - nearest) * lane.direction
+            for v in others:
+                v.position = v.position + shift
+                v.on_state_update()
+
+
+class DriveoptTwoWayEnv(_ScenarioTraffic, TwoWayEnv):
+    """two-way-v0 (one lane each way; the ego overtakes on the oncoming lane) with scenario traffic."""
+
+    def _reset(self) -> None:
+        self._make_road()
+        self._apply_speed_limit()
+        self._make_vehicles()
+        self._apply_traffic()
+
+    def _rewards(self, action: Any) -> dict[str, float]:
+        speed = utils.lmap(self.vehicle.speed, [20.0, 30.0], [0.0, 1.0])
+        side = self.road.network.all_side_lanes(self.vehicle.lane_index)
+        left = (len(side) - 1 - self.vehicle.lane_index[2]) / max(len(side) - 1, 1)
+        return {"high_speed_reward": float(np.clip(speed, 0.0, 1.0)), "left_lane_reward": float(left)}
+
+
+class DriveoptMergeEnv(_ScenarioTraffic, MergeEnv):
+    """merge-v0 (2-lane highway with an on-ramp; upstream ends the episode past x = 370 m) with scenario traffic."""
+
+    def _reset(self) -> None:
+        self._make_road()
+        self._apply_speed_limit()
+        self._make_vehicles()
+        self._apply_traffic()
+
+    def _rewards(self, action: Any) -> dict[str, float]:
+        # upstream's lane_change_reward tests `action in [0, 2]` (DiscreteMetaAction); no lane-change actions here
+        return super()._rewards(None)
+
+
+_CLASSES = {"highway": DriveoptHighwayEnv, "two-way": DriveoptTwoWayEnv, "merge": DriveoptMergeEnv}
+
+
+def register_envs() -> None:
+    """Register the adapter envs with gymnasium (idempotent)."""
+    for road, env_id in ENV_IDS.items():
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=f"{__name__}:{_CLASSES[road].__name__}")
+
+
+register_envs()
+
+
+def env_config(scenario: Scenario) -> dict[str, Any]:
+    """highway-env configuration of a scenario (upstream keys plus the adapter's)."""
+    config: dict[str, Any] = {
+        "action": {
+            "type": "ContinuousAction",
+            "longitudinal": True,
+            "lateral": True,
+            "acceleration_range": scenario.acceleration_range,  # [m/s^2]
+            "steering_range": scenario.steering_range,  # [rad]
+            "clip": True,
+        },
+        "observation": {"type": "Kinematics"},  # driveopt builds its own observation from env.unwrapped
+        "simulation_frequency": scenario.simulation_frequency,  # [Hz]
+        "policy_frequency": scenario.policy_frequency,  # [Hz]
+        "duration": scenario.duration,  # [s]
+        "speed_limit": scenario.speed_limit,  # [m/s]
+        "target_speed_fraction": scenario.target_speed_fraction,  # [-]
+        "ego_initial_speed": scenario.ego_speed,  # [m/s]
+        "other_vehicles_type": "highway_env.vehicle.behavior.IDMVehicle",  # IDM + MOBIL
+    }
+    if scenario.road == "highway":
+        config.update(
+            {
+                "lanes_count": scenario.lanes,
+                "vehicles_count": scenario.vehicles_count,
+                "vehicles_density": scenario.density,
+                "min_initial_gap": scenario.min_initial_gap,  # [m]
+                "offroad_terminal": False,  # off-road is reported, not an episode end
+            }
+        )
+    return config
+
+
+def make_env(scenario: Scenario, *, render_mode: str | None = None) -> gym.Env:
+    """The gymnasium env of a scenario. Reset it with ``env.reset(seed=...)`` before use.
+
+    ``render_mode="rgb_array"`` renders headless: SDL_VIDEODRIVER defaults to ``offscreen``
+    (``dummy`` would give black frames).
+    """
+    if render_mode == "rgb_array":
+        os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    return gym.make(ENV_IDS[scenario.road], config=env_config(scenario), render_mode=render_mode, disable_env_checker=True)
+
+
+class StepOutcome(NamedTuple):
+    """What one ``step_env`` call reports."""
+
+    time: float  # [s] simulated time since reset
+    crashed: bool  # the ego collided (info["crashed"])
+    off_road: bool  # the ego's centre left every lane (not vehicle.on_road)
+    terminated: bool  # upstream's terminal condition (crash; merge: past the ramp)
+    truncated: bool  # the scenario's duration has elapsed
+    info: dict
+
+    @property
+    def done(self) -> bool:
+        return self.terminated or self.truncated
+
+
+def sim_time(env: gym.Env) -> float:
+    """[s] simulated time since the last reset."""
+    u = env.unwrapped
+    return u.steps / u.config["simulation_frequency"]
+
+
+def is_off_road(env: gym.Env) -> bool:
+    """Whether the ego's centre is outside its nearest lane (upstream ``vehicle.on_road``)."""
+    return not env.unwrapped.vehicle.on_road
+
+
+def step_env(env: gym.Env, action: np.ndarray) -> StepOutcome:
+    """Apply one ContinuousAction (normalised (acceleration, steering) in [-1, 1]) for 1 / policy_frequency s."""
+    _, _, terminated, truncated, info = env.step(np.asarray(action, dtype=np.float32))
+    return StepOutcome(
+        time=sim_time(env),
+        crashed=bool(info["crashed"]),
+        off_road=is_off_road(env),
+        terminated=bool(terminated),
+        truncated=bool(truncated),
+        info=info,
+    )

@@ -1,0 +1,253 @@
+"""Scenario registry: the closed-loop test cases, as frozen, unit-annotated dataclasses.
+
+Naming scheme (``list_scenarios()`` prints them all)::
+
+    two-lane-d1.0 ... two-lane-d3.0      straight 2-lane highway (highway-env ``highway-v0`` layout)
+    four-lane-d1.0 ... four-lane-d3.0    straight 4-lane highway
+    <any of the above>-slow              the same with a 7 m/s neighbour speed limit (P2) instead of 15 m/s
+    two-way                              ``two-way-v0``: overtaking on a lane shared with oncoming traffic (P1)
+    merge                                ``merge-v0``: 2-lane highway with vehicles merging from an on-ramp
+
+``d<density>`` is highway-env's ``vehicles_density`` in {1.0, 1.5, 2.0, 2.5, 3.0}: neighbours spawn
+ahead of the ego with gaps proportional to ``1 / density``.
+
+Every field can be overridden from a mapping or a JSON object file::
+
+    scenario = resolve_scenario("four-lane-d3.0", config_file="my.json", overrides={"duration": 20.0})
+
+Unknown keys and values of the wrong type raise :class:`ScenarioError` naming the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import json
+import math
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+ROADS = ("highway", "two-way", "merge")
+"""Road layouts, each an upstream highway-env environment: highway-v0, two-way-v0, merge-v0."""
+
+DENSITIES = (1.0, 1.5, 2.0, 2.5, 3.0)
+"""[-] highway-env ``vehicles_density`` values of the registered highway scenarios (P1, P2)."""
+
+DEFAULT_SPEED_LIMIT = 15.0  # [m/s] neighbour speed limit of P1
+SLOW_SPEED_LIMIT = 7.0  # [m/s] P2's slow-traffic variant
+
+
+class ScenarioError(ValueError):
+    """Unknown scenario name, unknown field, or a field value of the wrong type or range."""
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One closed-loop test case: road layout, traffic, ego start, timing.
+
+    ``density`` and ``vehicles_count`` are used by the ``highway`` road only; ``two-way`` and
+    ``merge`` place their few neighbours where upstream highway-env does. On every road the
+    neighbours' IDM target speed is drawn uniformly in ``target_speed_fraction * speed_limit``
+    at reset (their initial speed is set to it), and the limit is written on every lane.
+    """
+
+    name: str
+    road: str = "highway"  # layout, one of ROADS
+    lanes: int = 4  # [-] lanes in the direction of travel (two-way and merge: 2, fixed upstream)
+    density: float = 1.0  # [-] highway-env vehicles_density (highway only): spawn gaps scale with 1 / density
+    vehicles_count: int = 50  # [-] neighbours spawned (highway only)
+    speed_limit: float = DEFAULT_SPEED_LIMIT  # [m/s] neighbours' road speed limit
+    target_speed_fraction: tuple[float, float] = (0.7, 0.8)  # [-] neighbour target speed ~ U(lo, hi) * speed_limit
+    ego_speed: float = 10.0  # [m/s] ego speed at reset (a slow ego behind the traffic, as in P1)
+    min_initial_gap: float = 10.0  # [m] highway: every neighbour spawns at least this far ahead of the ego centre
+    duration: float = 50.0  # [s] episode length (P1: 50 s)
+    simulation_frequency: int = 20  # [Hz] highway-env integration rate
+    policy_frequency: int = 10  # [Hz] ego actions per second (= replanning rate); divides simulation_frequency
+    v_des: float = 20.0  # [m/s] ego desired speed
+    acceleration_range: tuple[float, float] = (-5.0, 5.0)  # [m/s^2] ContinuousAction action[0] in [-1, 1] maps here
+    steering_range: tuple[float, float] = (-math.pi / 4, math.pi / 4)  # [rad] action[1] in [-1, 1] maps here
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            object.__setattr__(self, f.name, _coerce(f.name, getattr(self, f.name), _FIELD_TYPES[f.name]))
+        _check(self.road in ROADS, f"road must be one of {list(ROADS)}, got {self.road!r}")
+        _check(self.lanes >= 1, "lanes must be >= 1")
+        if self.road != "highway":
+            _check(self.lanes == 2, f"road {self.road!r} has 2 lanes upstream; lanes must be 2, got {self.lanes}")
+        _check(self.density > 0, "density must be > 0")
+        _check(self.vehicles_count >= 0, "vehicles_count must be >= 0")
+        _check(self.speed_limit > 0, "speed_limit must be > 0 [m/s]")
+        lo, hi = self.target_speed_fraction
+        _check(0 < lo <= hi, "target_speed_fraction must be (lo, hi) with 0 < lo <= hi")
+        _check(self.ego_speed >= 0, "ego_speed must be >= 0 [m/s]")
+        _check(self.min_initial_gap >= 0, "min_initial_gap must be >= 0 [m]")
+        _check(self.duration > 0, "duration must be > 0 [s]")
+        _check(self.simulation_frequency > 0 and self.policy_frequency > 0, "frequencies must be > 0 [Hz]")
+        _check(
+            self.simulation_frequency % self.policy_frequency == 0,
+            f"simulation_frequency ({self.simulation_frequency} Hz) must be a multiple of policy_frequency "
+            f"({self.policy_frequency} Hz): highway-env holds each action for simulation_frequency // "
+            "policy_frequency steps but advances its clock by 1 / policy_frequency, so a remainder desynchronises them",
+        )
+        _check(self.v_des >= 0, "v_des must be >= 0 [m/s]")
+        a_lo, a_hi = self.acceleration_range
+        _check(a_lo < 0 < a_hi, "acceleration_range must be (lo, hi) with lo < 0 < hi [m/s^2]")
+        s_lo, s_hi = self.steering_range
+        _check(-math.pi / 2 < s_lo < 0 < s_hi < math.pi / 2, "steering_range must satisfy -pi/2 < lo < 0 < hi < pi/2 [rad]")
+
+    @property
+    def steps_per_action(self) -> int:
+        """[-] simulation steps that one action is held for."""
+        return self.simulation_frequency // self.policy_frequency
+
+    @property
+    def num_actions(self) -> int:
+        """[-] actions (replanning calls) in a full-length episode."""
+        return round(self.duration * self.policy_frequency)
+
+    @property
+    def target_speed_range(self) -> tuple[float, float]:
+        """[m/s] range of the neighbours' target speeds."""
+        return self.target_speed_fraction[0] * self.speed_limit, self.target_speed_fraction[1] * self.speed_limit
+
+    def replace(self, **changes: Any) -> Scenario:
+        """A copy with some fields changed (validated like an override file)."""
+        return apply_overrides(self, changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict of every field (tuples as lists)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+
+
+_FIELD_TYPES: dict[str, Any] = typing.get_type_hints(Scenario)
+
+
+def _check(cond: bool, message: str) -> None:
+    if not cond:
+        raise ScenarioError(message)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _coerce(name: str, value: Any, hint: Any) -> Any:
+    """Check ``value`` against the field's annotation; return it in canonical form (float, tuple)."""
+    if hint is str:
+        _check(isinstance(value, str), f"{name} must be a string, got {value!r}")
+        return value
+    if hint is int:
+        _check(isinstance(value, int) and not isinstance(value, bool), f"{name} must be an integer, got {value!r}")
+        return value
+    if hint is float:
+        _check(_is_number(value) and math.isfinite(value), f"{name} must be a finite number, got {value!r}")
+        return float(value)
+    if typing.get_origin(hint) is tuple:
+        size = len(typing.get_args(hint))
+        ok = isinstance(value, (list, tuple)) and len(value) == size and all(
+            _is_number(v) and math.isfinite(v) for v in value
+        )
+        _check(ok, f"{name} must be a list of {size} finite numbers, got {value!r}")
+        return tuple(float(v) for v in value)
+    raise TypeError(f"no coercion rule for field {name}: {hint!r}")  # a new field type needs a rule here
+
+
+def apply_overrides(scenario: Scenario, overrides: Mapping[str, Any]) -> Scenario:
+    """``scenario`` with the fields in ``overrides`` replaced; unknown keys or bad values raise ScenarioError."""
+    if not isinstance(overrides, Mapping):
+        raise ScenarioError(f"scenario overrides must be a mapping of field -> value, got {type(overrides).__name__}")
+    valid = [f.name for f in dataclasses.fields(Scenario)]
+    unknown = sorted(set(overrides) - set(valid))
+    if unknown:
+        raise ScenarioError(f"unknown scenario field(s) {unknown}; valid fields: {valid}")
+    return dataclasses.replace(scenario, **dict(overrides))
+
+
+def load_overrides(path: str | Path) -> dict[str, Any]:
+    """Read a JSON object of scenario field overrides from ``path``."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ScenarioError(f"scenario config file not found: {path}") from None
+    except json.JSONDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"{path}: cannot read ({exc})") from None
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{path}: must hold a JSON object of scenario fields, got {type(data).__name__}")
+    return data
+
+
+def _highway(lanes: int, density: float, slow: bool) -> Scenario:
+    word = {2: "two", 4: "four"}[lanes]
+    limit = SLOW_SPEED_LIMIT if slow else DEFAULT_SPEED_LIMIT
+    return Scenario(
+        name=f"{word}-lane-d{density:.1f}" + ("-slow" if slow else ""),
+        road="highway",
+        lanes=lanes,
+        density=density,
+        speed_limit=limit,
+        # a slow ego behind the traffic: just below the neighbours' slowest target speed
+        ego_speed=10.0 if not slow else 5.0,
+        description=f"{lanes}-lane straight highway, density {density:.1f}, neighbours under {limit:g} m/s",
+    )
+
+
+def _registry() -> dict[str, Scenario]:
+    scenarios = [_highway(lanes, d, slow) for slow in (False, True) for lanes in (2, 4) for d in DENSITIES]
+    scenarios.append(
+        Scenario(
+            name="two-way",
+            road="two-way",
+            lanes=2,
+            vehicles_count=5,
+            ego_speed=15.0,
+            duration=30.0,  # upstream road is 800 m long: 30 s at v_des stays on it
+            description="two-way-v0: overtake 3 slow vehicles on a lane shared with 2 oncoming ones (P1)",
+        )
+    )
+    scenarios.append(
+        Scenario(
+            name="merge",
+            road="merge",
+            lanes=2,
+            vehicles_count=4,
+            ego_speed=15.0,
+            duration=30.0,  # upstream ends the episode once the ego passes x = 370 m
+            description="merge-v0: 2-lane highway, vehicles joining from an on-ramp on the right",
+        )
+    )
+    return {s.name: s for s in scenarios}
+
+
+SCENARIOS: Mapping[str, Scenario] = _registry()
+
+
+def list_scenarios() -> list[str]:
+    """Names of every registered scenario, in registry order."""
+    return list(SCENARIOS)
+
+
+def get_scenario(name: str) -> Scenario:
+    """The registered scenario ``name``; an unknown name raises ScenarioError listing the valid ones."""
+    if name in SCENARIOS:
+        return SCENARIOS[name]
+    close = difflib.get_close_matches(str(name), SCENARIOS, n=3)
+    hint = f" (did you mean {', '.join(close)}?)" if close else ""
+    raise ScenarioError(f"unknown scenario {name!r}{hint}; valid scenarios: {', '.join(SCENARIOS)}")
+
+
+def resolve_scenario(
+    name: str, *, config_file: str | Path | None = None, overrides: Mapping[str, Any] | None = None
+) -> Scenario:
+    """Registered scenario ``name``, then the fields of ``config_file`` (JSON), then ``overrides``."""
+    scenario = get_scenario(name)
+    if config_file is not None:
+        scenario = apply_overrides(scenario, load_overrides(config_file))
+    if overrides:
+        scenario = apply_overrides(scenario, overrides)
+    return scenario

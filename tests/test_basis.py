@@ -1,0 +1,35 @@
+import numpy as np
+import pytest
+
+from driveopt.basis import basis_at, make_basis
+from driveopt.config import BasisConfig, ConfigError
+
+
+def test_partition_of_unity_and_derivative_sums():
+    b = make_basis()
+    np.testing.assert_allclose(b.W.sum(1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(b.Wd.sum(1), 0.0, atol=1e-12)
+    np.testing.assert_allclose(b.Wdd.sum(1), 0.0, atol=1e-12)
+
+
+def test_derivatives_exact_for_a_polynomial():
+    """Fit a degree-7 polynomial exactly and compare its basis derivatives to the analytic ones."""
+    T = 15.0
+    t = np.linspace(0, T, 100)
+    poly = np.polynomial.Polynomial([1.0, -0.5, 0.3, 0.02, -0.004, 1e-4, -2e-6, 3e-8])
+    b = basis_at(10, T, t)
+    coeffs, *_ = np.linalg.lstsq(b.W, poly(t), rcond=None)
+    np.testing.assert_allclose(b.W @ coeffs, poly(t), atol=1e-8)
+    np.testing.assert_allclose(b.Wd @ coeffs, poly.deriv(1)(t), atol=1e-7)
+    np.testing.assert_allclose(b.Wdd @ coeffs, poly.deriv(2)(t), atol=1e-6)
+
+
+def test_configurable_horizon_and_nodes():
+    b = make_basis(BasisConfig(order=8, horizon=6.0, num_nodes=40))
+    assert b.W.shape == (40, 9) and b.t[-1] == pytest.approx(6.0)
+
+
+@pytest.mark.parametrize("kwargs", [dict(order=1), dict(horizon=-1.0), dict(num_nodes=30), dict(horizon=float("nan"))])
+def test_bad_basis_config_is_rejected(kwargs):
+    with pytest.raises(ConfigError):
+        BasisConfig(**kwargs)

@@ -1,0 +1,57 @@
+import json
+
+import pytest
+
+from driveopt.cli import main
+
+FAST = ["--samples", "120", "--iterations", "2", "--projection-iterations", "10", "--repeats", "1"]
+
+
+def test_plan_writes_json_and_plot(tmp_path, capsys):
+    out, fig = tmp_path / "r.json", tmp_path / "r.png"
+    assert main(["plan", "--problem", "static-blockage", *FAST, "--json", str(out), "--plot", str(fig)]) == 0
+    report = json.loads(out.read_text())
+    assert report["status"] in ("SUCCESS", "INFEASIBLE")
+    traj = report["trajectory"]
+    assert set(("t", "x", "y", "speed", "heading")) <= set(traj) and len(traj["x"]) == 100
+    assert len(report["setpoints"]["speed"]) == 4 and len(report["setpoints"]["lateral"]) == 4
+    assert set(report["residuals"]) == {"obstacle", "velocity", "acceleration", "lane", "total"}
+    assert "speed" in report["costs"] and "total" in report["costs"]
+    assert report["timing"]["compile_s"] >= 0 and report["timing"]["solve_s"] > 0
+    problem = report["problem"]
+    assert {"x", "y", "vx", "vy", "length", "width"} <= set(problem["neighbours"][0])
+    assert problem["ego"]["vx"] == 15.0 and problem["road"]["num_lanes"] == 4
+    assert fig.stat().st_size > 10_000
+    assert "static-blockage" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "content, needle",
+    [
+        ("{not json", "not valid JSON"),
+        ('{"ego": {"x": 0, "y": 4}}', "ego"),
+        ('{"ego": {"x": 0, "y": 4, "vx": "fast"}}', "ego.vx"),
+        ('{"ego": {"x": 0, "y": 4, "vx": 10}, "neighbours": [{"x": NaN, "y": 0}]}', "finite"),
+        ('{"ego": {"x": 0, "y": 4, "vx": 10}, "speed_limit": 3}', "unknown key"),
+        ('[1, 2]', "JSON object"),
+    ],
+)
+def test_bad_problem_file_is_one_line_error(tmp_path, capsys, content, needle):
+    bad = tmp_path / "bad.json"
+    bad.write_text(content)
+    assert main(["plan", "--problem", str(bad), *FAST]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("driveopt: error:") and needle in err and "\n" not in err
+
+
+def test_unknown_problem_lists_builtins(capsys):
+    assert main(["plan", "--problem", "no-such-problem"]) == 2
+    err = capsys.readouterr().err
+    assert "static-blockage" in err and "dense-snapshot" in err
+
+
+def test_bad_config_file(tmp_path, capsys):
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text('{"sampler": {"num_samplez": 10}}')
+    assert main(["plan", "--config", str(cfg), *FAST]) == 2
+    assert "num_samplez" in capsys.readouterr().err

@@ -1,0 +1,30 @@
+import pytest
+
+from driveopt.config import ConfigError, PlannerConfig, SamplerConfig, from_dict, to_dict
+
+
+def test_round_trip_and_hashable():
+    cfg = PlannerConfig().replace(sampler={"num_samples": 250}, projection={"max_iterations": 100})
+    assert from_dict(to_dict(cfg)) == cfg
+    assert hash(cfg) == hash(from_dict(to_dict(cfg)))
+
+
+@pytest.mark.parametrize(
+    "data, needle",
+    [
+        ({"samplr": {}}, "unknown config section"),
+        ({"sampler": {"num_sample": 3}}, "unknown key"),
+        ({"sampler": {"num_samples": 10, "num_constraint_elites": 20}}, "num_constraint_elites"),
+        ({"projection": {"v_min": 40.0}}, "v_min"),
+        ({"cost": {"speed": -1.0}}, "cost.speed"),
+        ({"sampler": 5}, "mapping"),
+    ],
+)
+def test_bad_config_is_rejected(data, needle):
+    with pytest.raises(ConfigError, match=needle):
+        from_dict(data)
+
+
+def test_sampler_rejects_bad_learning_rate():
+    with pytest.raises(ConfigError):
+        SamplerConfig(learning_rate=0.0)

@@ -1,0 +1,125 @@
+"""End-to-end planning: the static-blockage manoeuvre, failure handling, properties over random problems."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from conftest import box_corners, boxes_overlap
+from driveopt import EgoState, Neighbour, PlanStatus, ProblemError, Road, Scene, build_problem, load_scene, plan
+
+
+def collides(traj, scene: Scene) -> bool:
+    """Exact oriented-rectangle check of the ego against every neighbour at every node."""
+    ego = scene.ego
+    for k in range(len(traj.t)):
+        ego_box = box_corners(traj.x[k], traj.y[k], traj.heading[k], ego.length, ego.width)
+        for n in scene.neighbours:
+            t = traj.t[k]
+            other = box_corners(n.x + n.vx * t, n.y + n.vy * t, n.heading, n.length, n.width)
+            if boxes_overlap(ego_box, other):
+                return True
+    return False
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_static_blockage_changes_into_the_free_lane(small_config, seed):
+    scene = load_scene("static-blockage")
+    result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(seed), x_offset=scene.ego.x)
+    assert result.status == PlanStatus.SUCCESS
+    traj = result.trajectory
+    blocker = scene.neighbours[0]
+    y_at_blocker = np.interp(blocker.x, traj.x, traj.y)
+    assert 6.0 < y_at_blocker < 10.5, f"expected lane 2 (y = 8) when passing the blocker, got y = {y_at_blocker:.2f}"
+    assert not collides(traj, scene)
+    assert result.residuals["total"] <= small_config.sampler.residual_tolerance
+
+
+def test_same_key_same_plan_different_key_different_samples(small_config):
+    problem = build_problem(load_scene("dense-snapshot"), small_config.basis)
+    a = plan(problem, small_config, key=jax.random.PRNGKey(7))
+    b = plan(problem, small_config, key=jax.random.PRNGKey(7))
+    c = plan(problem, small_config, key=jax.random.PRNGKey(8))
+    np.testing.assert_array_equal(a.setpoints, b.setpoints)
+    assert not np.allclose(a.first.setpoints, c.first.setpoints)
+    # Every sampler iteration draws fresh samples (the key advances inside the call).
+    assert not np.allclose(a.first.setpoints, a.last.setpoints)
+
+
+def test_warm_start_and_dense_snapshot_is_collision_free(small_config):
+    scene = load_scene("dense-snapshot")
+    problem = build_problem(scene, small_config.basis)
+    first = plan(problem, small_config, key=jax.random.PRNGKey(0), x_offset=scene.ego.x)
+    second = plan(problem, small_config, key=jax.random.PRNGKey(1), warm_start=first.mean, x_offset=scene.ego.x)
+    for result in (first, second):
+        assert result.status == PlanStatus.SUCCESS
+        assert not collides(result.trajectory, scene)
+    with pytest.raises(ProblemError, match="warm_start"):
+        plan(problem, small_config, key=jax.random.PRNGKey(1), warm_start=np.zeros(5))
+
+
+def boxed_in_scene() -> Scene:
+    ego = EgoState(x=0.0, y=4.0, vx=15.0)
+    cars = (Neighbour(x=6.0, y=4.0), Neighbour(x=-6.0, y=4.0, vx=15.0), Neighbour(x=0.0, y=0.5), Neighbour(x=0.0, y=7.5))
+    return Scene(ego=ego, road=Road(num_lanes=3), neighbours=cars)
+
+
+def test_boxed_in_returns_infeasible_and_a_braking_fallback(small_config):
+    scene = boxed_in_scene()
+    result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0))
+    assert result.status == PlanStatus.INFEASIBLE
+    assert "fallback" in result.message
+    fb = result.fallback
+    for arr in (*fb, *result.trajectory, result.coeffs, result.setpoints):
+        assert np.all(np.isfinite(arr))
+    assert np.all(np.isfinite(list(result.residuals.values()))) and np.all(np.isfinite(list(result.costs.values())))
+    assert fb.speed[-1] < fb.speed[0] - 5.0  # brakes
+    assert np.abs(fb.y - 4.0).max() < 0.5  # keeps its lane centre
+    assert result.safe_trajectory is fb
+
+
+def test_non_finite_and_wrong_shape_input_raise(small_config):
+    problem = build_problem(load_scene("static-blockage"), small_config.basis)
+    with pytest.raises(ProblemError, match="NaN"):
+        plan(problem._replace(init_x=jnp.array([0.0, jnp.nan, 0.0])), small_config, key=jax.random.PRNGKey(0))
+    with pytest.raises(ProblemError, match="shape"):
+        plan(problem._replace(obstacle_x=problem.obstacle_x[:, :50]), small_config, key=jax.random.PRNGKey(0))
+    with pytest.raises(ProblemError, match="finite"):
+        EgoState(x=0.0, y=float("inf"), vx=1.0)
+    with pytest.raises(ProblemError):
+        Road(num_lanes=0)
+
+
+vehicle = st.builds(
+    Neighbour,
+    x=st.floats(-60, 120), y=st.floats(-1.5, 13.5), vx=st.floats(0, 30), vy=st.floats(-1, 1),
+    length=st.floats(3.5, 12.0), width=st.floats(1.5, 2.6),
+)
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    ego_y=st.floats(-1.0, 13.0), ego_v=st.floats(0.0, 30.0), ego_vy=st.floats(-2, 2), ego_a=st.floats(-5, 5),
+    neighbours=st.lists(vehicle, max_size=14), v_des=st.floats(0.0, 35.0), curvature=st.floats(-0.02, 0.02),
+)
+def test_random_problems_give_finite_well_shaped_results(small_config, ego_y, ego_v, ego_vy, ego_a, neighbours, v_des, curvature):
+    scene = Scene(
+        ego=EgoState(x=0.0, y=ego_y, vx=ego_v, vy=ego_vy, ax=ego_a),
+        road=Road(num_lanes=4, curvature=curvature),
+        neighbours=tuple(neighbours),
+        v_des=v_des,
+    )
+    result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0))
+    K, n = small_config.basis.num_nodes, small_config.basis.num_coeffs
+    assert result.coeffs.shape == (2 * n,) and result.setpoints.shape == (8,)
+    for arr in (*result.trajectory, *result.fallback, result.coeffs, result.setpoints, result.mean):
+        assert np.all(np.isfinite(arr))
+    assert result.trajectory.x.shape == (K,)
+    assert all(np.isfinite(v) for v in (*result.residuals.values(), *result.costs.values()))
+    assert result.status in (PlanStatus.SUCCESS, PlanStatus.INFEASIBLE)
+    if result.status == PlanStatus.SUCCESS:
+        assert result.residuals["total"] <= small_config.sampler.residual_tolerance + 1e-6

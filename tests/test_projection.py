@@ -1,0 +1,170 @@
+"""Batch projection: each constraint family enforced where only it binds, convergence, modes."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from driveopt.config import PlannerConfig, ProjectionConfig, QPConfig
+from driveopt.costs import evaluate
+from driveopt.problem import EgoState, Neighbour, Road, Scene, build_problem, load_scene
+from driveopt.projection import constraint_residuals, project
+from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
+
+MODEL = make_model()
+# Everything "off" except what a test turns on.
+LOOSE = ProjectionConfig(max_iterations=300, tolerance=0.0, v_max=60.0, a_max=100.0, kappa_max=0.0, centripetal_max=100.0)
+
+
+def setup(scene: Scene, setpoints, qp=QPConfig()):
+    problem = build_problem(scene)
+    b_x, b_y = boundary_values(problem.init_x, problem.init_y, qp)
+    target = solve_setpoint_qp(MODEL, jnp.asarray(setpoints, jnp.float32), b_x, b_y)
+    return problem, target, b_x, b_y
+
+
+def empty_scene(**ego):
+    defaults = dict(x=0.0, y=4.0, vx=10.0)
+    return Scene(ego=EgoState(**{**defaults, **ego}), road=Road(num_lanes=4, curvature=0.0))
+
+
+def check_boundary(problem, coeffs):
+    traj = evaluate(MODEL, coeffs)
+    np.testing.assert_allclose(traj.x[:, 0], problem.init_x[0], atol=1e-3)
+    np.testing.assert_allclose(traj.vx[:, 0], problem.init_x[1], atol=1e-3)
+    np.testing.assert_allclose(traj.y[:, 0], problem.init_y[0], atol=1e-3)
+
+
+def test_obstacle_only():
+    scene = dataclasses.replace(empty_scene(), neighbours=(Neighbour(x=30.0, y=4.0),))
+    problem, target, b_x, b_y = setup(scene, [[10.0] * 4 + [4.0] * 4])
+    before = constraint_residuals(MODEL, problem, target, LOOSE)
+    assert float(before.obstacle[0]) > 1.0  # the QP drives straight into the stopped car
+    out = project(MODEL, problem, target, b_x, b_y, LOOSE)
+    traj = evaluate(MODEL, out.coeffs)
+    ratio = np.sqrt(((traj.x - problem.obstacle_x[0]) / problem.obstacle_a[0]) ** 2 + ((traj.y - problem.obstacle_y[0]) / problem.obstacle_b[0]) ** 2)
+    assert ratio.min() > 0.97
+    assert float(out.residuals.obstacle[0]) < 0.3
+    check_boundary(problem, out.coeffs)
+
+
+def test_velocity_only():
+    problem, target, b_x, b_y = setup(empty_scene(vx=25.0), [[38.0] * 4 + [4.0] * 4])
+    cfg = dataclasses.replace(LOOSE, v_max=30.0)
+    assert evaluate(MODEL, target).speed.max() > 35.0
+    out = project(MODEL, problem, target, b_x, b_y, cfg)
+    assert float(evaluate(MODEL, out.coeffs).speed.max()) < 30.3
+    check_boundary(problem, out.coeffs)
+
+
+def test_acceleration_only():
+    problem, target, b_x, b_y = setup(empty_scene(vx=10.0), [[25.0] * 4 + [4.0] * 4])
+    cfg = dataclasses.replace(LOOSE, a_max=2.0, rho_acceleration=30.0)
+    traj0 = evaluate(MODEL, target)
+    assert float(jnp.hypot(traj0.ax, traj0.ay).max()) > 5.0
+    out = project(MODEL, problem, target, b_x, b_y, cfg)
+    traj = evaluate(MODEL, out.coeffs)
+    assert float(jnp.hypot(traj.ax, traj.ay).max()) < 2.0 * 1.1
+
+
+def test_curvature_only():
+    # A fast lateral move at crawling speed bends the path sharply.
+    problem, target, b_x, b_y = setup(empty_scene(vx=4.0), [[4.0] * 4 + [10.0] * 4])
+    cfg = dataclasses.replace(LOOSE, kappa_max=0.05, rho_velocity=30.0, rho_acceleration=30.0)
+    assert float(jnp.abs(evaluate(MODEL, target).curvature).max()) > 0.1
+    out = project(MODEL, problem, target, b_x, b_y, cfg)
+    assert float(jnp.abs(evaluate(MODEL, out.coeffs).curvature).max()) < 0.05 * 1.1
+    check_boundary(problem, out.coeffs)
+
+
+def test_centripetal_only():
+    scene = dataclasses.replace(empty_scene(vx=9.0), road=Road(num_lanes=4, curvature=0.01))
+    problem, target, b_x, b_y = setup(scene, [[20.0] * 4 + [4.0] * 4])
+    cfg = dataclasses.replace(LOOSE, centripetal_max=1.0)  # v^2 * 0.01 <= 1  ->  v <= 10 m/s
+    assert float(evaluate(MODEL, target).speed.max()) > 15.0
+    out = project(MODEL, problem, target, b_x, b_y, cfg)
+    assert float(evaluate(MODEL, out.coeffs).speed.max()) < 10.0 * 1.05
+    # The same road with zero curvature leaves the speed alone.
+    flat = project(MODEL, problem._replace(road_curvature=jnp.float32(0.0)), target, b_x, b_y, cfg)
+    assert float(evaluate(MODEL, flat.coeffs).speed.max()) > 15.0
+
+
+def test_lane_only():
+    problem, target, b_x, b_y = setup(empty_scene(y=8.0), [[15.0] * 4 + [16.0] * 4])
+    assert float(evaluate(MODEL, target).y.max()) > float(problem.y_ub) + 1.0
+    out = project(MODEL, problem, target, b_x, b_y, LOOSE)
+    assert float(evaluate(MODEL, out.coeffs).y.max()) < float(problem.y_ub) + 0.05
+    assert float(out.residuals.lane[0]) < 0.05
+    check_boundary(problem, out.coeffs)
+
+
+@pytest.fixture(scope="module")
+def dense_batch():
+    problem = build_problem(load_scene("dense-snapshot"))
+    key = jax.random.PRNGKey(3)
+    p = jnp.concatenate([16 + 4 * jax.random.normal(key, (300, 4)), 6 + 4 * jax.random.normal(jax.random.fold_in(key, 1), (300, 4))], 1)
+    b_x, b_y = boundary_values(problem.init_x, problem.init_y, QPConfig())
+    return problem, solve_setpoint_qp(MODEL, p, b_x, b_y), b_x, b_y
+
+
+def test_residuals_fall_with_iterations(dense_batch):
+    problem, target, b_x, b_y = dense_batch
+    medians = []
+    for iters in (1, 10, 50):
+        out = project(MODEL, problem, target, b_x, b_y, ProjectionConfig(max_iterations=iters, tolerance=0.0))
+        medians.append(float(jnp.median(out.residuals.total)))
+        assert np.all(np.isfinite(np.asarray(out.coeffs)))
+    assert medians[0] > medians[1] > medians[2]
+    assert medians[2] < 0.5 * medians[0]
+
+
+def test_barrier_with_unit_gamma_equals_plain(dense_batch):
+    problem, target, b_x, b_y = dense_batch
+    plain = project(MODEL, problem, target, b_x, b_y, ProjectionConfig(max_iterations=15, tolerance=0.0))
+    barrier = project(MODEL, problem, target, b_x, b_y, ProjectionConfig(max_iterations=15, tolerance=0.0, barrier=True), gamma_obs=1.0, gamma_lane=1.0)
+    np.testing.assert_allclose(barrier.coeffs, plain.coeffs, rtol=1e-5, atol=1e-3)
+    np.testing.assert_allclose(barrier.residuals.total, plain.residuals.total, rtol=1e-4, atol=1e-3)
+
+
+def test_lane_barrier_limits_the_approach_rate():
+    """With gamma < 1 the distance to the lane bound shrinks at most by (1 - gamma) per node."""
+    problem, target, b_x, b_y = setup(empty_scene(y=4.0), [[15.0] * 4 + [16.0] * 4])
+    gamma = 0.1
+    cfg = dataclasses.replace(LOOSE, barrier=True, rho_lane=30.0)
+    out = project(MODEL, problem, target, b_x, b_y, cfg, gamma_lane=gamma)
+    gap = float(problem.y_ub) - np.asarray(evaluate(MODEL, out.coeffs).y[0])
+    assert np.all(gap[1:] >= (1 - gamma) * gap[:-1] - 0.05)
+    plain = project(MODEL, problem, target, b_x, b_y, LOOSE)
+    gap_plain = float(problem.y_ub) - np.asarray(evaluate(MODEL, plain.coeffs).y[0])
+    assert np.any(gap_plain[1:] < (1 - gamma) * gap_plain[:-1] - 0.05)  # plain mode approaches faster
+
+
+def test_unrolled_equals_early_stopping_loop(dense_batch):
+    problem, target, b_x, b_y = dense_batch
+    cfg = ProjectionConfig(max_iterations=12, tolerance=0.0)
+    loop = jax.jit(lambda t: project(MODEL, problem, t, b_x, b_y, cfg))(target)
+    scan = jax.jit(lambda t: project(MODEL, problem, t, b_x, b_y, cfg, unroll=True))(target)
+    assert int(loop.iterations) == int(scan.iterations) == 12
+    np.testing.assert_allclose(loop.coeffs, scan.coeffs, rtol=1e-5, atol=1e-4)
+
+
+def test_early_stop_on_a_feasible_batch():
+    problem, target, b_x, b_y = setup(empty_scene(), [[12.0] * 4 + [4.0] * 4] * 4)
+    out = project(MODEL, problem, target, b_x, b_y, ProjectionConfig(max_iterations=50, tolerance=1e-3))
+    assert int(out.iterations) < 50 and int(out.status) == 0
+    np.testing.assert_allclose(out.coeffs, target, atol=1e-2)  # nothing to correct
+
+
+def test_unrolled_projection_is_differentiable(dense_batch):
+    problem, target, b_x, b_y = dense_batch
+    cfg = ProjectionConfig(max_iterations=5, tolerance=0.0, barrier=True)
+
+    def loss(target, gamma):
+        out = project(MODEL, problem, target, b_x, b_y, cfg, gamma_obs=gamma, gamma_lane=gamma, unroll=True)
+        return jnp.sum(out.residuals.total) + jnp.sum((out.coeffs - target) ** 2)
+
+    g_target, g_gamma = jax.grad(loss, argnums=(0, 1))(target[:32], 0.9)
+    assert np.all(np.isfinite(np.asarray(g_target))) and np.isfinite(float(g_gamma))
+    assert float(jnp.abs(g_target).max()) > 0 and abs(float(g_gamma)) > 0
