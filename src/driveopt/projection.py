@@ -150,11 +150,11 @@ def _safe_sqrt(x):
 
 
 def _normalise(ux, uy):
-
     """Length and unit direction of (ux, uy); direction (1, 0) where the length vanishes."""
-    norm = jnp.sqrt(jnp.maximum(ux * ux + uy * uy, _EPS * _EPS))
-    tiny = norm <= _EPS
-    return norm, jnp.where(tiny, 1.0, ux / norm), jnp.where(tiny, 0.0, uy / norm)
+    sq = ux * ux + uy * uy
+    inv = jax.lax.rsqrt(jnp.maximum(sq, _EPS * _EPS))
+    tiny = sq <= _EPS * _EPS
+    return sq * inv, jnp.where(tiny, 1.0, ux * inv), jnp.where(tiny, 0.0, uy * inv)
 
 
 def _analysis_step(
