@@ -126,7 +126,7 @@ class SamplerConfig:
     residual_tolerance: float = 0.05  # [-] total residual under which a sample counts as feasible
 
     def __post_init__(self) -> None:
-        _require(isinstance(self.num_samples, int) and self.num_samples >= 2, "sampler.num_samples must be an int >= 2")
+        _require(isinstance(self.num_samples, int) and self.num_samples >= 1, "sampler.num_samples must be an int >= 1")
         _require(isinstance(self.num_iterations, int) and self.num_iterations >= 1, "sampler.num_iterations must be an int >= 1")
         _require(
             1 <= self.num_elites <= self.num_constraint_elites <= self.num_samples,

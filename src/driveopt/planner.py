@@ -130,9 +130,23 @@ def fallback_setpoints(problem: PlanningProblem, cfg: PlannerConfig) -> jnp.ndar
     return jnp.concatenate([v, y])
 
 
-def _iteration(model, problem, cfg: PlannerConfig, setpoints, b_x, b_y):
+def goal_from_setpoints(setpoints: jnp.ndarray, init_x: jnp.ndarray, horizon: float) -> jnp.ndarray:
+    """(B, 2) terminal goal (x_f, y_f) [m] implied by set-points: distance covered at the set speeds, last lateral."""
+    quarter = horizon / NUM_SEGMENTS
+    x_f = init_x[0] + quarter * jnp.sum(setpoints[:, :NUM_SEGMENTS], axis=1)
+    return jnp.stack([x_f, setpoints[:, -1]], axis=1)
+
+
+def _boundary(problem: PlanningProblem, cfg: PlannerConfig, setpoints: jnp.ndarray):
+    """Equality right-hand sides; per sample when the QP imposes a terminal position (goal baseline)."""
+    goal = goal_from_setpoints(setpoints, problem.init_x, cfg.basis.horizon) if cfg.qp.terminal_position else None
+    return boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
+
+
+def _iteration(model, problem, cfg: PlannerConfig, setpoints):
     """QP + projection + ranking for one batch of set-points."""
     s = cfg.sampler
+    b_x, b_y = _boundary(problem, cfg, setpoints)
     qp_coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
     proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection)
     traj = evaluate(model, proj.coeffs)
@@ -173,7 +187,6 @@ def _better(a: _Best, b: _Best) -> _Best:
 def _plan_jit(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: PlannerConfig) -> _RawResult:
     model = make_model(cfg.basis, cfg.qp)
     s = cfg.sampler
-    b_x, b_y = boundary_values(problem.init_x, problem.init_y, cfg.qp)
     key_prior, key_loop = jax.random.split(key)
     proposal = prior.propose(problem, key_prior, s.num_samples, warm_mean)
 
@@ -181,13 +194,13 @@ def _plan_jit(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: P
         elites = snapshot.setpoints[snapshot.elite_index]
         return cem_update(mean, cov, elites, score[snapshot.elite_index], s)
 
-    best, first, score, stats = _iteration(model, problem, cfg, proposal.samples, b_x, b_y)
+    best, first, score, stats = _iteration(model, problem, cfg, proposal.samples)
     mean, cov = adapt(proposal.mean, proposal.cov, first, score)
 
     def body(carry, iteration_key):
         mean, cov, best, _ = carry
         setpoints = clip_setpoints(sample_gaussian(iteration_key, mean, cov, s.num_samples), problem, cfg.projection.v_max)
-        cand, snapshot, score, stats = _iteration(model, problem, cfg, setpoints, b_x, b_y)
+        cand, snapshot, score, stats = _iteration(model, problem, cfg, setpoints)
         best = _better(best, cand)
         mean, cov = adapt(mean, cov, snapshot, score)
         stats = (best.score,) + stats[1:]
@@ -196,7 +209,9 @@ def _plan_jit(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: P
     keys = jax.random.split(key_loop, s.num_iterations - 1)
     (mean, cov, best, last), rest = jax.lax.scan(body, (mean, cov, best, first), keys)
     history = History(*(jnp.concatenate([jnp.atleast_1d(a), b]) for a, b in zip(stats, rest)))
-    fallback = solve_setpoint_qp(model, fallback_setpoints(problem, cfg)[None], b_x, b_y)
+    fallback_p = fallback_setpoints(problem, cfg)[None]
+    fallback = solve_setpoint_qp(model, fallback_p, *_boundary(problem, cfg, fallback_p))
+
     fb_residuals = constraint_residuals(model, problem, fallback, cfg.projection)
     fb_terms = cost_terms(evaluate(model, fallback), problem)
     return _RawResult(

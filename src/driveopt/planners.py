@@ -1,0 +1,78 @@
+"""Registry of planners: the bi-level optimiser and the baselines of P1 §V, by name.
+
+Every optimiser-based planner is a (PlannerConfig, prior) pair run by the same ``plan()``; the
+``idm`` planner is highway-env's own IDM/MOBIL driver and is run by the simulator loop instead.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from driveopt.baselines import GoalGridPrior, GridPrior, VanillaPrior
+from driveopt.config import PlannerConfig
+from driveopt.sampler import GaussianPrior
+
+
+@dataclass(frozen=True)
+class PlannerSpec:
+    name: str
+    description: str
+    config: PlannerConfig = field(default_factory=PlannerConfig)
+    make_prior: Callable[[PlannerConfig], Any] | None = None  # None: not an optimiser (idm)
+    warm_start: bool = False  # carry the sampling mean between replans
+
+    @property
+    def is_optimiser(self) -> bool:
+        return self.make_prior is not None
+
+    def prior(self) -> Any:
+        if self.make_prior is None:
+            raise ValueError(f"planner '{self.name}' does not use the optimiser")
+        return self.make_prior(self.config)
+
+    def with_overrides(self, **sections: Any) -> "PlannerSpec":
+        """Copy with config sections updated, e.g. ``sampler={"num_samples": 250}``."""
+        return PlannerSpec(self.name, self.description, self.config.replace(**sections), self.make_prior, self.warm_start)
+
+
+def _single_iteration(samples: int) -> dict:
+    return {"num_samples": samples, "num_iterations": 1, "num_constraint_elites": min(100, samples), "num_elites": min(40, samples)}
+
+
+def _gaussian(cfg: PlannerConfig) -> GaussianPrior:
+    return GaussianPrior.from_config(cfg.sampler, cfg.projection.v_max)
+
+
+_BASE = PlannerConfig()
+PLANNERS: dict[str, PlannerSpec] = {
+    spec.name: spec
+    for spec in (
+        PlannerSpec("bilevel", "P1 bi-level optimiser: Gaussian start, 5 CEM iterations x 20 projection iterations",
+                    _BASE, _gaussian, warm_start=True),
+        PlannerSpec("random", "one Gaussian draw of set-points, no adaptation (MPC-Random)",
+                    _BASE.replace(sampler=_single_iteration(1000)), _gaussian),
+        PlannerSpec("grid", "fixed grid: constant speed x target lane x change quarter (MPC-Grid)",
+                    _BASE.replace(sampler=_single_iteration(320)), lambda c: GridPrior(v_max=c.projection.v_max)),
+        PlannerSpec("vanilla", "single speed set-point v_des in the current lane, no behavioural layer (MPC-Vanilla)",
+                    _BASE.replace(sampler={"num_samples": 1, "num_iterations": 1, "num_constraint_elites": 1, "num_elites": 1},
+                                  projection={"max_iterations": 100}),
+                    lambda c: VanillaPrior(v_max=c.projection.v_max)),
+        PlannerSpec("batch", "goal positions (x_f, y_f) on a grid with terminal constraints (Batch-MPC)",
+                    _BASE.replace(qp={"terminal_position": True}, sampler=_single_iteration(200)),
+                    lambda c: GoalGridPrior(v_max=c.projection.v_max)),
+        PlannerSpec("idm", "highway-env's IDM/MOBIL driver on the ego (rule-based reference)"),
+    )
+}
+
+
+def get_planner(name: str) -> PlannerSpec:
+    """The registered planner ``name``; ValueError listing the valid names otherwise."""
+    try:
+        return PLANNERS[name]
+    except KeyError:
+        raise ValueError(f"unknown planner '{name}'; valid planners: {', '.join(PLANNERS)}") from None
+
+
+def list_planners() -> list[str]:
+    return list(PLANNERS)
