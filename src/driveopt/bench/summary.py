@@ -1,0 +1,126 @@
+"""Summary statistics, tables and plots of benchmark records (P1 Fig. 7 style)."""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+COLUMNS = (
+    "scenario", "planner", "episodes", "collision_rate", "collision_ci_low", "collision_ci_high",
+    "mean_speed_collision_free", "mean_speed_all", "off_road_rate", "plan_ms_median", "plan_ms_p95",
+    "sim_s_per_episode", "plan_s_per_episode",
+)
+
+
+def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
+    """95% Wilson score interval of a binomial proportion."""
+    if trials == 0:
+        return (math.nan, math.nan)
+    p = successes / trials
+    denom = 1.0 + z * z / trials
+    centre = (p + z * z / (2 * trials)) / denom
+    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def summarise(records: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per (scenario, planner), in first-seen order."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    for r in records:
+        groups[(r["scenario"], r["planner"])].append(r)
+    rows = []
+    for (scenario, planner), rs in groups.items():
+        n = len(rs)
+        crashed = sum(bool(r["collided"]) for r in rs)
+        low, high = wilson_interval(crashed, n)
+        free = [r["mean_speed"] for r in rs if not r["collided"]]
+        plan_ms = np.concatenate([np.asarray(r.get("plan_ms", []), float) for r in rs]) if rs else np.zeros(0)
+        rows.append({
+            "scenario": scenario,
+            "planner": planner,
+            "episodes": n,
+            "collision_rate": crashed / n,
+            "collision_ci_low": low,
+            "collision_ci_high": high,
+            "mean_speed_collision_free": float(np.mean(free)) if free else math.nan,
+            "mean_speed_all": float(np.mean([r["mean_speed"] for r in rs])),
+            "off_road_rate": sum(bool(r["off_road"]) for r in rs) / n,
+            "plan_ms_median": float(np.median(plan_ms)) if plan_ms.size else math.nan,
+            "plan_ms_p95": float(np.percentile(plan_ms, 95)) if plan_ms.size else math.nan,
+            "sim_s_per_episode": float(np.mean([r["sim_seconds"] for r in rs])),
+            "plan_s_per_episode": float(np.mean([r["plan_seconds"] for r in rs])),
+        })
+    return rows
+
+
+def write_csv(rows: list[dict[str, Any]], path: str | Path) -> Path:
+    path = Path(path)
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
+
+
+def markdown_table(rows: list[dict[str, Any]]) -> str:
+    head = "| scenario | planner | episodes | collision rate (95% CI) | speed, collision-free [m/s] | speed, all [m/s] | off-road | plan ms median / p95 |"
+    lines = [head, "|" + "---|" * 8]
+    for r in rows:
+        lines.append(
+            f"| {r['scenario']} | {r['planner']} | {r['episodes']} | {r['collision_rate']:.2f} "
+            f"({r['collision_ci_low']:.2f}-{r['collision_ci_high']:.2f}) | {r['mean_speed_collision_free']:.1f} | "
+            f"{r['mean_speed_all']:.1f} | {r['off_road_rate']:.2f} | {r['plan_ms_median']:.0f} / {r['plan_ms_p95']:.0f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _family_and_density(scenario: str) -> tuple[str, float | None]:
+    """('four-lane', 3.0) from 'four-lane-d3.0' (variant suffixes stay in the family name)."""
+    match = re.match(r"^(.*?)-d(\d+(?:\.\d+)?)(.*)$", scenario)
+    if not match:
+        return scenario, None
+    return match.group(1) + match.group(3), float(match.group(2))
+
+
+def plot_summary(rows: list[dict[str, Any]], path: str | Path) -> Path:
+    """Collision rate (with 95% CI) and collision-free speed against density, one panel pair per road."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    families: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for r in rows:
+        family, density = _family_and_density(r["scenario"])
+        families[family].append({**r, "density": density if density is not None else 0.0})
+    fig, axes = plt.subplots(2, max(1, len(families)), figsize=(5.5 * max(1, len(families)), 7), squeeze=False)
+    for col, (family, rs) in enumerate(sorted(families.items())):
+        planners = sorted({r["planner"] for r in rs})
+        width = 0.8 / max(1, len(planners))
+        densities = sorted({r["density"] for r in rs})
+        for j, planner in enumerate(planners):
+            pts = sorted((r for r in rs if r["planner"] == planner), key=lambda r: r["density"])
+            xs = np.array([densities.index(r["density"]) for r in pts]) + (j - (len(planners) - 1) / 2) * width
+            rate = np.array([100 * r["collision_rate"] for r in pts])
+            err = np.array([[100 * (r["collision_rate"] - r["collision_ci_low"]) for r in pts],
+                            [100 * (r["collision_ci_high"] - r["collision_rate"]) for r in pts]])
+            axes[0, col].bar(xs, rate, width, yerr=err, capsize=2, label=planner)
+            axes[1, col].bar(xs, [r["mean_speed_collision_free"] for r in pts], width, label=planner)
+        for row, label in ((0, "collision rate [%]"), (1, "mean speed, collision-free [m/s]")):
+            ax = axes[row, col]
+            ax.set_xticks(range(len(densities)), [f"{d:g}" for d in densities])
+            ax.set_xlabel("density")
+            ax.set_ylabel(label)
+            ax.set_title(family)
+        axes[0, col].legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
