@@ -19,7 +19,8 @@ from typing import Any, Callable, Sequence
 
 from tqdm import tqdm
 
-from driveopt.bench.store import JobKey, append_record, load_records, pending, repair
+from driveopt.bench.store import JobKey, append_record, key_of, load_records, pending, repair
+
 from driveopt.bench.summary import markdown_table, plot_summary, summarise, write_csv
 
 EpisodeFn = Callable[[JobKey, dict], dict]
@@ -107,8 +108,8 @@ def run_bench(
     finally:
         bar.close()
 
-    wanted = set(jobs)
-    records = [r for r in load_records(store) if (r["scenario"], r["planner"], r["seed"], r["episode"]) in wanted]
+    order = {job: i for i, job in enumerate(jobs)}  # summaries follow the spec, not completion order
+    records = sorted((r for r in load_records(store) if key_of(r) in order), key=lambda r: order[key_of(r)])
     rows = summarise(records)
     write_csv(rows, out / "summary.csv")
     (out / "summary.md").write_text(markdown_table(rows))

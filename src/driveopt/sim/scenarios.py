@@ -62,6 +62,7 @@ class Scenario:
     target_speed_fraction: tuple[float, float] = (0.7, 0.8)  # [-] neighbour target speed ~ U(lo, hi) * speed_limit
     ego_speed: float = 10.0  # [m/s] ego speed at reset (a slow ego behind the traffic, as in P1)
     min_initial_gap: float = 10.0  # [m] highway: every neighbour spawns at least this far ahead of the ego centre
+    min_spawn_gap: float = 5.0  # [m] highway: bumper gap between same-lane vehicles at reset (upstream overlaps cars)
     duration: float = 50.0  # [s] episode length (P1: 50 s)
     simulation_frequency: int = 20  # [Hz] highway-env integration rate
     policy_frequency: int = 10  # [Hz] ego actions per second (= replanning rate); divides simulation_frequency
@@ -84,6 +85,7 @@ class Scenario:
         _check(0 < lo <= hi, "target_speed_fraction must be (lo, hi) with 0 < lo <= hi")
         _check(self.ego_speed >= 0, "ego_speed must be >= 0 [m/s]")
         _check(self.min_initial_gap >= 0, "min_initial_gap must be >= 0 [m]")
+        _check(self.min_spawn_gap >= 0, "min_spawn_gap must be >= 0 [m]")
         _check(self.duration > 0, "duration must be > 0 [s]")
         _check(self.simulation_frequency > 0 and self.policy_frequency > 0, "frequencies must be > 0 [Hz]")
         _check(

@@ -1,0 +1,142 @@
+"""Scenario registry: names, fields, overrides and their error messages."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from driveopt.sim.scenarios import (
+    DENSITIES,
+    Scenario,
+    ScenarioError,
+    apply_overrides,
+    get_scenario,
+    list_scenarios,
+    load_overrides,
+    resolve_scenario,
+)
+
+
+def test_registry_names_follow_the_scheme():
+    names = list_scenarios()
+    expected = {
+        f"{word}-lane-d{d:.1f}{suffix}" for word in ("two", "four") for d in DENSITIES for suffix in ("", "-slow")
+    } | {"two-way", "merge"}
+    assert set(names) == expected
+    assert len(names) == len(expected) == 22
+
+
+@pytest.mark.parametrize("name", ["four-lane-d3.0", "two-lane-d2.5", "two-lane-d1.0-slow", "four-lane-d1.5-slow"])
+def test_highway_scenarios_carry_their_name(name):
+    s = get_scenario(name)
+    assert s.name == name and s.road == "highway"
+    assert s.lanes == (4 if name.startswith("four") else 2)
+    assert s.density == float(name.split("-d")[1][:3])
+    assert s.speed_limit == (7.0 if name.endswith("-slow") else 15.0)
+    assert s.target_speed_fraction == (0.7, 0.8)
+    assert s.duration == 50.0 and s.v_des == 20.0 and s.policy_frequency == 10
+    assert s.simulation_frequency % s.policy_frequency == 0
+
+
+def test_two_way_and_merge_use_their_upstream_roads():
+    assert get_scenario("two-way").road == "two-way"
+    assert get_scenario("merge").road == "merge"
+    assert get_scenario("two-way").lanes == get_scenario("merge").lanes == 2
+
+
+def test_unknown_scenario_lists_valid_names():
+    with pytest.raises(ValueError) as info:
+        get_scenario("four-lane-d3.5")
+    message = str(info.value)
+    assert "four-lane-d3.5" in message
+    for name in list_scenarios():
+        assert name in message
+    assert "did you mean" in message
+
+
+def test_scenario_is_frozen_and_hashable():
+    s = get_scenario("two-lane-d1.0")
+    with pytest.raises(AttributeError):
+        s.density = 2.0  # type: ignore[misc]
+    assert hash(s) == hash(get_scenario("two-lane-d1.0"))
+
+
+def test_overrides_are_coerced_and_validated():
+    s = apply_overrides(get_scenario("two-lane-d1.0"), {"density": 2, "target_speed_fraction": [0.5, 0.9], "lanes": 3})
+    assert s.density == 2.0 and isinstance(s.density, float)
+    assert s.target_speed_fraction == (0.5, 0.9)
+    assert s.lanes == 3
+    assert s.target_speed_range == pytest.approx((7.5, 13.5))
+    assert s.replace(duration=10) == apply_overrides(s, {"duration": 10.0})
+
+
+@pytest.mark.parametrize(
+    "overrides, fragment",
+    [
+        ({"densty": 2.0}, "unknown scenario field(s) ['densty']"),
+        ({"density": "high"}, "density must be a finite number"),
+        ({"density": math.nan}, "density must be a finite number"),
+        ({"lanes": 2.5}, "lanes must be an integer"),
+        ({"lanes": True}, "lanes must be an integer"),
+        ({"target_speed_fraction": [0.7]}, "target_speed_fraction must be a list of 2 finite numbers"),
+        ({"target_speed_fraction": [0.9, 0.7]}, "0 < lo <= hi"),
+        ({"policy_frequency": 10, "simulation_frequency": 15}, "must be a multiple of policy_frequency"),
+        ({"road": "roundabout"}, "road must be one of"),
+        ({"duration": -1.0}, "duration must be > 0"),
+        ({"acceleration_range": [1.0, 5.0]}, "acceleration_range"),
+        ({"steering_range": [-2.0, 2.0]}, "steering_range"),
+    ],
+)
+def test_bad_overrides_raise_clear_errors(overrides, fragment):
+    with pytest.raises(ScenarioError) as info:
+        apply_overrides(get_scenario("four-lane-d1.0"), overrides)
+    assert fragment in str(info.value)
+
+
+def test_unknown_override_lists_valid_fields():
+    with pytest.raises(ScenarioError) as info:
+        apply_overrides(get_scenario("merge"), {"speedlimit": 10})
+    assert "speed_limit" in str(info.value) and "valid fields" in str(info.value)
+
+
+def test_two_way_and_merge_keep_two_lanes():
+    with pytest.raises(ScenarioError, match="lanes must be 2"):
+        get_scenario("two-way").replace(lanes=4)
+
+
+def test_override_file_then_mapping(tmp_path):
+    path = tmp_path / "dense.json"
+    path.write_text(json.dumps({"density": 2.7, "duration": 20.0, "vehicles_count": 30}))
+    s = resolve_scenario("four-lane-d1.0", config_file=path, overrides={"duration": 5.0})
+    assert (s.density, s.duration, s.vehicles_count, s.lanes) == (2.7, 5.0, 30, 4)
+    assert load_overrides(path) == {"density": 2.7, "duration": 20.0, "vehicles_count": 30}
+
+
+@pytest.mark.parametrize(
+    "text, fragment", [("{not json", "not valid JSON"), ("[1, 2]", "must hold a JSON object"), ('{"foo": 1}', "unknown")]
+)
+def test_bad_override_files(tmp_path, text, fragment):
+    path = tmp_path / "bad.json"
+    path.write_text(text)
+    with pytest.raises(ScenarioError, match=fragment.replace("(", r"\(")):
+        resolve_scenario("two-lane-d1.0", config_file=path)
+
+
+def test_missing_override_file(tmp_path):
+    with pytest.raises(ScenarioError, match="not found"):
+        load_overrides(tmp_path / "nope.json")
+
+
+def test_to_dict_round_trips():
+    s = get_scenario("four-lane-d2.5-slow")
+    data = s.to_dict()
+    json.dumps(data)
+    assert Scenario(**data) == s
+
+
+def test_timing_properties():
+    s = get_scenario("two-lane-d1.0")
+    assert s.steps_per_action == s.simulation_frequency // s.policy_frequency
+    assert s.num_actions == 500
