@@ -1,4 +1,4 @@
-"""Command-line interface: ``driveopt plan``, ``driveopt problems``.
+"""Command-line interface: ``driveopt plan | problems | drive | bench | scenarios | planners``.
 
 Errors in user input (unknown problem, malformed file or config) print one line
 ``driveopt: error: ...`` on stderr and exit with status 2.
@@ -15,6 +15,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from driveopt.bench.store import StoreError
 from driveopt.config import ConfigError, PlannerConfig, from_dict, to_dict
 from driveopt.problem import ProblemError, build_problem, builtin_problems, load_scene, scene_to_dict
 
@@ -116,6 +117,112 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
+def _planner_spec(name: str, samples: int | None):
+    from driveopt.planners import get_planner
+
+    spec = get_planner(name)
+    if samples is not None and spec.is_optimiser:
+        sampler = spec.config.sampler
+        elites = min(sampler.num_constraint_elites, samples)
+        spec = spec.with_overrides(sampler={"num_samples": samples, "num_constraint_elites": elites, "num_elites": min(sampler.num_elites, elites)})
+    return spec
+
+
+def cmd_drive(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from driveopt.sim.mpc import run_episode
+    from driveopt.sim.scenarios import resolve_scenario
+
+    scenario = resolve_scenario(args.scenario, config_file=args.scenario_config)
+    if args.duration is not None:
+        scenario = scenario.replace(duration=args.duration)
+    spec = _planner_spec(args.planner, args.samples)
+    steps = int(round(scenario.duration * scenario.policy_frequency))
+    bar = tqdm(total=steps, desc=f"{scenario.name} / {spec.name}", unit="step")
+    writer = None
+    if args.video:
+        from driveopt.viz.video import VideoWriter
+
+        writer = VideoWriter(args.video, fps=scenario.policy_frequency)
+        writer.__enter__()
+
+    def on_step(env, result, episode) -> None:
+        bar.update(1)
+        bar.set_postfix(v=f"{episode.speeds[-1]:.1f}", plan_ms=f"{episode.plan_ms[-1]:.0f}" if episode.plan_ms else "-")
+        if writer is not None:
+            from driveopt.viz.video import draw_plan, plan_overlay_arrays
+
+            frame = env.render()
+            if result is not None:
+                samples, elites, chosen = plan_overlay_arrays(result, spec.config)
+                frame = draw_plan(frame, env, samples=samples, elites=elites, chosen=chosen,
+                                  fallback=result.status.name != "SUCCESS")
+            writer.append(frame)
+
+    try:
+        episode = run_episode(scenario, spec, args.seed, render=writer is not None, on_step=on_step)
+    finally:
+        bar.close()
+        if writer is not None:
+            writer.__exit__(None, None, None)
+    plan_ms = np.asarray(episode.plan_ms) if episode.plan_ms else np.zeros(1)
+    summary = {
+        "scenario": scenario.name, "planner": spec.name, "seed": args.seed, "collided": episode.collided,
+        "off_road": episode.off_road, "simulated_s": episode.sim_duration, "mean_speed": episode.mean_speed,
+        "plan_ms_median": float(np.median(plan_ms)), "plan_ms_p95": float(np.percentile(plan_ms, 95)),
+        "sim_wall_s": episode.sim_seconds, "plan_wall_s": episode.plan_seconds, "statuses": dict(episode.statuses),
+    }
+    print(
+        f"{scenario.name} / {spec.name} (seed {args.seed}): collided {episode.collided}, off-road {episode.off_road}, "
+        f"{episode.sim_duration:.1f} s simulated, mean speed {episode.mean_speed:.1f} m/s, "
+        f"planning {summary['plan_ms_median']:.0f} ms median / {summary['plan_ms_p95']:.0f} ms p95"
+    )
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(summary, indent=1))
+        print(f"  wrote {args.json}")
+    if args.video:
+        print(f"  wrote {args.video}")
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from driveopt.bench.harness import BenchSpec, run_bench
+    from driveopt.planners import get_planner
+    from driveopt.sim.scenarios import get_scenario
+
+    for name in args.scenarios:
+        get_scenario(name)  # clear error listing the valid names
+    for name in args.planners:
+        get_planner(name)
+    options = {k: v for k, v in (("duration", args.duration), ("samples", args.samples)) if v is not None}
+    spec = BenchSpec(tuple(args.scenarios), tuple(args.planners), tuple(args.seeds), args.episodes, options)
+    rows = run_bench(spec, args.out, workers=args.workers, backend=args.backend)
+    from driveopt.bench.summary import markdown_table
+
+    print(markdown_table(rows))
+    print(f"wrote {args.out}/episodes.jsonl, summary.csv, summary.md, summary.png")
+    return 0
+
+
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    from driveopt.sim.scenarios import get_scenario, list_scenarios
+
+    for name in list_scenarios():
+        s = get_scenario(name)
+        print(f"{name:22s} {s.road:8s} lanes {s.lanes}  density {s.density:.1f}  limit {s.speed_limit:.0f} m/s  {s.duration:.0f} s")
+    return 0
+
+
+def cmd_planners(args: argparse.Namespace) -> int:
+    from driveopt.planners import PLANNERS
+
+    for spec in PLANNERS.values():
+        print(f"{spec.name:8s} {spec.description}")
+    return 0
+
+
 def cmd_problems(args: argparse.Namespace) -> int:
     for name in builtin_problems():
         scene = load_scene(name)
@@ -142,6 +249,34 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("problems", help="list built-in problems")
     p.set_defaults(func=cmd_problems)
+
+    p = sub.add_parser("drive", help="drive one closed-loop episode in highway-env (progress, summary, MP4)")
+    p.add_argument("--scenario", default="four-lane-d3.0", help="scenario name (see `driveopt scenarios`)")
+    p.add_argument("--scenario-config", help="JSON file overriding scenario fields")
+    p.add_argument("--planner", default="bilevel", help="planner name (see `driveopt planners`)")
+    p.add_argument("--seed", type=int, default=42, help="traffic and sampling seed")
+    p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
+    p.add_argument("--samples", type=_positive_int, help="samples per sampler iteration")
+    p.add_argument("--video", default="out/drive.mp4", help="MP4 path ('' for none)")
+    p.add_argument("--json", help="write the episode summary as JSON here")
+    p.set_defaults(func=cmd_drive)
+
+    p = sub.add_parser("bench", help="scenarios x planners x seeds x episodes; resumable; summary table and plots")
+    p.add_argument("--scenarios", nargs="+", default=["four-lane-d3.0", "two-lane-d2.5"])
+    p.add_argument("--planners", nargs="+", default=["bilevel", "vanilla", "grid", "random", "batch", "idm"])
+    p.add_argument("--seeds", nargs="+", type=int, default=[42])
+    p.add_argument("--episodes", type=_positive_int, default=50, help="episodes per scenario, planner and seed")
+    p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
+    p.add_argument("--samples", type=_positive_int, help="override the optimisers' samples per iteration")
+    p.add_argument("--workers", type=_positive_int, help="parallel episodes (default: CPU count)")
+    p.add_argument("--backend", choices=["local", "ray"], default="local")
+    p.add_argument("--out", default="out/bench", help="output directory (rerun to resume)")
+    p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("scenarios", help="list scenarios")
+    p.set_defaults(func=cmd_scenarios)
+    p = sub.add_parser("planners", help="list planners")
+    p.set_defaults(func=cmd_planners)
     return parser
 
 
@@ -150,7 +285,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (UsageError, ProblemError, ConfigError) as exc:
+    except (UsageError, ProblemError, ConfigError, ValueError, StoreError) as exc:
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"driveopt: error: {message}", file=sys.stderr)
         return 2

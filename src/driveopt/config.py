@@ -56,7 +56,9 @@ class QPConfig:
     k_pv: float = 20.0  # [1/s] P gain of speed tracking
     k_p: float = 20.0  # [1/s^2] P gain of lateral tracking
     k_d: float = 2.0 * math.sqrt(20.0)  # [1/s] D gain of lateral tracking
+    initial_acceleration: bool = True  # impose x''(0), y''(0); False when acceleration is a control input that can jump
     terminal_lateral_acceleration: bool = False  # also impose y''(T) = 0
+
     terminal_position: bool = False  # also impose x(T) = x_f, y(T) = y_f (goal-sampling baseline)
 
     def __post_init__(self) -> None:

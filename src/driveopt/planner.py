@@ -10,7 +10,8 @@ The chosen trajectory is, over all iterations, the lowest cost + residual among
 elites whose total residual is within ``sampler.residual_tolerance``; when there
 is none, the status is INFEASIBLE, the lowest-residual elite is reported and a
 fallback plan (keep the nearest lane centre, brake at ``fallback_deceleration``)
-is offered in ``result.fallback``.
+is offered in ``result.fallback`` (projected like every sample, so it keeps the
+acceleration and curvature bounds and is pushed away from predicted collisions).
 """
 
 from __future__ import annotations
@@ -210,7 +211,9 @@ def _plan_jit(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: P
     (mean, cov, best, last), rest = jax.lax.scan(body, (mean, cov, best, first), keys)
     history = History(*(jnp.concatenate([jnp.atleast_1d(a), b]) for a, b in zip(stats, rest)))
     fallback_p = fallback_setpoints(problem, cfg)[None]
-    fallback = solve_setpoint_qp(model, fallback_p, *_boundary(problem, cfg, fallback_p))
+    fb_x, fb_y = _boundary(problem, cfg, fallback_p)
+    fallback = project(model, problem, solve_setpoint_qp(model, fallback_p, fb_x, fb_y), fb_x, fb_y, cfg.projection).coeffs
+
 
     fb_residuals = constraint_residuals(model, problem, fallback, cfg.projection)
     fb_terms = cost_terms(evaluate(model, fallback), problem)

@@ -11,7 +11,8 @@ iteration is: a linear solve with a KKT matrix that is constant during the call
 ``gamma_lane``); closed-form angles/lengths from normalised vectors (no trig);
 slack and multiplier updates. Residuals are Euclidean distances to the feasible
 set per constraint family, in physical units: obstacle [m], velocity [m/s],
-acceleration [m/s^2], lane [m], each an L2 norm over the nodes.
+acceleration [m/s^2], lane [m], each an L2 norm over the nodes, leaving out the values
+that A_eq fixes (node 0 is the current state: no plan can change it).
 
 Two loop modes share one step function: ``unroll=False`` stops early
 (``lax.while_loop``) for planning; ``unroll=True`` runs exactly
@@ -75,6 +76,8 @@ class _Operators(NamedTuple):
     solve: jnp.ndarray  # (2, n, n) coefficient block of the inverse KKT matrix of each axis
     boundary: tuple[jnp.ndarray, jnp.ndarray]  # (n, mx), (n, my) boundary block of each inverse
     forward: jnp.ndarray  # (n, 3K): c -> (position, velocity, acceleration) at the nodes
+    back: jnp.ndarray  # (3K, n): transpose of ``forward`` without node 0 (the current state is not a constraint)
+    free_nodes: jnp.ndarray  # (3, K) 0 where position / velocity / acceleration is fixed by A_eq
     penalty: jnp.ndarray  # (2, n, n): rho F'F of each axis
     lane_gamma: jnp.ndarray  # () gamma of the lane rows (1 in plain mode)
     lane_bounds: jnp.ndarray  # (2, K-1) upper-row and lower-row bounds e
@@ -118,8 +121,11 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
     n_active = jnp.sum(problem.obstacle_mask)
     W, Wd, Wdd = (jnp.asarray(a) for a in (model.W, model.Wd, model.Wdd))
     G, e = lane_constraint(model, problem.y_lb, problem.y_ub, gamma_lane, cfg.barrier)
+    # Values fixed by A_eq (the current state at node 0) are not constraint rows: no plan can change them.
+    free = jnp.asarray(model.free_nodes)
+    Wm, Wdm, Wddm = (a * f[:, None] for a, f in zip((W, Wd, Wdd), free))
     penalty_x = (
-        cfg.rho_obstacle * n_active * W.T @ W + cfg.rho_velocity * Wd.T @ Wd + cfg.rho_acceleration * Wdd.T @ Wdd
+        cfg.rho_obstacle * n_active * Wm.T @ Wm + cfg.rho_velocity * Wdm.T @ Wdm + cfg.rho_acceleration * Wddm.T @ Wddm
     )
     penalty_y = penalty_x + cfg.rho_lane * G.T @ G
     n = W.shape[1]
@@ -137,6 +143,8 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
         solve=jnp.stack([inv_x[:n, :n], inv_y[:n, :n]]),
         boundary=(inv_x[:n, n:], inv_y[:n, n:]),
         forward=jnp.concatenate([W, Wd, Wdd]).T,
+        back=jnp.concatenate([Wm, Wdm, Wddm]),
+        free_nodes=free,
         penalty=jnp.stack([penalty_x, penalty_y]),
         lane_gamma=jnp.asarray(gamma_lane if cfg.barrier else 1.0, W.dtype),
         lane_bounds=e.reshape(2, -1),
@@ -223,13 +231,16 @@ def _analysis_step(
         jnp.concatenate([cfg.rho_obstacle * h_ox, cfg.rho_velocity * d_vel * uvx, cfg.rho_acceleration * d_acc * uax], 1),
         jnp.concatenate([pos_y, cfg.rho_velocity * d_vel * uvy, cfg.rho_acceleration * d_acc * uay], 1),
     ])
-    pull = vectors @ ops.forward.T  # (2, B, n)
+    pull = vectors @ ops.back  # (2, B, n)
     if not with_residuals:
         return pull, d_obs_next, d_acc, None
+    free = ops.free_nodes
     residuals = Residuals(
-        obstacle=_safe_sqrt(jnp.sum(obstacle_sq, axis=1)),
-        velocity=_safe_sqrt(jnp.sum((speed - d_vel) ** 2, axis=1)),
-        acceleration=_safe_sqrt(jnp.sum((acc - d_acc) ** 2, axis=1)),
+        obstacle=_safe_sqrt(jnp.sum(free[0] * obstacle_sq, axis=1)),
+        velocity=_safe_sqrt(jnp.sum(free[1] * (speed - d_vel) ** 2, axis=1)),
+        acceleration=_safe_sqrt(jnp.sum(free[2] * (acc - d_acc) ** 2, axis=1)),
+
+
         lane=_safe_sqrt(lane_sq),
     )
     return pull, d_obs_next, d_acc, residuals

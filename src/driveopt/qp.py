@@ -41,6 +41,7 @@ class TrajectoryModel(NamedTuple):
     lateral_map: jnp.ndarray  # (n, 4) d c_y / d y_set
     init_map_x: jnp.ndarray  # (n, mx) d c_x / d b_x
     init_map_y: jnp.ndarray  # (n, my) d c_y / d b_y
+    free_nodes: jnp.ndarray  # (3, K) 1 where (position, velocity, acceleration) at a node is not fixed by A_eq
 
 
 def segment_matrix(num_nodes: int) -> np.ndarray:
@@ -53,9 +54,13 @@ def segment_matrix(num_nodes: int) -> np.ndarray:
 
 
 def equality_rows(basis: Basis, qp: QPConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Equality rows (A_x, A_y): initial x, x', x'' (and x(T)); initial y, y', y'', y'(T) (and y''(T), y(T))."""
-    rows_x = [basis.W[0], basis.Wd[0], basis.Wdd[0]]
-    rows_y = [basis.W[0], basis.Wd[0], basis.Wdd[0], basis.Wd[-1]]
+    """Equality rows (A_x, A_y): initial x, x', x'' (and x(T)); initial y, y', y'', y'(T) (and y''(T), y(T)).
+
+    The initial accelerations are left out when ``qp.initial_acceleration`` is False.
+    """
+    initial = [basis.W[0], basis.Wd[0]] + ([basis.Wdd[0]] if qp.initial_acceleration else [])
+    rows_x = list(initial)
+    rows_y = initial + [basis.Wd[-1]]
     if qp.terminal_lateral_acceleration:
         rows_y.append(basis.Wdd[-1])
     if qp.terminal_position:
@@ -97,11 +102,14 @@ def make_model(basis_config: BasisConfig = BasisConfig(), qp: QPConfig = QPConfi
     H_x, G_x, H_y, G_y = quadratic_costs(basis, qp)
     speed_map, init_map_x = _affine_solution(H_x, G_x, A_x)
     lateral_map, init_map_y = _affine_solution(H_y, G_y, A_y)
+    free_nodes = np.ones((3, basis_config.num_nodes))
+    free_nodes[:2 if not qp.initial_acceleration else 3, 0] = 0.0
+
     # numpy (not jnp) constants: the cache must never hold values created under a jit trace.
     f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
     return TrajectoryModel(
         f32(basis.t), f32(basis.W), f32(basis.Wd), f32(basis.Wdd), f32(A_x), f32(A_y),
-        f32(speed_map), f32(lateral_map), f32(init_map_x), f32(init_map_y),
+        f32(speed_map), f32(lateral_map), f32(init_map_x), f32(init_map_y), f32(free_nodes),
     )
 
 
@@ -110,7 +118,9 @@ def boundary_values(
 ) -> tuple[jnp.ndarray, jnp.ndarray]:
     """Right-hand sides (b_x, b_y) matching :func:`equality_rows`.
 
-    init_x, init_y: (..., 3) position, velocity, acceleration at t = 0.
+    init_x, init_y: (..., 3) position, velocity, acceleration at t = 0 (acceleration unused when
+    ``qp.initial_acceleration`` is False).
+
     goal: (..., 2) terminal (x_f, y_f) [m], required iff ``qp.terminal_position``.
     """
     if qp.terminal_position != (goal is not None):
@@ -122,7 +132,8 @@ def boundary_values(
         init_x = jnp.broadcast_to(init_x, shape + (3,))
         init_y = jnp.broadcast_to(init_y, shape + (3,))
     zero = jnp.zeros(init_y.shape[:-1] + (1,), init_y.dtype)
-    parts_x, parts_y = [init_x], [init_y, zero]
+    used = 3 if qp.initial_acceleration else 2
+    parts_x, parts_y = [init_x[..., :used]], [init_y[..., :used], zero]
     if qp.terminal_lateral_acceleration:
         parts_y.append(zero)
     if goal is not None:
