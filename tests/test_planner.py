@@ -1,6 +1,5 @@
 """End-to-end planning: the static-blockage manoeuvre, failure handling, properties over random problems."""
 
-import dataclasses
 
 import jax
 import jax.numpy as jnp

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from driveopt.config import PlannerConfig, ProjectionConfig, QPConfig
+from driveopt.config import ProjectionConfig, QPConfig
 from driveopt.costs import evaluate
 from driveopt.problem import EgoState, Neighbour, Road, Scene, build_problem, load_scene
 from driveopt.projection import constraint_residuals, project

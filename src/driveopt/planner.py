@@ -10,8 +10,9 @@ The chosen trajectory is, over all iterations, the lowest cost + residual among
 elites whose total residual is within ``sampler.residual_tolerance``; when there
 is none, the status is INFEASIBLE, the lowest-residual elite is reported and a
 fallback plan (keep the nearest lane centre, brake at ``fallback_deceleration``)
-is offered in ``result.fallback`` (projected like every sample, so it keeps the
-acceleration and curvature bounds and is pushed away from predicted collisions).
+is offered in ``result.fallback``. The fallback is the last row of every batch: it is
+projected and ranked like every sample (so it is chosen whenever it is the best feasible
+plan), keeps the acceleration and curvature bounds and is pushed away from predicted collisions.
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ import numpy as np
 from driveopt.config import PlannerConfig
 from driveopt.costs import COST_TERMS, Trajectory, cost_terms, evaluate, nearest_lane_center, weighted_cost
 from driveopt.problem import PlanningProblem, ProblemError, check_problem
-from driveopt.projection import FAMILIES, constraint_residuals, project
-from driveopt.qp import NUM_SEGMENTS, TrajectoryModel, boundary_values, make_model, solve_setpoint_qp
+from driveopt.projection import FAMILIES, project
+from driveopt.qp import NUM_SEGMENTS, boundary_values, make_model, solve_setpoint_qp
 from driveopt.sampler import GaussianPrior, cem_update, clip_setpoints, sample_gaussian, select_lowest
 
 _INFEASIBLE_PENALTY = 1e6
@@ -88,10 +89,7 @@ class _RawResult(NamedTuple):
     last: Snapshot
     trajectory: Trajectory  # of the best coefficients (planning frame)
     fallback_trajectory: Trajectory
-    fallback_coeffs: jnp.ndarray
-    fallback_residuals: jnp.ndarray  # (4,)
-    fallback_terms: jnp.ndarray  # (len(COST_TERMS),)
-    fallback_cost: jnp.ndarray
+    fallback: _Best  # the brake-in-lane row of the batch (identical in every iteration)
 
 
 class PlanResult(NamedTuple):
@@ -145,13 +143,13 @@ def _boundary(problem: PlanningProblem, cfg: PlannerConfig, setpoints: jnp.ndarr
 
 
 def _iteration(model, problem, cfg: PlannerConfig, setpoints):
-    """QP + projection + ranking for one batch of set-points."""
+    """QP + projection + ranking for one batch of set-points; the last row is the fallback plan."""
     s = cfg.sampler
+    setpoints = jnp.concatenate([setpoints, fallback_setpoints(problem, cfg)[None]])
     b_x, b_y = _boundary(problem, cfg, setpoints)
     qp_coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
     proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection)
-    traj = evaluate(model, proj.coeffs)
-    terms = cost_terms(traj, problem)
+    terms = cost_terms(evaluate(model, proj.coeffs), problem)
     cost = weighted_cost(terms, cfg.cost)
     residual = proj.residuals.total
     score = cost + residual
@@ -162,22 +160,18 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints):
     constraint_elites = select_lowest(key_score, s.num_constraint_elites)
     ranked = constraint_elites[select_lowest(score[constraint_elites], s.num_elites)]
     pick = ranked[jnp.argmin(key_score[ranked])]
+    families = jnp.stack(list(proj.residuals))  # (4, B + 1)
+    term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, B + 1)
 
-    best = _Best(
-        key_score[pick],
-        setpoints[pick],
-        proj.coeffs[pick],
-        jnp.stack(list(proj.residuals))[:, pick],
-        jnp.stack([terms[k] for k in COST_TERMS])[:, pick],
-        cost[pick],
-    )
+    def row(i):
+        return _Best(key_score[i], setpoints[i], proj.coeffs[i], families[:, i], term_values[:, i], cost[i])
+
     stats = (
-        jnp.min(best.score), jnp.mean(score[ranked]), jnp.min(residual), jnp.median(residual), jnp.sum(feasible),
+        jnp.min(key_score[ranked]), jnp.mean(score[ranked]), jnp.min(residual), jnp.median(residual), jnp.sum(feasible),
         proj.iterations,
     )
-
     snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked)
-    return best, snapshot, score, stats
+    return row(pick), row(-1), snapshot, score, stats
 
 
 def _better(a: _Best, b: _Best) -> _Best:
@@ -195,13 +189,13 @@ def _plan_jit(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: P
         elites = snapshot.setpoints[snapshot.elite_index]
         return cem_update(mean, cov, elites, score[snapshot.elite_index], s)
 
-    best, first, score, stats = _iteration(model, problem, cfg, proposal.samples)
+    best, fallback, first, score, stats = _iteration(model, problem, cfg, proposal.samples)
     mean, cov = adapt(proposal.mean, proposal.cov, first, score)
 
     def body(carry, iteration_key):
         mean, cov, best, _ = carry
         setpoints = clip_setpoints(sample_gaussian(iteration_key, mean, cov, s.num_samples), problem, cfg.projection.v_max)
-        cand, snapshot, score, stats = _iteration(model, problem, cfg, setpoints)
+        cand, _, snapshot, score, stats = _iteration(model, problem, cfg, setpoints)
         best = _better(best, cand)
         mean, cov = adapt(mean, cov, snapshot, score)
         stats = (best.score,) + stats[1:]
@@ -210,20 +204,7 @@ def _plan_jit(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: P
     keys = jax.random.split(key_loop, s.num_iterations - 1)
     (mean, cov, best, last), rest = jax.lax.scan(body, (mean, cov, best, first), keys)
     history = History(*(jnp.concatenate([jnp.atleast_1d(a), b]) for a, b in zip(stats, rest)))
-    fallback_p = fallback_setpoints(problem, cfg)[None]
-    fb_x, fb_y = _boundary(problem, cfg, fallback_p)
-    fallback = project(model, problem, solve_setpoint_qp(model, fallback_p, fb_x, fb_y), fb_x, fb_y, cfg.projection).coeffs
-
-
-    fb_residuals = constraint_residuals(model, problem, fallback, cfg.projection)
-    fb_terms = cost_terms(evaluate(model, fallback), problem)
-    return _RawResult(
-        best, mean, cov, history, first, last,
-        evaluate(model, best.coeffs), evaluate(model, fallback[0]), fallback[0],
-        jnp.stack([r[0] for r in fb_residuals]),
-        jnp.stack([fb_terms[k][0] for k in COST_TERMS]),
-        weighted_cost(fb_terms, cfg.cost)[0],
-    )
+    return _RawResult(best, mean, cov, history, first, last, evaluate(model, best.coeffs), evaluate(model, fallback.coeffs), fallback)
 
 
 def _shift(traj: Trajectory, dx: float) -> Trajectory:
@@ -270,9 +251,10 @@ def _finish(raw: _RawResult, problem: PlanningProblem, config: PlannerConfig, x_
         status = PlanStatus.INFEASIBLE
     fallback = _shift(raw.fallback_trajectory, x_offset)
     if status == PlanStatus.NUMERICAL_ERROR:  # report the fallback itself
-        setpoints = np.asarray(fallback_setpoints(problem, config))
-        coeffs, trajectory, mean = np.asarray(raw.fallback_coeffs), fallback, setpoints
-        chosen_residuals, chosen_terms, cost = raw.fallback_residuals, raw.fallback_terms, float(raw.fallback_cost)
+        fb = raw.fallback
+        setpoints = np.asarray(fb.setpoints)
+        coeffs, trajectory, mean = np.asarray(fb.coeffs), fallback, setpoints
+        chosen_residuals, chosen_terms, cost = fb.residuals, fb.terms, float(fb.cost)
     else:
         coeffs, setpoints, mean = np.asarray(best.coeffs), np.asarray(best.setpoints), np.asarray(raw.mean)
         trajectory = _shift(raw.trajectory, x_offset)
