@@ -78,7 +78,7 @@ class ProjectionConfig:
     rho_velocity: float = 10.0  # [-] penalty weight of the velocity rows
     rho_acceleration: float = 10.0  # [-] penalty weight of the acceleration rows
     rho_lane: float = 1.0  # [-] penalty weight of the lane rows
-    v_min: float = 0.1  # [m/s] speed lower bound
+    v_min: float = 0.0  # [m/s] speed lower bound (P1: 0.1; 0 lets a plan stop, as the fallback does)
     v_max: float = 30.0  # [m/s] speed upper bound
     a_max: float = 18.0  # [m/s^2] acceleration-magnitude bound
     kappa_max: float = 0.23  # [1/m] path-curvature bound (0 disables it)
@@ -126,6 +126,7 @@ class SamplerConfig:
     speed_std: float = math.sqrt(30.0)  # [m/s] initial std of every speed set-point
     lateral_std: float = math.sqrt(46.0)  # [m] initial std of every lateral set-point
     residual_tolerance: float = 0.05  # [-] total residual under which a sample counts as feasible
+    structured_fraction: float = 0.5  # [-] share of the first batch drawn as whole-horizon behaviours (0: P1)
 
     def __post_init__(self) -> None:
         _require(isinstance(self.num_samples, int) and self.num_samples >= 1, "sampler.num_samples must be an int >= 1")
@@ -139,6 +140,7 @@ class SamplerConfig:
         _require(self.covariance_jitter >= 0, "sampler.covariance_jitter must be >= 0")
         _require(self.speed_std > 0 and self.lateral_std > 0, "sampler std values must be > 0")
         _require(self.residual_tolerance >= 0, "sampler.residual_tolerance must be >= 0")
+        _require(0 <= self.structured_fraction <= 1, "sampler.structured_fraction must be in [0, 1]")
 
 
 @dataclass(frozen=True)

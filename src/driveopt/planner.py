@@ -9,10 +9,11 @@ rank those by cost + residual, keep ``num_elites``, update the Gaussian (eq. 6).
 The chosen trajectory is, over all iterations, the lowest cost + residual among
 elites whose total residual is within ``sampler.residual_tolerance``; when there
 is none, the status is INFEASIBLE, the lowest-residual elite is reported and a
-fallback plan (keep the nearest lane centre, brake at ``fallback_deceleration``)
-is offered in ``result.fallback``. The fallback is the last row of every batch: it is
-projected and ranked like every sample (so it is chosen whenever it is the best feasible
-plan), keeps the acceleration and curvature bounds and is pushed away from predicted collisions.
+fallback plan (keep the nearest lane centre, brake at ``fallback_deceleration``, or at
+``projection.a_max`` when that emergency stop has the lower residual) is offered in
+``result.fallback``. Both stops are the last two rows of every batch: projected and ranked like
+every sample (so chosen whenever one is the best feasible plan), they keep the acceleration and
+curvature bounds and are pushed away from predicted collisions.
 """
 
 from __future__ import annotations
@@ -30,7 +31,8 @@ from driveopt.config import PlannerConfig
 from driveopt.costs import COST_TERMS, Trajectory, cost_terms, evaluate, nearest_lane_center, weighted_cost
 from driveopt.problem import PlanningProblem, ProblemError, check_problem
 from driveopt.projection import FAMILIES, project
-from driveopt.qp import NUM_SEGMENTS, boundary_values, make_model, solve_setpoint_qp
+from driveopt.qp import NUM_SEGMENTS, boundary_values, fit_positions, make_model, solve_setpoint_qp
+
 from driveopt.sampler import GaussianPrior, cem_update, clip_setpoints, sample_gaussian, select_lowest
 
 _INFEASIBLE_PENALTY = 1e6
@@ -120,7 +122,7 @@ class PlanResult(NamedTuple):
 
 
 def fallback_setpoints(problem: PlanningProblem, cfg: PlannerConfig) -> jnp.ndarray:
-    """(8,) keep the nearest lane centre; speed falls at fallback_deceleration, never below 0."""
+    """(8,) set-points describing the fallback (speed at each quarter's end, nearest lane centre)."""
     quarter = cfg.basis.horizon / NUM_SEGMENTS
     ends = quarter * jnp.arange(1, NUM_SEGMENTS + 1, dtype=jnp.float32)
     speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
@@ -142,12 +144,35 @@ def _boundary(problem: PlanningProblem, cfg: PlannerConfig, setpoints: jnp.ndarr
     return boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
 
 
+def braking_coeffs(model, problem: PlanningProblem, decel: float, b_x, b_y) -> jnp.ndarray:
+    """(2n,) stop at constant deceleration ``decel`` [m/s^2], easing to the nearest lane centre in 3 s.
+
+    A least-squares fit of that motion (the set-point QP's step set-points would overshoot it).
+    """
+    t = jnp.asarray(model.t)
+    speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
+    moving = jnp.minimum(t, speed / decel)
+    x = problem.init_x[0] + speed * moving - 0.5 * decel * moving**2
+    centre = nearest_lane_center(problem, problem.init_y[0])
+    tau = jnp.minimum(t / 3.0, 1.0)
+    y = problem.init_y[0] + (centre - problem.init_y[0]) * (3 * tau**2 - 2 * tau**3)
+    return fit_positions(model, x, y, b_x, b_y)
+
+
 def _iteration(model, problem, cfg: PlannerConfig, setpoints):
-    """QP + projection + ranking for one batch of set-points; the last row is the fallback plan."""
+    """QP + projection + ranking for one batch of set-points.
+
+    Two rows are appended: the comfortable fallback (brake at ``fallback_deceleration``) and an
+    emergency stop (brake at ``projection.a_max``); both are ranked like every sample.
+    """
     s = cfg.sampler
-    setpoints = jnp.concatenate([setpoints, fallback_setpoints(problem, cfg)[None]])
+    brake = fallback_setpoints(problem, cfg)
+    setpoints = jnp.concatenate([setpoints, brake[None], brake[None]])
     b_x, b_y = _boundary(problem, cfg, setpoints)
     qp_coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
+    row = (lambda b, i: b if b.ndim == 1 else b[i])  # noqa: E731  (boundary rows are per sample only for goals)
+    for i, decel in ((-2, cfg.fallback_deceleration), (-1, cfg.projection.a_max)):
+        qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i)))
     proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection)
     terms = cost_terms(evaluate(model, proj.coeffs), problem)
     cost = weighted_cost(terms, cfg.cost)
@@ -158,12 +183,15 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints):
     # first ordered by score, then infeasible ones by residual.
     key_score = jnp.where(feasible, score, _INFEASIBLE_PENALTY + residual)
     constraint_elites = select_lowest(key_score, s.num_constraint_elites)
-    ranked = constraint_elites[select_lowest(score[constraint_elites], s.num_elites)]
+    # EliteSet: lowest cost + residual of those (P1), feasible samples always ahead of infeasible ones.
+    elite_key = jnp.where(feasible, score - _INFEASIBLE_PENALTY, score)
+    ranked = constraint_elites[select_lowest(elite_key[constraint_elites], s.num_elites)]
+
     pick = ranked[jnp.argmin(key_score[ranked])]
     families = jnp.stack(list(proj.residuals))  # (4, B + 1)
     term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, B + 1)
 
-    def row(i):
+    def candidate(i):
         return _Best(key_score[i], setpoints[i], proj.coeffs[i], families[:, i], term_values[:, i], cost[i])
 
     stats = (
@@ -171,7 +199,9 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints):
         proj.iterations,
     )
     snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked)
-    return row(pick), row(-1), snapshot, score, stats
+    # The fallback offered: the comfortable stop, unless the emergency stop has a lower residual.
+    fallback = jnp.where(residual[-1] < residual[-2], residual.shape[0] - 1, residual.shape[0] - 2)
+    return candidate(pick), candidate(fallback), snapshot, score, stats
 
 
 def _better(a: _Best, b: _Best) -> _Best:

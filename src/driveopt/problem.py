@@ -202,14 +202,27 @@ def predict_constant_velocity(n: Neighbour, t: np.ndarray, y_range: tuple[float,
     return n.x + n.vx * t, np.clip(n.y + n.vy * t, *y_range)
 
 
-def nearest_neighbours(scene: Scene, count: int) -> list[Neighbour]:
+def is_follower(scene: Scene, n: Neighbour) -> bool:
+    """A neighbour behind the ego in the ego's lane (it is the one that must keep its distance)."""
+    return n.x < scene.ego.x and abs(n.y - scene.ego.y) < 0.5 * scene.road.lane_width
+
+
+def nearest_neighbours(scene: Scene, count: int, ignore_followers: bool = False) -> list[Neighbour]:
     """The ``count`` neighbours closest to the ego (Euclidean distance now), nearest first."""
     ego = scene.ego
-    return sorted(scene.neighbours, key=lambda n: math.hypot(n.x - ego.x, n.y - ego.y))[:count]
+    candidates = [n for n in scene.neighbours if not (ignore_followers and is_follower(scene, n))]
+    return sorted(candidates, key=lambda n: math.hypot(n.x - ego.x, n.y - ego.y))[:count]
 
 
-def build_problem(scene: Scene, basis: BasisConfig = BasisConfig(), max_obstacles: int = 10) -> PlanningProblem:
-    """Turn a scene into the planner's arrays, in the frame where the ego starts at x = 0."""
+def build_problem(
+    scene: Scene, basis: BasisConfig = BasisConfig(), max_obstacles: int = 10, ignore_followers: bool = False
+) -> PlanningProblem:
+    """Turn a scene into the planner's arrays, in the frame where the ego starts at x = 0.
+
+    ignore_followers: leave out same-lane vehicles behind the ego. Constant-velocity prediction
+    drives a faster follower straight through a slow ego, which no plan can avoid, whereas
+    car-following traffic (IDM) brakes for the vehicle ahead of it.
+    """
     if not isinstance(scene, Scene):
         raise ProblemError(f"build_problem needs a Scene, got {type(scene).__name__}")
     if max_obstacles < 1:
@@ -224,7 +237,8 @@ def build_problem(scene: Scene, basis: BasisConfig = BasisConfig(), max_obstacle
     oa = np.ones(N)
     ob = np.ones(N)
     mask = np.zeros(N)
-    for i, n in enumerate(nearest_neighbours(scene, N)):
+    for i, n in enumerate(nearest_neighbours(scene, N, ignore_followers)):
+
         px, py = predict_constant_velocity(n, t, scene.road.edges)
         ox[i], oy[i] = px - ego.x, py
         oa[i], ob[i] = ellipse_semi_axes(ego, n, scene.ellipse_margin)

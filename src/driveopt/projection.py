@@ -33,6 +33,8 @@ from driveopt.problem import PlanningProblem
 from driveopt.qp import TrajectoryModel, split
 
 _EPS = 1e-6
+CURVATURE_MIN_SPEED = 1.0  # [m/s] below this speed the curvature bound is not applied
+
 FAMILIES = ("obstacle", "velocity", "acceleration", "lane")
 
 
@@ -208,14 +210,16 @@ def _analysis_step(
         d_acc_prev = acc
     sin_va = jnp.abs(uvx * uay - uvy * uax)
     v_lo = jnp.full_like(speed, cfg.v_min)
+    # Curvature a_perp / v^2 is undefined for a stopped car: its bounds apply above CURVATURE_MIN_SPEED.
+    turning = speed > CURVATURE_MIN_SPEED
     if cfg.kappa_max > 0:
-        v_lo = jnp.maximum(v_lo, _safe_sqrt(d_acc_prev * sin_va / cfg.kappa_max))
+        v_lo = jnp.where(turning, jnp.maximum(v_lo, _safe_sqrt(d_acc_prev * sin_va / cfg.kappa_max)), v_lo)
     road_k = jnp.abs(problem.road_curvature)
     v_hi = jnp.minimum(cfg.v_max, jnp.sqrt(cfg.centripetal_max / jnp.maximum(uvx * uvx * road_k, _EPS)))
     d_vel = jnp.minimum(jnp.maximum(speed, v_lo), v_hi)
     a_hi = jnp.full_like(acc, cfg.a_max)
     if cfg.kappa_max > 0:
-        a_hi = jnp.minimum(a_hi, cfg.kappa_max * d_vel * d_vel / jnp.maximum(sin_va, _EPS))
+        a_hi = jnp.where(turning, jnp.minimum(a_hi, cfg.kappa_max * d_vel * d_vel / jnp.maximum(sin_va, _EPS)), a_hi)
     d_acc = jnp.clip(acc, 0.0, a_hi)
 
     # Lane rows with slack s = max(0, e - G c_y); the rows act on node values, so no extra matmul.

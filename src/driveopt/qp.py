@@ -42,6 +42,10 @@ class TrajectoryModel(NamedTuple):
     init_map_x: jnp.ndarray  # (n, mx) d c_x / d b_x
     init_map_y: jnp.ndarray  # (n, my) d c_y / d b_y
     free_nodes: jnp.ndarray  # (3, K) 1 where (position, velocity, acceleration) at a node is not fixed by A_eq
+    fit_x: jnp.ndarray  # (n, K) least-squares fit of x positions at the nodes, under A_x c = b_x ...
+    fit_bx: jnp.ndarray  # (n, mx) ... plus this times b_x
+    fit_y: jnp.ndarray  # (n, K) same for y
+    fit_by: jnp.ndarray  # (n, my)
 
 
 def segment_matrix(num_nodes: int) -> np.ndarray:
@@ -110,7 +114,26 @@ def make_model(basis_config: BasisConfig = BasisConfig(), qp: QPConfig = QPConfi
     return TrajectoryModel(
         f32(basis.t), f32(basis.W), f32(basis.Wd), f32(basis.Wdd), f32(A_x), f32(A_y),
         f32(speed_map), f32(lateral_map), f32(init_map_x), f32(init_map_y), f32(free_nodes),
+        *(f32(a) for a in (*_fit_maps(basis, A_x), *_fit_maps(basis, A_y))),
     )
+
+
+FIT_SMOOTHING = 1e-2  # [s^4] weight of |c''|^2 against the squared position error [m^2] in fits
+
+
+def _fit_maps(basis: Basis, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Maps (target map, boundary map) of argmin |W c - target|^2 + s |W'' c|^2 s.t. A c = b."""
+    H = 2.0 * (basis.W.T @ basis.W + FIT_SMOOTHING * basis.Wdd.T @ basis.Wdd)
+    target_map, boundary_map = _affine_solution(H, -2.0 * basis.W.T, A)
+    return target_map, boundary_map
+
+
+def fit_positions(model: TrajectoryModel, x: jnp.ndarray, y: jnp.ndarray, b_x: jnp.ndarray, b_y: jnp.ndarray) -> jnp.ndarray:
+    """Coefficients (..., 2n) closest to node positions x, y (..., K) [m] that meet the equality rows."""
+    c_x = x @ model.fit_x.T + b_x @ model.fit_bx.T
+    c_y = y @ model.fit_y.T + b_y @ model.fit_by.T
+    return jnp.concatenate([c_x, c_y], axis=-1)
+
 
 
 def boundary_values(

@@ -44,7 +44,7 @@ def test_planner_bounds_fit_the_simulated_car():
     scenario = get_scenario("four-lane-d3.0")
     config = adapt_to_vehicle(get_planner("bilevel").config, scenario, BicycleModel())
     assert config.projection.a_max <= 5.0 and config.projection.kappa_max < 2 * np.sin(np.arctan(0.5)) / 5.0
-    assert not config.qp.initial_acceleration
+    assert config.qp.initial_acceleration  # plans start from the applied acceleration (smooth commands)
 
 
 def test_drive_command_writes_a_summary(tmp_path, capsys):

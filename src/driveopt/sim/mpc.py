@@ -35,7 +35,7 @@ SAFETY_FACTOR = 0.9  # plans use at most this fraction of the simulator's accele
 
 
 def adapt_to_vehicle(config: PlannerConfig, scenario: Scenario, model: BicycleModel) -> PlannerConfig:
-    """Fit the planner to the simulated car: acceleration and curvature bounds, free initial acceleration.
+    """Cap the planner's acceleration and curvature bounds at what the simulated car can do.
 
 
 
@@ -50,12 +50,7 @@ def adapt_to_vehicle(config: PlannerConfig, scenario: Scenario, model: BicycleMo
         a_max=min(config.projection.a_max, a_max),
         kappa_max=min(config.projection.kappa_max, kappa_max) if config.projection.kappa_max > 0 else kappa_max,
     )
-    # Upstream's acceleration and slip angle are commands that can jump every action period: pinning a
-    # plan to the ones applied now feeds the current turn back into every plan (the car drifts off).
-    qp = dataclasses.replace(config.qp, initial_acceleration=False)
-    return dataclasses.replace(
-        config, qp=qp, projection=projection, fallback_deceleration=min(config.fallback_deceleration, a_max)
-    )
+    return dataclasses.replace(config, projection=projection, fallback_deceleration=min(config.fallback_deceleration, a_max))
 
 
 def plannable_scene(scene: Scene, env: Any) -> Scene:
@@ -165,7 +160,7 @@ def run_episode(
                 scene = plannable_scene(scene_from_env(env, scenario), env)
                 key, sub = jax.random.split(key)
                 start = time.perf_counter()
-                result = plan(build_problem(scene, config.basis), config, key=sub, prior=prior, warm_start=warm, x_offset=scene.ego.x)
+                result = plan(build_problem(scene, config.basis, ignore_followers=True), config, key=sub, prior=prior, warm_start=warm, x_offset=scene.ego.x)
                 elapsed = time.perf_counter() - start
                 episode.plan_ms.append(1e3 * elapsed)
                 episode.plan_seconds += elapsed
