@@ -79,6 +79,7 @@ def test_boxed_in_returns_infeasible_and_a_braking_fallback(small_config):
     assert fb.speed[-1] < fb.speed[0] - 5.0  # brakes
     assert np.abs(fb.y - 4.0).max() < 0.5  # keeps its lane centre
     assert result.safe_trajectory is fb
+    assert result.fallback_residual >= 0
 
 
 def test_non_finite_and_wrong_shape_input_raise(small_config):

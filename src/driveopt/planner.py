@@ -110,6 +110,7 @@ class PlanResult(NamedTuple):
     first: Snapshot
     last: Snapshot
     x_offset: float  # [m] road-frame x of the planning-frame origin
+    fallback_residual: float  # total residual of the fallback
 
     @property
     def message(self) -> str:
@@ -117,7 +118,10 @@ class PlanResult(NamedTuple):
 
     @property
     def safe_trajectory(self) -> Trajectory:
-        """The chosen trajectory when it is feasible, else the fallback."""
+        """The chosen trajectory when it is feasible, else the fallback.
+
+        (Executing the less-violating of the two instead was tried in closed loop: it crashed
+        four-lane-d3.0 seed 42 at 11.8 s, where always braking completed the episode.)"""
         return self.trajectory if self.status == PlanStatus.SUCCESS else self.fallback
 
 
@@ -307,6 +311,8 @@ def _finish(raw: _RawResult, problem: PlanningProblem, config: PlannerConfig, x_
         first=jax.tree_util.tree_map(np.asarray, raw.first),
         last=jax.tree_util.tree_map(np.asarray, raw.last),
         x_offset=x_offset,
+        fallback_residual=float(np.sum(raw.fallback.residuals)),
+
     )
 
 
