@@ -32,6 +32,8 @@ from driveopt.sim.road_frame import driving_lanes, vehicle_motion
 from driveopt.sim.scenarios import Scenario, get_scenario
 
 SAFETY_FACTOR = 0.9  # plans use at most this fraction of the simulator's acceleration and curvature
+RENDER_CONFIG = {"screen_width": 1000, "screen_height": 250, "scaling": 7.0}  # [px], [px], [px/m]
+
 
 
 def adapt_to_vehicle(config: PlannerConfig, scenario: Scenario, model: BicycleModel) -> PlannerConfig:
@@ -135,6 +137,8 @@ def run_episode(
     if duration is not None:
         scenario = scenario.replace(duration=float(duration))
     env = make_env(scenario, render_mode="rgb_array" if render else None)
+    if render:
+        env.unwrapped.config.update(RENDER_CONFIG)
     try:
         env.reset(seed=seed)
         episode = Episode(scenario.name, spec.name, seed)
