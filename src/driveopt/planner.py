@@ -20,8 +20,7 @@ from __future__ import annotations
 
 import enum
 import functools
-import time
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -33,7 +32,7 @@ from driveopt.problem import PlanningProblem, ProblemError, check_problem
 from driveopt.projection import FAMILIES, project
 from driveopt.qp import NUM_SEGMENTS, boundary_values, fit_positions, make_model, solve_setpoint_qp
 
-from driveopt.sampler import GaussianPrior, cem_update, clip_setpoints, sample_gaussian, select_lowest
+from driveopt.sampler import GaussianPrior, Prior, cem_update, clip_setpoints, sample_gaussian, select_lowest
 
 _INFEASIBLE_PENALTY = 1e6
 
@@ -250,7 +249,7 @@ def plan(
     config: PlannerConfig = PlannerConfig(),
     *,
     key: jax.Array,
-    prior: Any = None,
+    prior: Prior | None = None,
     warm_start: np.ndarray | None = None,
     x_offset: float = 0.0,
 ) -> PlanResult:
@@ -314,10 +313,3 @@ def _finish(raw: _RawResult, problem: PlanningProblem, config: PlannerConfig, x_
         fallback_residual=float(np.sum(raw.fallback.residuals)),
 
     )
-
-
-def timed_plan(problem: PlanningProblem, config: PlannerConfig, *, key: jax.Array, **kwargs) -> tuple[PlanResult, float]:
-    """plan() and its wall time [s] (includes compilation on the first call for a config)."""
-    start = time.perf_counter()
-    result = plan(problem, config, key=key, **kwargs)
-    return result, time.perf_counter() - start

@@ -28,6 +28,7 @@ from driveopt.sim.observation import (
     observation_vector,
     scene_from_env,
 )
+from driveopt.sim.mpc import Episode, adapt_to_vehicle, run_episode
 from driveopt.sim.road_frame import RoadFrameError
 from driveopt.sim.scenarios import (
     Scenario,
@@ -44,6 +45,7 @@ __all__ = [
     "track",
     "ENV_IDS", "StepOutcome", "env_config", "is_off_road", "make_env", "sim_time", "step_env",
     "OBSERVATION_DIM", "ObservationError", "observation_from_env", "observation_vector", "scene_from_env",
+    "Episode", "adapt_to_vehicle", "run_episode",
     "RoadFrameError",
     "Scenario", "ScenarioError", "apply_overrides", "get_scenario", "list_scenarios", "load_overrides",
     "resolve_scenario",

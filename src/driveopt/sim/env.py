@@ -85,6 +85,13 @@ class _ScenarioTraffic:
         steps = round(self.config["duration"] * self.config["simulation_frequency"])
         return self.steps >= steps
 
+    def _reset(self) -> None:
+        """Upstream's road and vehicles (two-way, merge) with the scenario's limit and traffic speeds."""
+        self._make_road()
+        self._apply_speed_limit()
+        self._make_vehicles()
+        self._apply_traffic()
+
 
 class DriveoptHighwayEnv(_ScenarioTraffic, HighwayEnv):
     """highway-v0 (straight multi-lane highway, neighbours spawned ahead of the ego) with scenario traffic."""
@@ -140,12 +147,6 @@ def _move_along(vehicle: Any, shift: np.ndarray) -> None:
 class DriveoptTwoWayEnv(_ScenarioTraffic, TwoWayEnv):
     """two-way-v0 (one lane each way; the ego overtakes on the oncoming lane) with scenario traffic."""
 
-    def _reset(self) -> None:
-        self._make_road()
-        self._apply_speed_limit()
-        self._make_vehicles()
-        self._apply_traffic()
-
     def _rewards(self, action: Any) -> dict[str, float]:
         speed = utils.lmap(self.vehicle.speed, [20.0, 30.0], [0.0, 1.0])
         side = self.road.network.all_side_lanes(self.vehicle.lane_index)
@@ -155,12 +156,6 @@ class DriveoptTwoWayEnv(_ScenarioTraffic, TwoWayEnv):
 
 class DriveoptMergeEnv(_ScenarioTraffic, MergeEnv):
     """merge-v0 (2-lane highway with an on-ramp; upstream ends the episode past x = 370 m) with scenario traffic."""
-
-    def _reset(self) -> None:
-        self._make_road()
-        self._apply_speed_limit()
-        self._make_vehicles()
-        self._apply_traffic()
 
     def _rewards(self, action: Any) -> dict[str, float]:
         # upstream's lane_change_reward tests `action in [0, 2]` (DiscreteMetaAction); no lane-change actions here
