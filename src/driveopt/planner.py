@@ -9,8 +9,9 @@ rank those by cost + residual, keep ``num_elites``, update the Gaussian (eq. 6).
 The chosen trajectory is, over all iterations, the lowest cost + residual among
 elites whose total residual is within ``sampler.residual_tolerance``; when there
 is none, the status is INFEASIBLE, the lowest-residual elite is reported and a
-fallback plan (keep the nearest lane centre, brake at ``fallback_deceleration``, or at
-``projection.a_max`` when that emergency stop has the lower residual) is offered in
+fallback plan (keep the nearest lane centre, brake at ``fallback_deceleration``; or, when it
+has the lower residual, an emergency stop at ``projection.a_max`` holding the current lateral
+position) is offered in
 ``result.fallback``. Both stops are the last two rows of every batch: projected and ranked like
 every sample (so chosen whenever one is the best feasible plan), they keep the acceleration and
 curvature bounds and are pushed away from predicted collisions.
@@ -147,8 +148,9 @@ def _boundary(problem: PlanningProblem, cfg: PlannerConfig, setpoints: jnp.ndarr
     return boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
 
 
-def braking_coeffs(model, problem: PlanningProblem, decel: float, b_x, b_y) -> jnp.ndarray:
-    """(2n,) stop at constant deceleration ``decel`` [m/s^2], easing to the nearest lane centre in 3 s.
+def braking_coeffs(model, problem: PlanningProblem, decel: float, b_x, b_y, to_lane_centre: bool = True) -> jnp.ndarray:
+    """(2n,) stop at constant deceleration ``decel`` [m/s^2], easing to the nearest lane centre in 3 s
+    (or holding the current lateral position).
 
     A least-squares fit of that motion (the set-point QP's step set-points would overshoot it).
     """
@@ -156,7 +158,7 @@ def braking_coeffs(model, problem: PlanningProblem, decel: float, b_x, b_y) -> j
     speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
     moving = jnp.minimum(t, speed / decel)
     x = problem.init_x[0] + speed * moving - 0.5 * decel * moving**2
-    centre = nearest_lane_center(problem, problem.init_y[0])
+    centre = nearest_lane_center(problem, problem.init_y[0]) if to_lane_centre else problem.init_y[0]
     tau = jnp.minimum(t / 3.0, 1.0)
     y = problem.init_y[0] + (centre - problem.init_y[0]) * (3 * tau**2 - 2 * tau**3)
     return fit_positions(model, x, y, b_x, b_y)
@@ -165,8 +167,10 @@ def braking_coeffs(model, problem: PlanningProblem, decel: float, b_x, b_y) -> j
 def _iteration(model, problem, cfg: PlannerConfig, setpoints):
     """QP + projection + ranking for one batch of set-points.
 
-    Two rows are appended: the comfortable fallback (brake at ``fallback_deceleration``) and an
-    emergency stop (brake at ``projection.a_max``); both are ranked like every sample.
+    Two rows are appended: the comfortable fallback (brake at ``fallback_deceleration`` towards the
+    nearest lane centre) and an emergency stop (brake at ``projection.a_max`` holding the current
+    lateral position: a car straddling two lanes must not steer into the one it is about to hit);
+    both are ranked like every sample.
     """
     s = cfg.sampler
     brake = fallback_setpoints(problem, cfg)
@@ -174,8 +178,8 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints):
     b_x, b_y = _boundary(problem, cfg, setpoints)
     qp_coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
     row = (lambda b, i: b if b.ndim == 1 else b[i])  # noqa: E731  (boundary rows are per sample only for goals)
-    for i, decel in ((-2, cfg.fallback_deceleration), (-1, cfg.projection.a_max)):
-        qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i)))
+    for i, decel, to_centre in ((-2, cfg.fallback_deceleration, True), (-1, cfg.projection.a_max, False)):
+        qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), to_centre))
     proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection)
     terms = cost_terms(evaluate(model, proj.coeffs), problem)
     cost = weighted_cost(terms, cfg.cost)
