@@ -3,18 +3,18 @@
     result = plan(problem, config, key=key)            # PlanResult
     result = plan(problem, config, key=key2, warm_start=result.mean)
 
-Per iteration: draw set-points, solve the set-point QP for the batch, project the
-batch onto the constraints, keep the ``num_constraint_elites`` lowest residuals,
-rank those by cost + residual, keep ``num_elites``, update the Gaussian (eq. 6).
-The chosen trajectory is, over all iterations, the lowest cost + residual among
-elites whose total residual is within ``sampler.residual_tolerance``; when there
-is none, the status is INFEASIBLE, the lowest-residual elite is reported and a
-fallback plan (keep the nearest lane centre, brake at ``fallback_deceleration``; or, when it
-has the lower residual, an emergency stop at ``projection.a_max`` holding the current lateral
-position) is offered in
-``result.fallback``. Both stops are the last two rows of every batch: projected and ranked like
-every sample (so chosen whenever one is the best feasible plan), they keep the acceleration and
-curvature bounds and are pushed away from predicted collisions.
+Per sampler iteration: draw set-points (the prior's proposal first, then the adapted Gaussian),
+solve the set-point QP for the batch, project the batch onto the constraints, rank, and update the
+Gaussian with P1 eq. 6 over the elite set. Ranking puts feasible samples (total residual within
+``sampler.residual_tolerance``) first, by cost + residual; infeasible ones follow, by residual for
+the constraint-elite set and by cost + residual within it, as in P1.
+
+Two stopping plans ride in every batch and are ranked like any sample: a comfortable stop at
+``fallback_deceleration`` easing to the nearest lane centre, and an emergency stop at
+``projection.a_max`` holding the current lateral position. The chosen trajectory is the best
+feasible candidate over all iterations. When there is none the status is INFEASIBLE, the
+lowest-residual candidate is reported, and ``result.fallback`` offers the comfortable stop, or the
+emergency stop when its residual is lower.
 """
 
 from __future__ import annotations
@@ -32,7 +32,6 @@ from driveopt.costs import COST_TERMS, Trajectory, cost_terms, evaluate, nearest
 from driveopt.problem import PlanningProblem, ProblemError, check_problem
 from driveopt.projection import FAMILIES, project
 from driveopt.qp import NUM_SEGMENTS, boundary_values, fit_positions, make_model, solve_setpoint_qp
-
 from driveopt.sampler import GaussianPrior, Prior, cem_update, clip_setpoints, sample_gaussian, select_lowest
 
 _INFEASIBLE_PENALTY = 1e6
@@ -91,7 +90,7 @@ class _RawResult(NamedTuple):
     last: Snapshot
     trajectory: Trajectory  # of the best coefficients (planning frame)
     fallback_trajectory: Trajectory
-    fallback: _Best  # the brake-in-lane row of the batch (identical in every iteration)
+    fallback: _Best  # the stop offered as fallback (identical in every iteration)
 
 
 class PlanResult(NamedTuple):
@@ -101,7 +100,7 @@ class PlanResult(NamedTuple):
     setpoints: np.ndarray  # (8,) chosen (v_1..v_4 [m/s], y_1..y_4 [m])
     coeffs: np.ndarray  # (2n,) chosen Bernstein coefficients (x in the planning frame, ego at x = 0)
     trajectory: Trajectory  # chosen trajectory in the road frame
-    fallback: Trajectory  # brake-in-lane plan, always finite
+    fallback: Trajectory  # stopping plan (comfortable, or emergency when less violating), always finite
     costs: dict[str, float]  # weighted total under "total", plus every unweighted term
     residuals: dict[str, float]  # per family and "total"
     iterations: int  # sampler iterations run
@@ -125,14 +124,14 @@ class PlanResult(NamedTuple):
         return self.trajectory if self.status == PlanStatus.SUCCESS else self.fallback
 
 
-def fallback_setpoints(problem: PlanningProblem, cfg: PlannerConfig) -> jnp.ndarray:
-    """(8,) set-points describing the fallback (speed at each quarter's end, nearest lane centre)."""
-    quarter = cfg.basis.horizon / NUM_SEGMENTS
+def stop_setpoints(problem: PlanningProblem, horizon: float, decel: float, to_lane_centre: bool) -> jnp.ndarray:
+    """(8,) set-points describing a stop: speed at each quarter's end, lateral target."""
+    quarter = horizon / NUM_SEGMENTS
     ends = quarter * jnp.arange(1, NUM_SEGMENTS + 1, dtype=jnp.float32)
     speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
-    v = jnp.maximum(speed - cfg.fallback_deceleration * ends, 0.0)
-    y = jnp.full(NUM_SEGMENTS, nearest_lane_center(problem, problem.init_y[0]))
-    return jnp.concatenate([v, y])
+    v = jnp.maximum(speed - decel * ends, 0.0)
+    y = nearest_lane_center(problem, problem.init_y[0]) if to_lane_centre else problem.init_y[0]
+    return jnp.concatenate([v, jnp.full(NUM_SEGMENTS, y)])
 
 
 def goal_from_setpoints(setpoints: jnp.ndarray, init_x: jnp.ndarray, horizon: float) -> jnp.ndarray:
@@ -173,12 +172,13 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints):
     both are ranked like every sample.
     """
     s = cfg.sampler
-    brake = fallback_setpoints(problem, cfg)
-    setpoints = jnp.concatenate([setpoints, brake[None], brake[None]])
+    stops = ((cfg.fallback_deceleration, True), (cfg.projection.a_max, False))  # (decel [m/s^2], to lane centre)
+    stop_rows = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
+    setpoints = jnp.concatenate([setpoints, stop_rows])
     b_x, b_y = _boundary(problem, cfg, setpoints)
     qp_coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
     row = (lambda b, i: b if b.ndim == 1 else b[i])  # noqa: E731  (boundary rows are per sample only for goals)
-    for i, decel, to_centre in ((-2, cfg.fallback_deceleration, True), (-1, cfg.projection.a_max, False)):
+    for i, (decel, to_centre) in zip((-2, -1), stops):
         qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), to_centre))
     proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection)
     terms = cost_terms(evaluate(model, proj.coeffs), problem)
