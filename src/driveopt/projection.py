@@ -35,8 +35,6 @@ from driveopt.qp import TrajectoryModel, split
 _EPS = 1e-6
 CURVATURE_MIN_SPEED = 1.0  # [m/s] below this speed the curvature bound is not applied
 
-FAMILIES = ("obstacle", "velocity", "acceleration", "lane")
-
 
 class ProjectionStatus(enum.IntEnum):
     CONVERGED = 0
@@ -61,6 +59,9 @@ class Residuals(NamedTuple):
     @property
     def total(self) -> jnp.ndarray:
         return self.obstacle + self.velocity + self.acceleration + self.lane
+
+
+FAMILIES = Residuals._fields
 
 
 class ProjectionResult(NamedTuple):
@@ -227,7 +228,6 @@ def _analysis_step(
     upper_rows = _lane_rows_apply(y, g)
     target_ub = jnp.minimum(upper_rows, ops.lane_bounds[0])  # e - s of the upper rows
     target_lb = jnp.minimum(-upper_rows, ops.lane_bounds[1])  # e - s of the lower rows
-    lane_sq = jnp.sum((upper_rows - target_ub) ** 2 + (-upper_rows - target_lb) ** 2, axis=1)
     lane_pull = _lane_rows_adjoint(target_ub - target_lb, g)
 
     pos_y = cfg.rho_obstacle * h_oy + cfg.rho_lane * lane_pull
@@ -243,9 +243,7 @@ def _analysis_step(
         obstacle=_safe_sqrt(jnp.sum(free[0] * obstacle_sq, axis=1)),
         velocity=_safe_sqrt(jnp.sum(free[1] * (speed - d_vel) ** 2, axis=1)),
         acceleration=_safe_sqrt(jnp.sum(free[2] * (acc - d_acc) ** 2, axis=1)),
-
-
-        lane=_safe_sqrt(lane_sq),
+        lane=_safe_sqrt(jnp.sum((upper_rows - target_ub) ** 2 + (-upper_rows - target_lb) ** 2, axis=1)),
     )
     return pull, d_obs_next, d_acc, residuals
 
