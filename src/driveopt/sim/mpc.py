@@ -143,28 +143,30 @@ def run_episode(
         env.reset(seed=seed)
         episode = Episode(scenario.name, spec.name, seed)
         model = BicycleModel.from_env(env)
+        key = jax.random.PRNGKey(seed)
         if spec.is_optimiser:
             config = adapt_to_vehicle(spec.config, scenario, model)
             prior = spec.prior()
+
+            def observe():
+                scene = plannable_scene(scene_from_env(env, scenario), env)
+                return scene, build_problem(scene, config.basis, ignore_followers=True)
+
+            start = time.perf_counter()  # compile outside the timed loop; the result is discarded
+            plan(observe()[1], config, key=jax.random.fold_in(key, 1), prior=prior)
+            episode.compile_seconds = time.perf_counter() - start
         else:
             _hand_ego_to_idm(env, scenario.v_des)
-        key = jax.random.PRNGKey(seed)
-        if spec.is_optimiser:  # compile outside the timed loop; the result is discarded
-            start = time.perf_counter()
-            scene = plannable_scene(scene_from_env(env, scenario), env)
-            plan(build_problem(scene, config.basis), config, key=jax.random.fold_in(key, 1), prior=prior)
-            episode.compile_seconds = time.perf_counter() - start
         warm = None
-
         idle = np.zeros(2, dtype=np.float32)
         while True:
             result = None
             action = idle
             if spec.is_optimiser:
-                scene = plannable_scene(scene_from_env(env, scenario), env)
+                scene, problem = observe()
                 key, sub = jax.random.split(key)
                 start = time.perf_counter()
-                result = plan(build_problem(scene, config.basis, ignore_followers=True), config, key=sub, prior=prior, warm_start=warm, x_offset=scene.ego.x)
+                result = plan(problem, config, key=sub, prior=prior, warm_start=warm, x_offset=scene.ego.x)
                 elapsed = time.perf_counter() - start
                 episode.plan_ms.append(1e3 * elapsed)
                 episode.plan_seconds += elapsed
