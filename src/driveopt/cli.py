@@ -7,6 +7,7 @@ Errors in user input (unknown problem, malformed file or config) print one line
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -139,33 +140,26 @@ def cmd_drive(args: argparse.Namespace) -> int:
         scenario = scenario.replace(duration=args.duration)
     spec = _planner_spec(args.planner, args.samples)
     steps = int(round(scenario.duration * scenario.policy_frequency))
-    bar = tqdm(total=steps, desc=f"{scenario.name} / {spec.name}", unit="step")
-    writer = None
-    if args.video:
-        from driveopt.viz.video import VideoWriter
+    with contextlib.ExitStack() as stack:
+        bar = stack.enter_context(tqdm(total=steps, desc=f"{scenario.name} / {spec.name}", unit="step"))
+        writer = None
+        if args.video:
+            from driveopt.viz.video import VideoWriter, draw_plan, plan_overlay_arrays
 
-        writer = VideoWriter(args.video, fps=scenario.policy_frequency)
-        writer.__enter__()
+            writer = stack.enter_context(VideoWriter(args.video, fps=scenario.policy_frequency))
 
-    def on_step(env, result, episode) -> None:
-        bar.update(1)
-        bar.set_postfix(v=f"{episode.speeds[-1]:.1f}", plan_ms=f"{episode.plan_ms[-1]:.0f}" if episode.plan_ms else "-")
-        if writer is not None:
-            from driveopt.viz.video import draw_plan, plan_overlay_arrays
+        def on_step(env, result, episode) -> None:
+            bar.update(1)
+            bar.set_postfix(v=f"{episode.speeds[-1]:.1f}", plan_ms=f"{episode.plan_ms[-1]:.0f}" if episode.plan_ms else "-")
+            if writer is not None:
+                frame = env.render()
+                if result is not None:
+                    samples, elites, chosen = plan_overlay_arrays(result, spec.config)
+                    frame = draw_plan(frame, env, samples=samples, elites=elites, chosen=chosen,
+                                      fallback=result.status.name != "SUCCESS")
+                writer.append(frame)
 
-            frame = env.render()
-            if result is not None:
-                samples, elites, chosen = plan_overlay_arrays(result, spec.config)
-                frame = draw_plan(frame, env, samples=samples, elites=elites, chosen=chosen,
-                                  fallback=result.status.name != "SUCCESS")
-            writer.append(frame)
-
-    try:
         episode = run_episode(scenario, spec, args.seed, render=writer is not None, on_step=on_step)
-    finally:
-        bar.close()
-        if writer is not None:
-            writer.__exit__(None, None, None)
     plan_ms = np.asarray(episode.plan_ms) if episode.plan_ms else np.zeros(1)
     summary = {
         "scenario": scenario.name, "planner": spec.name, "seed": args.seed, "collided": episode.collided,
