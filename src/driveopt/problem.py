@@ -78,17 +78,28 @@ class Neighbour:
     vy: float = 0.0  # [m/s]
     length: float = 5.0  # [m]
     width: float = 2.0  # [m]
+    yaw: float | None = None  # [rad] body heading relative to the road; None: the velocity's direction
 
     def __post_init__(self) -> None:
         for f in ("x", "y", "vx", "vy", "length", "width"):
             object.__setattr__(self, f, _finite(f"neighbour.{f}", getattr(self, f)))
+        if self.yaw is not None:
+            object.__setattr__(self, "yaw", _finite("neighbour.yaw", self.yaw))
         if self.length <= 0 or self.width <= 0:
             raise ProblemError("neighbour.length and neighbour.width must be > 0 [m]")
 
     @property
     def heading(self) -> float:
-        """[rad] heading of the box; taken from the velocity, 0 when (nearly) stopped."""
+        """[rad] heading of the box: ``yaw`` when given, else from the velocity (0 when nearly stopped)."""
+        if self.yaw is not None:
+            return self.yaw
         return math.atan2(self.vy, self.vx) if math.hypot(self.vx, self.vy) > 0.5 else 0.0
+
+    @property
+    def half_extents(self) -> tuple[float, float]:
+        """[m] half-length and half-width of the axis-aligned box around the (rotated) vehicle."""
+        c, s = abs(math.cos(self.heading)), abs(math.sin(self.heading))
+        return 0.5 * (self.length * c + self.width * s), 0.5 * (self.length * s + self.width * c)
 
 
 @dataclass(frozen=True)
@@ -190,10 +201,13 @@ def ellipse_semi_axes(ego: EgoState, other: Neighbour, margin: EllipseMargin) ->
     """[m] semi-axes of the ellipse that circumscribes the Minkowski sum of the two boxes, plus margins.
 
     The axis-aligned ellipse with semi-axes sqrt(2) * (A, B) passes through the corners of a
-    box with half-sides (A, B): outside it, the two axis-aligned boxes cannot overlap.
+    box with half-sides (A, B): outside it, the two axis-aligned boxes cannot overlap. The
+    neighbour's box is first replaced by the axis-aligned box around it at its heading, so a car
+    turned across the road (changing lanes steeply, or stopped askew after a crash) is covered.
     """
-    half_long = 0.5 * (ego.length + other.length)
-    half_lat = 0.5 * (ego.width + other.width)
+    other_long, other_lat = other.half_extents
+    half_long = 0.5 * ego.length + other_long
+    half_lat = 0.5 * ego.width + other_lat
     return math.sqrt(2.0) * half_long + margin.longitudinal, math.sqrt(2.0) * half_lat + margin.lateral
 
 

@@ -38,8 +38,8 @@ def test_same_seed_same_episode():
     assert a.speeds == b.speeds and a.lateral == b.lateral
     c = run_episode("two-lane-d2.0", small("bilevel"), seed=8, duration=1.0)
     assert a.speeds != c.speeds
-    # Compilation (with and without warm start) happens before the timed steps.
-    assert get_planner("bilevel").warm_start and max(a.plan_ms) < 1000 * a.compile_seconds / 3
+    # Compilation (with and without warm start: seconds) happens before the timed steps (milliseconds).
+    assert get_planner("bilevel").warm_start and max(a.plan_ms) < 10 * float(np.median(a.plan_ms))
 
 
 def test_planner_bounds_fit_the_simulated_car():

@@ -58,7 +58,7 @@ def scene_from_env(env: Any, scenario: Scenario) -> Scene:
         others += [o for o in sim.road.objects if getattr(o, "collidable", True)]
         for other in others:
             m = vehicle_motion(other, reference)
-            neighbours.append(Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width))
+            neighbours.append(Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width, yaw=m.heading))
         return Scene(ego=ego, road=road, neighbours=tuple(neighbours), v_des=scenario.v_des, name=scenario.name)
     except ProblemError as exc:
         raise ObservationError(f"simulator state at t = {sim.steps / sim.config['simulation_frequency']:.2f} s: {exc}") from None
