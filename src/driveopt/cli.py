@@ -151,15 +151,18 @@ def cmd_drive(args: argparse.Namespace) -> int:
         def on_step(env, result, episode) -> None:
             bar.update(1)
             bar.set_postfix(v=f"{episode.speeds[-1]:.1f}", plan_ms=f"{episode.plan_ms[-1]:.0f}" if episode.plan_ms else "-")
-            if writer is not None:
-                frame = env.render()
-                if result is not None:
-                    samples, elites, chosen = plan_overlay_arrays(result, spec.config)
-                    frame = draw_plan(frame, env, samples=samples, elites=elites, chosen=chosen,
-                                      fallback=result.status.name != "SUCCESS")
-                writer.append(frame)
 
-        episode = run_episode(scenario, spec, args.seed, render=writer is not None, on_step=on_step)
+        def draw(env, result) -> None:
+            """Render the state the plan was made from, before the simulator steps."""
+            frame = env.render()
+            if result is not None:
+                samples, elites, chosen = plan_overlay_arrays(result, spec.config)
+                frame = draw_plan(frame, env, samples=samples, elites=elites, chosen=chosen,
+                                  fallback=result.status.name != "SUCCESS")
+            writer.append(frame)
+
+        episode = run_episode(scenario, spec, args.seed, render=writer is not None, on_step=on_step,
+                              before_step=draw if writer is not None else None)
     plan_ms = np.asarray(episode.plan_ms) if episode.plan_ms else np.zeros(1)
     summary = {
         "scenario": scenario.name, "planner": spec.name, "seed": args.seed, "collided": episode.collided,

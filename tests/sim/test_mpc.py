@@ -73,3 +73,16 @@ def test_bench_command_runs_real_episodes_and_resumes(tmp_path, capsys):
     assert main(args) == 0  # nothing left to do: no duplicates
     assert (tmp_path / "episodes.jsonl").read_text().splitlines() == lines
     assert "| two-lane-d1.0 | idm |" in (tmp_path / "summary.md").read_text()
+
+
+def test_before_step_sees_the_state_the_plan_starts_from():
+    """Videos draw in before_step: the executed plan must start at the ego's current position there."""
+    gaps = []
+
+    def before_step(env, result):
+        ego = env.unwrapped.vehicle
+        traj = result.safe_trajectory
+        gaps.append(float(np.hypot(traj.x[0] - ego.position[0], traj.y[0] - ego.position[1])))
+
+    run_episode("four-lane-d1.0", small("grid"), seed=2, duration=1.0, before_step=before_step)
+    assert len(gaps) == 10 and max(gaps) < 0.05

@@ -130,8 +130,11 @@ def run_episode(
     duration: float | None = None,
     render: bool = False,
     on_step: StepCallback | None = None,
+    before_step: Callable[[Any, PlanResult | None], None] | None = None,
 ) -> Episode:
-    """Drive one episode. ``on_step(env, result, episode)`` is called after every step."""
+    """Drive one episode. ``before_step(env, result)`` is called after planning, before the simulator
+    steps (the state the plan was made from: draw videos here); ``on_step(env, result, episode)``
+    after every step."""
     scenario = get_scenario(scenario) if isinstance(scenario, str) else scenario
     spec = get_planner(planner) if isinstance(planner, str) else planner
     if duration is not None:
@@ -176,6 +179,8 @@ def run_episode(
                 episode.statuses[result.status.name] += 1
                 warm = result.mean if spec.warm_start else None
                 action = command_from_env(env, result.safe_trajectory, 0.0, model).action
+            if before_step is not None:
+                before_step(env, result)
             start = time.perf_counter()
             outcome = step_env(env, action)
             episode.sim_seconds += time.perf_counter() - start
