@@ -17,6 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from driveopt.bench.store import StoreError
+from driveopt.data.demonstrations import DatasetError
 from driveopt.config import ConfigError, PlannerConfig, from_dict, to_dict
 from driveopt.problem import ProblemError, build_problem, builtin_problems, load_scene, scene_to_dict
 
@@ -203,6 +204,19 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_collect(args: argparse.Namespace) -> int:
+    from driveopt.data.collect import collect, summary_json
+
+    summary = collect(args.out, args.scenarios, seed=args.seed, episodes=args.episodes, samples=args.samples,
+                      iterations=args.iterations, duration=args.duration, workers=args.workers)
+    print(f"collected {summary['episodes']} episodes ({summary['rows']} rows, {summary['collided']} collided) in "
+          f"{summary['wall_seconds']:.0f} s; {summary['skipped']} already in {args.out}")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(summary_json(summary))
+    return 0
+
+
 def cmd_scenarios(args: argparse.Namespace) -> int:
     from driveopt.sim.scenarios import get_scenario, list_scenarios
 
@@ -270,6 +284,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/bench", help="output directory (rerun to resume)")
     p.set_defaults(func=cmd_bench)
 
+    p = sub.add_parser("collect", help="expert demonstrations (bi-level planner, large batch) into an HDF5 file; resumable")
+    p.add_argument("--scenarios", nargs="+", default=["four-lane-d3.0", "two-lane-d2.5"])
+    p.add_argument("--seed", type=int, default=7, help="traffic seed (keep it apart from evaluation seeds)")
+    p.add_argument("--episodes", type=_positive_int, default=10, help="episodes per scenario")
+    p.add_argument("--samples", type=_positive_int, default=1000, help="expert samples per sampler iteration")
+    p.add_argument("--iterations", type=_positive_int, default=5, help="expert sampler iterations")
+    p.add_argument("--duration", type=float, default=50.0, help="episode length [s]")
+    p.add_argument("--workers", type=_positive_int, default=1, help="parallel episodes")
+    p.add_argument("--out", default="out/demonstrations.h5", help="HDF5 file (rerun to resume)")
+    p.add_argument("--json", help="write the collection summary as JSON here")
+    p.set_defaults(func=cmd_collect)
+
     p = sub.add_parser("scenarios", help="list scenarios")
     p.set_defaults(func=cmd_scenarios)
     p = sub.add_parser("planners", help="list planners")
@@ -282,7 +308,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (UsageError, ProblemError, ConfigError, ValueError, StoreError) as exc:
+    except (UsageError, ProblemError, ConfigError, ValueError, StoreError, DatasetError) as exc:
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"driveopt: error: {message}", file=sys.stderr)
         return 2

@@ -195,6 +195,7 @@ class PlanningProblem(NamedTuple):
     obstacle_a: jnp.ndarray  # (N,) [m] longitudinal semi-axis of the collision ellipse
     obstacle_b: jnp.ndarray  # (N,) [m] lateral semi-axis
     obstacle_mask: jnp.ndarray  # (N,) 1.0 for a real obstacle, 0.0 for padding
+    observation: jnp.ndarray  # (55,) the learned priors' input (driveopt.observation)
 
 
 def ellipse_semi_axes(ego: EgoState, other: Neighbour, margin: EllipseMargin) -> tuple[float, float]:
@@ -241,6 +242,8 @@ def build_problem(
         raise ProblemError(f"build_problem needs a Scene, got {type(scene).__name__}")
     if max_obstacles < 1:
         raise ProblemError("max_obstacles must be >= 1")
+    from driveopt.observation import observation_vector  # imports this module
+
     t = np.linspace(0.0, basis.horizon, basis.num_nodes)
     ego = scene.ego
     y_lb, y_ub = scene.lateral_bounds
@@ -273,6 +276,7 @@ def build_problem(
         obstacle_a=f32(oa),
         obstacle_b=f32(ob),
         obstacle_mask=f32(mask),
+        observation=f32(observation_vector(scene)),
     )
 
 
@@ -280,12 +284,14 @@ def check_problem(problem: PlanningProblem, basis: BasisConfig = BasisConfig()) 
     """Raise ProblemError unless every array of ``problem`` is finite and has the right shape."""
     if not isinstance(problem, PlanningProblem):
         raise ProblemError(f"expected a PlanningProblem, got {type(problem).__name__}")
+    from driveopt.observation import OBSERVATION_DIM
+
     K = basis.num_nodes
     N = np.shape(problem.obstacle_x)[0] if np.ndim(problem.obstacle_x) == 2 else -1
     expected = {
         "init_x": (3,), "init_y": (3,), "y_lb": (), "y_ub": (), "lane_center0": (), "lane_width": (),
         "num_lanes": (), "road_curvature": (), "v_des": (), "obstacle_x": (N, K), "obstacle_y": (N, K),
-        "obstacle_a": (N,), "obstacle_b": (N,), "obstacle_mask": (N,),
+        "obstacle_a": (N,), "obstacle_b": (N,), "obstacle_mask": (N,), "observation": (OBSERVATION_DIM,),
     }
     for name, shape in expected.items():
         value = np.asarray(getattr(problem, name))

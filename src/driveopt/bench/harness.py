@@ -87,24 +87,7 @@ def run_bench(
         bar.set_postfix_str(f"{record['scenario']}/{record['planner']} crashed={record['collided']}")
 
     try:
-        if backend == "ray":
-            _run_ray(todo, spec.options, episode_fn, finished)
-        elif backend != "local":
-            raise ValueError(f"unknown backend '{backend}'; valid: local, ray")
-        elif workers == 1:
-            for job in todo:
-                finished(_call(episode_fn, job, spec.options))
-        else:
-            ctx = multiprocessing.get_context("spawn")
-            with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-                futures = [pool.submit(_call, episode_fn, job, spec.options) for job in todo]
-                try:
-                    for future in cf.as_completed(futures):
-                        finished(future.result())
-                except BaseException:
-                    for future in futures:
-                        future.cancel()
-                    raise
+        execute(todo, spec.options, episode_fn, finished, workers=workers, backend=backend)
     finally:
         bar.close()
 
@@ -117,6 +100,40 @@ def run_bench(
     if rows:
         plot_summary(rows, out / "summary.png")
     return rows
+
+
+def execute(
+    todo: Sequence[JobKey],
+    options: dict,
+    episode_fn: str | EpisodeFn,
+    finished: Callable[[dict], None],
+    *,
+    workers: int = 1,
+    backend: str = "local",
+) -> None:
+    """Run ``episode_fn(job, options)`` for every job and hand each record to ``finished`` as it comes.
+
+    ``finished`` runs in this process (the single writer). workers: local processes (spawn);
+    1 runs in this process. backend: 'local' or 'ray'.
+    """
+    if backend == "ray":
+        _run_ray(todo, options, episode_fn, finished)
+    elif backend != "local":
+        raise ValueError(f"unknown backend '{backend}'; valid: local, ray")
+    elif workers == 1:
+        for job in todo:
+            finished(_call(episode_fn, job, options))
+    else:
+        ctx = multiprocessing.get_context("spawn")
+        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            futures = [pool.submit(_call, episode_fn, job, options) for job in todo]
+            try:
+                for future in cf.as_completed(futures):
+                    finished(future.result())
+            except BaseException:
+                for future in futures:
+                    future.cancel()
+                raise
 
 
 def _run_ray(todo: Sequence[JobKey], options: dict, episode_fn: str | EpisodeFn, finished: Callable[[dict], None]) -> None:

@@ -23,7 +23,7 @@ import numpy as np
 from driveopt.config import PlannerConfig
 from driveopt.planner import PlanResult, plan
 from driveopt.planners import PlannerSpec, get_planner
-from driveopt.problem import Scene, build_problem
+from driveopt.problem import PlanningProblem, Scene, build_problem
 
 from driveopt.sim.control import BicycleModel, command_from_env
 from driveopt.sim.env import make_env, step_env
@@ -131,8 +131,10 @@ def run_episode(
     render: bool = False,
     on_step: StepCallback | None = None,
     before_step: Callable[[Any, PlanResult | None], None] | None = None,
+    on_plan: Callable[[Scene, PlanningProblem, PlanResult], None] | None = None,
 ) -> Episode:
-    """Drive one episode. ``before_step(env, result)`` is called after planning, before the simulator
+    """Drive one episode. ``on_plan(scene, problem, result)`` is called after every planning call
+    (optimiser planners only); ``before_step(env, result)`` after planning, before the simulator
     steps (the state the plan was made from: draw videos here); ``on_step(env, result, episode)``
     after every step."""
     scenario = get_scenario(scenario) if isinstance(scenario, str) else scenario
@@ -178,6 +180,8 @@ def run_episode(
                 episode.plan_seconds += elapsed
                 episode.statuses[result.status.name] += 1
                 warm = result.mean if spec.warm_start else None
+                if on_plan is not None:
+                    on_plan(scene, problem, result)
                 action = command_from_env(env, result.safe_trajectory, 0.0, model).action
             if before_step is not None:
                 before_step(env, result)

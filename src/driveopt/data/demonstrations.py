@@ -1,0 +1,240 @@
+"""Expert demonstrations on disk: an appendable HDF5 file with a schema version.
+
+One row per planning step of an expert episode; one entry per episode in ``episodes/``. Row
+datasets (n = rows, K = nodes)::
+
+    observation (n, 55) f4   the planner's input (driveopt.observation)
+    init_x      (n, 3)  f4   [m, m/s, m/s^2] x, x', x'' at t = 0 (planning frame: x = 0)
+    init_y      (n, 3)  f4   [m, m/s, m/s^2] y, y', y'' at t = 0 (road frame)
+    lane_bounds (n, 2)  f4   [m] (y_lb, y_ub) of the ego centre
+    setpoints   (n, 8)  f4   chosen set-points (v_1..v_4 [m/s], y_1..y_4 [m])
+    coeffs      (n, 2n_c) f4 chosen Bernstein coefficients (x then y)
+    trajectory  (n, K, 2) f4 [m] executed plan (x relative to the ego, y road frame) at the nodes
+    status      (n,)    i1   PlanStatus of the step (0 = SUCCESS)
+    time        (n,)    f4   [s] simulated time of the step
+    episode     (n,)    i4   index into episodes/
+
+    episodes/scenario (str), seed, episode, env_seed, collided, duration [s], first_row, num_rows
+
+Episodes are the unit of writing: an episode's rows and its entry are appended together and the
+file is flushed, so an interrupted collection loses at most the episodes in flight. On reopening,
+rows beyond the last complete episode (a write cut short) are truncated away.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Iterable, NamedTuple
+
+import numpy as np
+
+FORMAT = "driveopt-demonstrations"
+SCHEMA_VERSION = 1
+ROW_FIELDS = ("observation", "init_x", "init_y", "lane_bounds", "setpoints", "coeffs", "trajectory", "status", "time")
+EPISODE_FIELDS = ("scenario", "seed", "episode", "env_seed", "collided", "duration", "first_row", "num_rows")
+_ROW_DTYPES = {"status": np.int8}
+_EPISODE_DTYPES = {"seed": np.int64, "episode": np.int32, "env_seed": np.int64, "collided": np.bool_,
+                   "duration": np.float32, "first_row": np.int64, "num_rows": np.int64}
+
+
+class DatasetError(ValueError):
+    """A demonstrations file is missing, corrupted, of another schema, or does not match the request."""
+
+
+def _h5py():
+    import h5py
+
+    return h5py
+
+
+class EpisodeKey(NamedTuple):
+    scenario: str
+    seed: int
+    episode: int
+
+
+class Demonstrations(NamedTuple):
+    """All rows of one or more files, as numpy arrays (see the module docstring), plus episode tables."""
+
+    observation: np.ndarray
+    init_x: np.ndarray
+    init_y: np.ndarray
+    lane_bounds: np.ndarray
+    setpoints: np.ndarray
+    coeffs: np.ndarray
+    trajectory: np.ndarray
+    status: np.ndarray
+    time: np.ndarray
+    episode: np.ndarray  # (n,) global episode index into ``episodes``
+    episodes: dict[str, np.ndarray]  # EPISODE_FIELDS -> (E,)
+    attrs: dict[str, Any]
+
+    def __len__(self) -> int:
+        return int(self.observation.shape[0])
+
+    def time_to_crash(self) -> np.ndarray:
+        """(n,) [s] until the episode's collision; inf for rows of collision-free episodes."""
+        collided = self.episodes["collided"][self.episode]
+        end = self.episodes["duration"][self.episode]
+        return np.where(collided, end - self.time, np.inf)
+
+    def fingerprint(self) -> str:
+        """Identifies the data (episode keys and row count): a checkpoint trained on it records this."""
+        import hashlib
+
+        keys = [f"{s}/{int(a)}/{int(b)}" for s, a, b in zip(self.episodes["scenario"], self.episodes["seed"], self.episodes["episode"])]
+        return hashlib.sha256((";".join(sorted(keys)) + f"#{len(self)}").encode()).hexdigest()[:16]
+
+
+class DemonstrationWriter:
+    """Appends episodes to an HDF5 file (created with ``attrs`` if new). Use as a context manager."""
+
+    def __init__(self, path: str | Path, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, observation_dim: int):
+        h5py = _h5py()
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        exists = self.path.exists()
+        try:
+            self.file = h5py.File(self.path, "a")
+        except OSError as exc:
+            raise DatasetError(f"cannot open demonstrations {self.path}: {exc}") from None
+        if not exists or "episodes" not in self.file:
+            self._create(attrs, num_nodes, num_coeffs, observation_dim)
+        else:
+            _check_attrs(self.file, self.path)
+            mismatch = {k: (self.file.attrs.get(k), v) for k, v in attrs.items() if _attr(self.file.attrs.get(k)) != v}
+            if mismatch:
+                self.file.close()
+                raise DatasetError(f"{self.path} was collected with other settings {mismatch} (stored, requested); use another file")
+            self._truncate_partial()
+
+    def _create(self, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, observation_dim: int) -> None:
+        f = self.file
+        f.attrs["format"] = FORMAT
+        f.attrs["schema_version"] = SCHEMA_VERSION
+        for k, v in attrs.items():
+            f.attrs[k] = v
+        shapes = {"observation": (observation_dim,), "init_x": (3,), "init_y": (3,), "lane_bounds": (2,),
+                  "setpoints": (8,), "coeffs": (num_coeffs,), "trajectory": (num_nodes, 2), "status": (), "time": ()}
+        for name in ROW_FIELDS:
+            f.create_dataset(name, shape=(0, *shapes[name]), maxshape=(None, *shapes[name]),
+                             dtype=_ROW_DTYPES.get(name, np.float32), chunks=(256, *shapes[name]))
+        f.create_dataset("episode", shape=(0,), maxshape=(None,), dtype=np.int32, chunks=(256,))
+        group = f.create_group("episodes")
+        for name in EPISODE_FIELDS:
+            dtype = _h5py().string_dtype() if name == "scenario" else _EPISODE_DTYPES[name]
+            group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(64,))
+        f.flush()
+
+    def _truncate_partial(self) -> None:
+        eps = self.file["episodes"]
+        n_eps = eps["num_rows"].shape[0]
+        complete = int(eps["first_row"][-1] + eps["num_rows"][-1]) if n_eps else 0
+        for name in (*ROW_FIELDS, "episode"):
+            if self.file[name].shape[0] != complete:
+                self.file[name].resize(complete, axis=0)
+        self.file.flush()
+
+    def done(self) -> set[EpisodeKey]:
+        eps = self.file["episodes"]
+        scen = [s.decode() if isinstance(s, bytes) else str(s) for s in eps["scenario"][:]]
+        return {EpisodeKey(s, int(a), int(b)) for s, a, b in zip(scen, eps["seed"][:], eps["episode"][:])}
+
+    def append_episode(self, episode: dict[str, Any], rows: dict[str, np.ndarray]) -> None:
+        """Append one episode: ``episode`` has EPISODE_FIELDS but first_row/num_rows; ``rows`` ROW_FIELDS."""
+        f = self.file
+        n = int(np.asarray(rows["observation"]).shape[0])
+        start = f["observation"].shape[0]
+        index = f["episodes/num_rows"].shape[0]
+        for name in ROW_FIELDS:
+            data = np.asarray(rows[name])
+            if data.shape[0] != n or data.shape[1:] != f[name].shape[1:]:
+                raise DatasetError(f"episode rows '{name}' have shape {data.shape}, expected ({n}, {f[name].shape[1:]})")
+            f[name].resize(start + n, axis=0)
+            f[name][start:] = data
+        f["episode"].resize(start + n, axis=0)
+        f["episode"][start:] = index
+        entry = {**episode, "first_row": start, "num_rows": n}
+        for name in EPISODE_FIELDS:  # the entry goes last: it marks the rows complete
+            ds = f["episodes"][name]
+            ds.resize(index + 1, axis=0)
+            ds[index] = entry[name]
+        f.flush()
+
+    def close(self) -> None:
+        if self.file.id.valid:
+            self.file.close()
+
+    def __enter__(self) -> "DemonstrationWriter":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def _attr(value: Any) -> Any:
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def _check_attrs(f: Any, path: Path) -> None:
+    if f.attrs.get("format") != FORMAT:
+        raise DatasetError(f"{path} is not a driveopt demonstrations file (format attribute {f.attrs.get('format')!r})")
+    version = int(f.attrs.get("schema_version", -1))
+    if version != SCHEMA_VERSION:
+        raise DatasetError(f"{path} has schema version {version}; this driveopt reads version {SCHEMA_VERSION}")
+
+
+def load_demonstrations(paths: str | Path | Iterable[str | Path]) -> Demonstrations:
+    """Read and validate one or more files (complete episodes only) into one :class:`Demonstrations`."""
+    paths = [Path(paths)] if isinstance(paths, (str, Path)) else [Path(p) for p in paths]
+    if not paths:
+        raise DatasetError("no demonstrations file given")
+    parts = [_load_one(p) for p in paths]
+    first = parts[0]
+    for other, path in zip(parts[1:], paths[1:]):
+        for key in ("num_nodes", "horizon"):
+            if first.attrs.get(key) != other.attrs.get(key):
+                raise DatasetError(f"{path}: {key} = {other.attrs.get(key)} differs from {paths[0]} ({first.attrs.get(key)})")
+    offsets = np.cumsum([0] + [len(p.episodes["num_rows"]) for p in parts[:-1]])
+    rows = {name: np.concatenate([getattr(p, name) for p in parts]) for name in ROW_FIELDS}
+    episode = np.concatenate([p.episode + off for p, off in zip(parts, offsets)])
+    episodes = {name: np.concatenate([p.episodes[name] for p in parts]) for name in EPISODE_FIELDS}
+    return Demonstrations(**rows, episode=episode, episodes=episodes, attrs=first.attrs)
+
+
+def _load_one(path: Path) -> Demonstrations:
+    if not path.exists():
+        raise DatasetError(f"demonstrations file {path} does not exist")
+    h5py = _h5py()
+    try:
+        with h5py.File(path, "r") as f:
+            _check_attrs(f, path)
+            eps = {name: f["episodes"][name][:] for name in EPISODE_FIELDS}
+            eps["scenario"] = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in eps["scenario"]])
+            complete = int(eps["first_row"][-1] + eps["num_rows"][-1]) if len(eps["num_rows"]) else 0
+            rows = {name: f[name][:complete] for name in (*ROW_FIELDS, "episode")}
+            attrs = {k: _attr(v) for k, v in f.attrs.items()}
+    except DatasetError:
+        raise
+    except (OSError, KeyError, ValueError, IndexError) as exc:
+        raise DatasetError(f"cannot read demonstrations {path} (corrupted or not HDF5?): {exc}") from None
+    for name, data in rows.items():
+        if data.dtype.kind == "f" and not np.all(np.isfinite(data)):
+            raise DatasetError(f"{path}: dataset '{name}' contains NaN or inf")
+    if np.any(rows["episode"] >= max(len(eps["num_rows"]), 1)) or np.any(rows["episode"] < 0):
+        raise DatasetError(f"{path}: row episode indices out of range")
+    return Demonstrations(**{n: rows[n] for n in ROW_FIELDS}, episode=rows["episode"].astype(np.int64), episodes=eps, attrs=attrs)
+
+
+def describe(data: Demonstrations) -> dict[str, Any]:
+    """JSON-ready summary: rows, episodes per scenario, collisions, collection settings."""
+    scen, counts = np.unique(data.episodes["scenario"], return_counts=True)
+    return {
+        "rows": len(data),
+        "episodes": int(len(data.episodes["num_rows"])),
+        "per_scenario": {str(s): int(c) for s, c in zip(scen, counts)},
+        "collided_episodes": int(np.sum(data.episodes["collided"])),
+        "success_rows": int(np.sum(data.status == 0)),
+        "attrs": {k: (json.loads(v) if isinstance(v, str) and v.startswith("{") else v) for k, v in data.attrs.items()},
+    }
