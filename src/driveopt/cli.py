@@ -1,4 +1,4 @@
-"""Command-line interface: ``driveopt plan | problems | drive | bench | scenarios | planners``.
+"""Command-line interface: ``driveopt plan | problems | drive | bench | collect | train | plot-prior | scenarios | planners``.
 
 Errors in user input (unknown problem, malformed file or config) print one line
 ``driveopt: error: ...`` on stderr and exit with status 2.
@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import sys
 import time
@@ -19,7 +20,8 @@ import numpy as np
 from driveopt.bench.store import StoreError
 from driveopt.data.demonstrations import DatasetError
 from driveopt.config import ConfigError, PlannerConfig, from_dict, to_dict
-from driveopt.problem import ProblemError, build_problem, builtin_problems, load_scene, scene_to_dict
+from driveopt.learned.checkpoint import CheckpointError
+from driveopt.problem import ProblemError, Scene, build_problem, builtin_problems, load_scene, scene_to_dict
 
 
 class UsageError(Exception):
@@ -139,7 +141,7 @@ def cmd_drive(args: argparse.Namespace) -> int:
     scenario = resolve_scenario(args.scenario, config_file=args.scenario_config)
     if args.duration is not None:
         scenario = scenario.replace(duration=args.duration)
-    spec = _planner_spec(args.planner, args.samples)
+    spec = _planner_spec(args.planner, args.samples).with_weights(args.weights)
     steps = int(round(scenario.duration * scenario.policy_frequency))
     with contextlib.ExitStack() as stack:
         bar = stack.enter_context(tqdm(total=steps, desc=f"{scenario.name} / {spec.name}", unit="step"))
@@ -194,7 +196,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         get_scenario(name)  # clear error listing the valid names
     for name in args.planners:
         get_planner(name)
-    options = {k: v for k, v in (("duration", args.duration), ("samples", args.samples)) if v is not None}
+    options = {k: v for k, v in (("duration", args.duration), ("samples", args.samples), ("weights", args.weights)) if v is not None}
     spec = BenchSpec(tuple(args.scenarios), tuple(args.planners), tuple(args.seeds), args.episodes, options)
     rows = run_bench(spec, args.out, workers=args.workers, backend=args.backend)
     from driveopt.bench.summary import markdown_table
@@ -214,6 +216,55 @@ def cmd_collect(args: argparse.Namespace) -> int:
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(summary_json(summary))
+    return 0
+
+
+def cmd_train_cvae(args: argparse.Namespace) -> int:
+    from driveopt.learned.cvae import CVAEConfig
+    from driveopt.learned.train_cvae import TrainConfig, train_cvae
+
+    cfg = CVAEConfig(latent_dim=args.latent, hidden=tuple(args.hidden))
+    tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, beta=args.beta, seed=args.seed)
+    summary = train_cvae(args.data, args.out, cfg, tcfg)
+    last = summary["history"][-1] if summary["history"] else {}
+    print(f"trained {summary['epochs']} epochs on {summary['rows']['train']} rows ({summary['rows']['validation']} validation) "
+          f"in {summary['seconds']:.0f} s; last train loss {last.get('train_loss', float('nan')):.3f}, "
+          f"best validation loss {summary['best_val_loss']:.3f}; weights: {args.out}/cvae.ckpt")
+    return 0
+
+
+def _scene_for(args: argparse.Namespace) -> Scene:
+    if not args.scenario:
+        return load_scene(args.problem)
+    from driveopt.sim.env import make_env
+    from driveopt.sim.mpc import plannable_scene
+    from driveopt.sim.observation import scene_from_env
+    from driveopt.sim.scenarios import get_scenario
+
+    scenario = get_scenario(args.scenario)
+    env = make_env(scenario)
+    try:
+        env.reset(seed=args.seed)
+        return plannable_scene(scene_from_env(env, scenario), env)
+    finally:
+        env.close()
+
+
+def cmd_plot_prior(args: argparse.Namespace) -> int:
+    from driveopt.learned.prior import load_prior, shipped_weights
+    from driveopt.sampler import GaussianPrior
+    from driveopt.viz.prior_plot import plot_priors
+
+    scene = _scene_for(args)
+    config = PlannerConfig()
+    weights = args.weights or shipped_weights(scene.road.num_lanes)
+    if weights is None:
+        raise UsageError(f"no CVAE weights shipped for {scene.road.num_lanes}-lane roads: pass --weights")
+    gaussian = GaussianPrior.from_config(config.sampler, config.projection.v_max)
+    priors = {"Gaussian (P1's initial distribution)": dataclasses.replace(gaussian, structured_fraction=0.0),
+              "Gaussian + coherent behaviours (bilevel planner)": gaussian,
+              f"CVAE ({Path(weights).name})": load_prior(weights, config.projection.v_max)}
+    print(f"wrote {plot_priors(priors, scene, config, args.out, num=args.samples, seed=args.seed)}")
     return 0
 
 
@@ -264,7 +315,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("drive", help="drive one closed-loop episode in highway-env (progress, summary, MP4)")
     p.add_argument("--scenario", default="four-lane-d3.0", help="scenario name (see `driveopt scenarios`)")
     p.add_argument("--scenario-config", help="JSON file overriding scenario fields")
-    p.add_argument("--planner", default="bilevel", help="planner name (see `driveopt planners`)")
+    p.add_argument("--planner", default="cvae", help="planner name (see `driveopt planners`)")
+    p.add_argument("--weights", help="learned-prior checkpoint (default: the weights shipped for the road)")
     p.add_argument("--seed", type=int, default=42, help="traffic and sampling seed")
     p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=_positive_int, help="samples per sampler iteration")
@@ -279,6 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=_positive_int, default=50, help="episodes per scenario, planner and seed")
     p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=_positive_int, help="override the optimisers' samples per iteration")
+    p.add_argument("--weights", help="learned-prior checkpoint for the cvae planner (default: shipped weights)")
     p.add_argument("--workers", type=_positive_int, help="parallel episodes (default: CPU count)")
     p.add_argument("--backend", choices=["local", "ray"], default="local")
     p.add_argument("--out", default="out/bench", help="output directory (rerun to resume)")
@@ -296,6 +349,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write the collection summary as JSON here")
     p.set_defaults(func=cmd_collect)
 
+    p = sub.add_parser("train", help="train a learned component (cvae); resumable")
+    models = p.add_subparsers(dest="model", required=True)
+    p = models.add_parser("cvae", help="CVAE warm start (P1 §III-D) from demonstrations of `driveopt collect`")
+    p.add_argument("--data", nargs="+", required=True, help="demonstration HDF5 files")
+    p.add_argument("--out", required=True, help="output folder (rerun to resume): last.ckpt, cvae.ckpt, history.json")
+    p.add_argument("--epochs", type=_positive_int, default=60)
+    p.add_argument("--batch-size", type=_positive_int, default=256)
+    p.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate (x0.1 every 20 epochs)")
+    p.add_argument("--beta", type=float, default=1.0, help="KL weight after annealing")
+    p.add_argument("--latent", type=_positive_int, default=2, help="latent dimension")
+    p.add_argument("--hidden", type=_positive_int, nargs="+", default=[256, 256, 256], help="MLP widths")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=cmd_train_cvae)
+
+    p = sub.add_parser("plot-prior", help="Gaussian vs CVAE samples for one observation (P1 Fig. 4)")
+    p.add_argument("--problem", default="dense-snapshot", help="built-in problem or JSON file")
+    p.add_argument("--scenario", help="take the observation from this scenario's first state instead")
+    p.add_argument("--seed", type=int, default=0, help="traffic seed (with --scenario) and sampling seed")
+    p.add_argument("--weights", help="CVAE checkpoint (default: the weights shipped for the road)")
+    p.add_argument("--samples", type=_positive_int, default=200)
+    p.add_argument("--out", default="out/prior.png")
+    p.set_defaults(func=cmd_plot_prior)
+
     p = sub.add_parser("scenarios", help="list scenarios")
     p.set_defaults(func=cmd_scenarios)
     p = sub.add_parser("planners", help="list planners")
@@ -308,7 +384,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (UsageError, ProblemError, ConfigError, ValueError, StoreError, DatasetError) as exc:
+    except (UsageError, ProblemError, ConfigError, ValueError, StoreError, DatasetError, CheckpointError) as exc:
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"driveopt: error: {message}", file=sys.stderr)
         return 2

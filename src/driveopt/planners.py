@@ -6,7 +6,7 @@ Every optimiser-based planner is a (PlannerConfig, prior) pair run by the same `
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 from driveopt.baselines import GoalGridPrior, GridPrior, VanillaPrior
@@ -19,29 +19,41 @@ class PlannerSpec:
     name: str
     description: str
     config: PlannerConfig = field(default_factory=PlannerConfig)
-    make_prior: Callable[[PlannerConfig], Any] | None = None  # None: not an optimiser (idm)
+    make_prior: Callable[[PlannerConfig, int, str | None], Any] | None = None  # (config, lanes, weights); None: idm
     warm_start: bool = False  # carry the sampling mean between replans
+    weights: str | None = None  # learned priors: checkpoint file (default: the weights shipped for the road)
 
     @property
     def is_optimiser(self) -> bool:
         return self.make_prior is not None
 
-    def prior(self) -> Any:
+    def prior(self, lanes: int = 4) -> Any:
+        """The first-iteration proposal for a road with ``lanes`` lanes (learned priors pick weights by it)."""
         if self.make_prior is None:
             raise ValueError(f"planner '{self.name}' does not use the optimiser")
-        return self.make_prior(self.config)
+        return self.make_prior(self.config, lanes, self.weights)
 
     def with_overrides(self, **sections: Any) -> "PlannerSpec":
         """Copy with config sections updated, e.g. ``sampler={"num_samples": 250}``."""
-        return PlannerSpec(self.name, self.description, self.config.replace(**sections), self.make_prior, self.warm_start)
+        return replace(self, config=self.config.replace(**sections))
+
+    def with_weights(self, weights: str | None) -> "PlannerSpec":
+        """Copy that loads a learned prior from ``weights`` (a checkpoint file)."""
+        return replace(self, weights=weights)
 
 
 def _single_iteration(samples: int) -> dict:
     return {"num_samples": samples, "num_iterations": 1, "num_constraint_elites": min(100, samples), "num_elites": min(40, samples)}
 
 
-def _gaussian(cfg: PlannerConfig) -> GaussianPrior:
+def _gaussian(cfg: PlannerConfig, lanes: int = 4, weights: str | None = None) -> GaussianPrior:
     return GaussianPrior.from_config(cfg.sampler, cfg.projection.v_max)
+
+
+def _cvae(cfg: PlannerConfig, lanes: int, weights: str | None) -> Any:
+    from driveopt.learned.prior import prior_for
+
+    return prior_for(lanes, cfg.projection.v_max, weights, fallback=_gaussian(cfg))
 
 
 _BASE = PlannerConfig()
@@ -50,17 +62,19 @@ PLANNERS: dict[str, PlannerSpec] = {
     for spec in (
         PlannerSpec("bilevel", "P1 bi-level optimiser: Gaussian start, 5 CEM iterations x 20 projection iterations",
                     _BASE, _gaussian, warm_start=True),
+        PlannerSpec("cvae", "P1 bi-level optimiser started from the learned CVAE (shipped weights; Gaussian if none)",
+                    _BASE, _cvae),
         PlannerSpec("random", "one Gaussian draw of set-points, no adaptation (MPC-Random)",
                     _BASE.replace(sampler=_single_iteration(1000)), _gaussian),
         PlannerSpec("grid", "fixed grid: constant speed x target lane x change quarter (MPC-Grid)",
-                    _BASE.replace(sampler=_single_iteration(320)), lambda c: GridPrior(v_max=c.projection.v_max)),
+                    _BASE.replace(sampler=_single_iteration(320)), lambda c, *_: GridPrior(v_max=c.projection.v_max)),
         PlannerSpec("vanilla", "single speed set-point v_des in the current lane, no behavioural layer (MPC-Vanilla)",
                     _BASE.replace(sampler={"num_samples": 1, "num_iterations": 1, "num_constraint_elites": 1, "num_elites": 1},
                                   projection={"max_iterations": 100}),
-                    lambda c: VanillaPrior(v_max=c.projection.v_max)),
+                    lambda c, *_: VanillaPrior(v_max=c.projection.v_max)),
         PlannerSpec("batch", "goal positions (x_f, y_f) on a grid with terminal constraints (Batch-MPC)",
                     _BASE.replace(qp={"terminal_position": True}, sampler=_single_iteration(200)),
-                    lambda c: GoalGridPrior(v_max=c.projection.v_max)),
+                    lambda c, *_: GoalGridPrior(v_max=c.projection.v_max)),
         PlannerSpec("idm", "highway-env's IDM/MOBIL driver on the ego (rule-based reference)"),
     )
 }

@@ -151,7 +151,7 @@ def run_episode(
         key = jax.random.PRNGKey(seed)
         if spec.is_optimiser:
             config = adapt_to_vehicle(spec.config, scenario, model)
-            prior = spec.prior()
+            prior = spec.prior(scenario.lanes)
 
             def observe():
                 scene = plannable_scene(scene_from_env(env, scenario), env)
@@ -205,9 +205,10 @@ def run_episode(
 def episode_record(job: Any, options: dict[str, Any]) -> dict[str, Any]:
     """Bench entry point: one episode of ``job`` (scenario, planner, seed, episode) as a record.
 
-    options: ``duration`` [s] (optional), ``samples`` (optional batch-size override).
+    options: ``duration`` [s], ``samples`` (batch-size override), ``weights`` (learned prior checkpoint);
+    all optional.
     """
-    spec = get_planner(job.planner)
+    spec = get_planner(job.planner).with_weights(options.get("weights"))
     if options.get("samples") and spec.is_optimiser:
         samples = int(options["samples"])
         spec = spec.with_overrides(sampler={

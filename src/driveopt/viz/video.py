@@ -3,16 +3,22 @@
 ``env.render()`` returns upstream's simulation surface (``viewer.sim_surface``), whose pixel of a
 world point (x, y) [m] is ``(p - origin) * scaling``; the road frame of a straight highway is the
 world frame. Samples are drawn thin and translucent, elites in orange, the chosen trajectory
-thick (green, or red when it is the fallback).
+thick (green, or red when it is the fallback); a small legend names the colours.
+
+Polylines are clipped segment by segment against the frame (Liang-Barsky, vectorised): a line
+that crosses the edge is drawn up to the edge, and one that leaves the frame and comes back is
+drawn as separate pieces, never joined across the part that is off screen.
 """
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image, ImageDraw
+from PIL import Image, ImageDraw, ImageFont
 
 from driveopt.config import PlannerConfig
 from driveopt.qp import make_model
@@ -21,6 +27,30 @@ SAMPLE_RGBA = (40, 90, 230, 110)
 ELITE_RGBA = (255, 150, 0, 170)
 CHOSEN_RGBA = (0, 200, 80, 255)
 FALLBACK_RGBA = (230, 40, 40, 255)
+SAMPLE_WIDTH, ELITE_WIDTH, CHOSEN_WIDTH = 1, 2, 4  # [px] stroke widths
+LEGEND_BG_RGBA = (255, 255, 255, 190)
+TEXT_RGBA = (0, 0, 0, 255)
+
+
+def check_video_driver() -> None:
+    """Raise ValueError when SDL renders (or will render) with the ``dummy`` driver: its frames are black.
+
+    Looks at SDL_VIDEODRIVER (read whenever pygame's display starts) and, when pygame's display is
+    running, at the driver it actually uses.
+    """
+    drivers = [os.environ.get("SDL_VIDEODRIVER", "")]
+    pygame = sys.modules.get("pygame")
+    if pygame is not None:
+        try:
+            if pygame.display.get_init():
+                drivers.append(pygame.display.get_driver() or "")
+        except Exception:  # pragma: no cover - a pygame without a usable display module
+            pass
+    if any(d.strip().lower() == "dummy" for d in drivers):
+        raise ValueError(
+            "SDL video driver is 'dummy', which renders black frames: "
+            "set SDL_VIDEODRIVER=offscreen (or leave it unset) to record videos"
+        )
 
 
 def world_to_pixel(env: Any, xy: np.ndarray) -> np.ndarray:
@@ -32,13 +62,91 @@ def world_to_pixel(env: Any, xy: np.ndarray) -> np.ndarray:
     return (np.asarray(xy, float) - np.asarray(surface.origin, float)) * float(surface.scaling)
 
 
-def _polyline(draw: ImageDraw.ImageDraw, points: np.ndarray, rgba: tuple, width: int, size: tuple[int, int]) -> None:
-    """Draw the part of a pixel polyline that lies near the frame (far-off points are dropped)."""
+def clip_segments(p0: np.ndarray, p1: np.ndarray, lo: tuple[float, float], hi: tuple[float, float]
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Liang-Barsky clipping of segments p0 -> p1 (each (M, 2)) against the box lo <= p <= hi.
+
+    Returns (visible (M,) bool, t0 (M,), t1 (M,)): the part of segment i inside the box is
+    ``p0 + t * (p1 - p0)`` for t in [t0, t1] where visible; segments with a non-finite end are not.
+    """
+    p0 = np.asarray(p0, float).reshape(-1, 2)
+    p1 = np.asarray(p1, float).reshape(-1, 2)
+    d = p1 - p0
+    # the four boundaries x >= lo_x, x <= hi_x, y >= lo_y, y <= hi_y as p * t <= q
+    p = np.stack([-d[:, 0], d[:, 0], -d[:, 1], d[:, 1]], axis=1)
+    q = np.stack([p0[:, 0] - lo[0], hi[0] - p0[:, 0], p0[:, 1] - lo[1], hi[1] - p0[:, 1]], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = q / p
+    entering, leaving, parallel = p < 0, p > 0, p == 0
+    t0 = np.max(np.where(entering, t, 0.0), axis=1)
+    t1 = np.min(np.where(leaving, t, 1.0), axis=1)
+    outside_parallel = np.any(parallel & (q < 0), axis=1)
+    finite = np.all(np.isfinite(p0), axis=1) & np.all(np.isfinite(p1), axis=1)
+    visible = finite & ~outside_parallel & (t0 <= t1)
+    return visible, np.clip(t0, 0.0, 1.0), np.clip(t1, 0.0, 1.0)
+
+
+def clip_polyline(points: np.ndarray, size: tuple[int, int], margin: float = 0.0) -> list[np.ndarray]:
+    """The pieces (each (n >= 2, 2)) of a pixel polyline inside a frame of size (width, height).
+
+    Pixel centres run from 0 to width - 1 (height - 1); the box is grown by ``margin`` pixels on
+    every side (half a stroke width keeps the in-frame part of a thick stroke along the edge).
+    A segment crossing the box is cut at the box edge; where the polyline leaves the box (or has a
+    non-finite point) the piece ends, and it starts a new piece where it comes back.
+    """
+    pts = np.asarray(points, float).reshape(-1, 2)
+    if len(pts) < 2:
+        return []
     w, h = size
-    inside = (points[:, 0] > -w) & (points[:, 0] < 2 * w) & (points[:, 1] > -h) & (points[:, 1] < 2 * h)
-    pts = points[inside]
-    if len(pts) >= 2:
-        draw.line([tuple(p) for p in pts], fill=rgba, width=width, joint="curve")
+    lo, hi = (-margin, -margin), (w - 1 + margin, h - 1 + margin)
+    a, b = pts[:-1], pts[1:]
+    visible, t0, t1 = clip_segments(a, b, lo, hi)
+    idx = np.flatnonzero(visible)
+    if idx.size == 0:
+        return []
+    start = a[idx] + t0[idx, None] * (b[idx] - a[idx])
+    end = a[idx] + t1[idx, None] * (b[idx] - a[idx])
+    # a visible segment continues the previous piece when it directly follows a visible segment,
+    # that one reached its end point uncut and this one starts at its own start point uncut
+    joined = np.zeros(idx.size, bool)
+    joined[1:] = (np.diff(idx) == 1) & (t1[idx[:-1]] >= 1.0) & (t0[idx[1:]] <= 0.0)
+    firsts = np.flatnonzero(~joined)
+    lasts = np.append(firsts[1:], idx.size)
+    return [np.vstack([start[i : i + 1], end[i:j]]) for i, j in zip(firsts, lasts)]
+
+
+def _polyline(draw: ImageDraw.ImageDraw, points: np.ndarray, rgba: tuple, width: int, size: tuple[int, int]) -> bool:
+    """Draw the in-frame pieces of a pixel polyline; True when anything was drawn."""
+    pieces = clip_polyline(points, size, margin=width / 2.0)
+    for piece in pieces:
+        draw.line([tuple(p) for p in piece], fill=rgba, width=width, joint="curve")
+    return bool(pieces)
+
+
+def _font() -> ImageFont.ImageFont:
+    return ImageFont.load_default()
+
+
+def draw_legend(draw: ImageDraw.ImageDraw, entries: list[tuple[str, tuple, int]], size: tuple[int, int]) -> None:
+    """A one-row legend (a short line in each colour and its name) in the bottom-right corner."""
+    if not entries:
+        return
+    font = _font()
+    pad, swatch, gap, spacing = 3, 12, 3, 8
+    widths = [int(np.ceil(draw.textlength(name, font=font))) for name, _, _ in entries]
+    left, top, _, bottom = draw.textbbox((0, 0), "Ag", font=font)
+    text_h = bottom - top
+    row_h = max(text_h, max(w for _, _, w in entries)) + 2 * pad
+    total = sum(swatch + gap + w for w in widths) + spacing * (len(entries) - 1) + 2 * pad
+    w, h = size
+    x0, y0 = max(w - total - 2, 0), max(h - row_h - 2, 0)
+    draw.rectangle([x0, y0, x0 + total, y0 + row_h], fill=LEGEND_BG_RGBA)
+    x, yc = x0 + pad, y0 + row_h / 2.0
+    for (name, rgba, width), tw in zip(entries, widths):
+        draw.line([(x, yc), (x + swatch, yc)], fill=rgba[:3] + (255,), width=width)
+        x += swatch + gap
+        draw.text((x - left, yc - text_h / 2.0 - top), name, fill=TEXT_RGBA, font=font)
+        x += tw + spacing
 
 
 def draw_plan(
@@ -50,23 +158,44 @@ def draw_plan(
     chosen: np.ndarray | None = None,
     fallback: bool = False,
     label: str | None = None,
+    legend: bool = True,
 ) -> np.ndarray:
-    """A copy of ``frame`` (H, W, 3) uint8 with trajectories (each (K, 2) road-frame xy [m]) drawn on it."""
+    """A copy of ``frame`` (H, W, 3) uint8 with trajectories (each (K, 2) road-frame xy [m]) drawn on it.
+
+    With ``legend`` (and anything in view) a legend names the colours of the groups given.
+    """
     frame = np.asarray(frame)
     if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
         raise ValueError(f"frame must be (H, W, 3) uint8, got {frame.shape} {frame.dtype}")
     base = Image.fromarray(frame).convert("RGBA")
     overlay = Image.new("RGBA", base.size, (0, 0, 0, 0))
     draw = ImageDraw.Draw(overlay)
-    for group, rgba, width in ((samples, SAMPLE_RGBA, 1), (elites, ELITE_RGBA, 2)):
-        for traj in () if group is None else group:
-            _polyline(draw, world_to_pixel(env, traj), rgba, width, base.size)
+    drawn = False
+    entries: list[tuple[str, tuple, int]] = []
+    for name, group, rgba, width in (("sampled", samples, SAMPLE_RGBA, SAMPLE_WIDTH), ("elite", elites, ELITE_RGBA, ELITE_WIDTH)):
+        trajs = () if group is None else group
+        for traj in trajs:
+            drawn |= _polyline(draw, world_to_pixel(env, traj), rgba, width, base.size)
+        if len(trajs):
+            entries.append((name, rgba, width))
     if chosen is not None:
-        _polyline(draw, world_to_pixel(env, chosen), FALLBACK_RGBA if fallback else CHOSEN_RGBA, 4, base.size)
+        drawn |= _polyline(draw, world_to_pixel(env, chosen), FALLBACK_RGBA if fallback else CHOSEN_RGBA, CHOSEN_WIDTH, base.size)
+        entries += [("chosen", CHOSEN_RGBA, CHOSEN_WIDTH // 2), ("fallback", FALLBACK_RGBA, CHOSEN_WIDTH // 2)]
     text = label if label is not None else ("fallback" if fallback else None)
     if text:
-        draw.text((6, 4), text, fill=(0, 0, 0, 255))
+        draw.text((6, 4), text, fill=TEXT_RGBA, font=_font())
+    if legend and drawn:
+        draw_legend(draw, entries, base.size)
     return np.asarray(Image.alpha_composite(base, overlay).convert("RGB"))
+
+
+def pad_to_even(frame: np.ndarray) -> np.ndarray:
+    """``frame`` (H, W, C) with a last row and/or column repeated so H and W are even (H.264 needs that)."""
+    frame = np.asarray(frame)
+    pad_h, pad_w = frame.shape[0] % 2, frame.shape[1] % 2
+    if not (pad_h or pad_w):
+        return frame
+    return np.pad(frame, ((0, pad_h), (0, pad_w)) + ((0, 0),) * (frame.ndim - 2), mode="edge")
 
 
 def plan_overlay_arrays(result: Any, config: PlannerConfig, max_samples: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -84,11 +213,17 @@ def plan_overlay_arrays(result: Any, config: PlannerConfig, max_samples: int = 1
 
 
 class VideoWriter:
-    """Write frames to an H.264 MP4 as they come (nothing is kept in memory). Use as a context manager."""
+    """Write frames to an H.264 MP4 as they come (nothing is kept in memory). Use as a context manager.
+
+    Frames of odd width or height are padded to even (their last row / column repeated), as H.264
+    needs; every frame must have the shape of the first. Refuses SDL's ``dummy`` video driver
+    (black frames) with a ValueError.
+    """
 
     def __init__(self, path: str | Path, fps: float):
         import imageio.v2 as imageio
 
+        check_video_driver()
         self.path = Path(path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -101,10 +236,11 @@ class VideoWriter:
     def append(self, frame: np.ndarray) -> None:
         frame = np.asarray(frame)
         if self._shape is None:
+            check_video_driver()  # the env has rendered by now: pygame knows its real driver
             self._shape = frame.shape
         elif frame.shape != self._shape:
             raise ValueError(f"frame shape changed from {self._shape} to {frame.shape}")
-        self._writer.append_data(frame)
+        self._writer.append_data(pad_to_even(frame))
         self.frames += 1
 
     def close(self) -> None:

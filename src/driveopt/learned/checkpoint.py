@@ -1,0 +1,90 @@
+"""Checkpoint files: a JSON header line, then the msgpack body (flax.serialization) it checksums.
+
+    {"format": "driveopt-checkpoint", "schema_version": 1, "kind": "cvae", "sha256": ..., "meta": {...}}\\n
+    <msgpack of the state dict>
+
+Writes are atomic (a temporary file in the same folder, fsynced, then renamed), so an interrupted
+save leaves the previous checkpoint intact. Loading checks the format, version, kind and checksum
+and raises :class:`CheckpointError` with the reason, never returns a partly read state.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from flax import serialization
+
+FORMAT = "driveopt-checkpoint"
+SCHEMA_VERSION = 1
+
+
+class CheckpointError(ValueError):
+    """A checkpoint is missing, corrupted, of another kind or version, or does not match its use."""
+
+
+def save_checkpoint(path: str | Path, kind: str, state: Any, meta: dict[str, Any]) -> Path:
+    """Write ``state`` (a pytree of arrays) with JSON-ready ``meta`` to ``path`` atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    body = serialization.msgpack_serialize(serialization.to_state_dict(state))
+    header = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "kind": kind,
+              "sha256": hashlib.sha256(body).hexdigest(), "meta": meta}
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(json.dumps(header).encode() + b"\n")
+            f.write(body)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load_checkpoint(path: str | Path, kind: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(meta, state dict) of a checkpoint of ``kind``; CheckpointError on any problem."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise CheckpointError(f"cannot read checkpoint {path}: {exc.strerror or exc}") from None
+    line, sep, body = raw.partition(b"\n")
+    try:
+        header = json.loads(line) if sep else None
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        header = None
+    if not isinstance(header, dict) or header.get("format") != FORMAT:
+        raise CheckpointError(f"{path} is not a driveopt checkpoint (bad header)")
+    if header.get("schema_version") != SCHEMA_VERSION:
+        raise CheckpointError(f"{path} has checkpoint schema {header.get('schema_version')}; this driveopt reads {SCHEMA_VERSION}")
+    if header.get("kind") != kind:
+        raise CheckpointError(f"{path} holds a '{header.get('kind')}' model, expected '{kind}'")
+    if hashlib.sha256(body).hexdigest() != header.get("sha256"):
+        raise CheckpointError(f"{path} is corrupted (checksum mismatch: truncated or modified)")
+    try:
+        state = serialization.msgpack_restore(body)
+    except Exception as exc:  # msgpack raises several types on malformed input
+        raise CheckpointError(f"{path} is corrupted: {exc}") from None
+    return header.get("meta", {}), state
+
+
+def restore(target: Any, state: dict[str, Any], path: str | Path, what: str) -> Any:
+    """``target``'s structure filled from ``state``; CheckpointError when the shapes do not match."""
+    try:
+        restored = serialization.from_state_dict(target, state)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise CheckpointError(f"{path}: {what} does not match the model: {exc}") from None
+    import jax
+    import numpy as np
+
+    for want, got in zip(jax.tree_util.tree_leaves(target), jax.tree_util.tree_leaves(restored)):
+        if np.shape(want) != np.shape(got):
+            raise CheckpointError(f"{path}: {what} has an array of shape {np.shape(got)}, the model needs {np.shape(want)}")
+    return restored

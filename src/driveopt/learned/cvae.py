@@ -1,0 +1,194 @@
+"""Conditional VAE over behavioural set-points whose decoder ends in the set-point QP (P1 §III-D, App. I).
+
+    encoder (observation o, expert trajectory tau_e) -> (mu_z, log sigma_z^2)
+    decoder (z, o) -> bounded set-points p -> set-point QP (driveopt.qp, the planner's own code)
+                   -> Bernstein coefficients xi -> trajectory W xi
+
+Loss (P1 eq. 9): mean squared distance [m^2] between W xi and tau_e at the nodes, plus
+beta * KL(q(z | o, tau_e) || N(0, I)); beta is annealed from 0 by the trainer. At planning time
+z ~ N(0, I) gives the first batch of set-points (:class:`driveopt.learned.prior.CVAEPrior`).
+
+Inputs are standardised with statistics of the training data (:class:`Normaliser`, saved with the
+weights). Neighbour positions are clipped to ``position_clip`` first and a presence flag is added
+per neighbour, so the far-away padding of the observation does not dominate the statistics.
+Speed set-points are bounded to (0, v_max) and lateral set-points to the lane bounds of the
+ego centre (y_lb, y_ub) by sigmoids.
+
+Widths: P1 uses 4 x 1024 + 256 with BatchNorm. The default here is 3 x 256 with LayerNorm: it
+trains on the 2-core CPU in minutes, adds about a millisecond per planning call for 1000
+samples, and LayerNorm has no running statistics, so training and planning (one observation,
+any batch size) compute the same function.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from driveopt.config import BasisConfig, QPConfig
+from driveopt.observation import DUMMY_DX, EGO_FEATURES, NEIGHBOUR_FEATURES, NUM_NEIGHBOURS, OBSERVATION_DIM
+from driveopt.qp import NUM_SEGMENTS, TrajectoryModel, boundary_values, make_model, solve_setpoint_qp, split
+
+SETPOINT_DIM = 2 * NUM_SEGMENTS
+FEATURE_DIM = OBSERVATION_DIM + NUM_NEIGHBOURS  # observation + a presence flag per neighbour
+
+
+@dataclasses.dataclass(frozen=True)
+class CVAEConfig:
+    latent_dim: int = 2  # [-] P1: 2
+    hidden: tuple[int, ...] = (256, 256, 256)  # [-] widths of the encoder and decoder MLPs
+    v_max: float = 30.0  # [m/s] decoded speed set-points lie in (0, v_max)
+    position_clip: float = 100.0  # [m] neighbour positions relative to the ego are clipped to +-this
+    trajectory_stride: int = 4  # [-] every stride-th node of tau_e feeds the encoder
+    basis: BasisConfig = BasisConfig()
+    qp: QPConfig = QPConfig()
+
+    def __post_init__(self):
+        if self.latent_dim < 1 or not self.hidden or min(self.hidden) < 1:
+            raise ValueError("CVAEConfig needs latent_dim >= 1 and positive hidden widths")
+        if self.v_max <= 0 or self.position_clip <= 0 or self.trajectory_stride < 1:
+            raise ValueError("CVAEConfig needs v_max > 0 [m/s], position_clip > 0 [m], trajectory_stride >= 1")
+
+    @property
+    def trajectory_features(self) -> int:
+        return 2 * len(range(0, self.basis.num_nodes, self.trajectory_stride))
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "CVAEConfig":
+        data = dict(data)
+        basis = BasisConfig(**data.pop("basis", {}))
+        qp = QPConfig(**data.pop("qp", {}))
+        if "hidden" in data:
+            data["hidden"] = tuple(int(w) for w in data["hidden"])
+        return cls(**data, basis=basis, qp=qp)
+
+
+class Normaliser(NamedTuple):
+    """Standardisation statistics of the encoder and decoder inputs (a pytree)."""
+
+    feature_mean: jnp.ndarray  # (FEATURE_DIM,)
+    feature_std: jnp.ndarray
+    trajectory_mean: jnp.ndarray  # (cfg.trajectory_features,)
+    trajectory_std: jnp.ndarray
+
+
+class Batch(NamedTuple):
+    """Training rows (B leading): everything the loss needs."""
+
+    observation: jnp.ndarray  # (B, 55)
+    trajectory: jnp.ndarray  # (B, K, 2) [m] expert plan, x relative to the ego
+    init_x: jnp.ndarray  # (B, 3)
+    init_y: jnp.ndarray  # (B, 3)
+    lane_bounds: jnp.ndarray  # (B, 2) [m] (y_lb, y_ub)
+
+
+class MLP(nn.Module):
+    hidden: tuple[int, ...]
+    out: int
+
+    @nn.compact
+    def __call__(self, x):
+        for width in self.hidden:
+            x = nn.relu(nn.LayerNorm()(nn.Dense(width)(x)))
+        return nn.Dense(self.out)(x)
+
+
+def observation_features(obs: jnp.ndarray, position_clip: float) -> jnp.ndarray:
+    """(..., 55) observation -> (..., 65): neighbour positions clipped, presence flags appended."""
+    ego = obs[..., :EGO_FEATURES]
+    nb = obs[..., EGO_FEATURES:].reshape(*obs.shape[:-1], NUM_NEIGHBOURS, NEIGHBOUR_FEATURES)
+    present = (jnp.abs(nb[..., 0]) < 0.5 * DUMMY_DX).astype(obs.dtype)
+    nb = jnp.concatenate([jnp.clip(nb[..., :2], -position_clip, position_clip), nb[..., 2:]], axis=-1)
+    return jnp.concatenate([ego, nb.reshape(*obs.shape[:-1], -1), present], axis=-1)
+
+
+def trajectory_features(trajectory: jnp.ndarray, stride: int) -> jnp.ndarray:
+    """(..., K, 2) -> (..., 2 * ceil(K / stride)): x, and y relative to the start, at every stride-th node."""
+    sub = trajectory[..., ::stride, :]
+    rel = jnp.stack([sub[..., 0], sub[..., 1] - trajectory[..., :1, 1]], axis=-1)
+    return rel.reshape(*trajectory.shape[:-2], -1)
+
+
+def fit_normaliser(batch: Batch, cfg: CVAEConfig) -> Normaliser:
+    """Mean and standard deviation (floored at 1e-3) of the features of ``batch``."""
+    feats = np.asarray(observation_features(jnp.asarray(batch.observation), cfg.position_clip))
+    trajs = np.asarray(trajectory_features(jnp.asarray(batch.trajectory), cfg.trajectory_stride))
+    stat = lambda a: (jnp.asarray(a.mean(0), jnp.float32), jnp.asarray(np.maximum(a.std(0), 1e-3), jnp.float32))  # noqa: E731
+    return Normaliser(*stat(feats), *stat(trajs))
+
+
+def _networks(cfg: CVAEConfig) -> tuple[MLP, MLP]:
+    return MLP(cfg.hidden, 2 * cfg.latent_dim), MLP(cfg.hidden, SETPOINT_DIM)
+
+
+def init_params(cfg: CVAEConfig, key: jax.Array) -> dict[str, Any]:
+    encoder, decoder = _networks(cfg)
+    k_enc, k_dec = jax.random.split(key)
+    return {
+        "encoder": encoder.init(k_enc, jnp.zeros((1, FEATURE_DIM + cfg.trajectory_features)))["params"],
+        "decoder": decoder.init(k_dec, jnp.zeros((1, cfg.latent_dim + FEATURE_DIM)))["params"],
+    }
+
+
+def _features(obs: jnp.ndarray, norm: Normaliser, cfg: CVAEConfig) -> jnp.ndarray:
+    return (observation_features(obs, cfg.position_clip) - norm.feature_mean) / norm.feature_std
+
+
+def encode(params, cfg: CVAEConfig, norm: Normaliser, obs: jnp.ndarray, trajectory: jnp.ndarray):
+    """(mu, log variance), each (B, latent_dim), of q(z | o, tau_e)."""
+    traj = (trajectory_features(trajectory, cfg.trajectory_stride) - norm.trajectory_mean) / norm.trajectory_std
+    out = _networks(cfg)[0].apply({"params": params["encoder"]}, jnp.concatenate([_features(obs, norm, cfg), traj], -1))
+    mu, log_var = jnp.split(out, 2, axis=-1)
+    return mu, jnp.clip(log_var, -10.0, 5.0)
+
+
+def decode_setpoints(params, cfg: CVAEConfig, norm: Normaliser, z: jnp.ndarray, obs: jnp.ndarray, lane_bounds: jnp.ndarray):
+    """(B, 8) set-points: speeds in (0, v_max) [m/s], lateral positions in (y_lb, y_ub) [m]."""
+    raw = _networks(cfg)[1].apply({"params": params["decoder"]}, jnp.concatenate([z, _features(obs, norm, cfg)], -1))
+    share = jax.nn.sigmoid(raw)
+    y_lb, y_ub = lane_bounds[..., :1], lane_bounds[..., 1:]
+    return jnp.concatenate([cfg.v_max * share[..., :NUM_SEGMENTS], y_lb + (y_ub - y_lb) * share[..., NUM_SEGMENTS:]], -1)
+
+
+def qp_layer(model: TrajectoryModel, qp: QPConfig, setpoints, init_x, init_y) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """Set-points (B, 8) -> (coefficients (B, 2n), node positions (B, K, 2) [m]) by the planner's QP."""
+    b_x, b_y = boundary_values(init_x, init_y, qp)
+    coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
+    c_x, c_y = split(coeffs)
+    return coeffs, jnp.stack([c_x @ model.W.T, c_y @ model.W.T], axis=-1)
+
+
+def trajectory_model(cfg: CVAEConfig) -> TrajectoryModel:
+    return make_model(cfg.basis, cfg.qp)
+
+
+def loss_terms(params, cfg: CVAEConfig, norm: Normaliser, batch: Batch, key: jax.Array) -> dict[str, jnp.ndarray]:
+    """Reconstruction [m^2] (mean over rows and nodes) and KL [nats] (mean over rows), reparameterised."""
+    mu, log_var = encode(params, cfg, norm, batch.observation, batch.trajectory)
+    z = mu + jnp.exp(0.5 * log_var) * jax.random.normal(key, mu.shape, mu.dtype)
+    setpoints = decode_setpoints(params, cfg, norm, z, batch.observation, batch.lane_bounds)
+    _, positions = qp_layer(trajectory_model(cfg), cfg.qp, setpoints, batch.init_x, batch.init_y)
+    reconstruction = jnp.mean(jnp.sum((positions - batch.trajectory) ** 2, axis=-1))
+    kl = jnp.mean(0.5 * jnp.sum(mu**2 + jnp.exp(log_var) - 1.0 - log_var, axis=-1))
+    return {"reconstruction": reconstruction, "kl": kl}
+
+
+def loss(params, cfg: CVAEConfig, norm: Normaliser, batch: Batch, key: jax.Array, beta: jnp.ndarray):
+    """P1 eq. 9: reconstruction + beta * KL; returns (loss, terms)."""
+    terms = loss_terms(params, cfg, norm, batch, key)
+    return terms["reconstruction"] + beta * terms["kl"], terms
+
+
+def sample_setpoints(params, cfg: CVAEConfig, norm: Normaliser, obs: jnp.ndarray, lane_bounds: jnp.ndarray, key: jax.Array, num: int):
+    """(num, 8) set-points for one observation (55,) from z ~ N(0, I)."""
+    z = jax.random.normal(key, (num, cfg.latent_dim))
+    obs = jnp.broadcast_to(obs, (num, obs.shape[-1]))
+    return decode_setpoints(params, cfg, norm, z, obs, jnp.broadcast_to(lane_bounds, (num, 2)))

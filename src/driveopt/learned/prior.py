@@ -1,0 +1,87 @@
+"""The CVAE as the bi-level sampler's first proposal (P1 §III-D), and the weights shipped with driveopt.
+
+``CVAEPrior.propose`` draws z ~ N(0, I), decodes set-points for the problem's observation, and
+initialises the sampler's Gaussian with their mean and covariance; later iterations adapt it as
+for any prior. The CVAE replaces the warm start (``warm_mean`` is not used).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore
+from driveopt.learned.cvae import CVAEConfig, Normaliser, init_params, sample_setpoints
+from driveopt.sampler import Proposal, clip_setpoints
+
+KIND = "cvae"
+COVARIANCE_JITTER = 0.01  # [-] added to the diagonal of the proposal's covariance
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class CVAEPrior:
+    params: Any
+    normaliser: Normaliser
+    config: CVAEConfig = dataclasses.field(metadata=dict(static=True))
+    v_max: float = dataclasses.field(default=30.0, metadata=dict(static=True))  # [m/s] planner's speed bound
+
+    def propose(self, problem, key, num, warm_mean=None) -> Proposal:
+        lane_bounds = jnp.stack([problem.y_lb, problem.y_ub])
+        samples = sample_setpoints(self.params, self.config, self.normaliser, problem.observation, lane_bounds, key, num)
+        samples = clip_setpoints(samples, problem, self.v_max)
+        mean = jnp.mean(samples, axis=0)
+        centred = samples - mean
+        cov = centred.T @ centred / num + COVARIANCE_JITTER * jnp.eye(samples.shape[1], dtype=samples.dtype)
+        return Proposal(samples, mean, cov)
+
+
+def empty_state(cfg: CVAEConfig) -> dict[str, Any]:
+    """The structure of a CVAE checkpoint's state (parameters and normaliser), for restoring."""
+    from driveopt.learned.cvae import FEATURE_DIM
+
+    zeros = lambda n: jnp.zeros(n, jnp.float32)  # noqa: E731
+    return {"params": init_params(cfg, jax.random.PRNGKey(0)),
+            "normaliser": Normaliser(zeros(FEATURE_DIM), zeros(FEATURE_DIM), zeros(cfg.trajectory_features), zeros(cfg.trajectory_features))}
+
+
+def load_cvae(path: str | Path) -> tuple[CVAEConfig, Any, Normaliser, dict[str, Any]]:
+    """(config, params, normaliser, meta) of a CVAE checkpoint; CheckpointError when unusable."""
+    meta, state = load_checkpoint(path, KIND)
+    try:
+        cfg = CVAEConfig.from_dict(meta["config"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{path}: invalid CVAE config in the header: {exc}") from None
+    target = empty_state(cfg)
+    restored = restore(target, {k: state.get(k) for k in target}, path, "the CVAE state")
+    return cfg, restored["params"], Normaliser(*restored["normaliser"]), meta
+
+
+def load_prior(path: str | Path, v_max: float = 30.0) -> CVAEPrior:
+    cfg, params, norm, _ = load_cvae(path)
+    return CVAEPrior(params, norm, cfg, float(v_max))
+
+
+def shipped_weights(lanes: int) -> Path | None:
+    """Path of the CVAE weights shipped for roads with ``lanes`` lanes (2 or 4), or None."""
+    name = {2: "cvae-two-lane.ckpt", 4: "cvae-four-lane.ckpt"}.get(int(lanes))
+    if name is None:
+        return None
+    path = Path(str(resources.files("driveopt") / "weights" / name))
+    return path if path.exists() else None
+
+
+def prior_for(lanes: int, v_max: float, weights: str | Path | None, fallback: Any) -> Any:
+    """The CVAE prior from ``weights`` (or the shipped weights for ``lanes``); ``fallback`` with a
+    notice when there are none. A given but unusable file raises CheckpointError."""
+    path = Path(weights) if weights else shipped_weights(lanes)
+    if path is None:
+        warnings.warn(f"no CVAE weights shipped for {lanes}-lane roads: using the Gaussian start instead", stacklevel=2)
+        return fallback
+    return load_prior(path, v_max)

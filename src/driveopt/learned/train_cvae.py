@@ -1,0 +1,183 @@
+"""``driveopt train cvae``: fit the CVAE to expert demonstrations, resumably.
+
+Rows: planning steps whose plan met every constraint (status SUCCESS), leaving out the last
+``crash_margin`` seconds before a collision. Validation: whole episodes (``validation_fraction``
+of them, chosen by the seed), so no episode is split between the two sets.
+
+Optimiser: AdamW with a step decay (x ``decay_factor`` every ``decay_every`` epochs; P1:
+x 0.1 every 10 of 80 epochs); beta rises linearly from 0 to ``beta`` over ``anneal_epochs``.
+
+Output folder: ``last.ckpt`` (everything needed to resume: parameters, optimiser state, epoch,
+history, normaliser), ``cvae.ckpt`` (the weights with the lowest validation loss: what the
+planner loads) and ``history.json``. Both checkpoints are written atomically after every epoch,
+so an interruption loses at most the epoch in flight; rerunning the same command resumes.
+A checkpoint made from other data or another configuration is refused with the reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from tqdm import tqdm
+
+from driveopt.data.demonstrations import Demonstrations, load_demonstrations
+from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore, save_checkpoint
+from driveopt.learned.cvae import Batch, CVAEConfig, Normaliser, fit_normaliser, init_params, loss, loss_terms
+from driveopt.learned.prior import KIND
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    epochs: int = 60  # [-]
+    batch_size: int = 256  # [-] rows per step
+    learning_rate: float = 1e-3  # [-] AdamW initial rate
+    weight_decay: float = 6e-5  # [-] P1
+    decay_every: int = 20  # [epochs] step decay period
+    decay_factor: float = 0.1  # [-]
+    beta: float = 1.0  # [-] KL weight after annealing (reconstruction is in m^2)
+    anneal_epochs: int = 10  # [epochs] beta rises linearly from 0 over these
+    validation_fraction: float = 0.1  # [-] share of episodes held out
+    crash_margin: float = 3.0  # [s] rows this close before a collision are left out
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.epochs < 1 or self.batch_size < 1 or self.decay_every < 1 or self.anneal_epochs < 0:
+            raise ValueError("TrainConfig needs epochs, batch_size, decay_every >= 1 and anneal_epochs >= 0")
+        if not 0.0 <= self.validation_fraction < 1.0 or self.learning_rate <= 0 or self.beta < 0:
+            raise ValueError("TrainConfig needs 0 <= validation_fraction < 1, learning_rate > 0, beta >= 0")
+
+    def beta_at(self, epoch: int) -> float:
+        return self.beta * min(1.0, (epoch + 1) / self.anneal_epochs) if self.anneal_epochs else self.beta
+
+
+def training_rows(data: Demonstrations, crash_margin: float) -> np.ndarray:
+    """Indices of the rows to learn from (see the module docstring)."""
+    return np.flatnonzero((data.status == 0) & (data.time_to_crash() > crash_margin))
+
+
+def split_episodes(data: Demonstrations, rows: np.ndarray, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(train rows, validation rows) with whole episodes held out."""
+    episodes = np.unique(data.episode[rows])
+    held = int(round(fraction * len(episodes)))
+    if fraction > 0 and len(episodes) > 1:
+        held = max(held, 1)
+    chosen = np.random.default_rng(seed).permutation(episodes)[:held]
+    is_val = np.isin(data.episode[rows], chosen)
+    return rows[~is_val], rows[is_val]
+
+
+def make_batch(data: Demonstrations, rows: np.ndarray) -> Batch:
+    return Batch(data.observation[rows], data.trajectory[rows], data.init_x[rows], data.init_y[rows], data.lane_bounds[rows])
+
+
+def _optimiser(tcfg: TrainConfig, steps_per_epoch: int) -> optax.GradientTransformation:
+    schedule = optax.exponential_decay(tcfg.learning_rate, transition_steps=tcfg.decay_every * steps_per_epoch,
+                                       decay_rate=tcfg.decay_factor, staircase=True)
+    return optax.adamw(schedule, weight_decay=tcfg.weight_decay)
+
+
+def train_cvae(
+    data_paths: str | Path | Sequence[str | Path],
+    out_dir: str | Path,
+    cfg: CVAEConfig = CVAEConfig(),
+    tcfg: TrainConfig = TrainConfig(),
+    *,
+    progress: bool = True,
+    stop_after: int | None = None,
+) -> dict[str, Any]:
+    """Train (or resume training) into ``out_dir``; returns a summary with the history.
+
+    stop_after: return after this many epochs of this call (for tests of resumption).
+    """
+    out = Path(out_dir)
+    data = load_demonstrations(data_paths)
+    rows = training_rows(data, tcfg.crash_margin)
+    train_rows, val_rows = split_episodes(data, rows, tcfg.validation_fraction, tcfg.seed)
+    if len(train_rows) < 2:
+        raise ValueError(f"only {len(train_rows)} usable training rows in {data_paths}: collect more demonstrations")
+    train, val = make_batch(data, train_rows), make_batch(data, val_rows)
+    batch_size = min(tcfg.batch_size, len(train_rows))
+    steps_per_epoch = len(train_rows) // batch_size
+    optimiser = _optimiser(tcfg, steps_per_epoch)
+    fingerprint = data.fingerprint()
+    meta_base = {"config": cfg.to_dict(), "train_config": dataclasses.asdict(tcfg), "data": fingerprint,
+                 "rows": {"train": int(len(train_rows)), "validation": int(len(val_rows))}}
+
+    key = jax.random.PRNGKey(tcfg.seed)
+    params = init_params(cfg, jax.random.fold_in(key, 0))
+    normaliser = fit_normaliser(train, cfg)
+    opt_state = optimiser.init(params)
+    history: list[dict[str, float]] = []
+    best = float("inf")
+    last = out / "last.ckpt"
+    if last.exists():
+        params, normaliser, opt_state, history, best = _resume(last, cfg, tcfg, fingerprint, params, normaliser, opt_state)
+
+    @jax.jit
+    def step(params, opt_state, batch, key, beta):
+        (value, terms), grads = jax.value_and_grad(loss, has_aux=True)(params, cfg, normaliser, batch, key, beta)
+        updates, opt_state = optimiser.update(grads, opt_state, params)
+        return optax.apply_updates(params, updates), opt_state, value, terms
+
+    @jax.jit
+    def evaluate(params, batch, key):
+        return loss_terms(params, cfg, normaliser, batch, key)
+
+    first_epoch = len(history)
+    last_epoch = tcfg.epochs if stop_after is None else min(tcfg.epochs, first_epoch + stop_after)
+    bar = tqdm(range(first_epoch, last_epoch), initial=first_epoch, total=tcfg.epochs, desc="train cvae", unit="epoch", disable=not progress)
+    start = time.perf_counter()
+    for epoch in bar:
+        epoch_key = jax.random.fold_in(key, epoch + 1)
+        order = np.asarray(jax.random.permutation(jax.random.fold_in(epoch_key, 0), len(train_rows)))
+        beta = jnp.float32(tcfg.beta_at(epoch))
+        sums = {"loss": 0.0, "reconstruction": 0.0, "kl": 0.0}
+        for i in range(steps_per_epoch):
+            idx = order[i * batch_size:(i + 1) * batch_size]
+            batch = Batch(*(jnp.asarray(a[idx]) for a in train))
+            params, opt_state, value, terms = step(params, opt_state, batch, jax.random.fold_in(epoch_key, i + 1), beta)
+            sums["loss"] += float(value)
+            sums["reconstruction"] += float(terms["reconstruction"])
+            sums["kl"] += float(terms["kl"])
+        record = {"epoch": epoch + 1, "beta": float(beta), **{f"train_{k}": v / steps_per_epoch for k, v in sums.items()}}
+        if len(val_rows):
+            terms = evaluate(params, Batch(*(jnp.asarray(a) for a in val)), jax.random.fold_in(epoch_key, steps_per_epoch + 1))
+            record.update(val_reconstruction=float(terms["reconstruction"]), val_kl=float(terms["kl"]),
+                          val_loss=float(terms["reconstruction"] + beta * terms["kl"]))
+        history.append(record)
+        # Once beta is at its final value, keep the weights with the lowest validation loss.
+        score = record.get("val_loss", record["train_loss"])
+        if epoch + 1 >= min(tcfg.anneal_epochs, tcfg.epochs) and score < best:
+            best = score
+            save_checkpoint(out / "cvae.ckpt", KIND, {"params": params, "normaliser": normaliser}, {**meta_base, "epoch": epoch + 1, "history": history})
+        save_checkpoint(last, KIND, {"params": params, "normaliser": normaliser, "opt_state": opt_state},
+                        {**meta_base, "epoch": epoch + 1, "history": history, "best": best})
+        (out / "history.json").write_text(json.dumps(history, indent=1))
+        bar.set_postfix_str(f"train {record['train_loss']:.3f} val {record.get('val_loss', float('nan')):.3f} m^2")
+    bar.close()
+    return {"epochs": len(history), "history": history, "best_val_loss": best, "rows": meta_base["rows"],
+            "seconds": time.perf_counter() - start, "out": str(out)}
+
+
+def _resume(path: Path, cfg: CVAEConfig, tcfg: TrainConfig, fingerprint: str, params, normaliser, opt_state):
+    meta, state = load_checkpoint(path, KIND)
+    if meta.get("data") != fingerprint:
+        raise CheckpointError(f"{path} was trained on other demonstrations (data {meta.get('data')}, now {fingerprint}); use a new --out")
+    if meta.get("config") != json.loads(json.dumps(cfg.to_dict())):
+        raise CheckpointError(f"{path} has another CVAE configuration: {meta.get('config')}; use a new --out")
+    stored = dict(meta.get("train_config", {}))
+    mismatch = {k: (stored.get(k), v) for k, v in dataclasses.asdict(tcfg).items() if k != "epochs" and stored.get(k) != v}
+    if mismatch:
+        raise CheckpointError(f"{path} was trained with other settings {mismatch} (stored, now); use a new --out")
+    target = {"params": params, "normaliser": normaliser, "opt_state": opt_state}
+    restored = restore(target, {k: state.get(k) for k in target}, path, "the training state")
+    return restored["params"], Normaliser(*restored["normaliser"]), restored["opt_state"], list(meta.get("history", [])), float(meta.get("best", float("inf")))
+

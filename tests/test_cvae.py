@@ -1,0 +1,156 @@
+"""CVAE warm start: QP-layer gradients, training, checkpoints, the planner prior, and their errors."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from driveopt.cli import main
+from driveopt.data.demonstrations import load_demonstrations
+from driveopt.learned.checkpoint import CheckpointError, load_checkpoint
+from driveopt.learned.cvae import CVAEConfig, decode_setpoints, fit_normaliser, init_params, loss_terms, qp_layer, trajectory_model
+from driveopt.learned.prior import CVAEPrior, load_prior, prior_for
+from driveopt.learned.train_cvae import TrainConfig, make_batch, train_cvae
+from driveopt.planner import PlanStatus, plan
+from driveopt.problem import build_problem, load_scene
+from learned_data import LANES, write_synthetic
+
+CFG = CVAEConfig(hidden=(32, 32))
+TCFG = TrainConfig(epochs=10, batch_size=32, learning_rate=3e-3, anneal_epochs=2, decay_every=8)
+
+
+@pytest.fixture(scope="module")
+def data_file(tmp_path_factory):
+    return write_synthetic(tmp_path_factory.mktemp("demo") / "demo.h5")
+
+
+@pytest.fixture(scope="module")
+def trained(data_file, tmp_path_factory):
+    out = tmp_path_factory.mktemp("cvae")
+    summary = train_cvae(data_file, out, CFG, TCFG, progress=False)
+    return out, summary
+
+
+def test_qp_layer_gradient_through_decoder_matches_finite_differences(data_file):
+    data = load_demonstrations(data_file)
+    batch = make_batch(data, np.arange(16))
+    norm = fit_normaliser(batch, CFG)
+    params = init_params(CFG, jax.random.PRNGKey(1))
+    model = trajectory_model(CFG)
+    z = jax.random.normal(jax.random.PRNGKey(2), (16, CFG.latent_dim))
+
+    def reconstruction(decoder):
+        sp = decode_setpoints({**params, "decoder": decoder}, CFG, norm, z, batch.observation, batch.lane_bounds)
+        _, positions = qp_layer(model, CFG.qp, sp, batch.init_x, batch.init_y)
+        return jnp.mean(jnp.sum((positions - batch.trajectory) ** 2, -1))
+
+    direction = jax.tree_util.tree_map(lambda p: jax.random.normal(jax.random.PRNGKey(3), p.shape), params["decoder"])
+    norm2 = sum(jnp.sum(d**2) for d in jax.tree_util.tree_leaves(direction))
+    direction = jax.tree_util.tree_map(lambda d: d / jnp.sqrt(norm2), direction)  # unit step in parameter space
+    grad = jax.grad(reconstruction)(params["decoder"])
+    analytic = sum(jnp.vdot(g, d) for g, d in zip(jax.tree_util.tree_leaves(grad), jax.tree_util.tree_leaves(direction)))
+    eps = 1e-3  # float32: curvature dominates above, rounding below (float64 agrees to 1e-8)
+    shifted = lambda s: jax.tree_util.tree_map(lambda p, d: p + s * eps * d, params["decoder"], direction)  # noqa: E731
+    numeric = (reconstruction(shifted(1.0)) - reconstruction(shifted(-1.0))) / (2 * eps)
+    assert float(analytic) == pytest.approx(float(numeric), rel=2e-2)
+    # The QP layer itself: d positions / d set-points equals the QP's speed and lateral maps.
+    jac = jax.jacobian(lambda sp: qp_layer(model, CFG.qp, sp, batch.init_x[:1], batch.init_y[:1])[1])(jnp.asarray(data.setpoints[:1]))
+    assert np.allclose(np.asarray(jac)[0, :, 1, 0, 4:], np.asarray(model.W @ model.lateral_map), atol=1e-4)
+
+
+def test_loss_falls_and_bounded_setpoints(trained, data_file):
+    _, summary = trained
+    history = summary["history"]
+    assert len(history) == TCFG.epochs
+    first, last = history[0]["train_reconstruction"], history[-1]["train_reconstruction"]
+    assert last < 0.3 * first, (first, last)
+    assert history[-1]["val_reconstruction"] < 0.5 * history[0]["val_reconstruction"]
+    prior = load_prior(trained[0] / "cvae.ckpt")
+    samples = prior.propose(build_problem(load_scene("dense-snapshot")), jax.random.PRNGKey(0), 500, None).samples
+    assert np.all(np.isfinite(samples))
+    assert np.all((samples[:, :4] >= 0) & (samples[:, :4] <= 30.0))
+
+
+def test_checkpoint_round_trip_gives_identical_samples(trained, tmp_path):
+    out, _ = trained
+    problem = build_problem(load_scene("dense-snapshot"))
+    a = load_prior(out / "cvae.ckpt").propose(problem, jax.random.PRNGKey(5), 64, None)
+    copy = tmp_path / "copy.ckpt"
+    copy.write_bytes((out / "cvae.ckpt").read_bytes())
+    b = load_prior(copy).propose(problem, jax.random.PRNGKey(5), 64, None)
+    assert np.array_equal(np.asarray(a.samples), np.asarray(b.samples))
+    assert np.array_equal(np.asarray(a.cov), np.asarray(b.cov))
+
+
+@pytest.mark.parametrize("damage", ["truncate", "flip", "header", "empty"])
+def test_corrupted_checkpoint_is_refused(trained, tmp_path, damage):
+    raw = (trained[0] / "cvae.ckpt").read_bytes()
+    bad = {"truncate": raw[: len(raw) // 2], "flip": raw[:-10] + bytes(b ^ 0xFF for b in raw[-10:]),
+           "header": b"garbage\n" + raw, "empty": b""}[damage]
+    path = tmp_path / "bad.ckpt"
+    path.write_bytes(bad)
+    with pytest.raises(CheckpointError):
+        load_prior(path)
+    assert main(["plot-prior", "--weights", str(path), "--out", str(tmp_path / "p.png")]) == 2
+
+
+def test_checkpoint_of_another_architecture_is_refused(trained, tmp_path):
+    meta, _ = load_checkpoint(trained[0] / "cvae.ckpt", "cvae")
+    raw = (trained[0] / "cvae.ckpt").read_bytes()
+    header, body = raw.split(b"\n", 1)
+    doc = json.loads(header)
+    doc["meta"]["config"]["hidden"] = [64, 64]  # header claims widths the weights do not have
+    path = tmp_path / "mismatch.ckpt"
+    path.write_bytes(json.dumps(doc).encode() + b"\n" + body)
+    with pytest.raises(CheckpointError, match="does not match|shape"):
+        load_prior(path)
+
+
+def test_training_resumes_to_the_same_weights(data_file, trained, tmp_path):
+    train_cvae(data_file, tmp_path, CFG, TCFG, progress=False, stop_after=3)
+    resumed = train_cvae(data_file, tmp_path, CFG, TCFG, progress=False)
+    assert len(resumed["history"]) == TCFG.epochs
+    problem = build_problem(load_scene("dense-snapshot"))
+    a = load_prior(tmp_path / "last.ckpt").propose(problem, jax.random.PRNGKey(0), 8, None).samples
+    b = load_prior(trained[0] / "last.ckpt").propose(problem, jax.random.PRNGKey(0), 8, None).samples
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-5)
+
+
+def test_resume_with_other_data_or_settings_is_refused(trained, tmp_path):
+    other = write_synthetic(tmp_path / "other.h5", episodes=3, seed=9)
+    with pytest.raises(CheckpointError, match="other demonstrations"):
+        train_cvae(other, trained[0], CFG, TCFG, progress=False)
+
+
+def test_cvae_prior_in_the_planner(trained):
+    prior = load_prior(trained[0] / "cvae.ckpt")
+    assert isinstance(prior, CVAEPrior)
+    problem = build_problem(load_scene("static-blockage"))
+    from conftest import SMALL
+
+    for samples in (64, 300):
+        config = SMALL.replace(sampler={"num_samples": samples, "num_constraint_elites": 40, "num_elites": 20})
+        result = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior)
+        assert result.status in (PlanStatus.SUCCESS, PlanStatus.INFEASIBLE)
+        assert np.all(np.isfinite(result.trajectory.x)) and np.all(np.isfinite(result.fallback.x))
+    assert LANES[0] < float(problem.y_ub)
+
+
+def test_missing_weights_fall_back_to_gaussian_with_notice():
+    fallback = object()
+    with pytest.warns(UserWarning, match="Gaussian"):
+        assert prior_for(3, 30.0, None, fallback) is fallback
+
+
+def test_train_cli_and_errors(data_file, tmp_path, capsys):
+    out = tmp_path / "cli"
+    assert main(["train", "cvae", "--data", str(data_file), "--out", str(out), "--epochs", "2", "--hidden", "16", "16"]) == 0
+    assert (out / "cvae.ckpt").exists() and json.loads((out / "history.json").read_text())[-1]["epoch"] == 2
+    assert main(["train", "cvae", "--data", str(tmp_path / "missing.h5"), "--out", str(out)]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert main(["plot-prior", "--weights", str(out / "cvae.ckpt"), "--out", str(tmp_path / "prior.png")]) == 0
+    assert (tmp_path / "prior.png").stat().st_size > 10_000

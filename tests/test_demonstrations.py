@@ -1,0 +1,79 @@
+"""Demonstrations: the HDF5 store (append, resume, validation) and ``driveopt collect``."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from driveopt.cli import main
+from driveopt.data.collect import collect
+from driveopt.data.demonstrations import DatasetError, DemonstrationWriter, EpisodeKey, load_demonstrations
+from learned_data import synthetic_rows, write_synthetic
+
+
+def test_round_trip_and_episode_table(tmp_path):
+    path = write_synthetic(tmp_path / "d.h5", episodes=3, rows=10)
+    data = load_demonstrations(path)
+    assert len(data) == 30 and data.trajectory.shape == (30, 100, 2)
+    assert list(data.episodes["num_rows"]) == [10, 10, 10] and list(data.episodes["first_row"]) == [0, 10, 20]
+    assert np.array_equal(data.episode, np.repeat([0, 1, 2], 10))
+    assert np.all(np.isinf(data.time_to_crash()))
+    both = load_demonstrations([path, write_synthetic(tmp_path / "e.h5", episodes=2, rows=5, seed=1)])
+    assert len(both) == 40 and both.episode[-1] == 4
+
+
+def test_partial_episode_is_truncated_on_reopen(tmp_path):
+    path = write_synthetic(tmp_path / "d.h5", episodes=2, rows=8)
+    with h5py.File(path, "a") as f:  # rows of an episode whose entry was never written (killed mid-write)
+        for name in ("observation", "status", "episode"):
+            f[name].resize(f[name].shape[0] + 5, axis=0)
+    assert len(load_demonstrations(path)) == 16  # loading ignores the partial rows ...
+    with DemonstrationWriter(path, {"expert": "synthetic"}, 100, 22, 55) as writer:  # ... and reopening removes them
+        assert writer.done() == {EpisodeKey("synthetic", 0, 0), EpisodeKey("synthetic", 0, 1)}
+        writer.append_episode({"scenario": "synthetic", "seed": 0, "episode": 2, "env_seed": 2, "collided": True, "duration": 0.8},
+                              synthetic_rows(np.random.default_rng(3), 8))
+    data = load_demonstrations(path)
+    assert len(data) == 24 and all(f.shape[0] == 24 for f in (data.observation, data.status, data.trajectory))
+    assert np.array_equal(data.episode, np.repeat([0, 1, 2], 8))
+    assert data.time_to_crash()[-1] == pytest.approx(0.1)
+
+
+def test_bad_files_are_refused(tmp_path):
+    with pytest.raises(DatasetError, match="does not exist"):
+        load_demonstrations(tmp_path / "none.h5")
+    (tmp_path / "junk.h5").write_bytes(b"not an hdf5 file at all")
+    with pytest.raises(DatasetError, match="corrupted"):
+        load_demonstrations(tmp_path / "junk.h5")
+    path = write_synthetic(tmp_path / "d.h5", episodes=1, rows=4)
+    with h5py.File(path, "a") as f:
+        f.attrs["schema_version"] = 99
+    with pytest.raises(DatasetError, match="schema version 99"):
+        load_demonstrations(path)
+    path = write_synthetic(tmp_path / "n.h5", episodes=1, rows=4)
+    with h5py.File(path, "a") as f:
+        f["trajectory"][1, 3, 0] = np.nan
+    with pytest.raises(DatasetError, match="NaN"):
+        load_demonstrations(path)
+    with pytest.raises(DatasetError, match="other settings"):
+        DemonstrationWriter(path, {"expert": "bilevel"}, 100, 22, 55)
+    assert main(["train", "cvae", "--data", str(tmp_path / "junk.h5"), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_collect_resumes_without_duplicates(tmp_path):
+    out = tmp_path / "demo.h5"
+    kwargs = dict(seed=3, samples=40, iterations=1, duration=0.3, workers=1, progress=False)
+    first = collect(out, ["two-lane-d1.0"], episodes=1, **kwargs)
+    assert first["episodes"] == 1 and first["rows"] == 3
+    before = load_demonstrations(out)
+    second = collect(out, ["two-lane-d1.0"], episodes=2, **kwargs)  # the interrupted sweep, rerun larger
+    assert second["skipped"] == 1 and second["episodes"] == 1
+    assert collect(out, ["two-lane-d1.0"], episodes=2, **kwargs)["episodes"] == 0
+    data = load_demonstrations(out)
+    assert len(data) == 6 and sorted(data.episodes["episode"]) == [0, 1]
+    np.testing.assert_array_equal(data.observation[:3], before.observation)
+    assert data.observation.shape == (6, 55) and np.all(data.trajectory[:, 0, 0] == pytest.approx(0.0, abs=1e-3))
+    assert np.allclose(data.trajectory[:, 0, 1], data.init_y[:, 0], atol=1e-3)  # plans start at the ego
+    with pytest.raises(DatasetError, match="other settings"):
+        collect(out, ["two-lane-d1.0"], episodes=2, **{**kwargs, "samples": 80})
+    assert main(["collect", "--scenarios", "nowhere", "--out", str(out)]) == 2
