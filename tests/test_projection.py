@@ -10,7 +10,7 @@ import pytest
 from driveopt.config import ProjectionConfig, QPConfig
 from driveopt.costs import evaluate
 from driveopt.problem import EgoState, Neighbour, Road, Scene, build_problem, load_scene
-from driveopt.projection import constraint_residuals, project
+from driveopt.projection import XLA_CPU_COMPILER_OPTIONS, _fast_rsqrt, constraint_residuals, lane_constraint, project
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
 
 MODEL = make_model()
@@ -168,3 +168,32 @@ def test_unrolled_projection_is_differentiable(dense_batch):
     g_target, g_gamma = jax.grad(loss, argnums=(0, 1))(target[:32], 0.9)
     assert np.all(np.isfinite(np.asarray(g_target))) and np.isfinite(float(g_gamma))
     assert float(jnp.abs(g_target).max()) > 0 and abs(float(g_gamma)) > 0
+
+
+def test_fast_rsqrt_matches_rsqrt_and_its_derivative():
+    x = jnp.logspace(-12, 12, 20001, dtype=jnp.float32)
+    np.testing.assert_allclose(_fast_rsqrt(x), jax.lax.rsqrt(x), rtol=1e-5)
+    np.testing.assert_allclose(jax.vmap(jax.grad(_fast_rsqrt))(x), -0.5 * x ** -1.5, rtol=1e-4)
+    assert np.all(np.isfinite(np.asarray(_fast_rsqrt(jnp.array([0.0, jnp.inf])))))  # clipped, never inf/nan
+
+
+def test_barrier_lane_rows_match_dense_rows():
+    """The node-space lane rows (no matrix) agree with the dense rows G of lane_constraint for gamma < 1."""
+    problem, target, b_x, b_y = setup(empty_scene(y=8.0), [[15.0] * 4 + [16.0] * 4, [10.0] * 4 + [-2.0] * 4])
+    cfg = dataclasses.replace(LOOSE, barrier=True, max_iterations=1)
+    gamma = 0.3
+    out = project(MODEL, problem, target, b_x, b_y, cfg, gamma_lane=gamma)
+    G, e = lane_constraint(MODEL, problem.y_lb, problem.y_ub, gamma, True)
+    c_y = out.coeffs[:, MODEL.W.shape[1]:]
+    violation = jnp.maximum(c_y @ G.T - e, 0.0)  # distance of each row to its bound
+    np.testing.assert_allclose(out.residuals.lane, jnp.sqrt(jnp.sum(violation**2, axis=1)), rtol=1e-4, atol=1e-4)
+
+
+def test_cpu_compiler_options_keep_results(dense_batch):
+    """The vector-width option the planner compiles with is accepted and changes only rounding."""
+    problem, target, b_x, b_y = dense_batch
+    cfg = ProjectionConfig(max_iterations=1, tolerance=0.0)  # more iterations amplify rounding (the clips are not smooth)
+    run = lambda t: project(MODEL, problem, t, b_x, b_y, cfg)  # noqa: E731
+    plain = jax.jit(run)(target)
+    tuned = jax.jit(run, compiler_options=XLA_CPU_COMPILER_OPTIONS)(target)
+    np.testing.assert_allclose(tuned.residuals.total, plain.residuals.total, rtol=1e-3, atol=1e-2)

@@ -91,6 +91,7 @@ class _RawResult(NamedTuple):
     trajectory: Trajectory  # of the best coefficients (planning frame)
     fallback_trajectory: Trajectory
     fallback: _Best  # the stop offered as fallback (identical in every iteration)
+    fallback_emergency: jnp.ndarray  # () bool: the fallback is the emergency stop
 
 
 class PlanResult(NamedTuple):
@@ -110,6 +111,7 @@ class PlanResult(NamedTuple):
     last: Snapshot
     x_offset: float  # [m] road-frame x of the planning-frame origin
     fallback_residual: float  # total residual of the fallback
+    fallback_deceleration: float  # [m/s^2] the fallback's braking: fallback_deceleration, or a_max (emergency)
 
     @property
     def message(self) -> str:
@@ -207,8 +209,9 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints):
     )
     snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked)
     # The fallback offered: the comfortable stop, unless the emergency stop has a lower residual.
-    fallback = jnp.where(residual[-1] < residual[-2], residual.shape[0] - 1, residual.shape[0] - 2)
-    return candidate(pick), candidate(fallback), snapshot, score, stats
+    emergency = residual[-1] < residual[-2]
+    fallback = jnp.where(emergency, residual.shape[0] - 1, residual.shape[0] - 2)
+    return candidate(pick), (candidate(fallback), emergency), snapshot, score, stats
 
 
 def _better(a: _Best, b: _Best) -> _Best:
@@ -226,7 +229,7 @@ def _plan_jit(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: P
         elites = snapshot.setpoints[snapshot.elite_index]
         return cem_update(mean, cov, elites, score[snapshot.elite_index], s)
 
-    best, fallback, first, score, stats = _iteration(model, problem, cfg, proposal.samples)
+    best, (fallback, emergency), first, score, stats = _iteration(model, problem, cfg, proposal.samples)
     mean, cov = adapt(proposal.mean, proposal.cov, first, score)
 
     def body(carry, iteration_key):
@@ -241,7 +244,8 @@ def _plan_jit(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: P
     keys = jax.random.split(key_loop, s.num_iterations - 1)
     (mean, cov, best, last), rest = jax.lax.scan(body, (mean, cov, best, first), keys)
     history = History(*(jnp.concatenate([jnp.atleast_1d(a), b]) for a, b in zip(stats, rest)))
-    return _RawResult(best, mean, cov, history, first, last, evaluate(model, best.coeffs), evaluate(model, fallback.coeffs), fallback)
+    return _RawResult(best, mean, cov, history, first, last, evaluate(model, best.coeffs), evaluate(model, fallback.coeffs),
+                      fallback, emergency)
 
 
 def _shift(traj: Trajectory, dx: float) -> Trajectory:
@@ -315,5 +319,5 @@ def _finish(raw: _RawResult, problem: PlanningProblem, config: PlannerConfig, x_
         last=jax.tree_util.tree_map(np.asarray, raw.last),
         x_offset=x_offset,
         fallback_residual=float(np.sum(raw.fallback.residuals)),
-
+        fallback_deceleration=config.projection.a_max if bool(raw.fallback_emergency) else config.fallback_deceleration,
     )

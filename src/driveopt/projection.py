@@ -35,6 +35,12 @@ from driveopt.qp import TrajectoryModel, split
 _EPS = 1e-6
 CURVATURE_MIN_SPEED = 1.0  # [m/s] below this speed the curvature bound is not applied
 
+# Compiler options for the jit that runs the projection on CPU (jax.jit(..., compiler_options=...)). The
+# projection is arithmetic-bound in its elementwise loops; 512-bit vectors make a planning call ~10-15%
+# faster on AVX-512 machines (LLVM treats the width as a preference, so other CPUs are unaffected). A
+# per-jit option rather than XLA_FLAGS: it changes nothing else in the user's process.
+XLA_CPU_COMPILER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
+
 
 class ProjectionStatus(enum.IntEnum):
     CONVERGED = 0
@@ -83,7 +89,8 @@ class _Operators(NamedTuple):
     free_nodes: jnp.ndarray  # (3, K) 0 where position / velocity / acceleration is fixed by A_eq
     penalty: jnp.ndarray  # (2, n, n): rho F'F of each axis
     lane_gamma: jnp.ndarray  # () gamma of the lane rows (1 in plain mode)
-    lane_bounds: jnp.ndarray  # (2, K-1) upper-row and lower-row bounds e
+    lane_rows: jnp.ndarray  # (K,) 1 at the nodes that carry a lane row (all but node 0)
+    lane_bounds: jnp.ndarray  # (2, K) upper-row and lower-row bounds e of the row at each node (node 0: unused)
 
 
 class _State(NamedTuple):
@@ -109,15 +116,14 @@ def lane_constraint(model: TrajectoryModel, y_lb, y_ub, gamma_lane, barrier: boo
     return jnp.concatenate([upper, -upper]), jnp.concatenate([g * y_ub * ones, -g * y_lb * ones])
 
 
-def _lane_rows_apply(y: jnp.ndarray, g) -> jnp.ndarray:
-    """Upper lane rows applied to node values y (B, K): y[k+1] - (1 - g) y[k], shape (B, K-1)."""
-    return y[:, 1:] - (1.0 - g) * y[:, :-1]
+def _shift_right(a):
+    """a[:, k-1] at k, 0 at k = 0."""
+    return jnp.concatenate([jnp.zeros_like(a[:, :1]), a[:, :-1]], axis=1)
 
 
-def _lane_rows_adjoint(u: jnp.ndarray, g) -> jnp.ndarray:
-    """Node-space vector w with W' w = G_upper' u, for u (B, K-1)."""
-    zero = jnp.zeros_like(u[:, :1])
-    return jnp.concatenate([zero, u], axis=1) - (1.0 - g) * jnp.concatenate([u, zero], axis=1)
+def _shift_left(a):
+    """a[:, k+1] at k, 0 at k = K-1."""
+    return jnp.concatenate([a[:, 1:], jnp.zeros_like(a[:, :1])], axis=1)
 
 
 def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig, gamma_lane) -> _Operators:
@@ -150,7 +156,8 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
         free_nodes=free,
         penalty=jnp.stack([penalty_x, penalty_y]),
         lane_gamma=jnp.asarray(gamma_lane if cfg.barrier else 1.0, W.dtype),
-        lane_bounds=e.reshape(2, -1),
+        lane_rows=(jnp.arange(W.shape[0]) > 0).astype(W.dtype),
+        lane_bounds=jnp.pad(e.reshape(2, -1), ((0, 0), (1, 0))),  # per node; node 0 has no row
     )
 
 
@@ -158,6 +165,29 @@ def _safe_sqrt(x):
     """sqrt with a finite gradient at 0 (values below 1e-12 read as 0)."""
     positive = x > 1e-12
     return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
+
+
+@jax.custom_jvp
+def _fast_rsqrt(x):
+    """1/sqrt(x) for x in [1e-30, 1e30] (clipped to it) to 5e-6 relative, from the exponent-halving bit trick
+    and two Newton steps.
+
+    Only cheap ops (no sqrt, no divide), so XLA fuses it into each consumer instead of materialising it:
+    the ten obstacle terms of an iteration become two fused loops instead of twelve kernels. With
+    512-bit vectors (``XLA_CPU_COMPILER_OPTIONS``) this is ~15% of a planning call (DESIGN §6)."""
+    x = jnp.clip(x, 1e-30, 1e30)
+    bits = jax.lax.bitcast_convert_type(x, jnp.int32)
+    y = jax.lax.bitcast_convert_type(jnp.int32(0x5F375A86) - (bits >> 1), x.dtype)
+    for _ in range(2):
+        y = y * (1.5 - 0.5 * x * y * y)
+    return y
+
+
+@_fast_rsqrt.defjvp
+def _fast_rsqrt_jvp(primals, tangents):
+    (x,), (dx,) = primals, tangents
+    y = _fast_rsqrt(x)
+    return y, -0.5 * y * y * y * dx
 
 
 def _normalise(ux, uy):
@@ -188,7 +218,7 @@ def _analysis_step(
     for i in range(problem.obstacle_x.shape[0]):
         ox, oy = problem.obstacle_x[i], problem.obstacle_y[i]
         dx, dy = x - ox, y - oy
-        inv_ratio = jax.lax.rsqrt(jnp.maximum((dx * inv_a[i]) ** 2 + (dy * inv_b[i]) ** 2, _EPS * _EPS))
+        inv_ratio = _fast_rsqrt(jnp.maximum((dx * inv_a[i]) ** 2 + (dy * inv_b[i]) ** 2, _EPS * _EPS))
         # d = max(ratio, lower bound), and h - x_o = (x - x_o) * d / ratio = (x - x_o) * scale.
         if cfg.barrier:
             prev = jnp.concatenate([jnp.ones_like(d_obs_prev[i][:, :1]), d_obs_prev[i][:, :-1]], axis=1)
@@ -223,12 +253,15 @@ def _analysis_step(
         a_hi = jnp.where(turning, jnp.minimum(a_hi, cfg.kappa_max * d_vel * d_vel / jnp.maximum(sin_va, _EPS)), a_hi)
     d_acc = jnp.clip(acc, 0.0, a_hi)
 
-    # Lane rows with slack s = max(0, e - G c_y); the rows act on node values, so no extra matmul.
+    # Lane rows with slack s = max(0, e - G c_y); the rows act on node values, so no extra matmul. Row k
+    # (k = 1..K-1) is y[k] - (1 - g) y[k-1]; node 0 (fixed by A_eq) has none. Plain mode (g = 1 statically)
+    # needs no shifted copies of y, which keeps this part in vectorised loops.
     g = ops.lane_gamma
-    upper_rows = _lane_rows_apply(y, g)
-    target_ub = jnp.minimum(upper_rows, ops.lane_bounds[0])  # e - s of the upper rows
-    target_lb = jnp.minimum(-upper_rows, ops.lane_bounds[1])  # e - s of the lower rows
-    lane_pull = _lane_rows_adjoint(target_ub - target_lb, g)
+    rows = y - (1.0 - g) * _shift_right(y) if cfg.barrier else y
+    target_ub = jnp.minimum(rows, ops.lane_bounds[0])  # e - s of the upper rows
+    target_lb = jnp.minimum(-rows, ops.lane_bounds[1])  # e - s of the lower rows
+    t = ops.lane_rows * (target_ub - target_lb)
+    lane_pull = t - (1.0 - g) * _shift_left(t) if cfg.barrier else t
 
     pos_y = cfg.rho_obstacle * h_oy + cfg.rho_lane * lane_pull
     vectors = jnp.stack([
@@ -243,7 +276,7 @@ def _analysis_step(
         obstacle=_safe_sqrt(jnp.sum(free[0] * obstacle_sq, axis=1)),
         velocity=_safe_sqrt(jnp.sum(free[1] * (speed - d_vel) ** 2, axis=1)),
         acceleration=_safe_sqrt(jnp.sum(free[2] * (acc - d_acc) ** 2, axis=1)),
-        lane=_safe_sqrt(jnp.sum((upper_rows - target_ub) ** 2 + (-upper_rows - target_lb) ** 2, axis=1)),
+        lane=_safe_sqrt(jnp.sum(ops.lane_rows * ((rows - target_ub) ** 2 + (-rows - target_lb) ** 2), axis=1)),
     )
     return pull, d_obs_next, d_acc, residuals
 

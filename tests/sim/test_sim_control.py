@@ -18,7 +18,9 @@ from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
 from driveopt.sim.control import (
     BicycleModel,
+    Command,
     ControlError,
+    brake_at_least,
     EgoKinematics,
     command_from_env,
     from_action,
@@ -69,6 +71,19 @@ def test_action_mapping_inverts_upstreams(empty_env, acceleration, steering):
     assert upstream["acceleration"] == pytest.approx(acceleration, abs=1e-5)
     assert upstream["steering"] == pytest.approx(steering, abs=1e-6)
     assert from_action(action, model) == pytest.approx((acceleration, steering), abs=1e-5)
+
+
+def test_fallback_brakes_at_once_but_not_past_standstill():
+    model = BicycleModel()  # acceleration range (-5, 5) m/s^2, 0.1 s action period
+    gentle = Command(-1.0, 0.02, to_action(-1.0, 0.02, model), False)
+    hard = brake_at_least(gentle, 3.0, model, speed=10.0)
+    assert hard.acceleration == -3.0 and hard.steering == 0.02
+    np.testing.assert_allclose(from_action(hard.action, model), (-3.0, 0.02), atol=1e-6)
+    assert brake_at_least(gentle, 9.0, model, speed=10.0).acceleration == model.acceleration_range[0]
+    coasting = Command(0.0, 0.0, to_action(0.0, 0.0, model), False)
+    assert brake_at_least(coasting, 3.0, model, speed=0.05).acceleration == pytest.approx(-0.5)  # stops, no reversing
+    stronger = Command(-4.0, 0.0, to_action(-4.0, 0.0, model), False)
+    assert brake_at_least(stronger, 3.0, model, speed=10.0) is stronger
 
 
 def test_asymmetric_ranges_and_clipping():

@@ -234,6 +234,20 @@ def track(trajectory: Trajectory, elapsed: float, state: EgoKinematics, model: B
     return Command(acceleration, steering, to_action(acceleration, steering, model), bool(saturated))
 
 
+def brake_at_least(command: Command, deceleration: float, model: BicycleModel, speed: float) -> Command:
+    """``command`` with its acceleration lowered to ``-deceleration`` [m/s^2] when it brakes less.
+
+    A stopping plan is a polynomial whose acceleration starts at the current one and ramps down
+    over about a second; a fallback means "brake now", so its braking is applied at once. Never
+    brakes below standstill within one action period (``speed`` [m/s]).
+    """
+    a_lo, a_hi = model.acceleration_range
+    target = max(-deceleration, -speed / model.action_period, a_lo)
+    if command.acceleration <= target:
+        return command
+    return Command(target, command.steering, to_action(target, command.steering, model), command.saturated)
+
+
 def command_from_env(env: Any, trajectory: Trajectory, elapsed: float, model: BicycleModel | None = None) -> Command:
     """The command that follows ``trajectory`` (planned ``elapsed`` [s] ago) from the env's current ego state."""
     return track(trajectory, elapsed, ego_kinematics(env), model or BicycleModel.from_env(env))

@@ -21,11 +21,11 @@ import jax
 import numpy as np
 
 from driveopt.config import PlannerConfig
-from driveopt.planner import PlanResult, plan
+from driveopt.planner import PlanResult, PlanStatus, plan
 from driveopt.planners import PlannerSpec, get_planner
 from driveopt.problem import PlanningProblem, Scene, build_problem
 
-from driveopt.sim.control import BicycleModel, command_from_env
+from driveopt.sim.control import BicycleModel, brake_at_least, command_from_env
 from driveopt.sim.env import make_env, step_env
 from driveopt.sim.observation import scene_from_env
 from driveopt.sim.road_frame import driving_lanes, vehicle_motion
@@ -182,7 +182,10 @@ def run_episode(
                 warm = result.mean if spec.warm_start else None
                 if on_plan is not None:
                     on_plan(scene, problem, result)
-                action = command_from_env(env, result.safe_trajectory, 0.0, model).action
+                command = command_from_env(env, result.safe_trajectory, 0.0, model)
+                if result.status != PlanStatus.SUCCESS:  # executing the fallback: brake now, not after a ramp
+                    command = brake_at_least(command, result.fallback_deceleration, model, float(env.unwrapped.vehicle.speed))
+                action = command.action
             if before_step is not None:
                 before_step(env, result)
             start = time.perf_counter()
