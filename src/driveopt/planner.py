@@ -30,7 +30,7 @@ import numpy as np
 from driveopt.config import PlannerConfig
 from driveopt.costs import COST_TERMS, Trajectory, cost_terms, evaluate, nearest_lane_center, weighted_cost
 from driveopt.problem import PlanningProblem, ProblemError, check_problem
-from driveopt.projection import FAMILIES, project
+from driveopt.projection import FAMILIES, XLA_CPU_COMPILER_OPTIONS, project
 from driveopt.qp import NUM_SEGMENTS, boundary_values, fit_positions, make_model, solve_setpoint_qp
 from driveopt.sampler import GaussianPrior, Prior, cem_update, clip_setpoints, sample_gaussian, select_lowest
 
@@ -218,8 +218,7 @@ def _better(a: _Best, b: _Best) -> _Best:
     return jax.tree_util.tree_map(lambda u, v: jnp.where(a.score <= b.score, u, v), a, b)
 
 
-@functools.partial(jax.jit, static_argnames=("cfg",))
-def _plan_jit(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: PlannerConfig) -> _RawResult:
+def _plan_calls(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: PlannerConfig) -> _RawResult:
     model = make_model(cfg.basis, cfg.qp)
     s = cfg.sampler
     key_prior, key_loop = jax.random.split(key)
@@ -246,6 +245,13 @@ def _plan_jit(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: P
     history = History(*(jnp.concatenate([jnp.atleast_1d(a), b]) for a, b in zip(stats, rest)))
     return _RawResult(best, mean, cov, history, first, last, evaluate(model, best.coeffs), evaluate(model, fallback.coeffs),
                       fallback, emergency)
+
+
+@functools.cache
+def _compiled_plan():
+    """The jitted planning call; on the CPU with the projection's compiler options (a per-jit setting)."""
+    options = XLA_CPU_COMPILER_OPTIONS if jax.default_backend() == "cpu" else None
+    return jax.jit(_plan_calls, static_argnames=("cfg",), compiler_options=options)
 
 
 def _shift(traj: Trajectory, dx: float) -> Trajectory:
@@ -277,7 +283,7 @@ def plan(
         if warm_start.shape != (2 * NUM_SEGMENTS,) or not np.all(np.isfinite(warm_start)):
             raise ProblemError(f"warm_start must be 8 finite numbers, got shape {warm_start.shape}")
         warm_start = jnp.asarray(warm_start)
-    raw = jax.device_get(_plan_jit(problem, key, warm_start, prior, config))
+    raw = jax.device_get(_compiled_plan()(problem, key, warm_start, prior, config))
     return _finish(raw, problem, config, float(x_offset))
 
 

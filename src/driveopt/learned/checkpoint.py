@@ -41,6 +41,7 @@ def save_checkpoint(path: str | Path, kind: str, state: Any, meta: dict[str, Any
             f.write(body)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp makes it owner-only
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
