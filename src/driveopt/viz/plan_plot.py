@@ -25,7 +25,7 @@ from driveopt.qp import make_model  # noqa: E402
 MAX_DRAWN = 150  # trajectories per panel
 
 
-def _draw_road(ax, scene: Scene, x_range: tuple[float, float]) -> None:
+def draw_road(ax, scene: Scene, x_range: tuple[float, float]) -> None:
     lo, hi = scene.road.edges
     for k in range(scene.road.num_lanes + 1):
         y = lo + k * scene.road.lane_width
@@ -33,7 +33,7 @@ def _draw_road(ax, scene: Scene, x_range: tuple[float, float]) -> None:
         ax.plot(x_range, [y, y], style, color="0.4", lw=1.0, zorder=1)
 
 
-def _draw_vehicles(ax, scene: Scene, horizon: float) -> None:
+def draw_vehicles(ax, scene: Scene, horizon: float) -> None:
     t = np.linspace(0.0, horizon, 16)
     for n in scene.neighbours:
         ax.add_patch(Rectangle((n.x - n.length / 2, n.y - n.width / 2), n.length, n.width, color="tab:red", alpha=0.8, zorder=4))
@@ -70,10 +70,10 @@ def plot_plan(result: PlanResult, scene: Scene, config: PlannerConfig, path: str
     for row, (label, snap) in enumerate(snaps):
         for col, (kind, coeffs) in enumerate((("set-point QP samples", snap.qp_coeffs), ("projected", snap.projected_coeffs))):
             ax = fig.add_subplot(grid[row, col])
-            _draw_road(ax, scene, x_range)
+            draw_road(ax, scene, x_range)
             _draw_batch(ax, W, np.asarray(coeffs), x0, "tab:green" if col == 0 else "tab:purple",
                         highlight=np.asarray(snap.elite_index) if col == 1 else None)
-            _draw_vehicles(ax, scene, config.basis.horizon)
+            draw_vehicles(ax, scene, config.basis.horizon)
             if row == 1 and col == 1:
                 ax.plot(traj.x, traj.y, color="black", lw=2.2, zorder=6, label="chosen")
                 ax.legend(loc="upper left", fontsize=8)
@@ -105,6 +105,11 @@ def plot_plan(result: PlanResult, scene: Scene, config: PlannerConfig, path: str
     ax2.set_ylabel("feasible samples")
     ax.set_title("constraint residual per iteration", fontsize=10)
     fig.suptitle(f"{scene.name}: {result.status.name} ({result.message})", fontsize=11)
+    return save_figure(fig, path)
+
+
+def save_figure(fig, path: str | Path) -> Path:
+    """Lay out, write (format by extension, parent folders created) and close ``fig``."""
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

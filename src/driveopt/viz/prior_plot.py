@@ -14,7 +14,7 @@ from driveopt.config import PlannerConfig
 from driveopt.learned.cvae import qp_layer
 from driveopt.problem import Scene, build_problem
 from driveopt.qp import make_model
-from driveopt.viz.plan_plot import _draw_road, _draw_vehicles, plt
+from driveopt.viz.plan_plot import draw_road, draw_vehicles, plt, save_figure
 
 
 def prior_trajectories(prior: Any, scene: Scene, config: PlannerConfig, num: int, key: jax.Array) -> np.ndarray:
@@ -34,18 +34,13 @@ def plot_priors(priors: dict[str, Any], scene: Scene, config: PlannerConfig, pat
     lo, hi = scene.road.edges
     fig, axes = plt.subplots(len(batches), 1, figsize=(12, 3.2 * len(batches)), squeeze=False)
     for ax, (name, positions) in zip(axes[:, 0], batches.items()):
-        _draw_road(ax, scene, x_range)
+        draw_road(ax, scene, x_range)
         ax.plot(positions[..., 0].T, positions[..., 1].T, color="tab:green", lw=0.5, alpha=0.35, zorder=2)
-        _draw_vehicles(ax, scene, config.basis.horizon)
+        draw_vehicles(ax, scene, config.basis.horizon)
         ax.set_xlim(*x_range)
         ax.set_ylim(lo - 2.0, hi + 2.0)
         ax.set_title(f"{name}: {num} samples through the set-point QP", fontsize=10)
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
     fig.suptitle(f"{scene.name}: ego {scene.ego.vx:.1f} m/s, {len(scene.neighbours)} neighbours", fontsize=11)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
