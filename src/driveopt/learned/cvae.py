@@ -187,6 +187,20 @@ def loss(params, cfg: CVAEConfig, norm: Normaliser, batch: Batch, key: jax.Array
     return terms["reconstruction"] + beta * terms["kl"], terms
 
 
+def prior_coverage(params, cfg: CVAEConfig, norm: Normaliser, batch: Batch, key: jax.Array, num: int = 16) -> jnp.ndarray:
+    """(B,) [m^2] for each row, the smallest mean squared node distance to the expert trajectory among
+    ``num`` trajectories decoded from z ~ N(0, I): how well planning-time samples cover the expert."""
+    model = trajectory_model(cfg)
+
+    def row(obs, lanes, init_x, init_y, target, k):
+        setpoints = sample_setpoints(params, cfg, norm, obs, lanes, k, num)
+        _, positions = qp_layer(model, cfg.qp, setpoints, jnp.broadcast_to(init_x, (num, 3)), jnp.broadcast_to(init_y, (num, 3)))
+        return jnp.min(jnp.mean(jnp.sum((positions - target) ** 2, -1), -1))
+
+    keys = jax.random.split(key, batch.observation.shape[0])
+    return jax.vmap(row)(batch.observation, batch.lane_bounds, batch.init_x, batch.init_y, batch.trajectory, keys)
+
+
 def sample_setpoints(params, cfg: CVAEConfig, norm: Normaliser, obs: jnp.ndarray, lane_bounds: jnp.ndarray, key: jax.Array, num: int):
     """(num, 8) set-points for one observation (55,) from z ~ N(0, I)."""
     z = jax.random.normal(key, (num, cfg.latent_dim))

@@ -7,6 +7,9 @@ of them, chosen by the seed), so no episode is split between the two sets.
 Optimiser: AdamW with a step decay (x ``decay_factor`` every ``decay_every`` epochs; P1:
 x 0.1 every 10 of 80 epochs); beta rises linearly from 0 to ``beta`` over ``anneal_epochs``.
 
+Validation reports, besides the loss terms, ``val_prior_best_of_16``: the median over held-out rows
+of the best of 16 trajectories decoded from z ~ N(0, I) (what planning sees), in m^2.
+
 Output folder: ``last.ckpt`` (everything needed to resume: parameters, optimiser state, epoch,
 history, normaliser), ``cvae.ckpt`` (the weights with the lowest validation loss: what the
 planner loads) and ``history.json``. Both checkpoints are written atomically after every epoch,
@@ -30,7 +33,7 @@ from tqdm import tqdm
 
 from driveopt.data.demonstrations import Demonstrations, load_demonstrations
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore, save_checkpoint
-from driveopt.learned.cvae import Batch, CVAEConfig, Normaliser, fit_normaliser, init_params, loss, loss_terms
+from driveopt.learned.cvae import Batch, CVAEConfig, Normaliser, fit_normaliser, init_params, loss, loss_terms, prior_coverage
 from driveopt.learned.prior import KIND
 
 
@@ -129,7 +132,9 @@ def train_cvae(
 
     @jax.jit
     def evaluate(params, batch, key):
-        return loss_terms(params, cfg, normaliser, batch, key)
+        k_loss, k_prior = jax.random.split(key)
+        coverage = prior_coverage(params, cfg, normaliser, batch, k_prior)
+        return {**loss_terms(params, cfg, normaliser, batch, k_loss), "prior_best_of_16": jnp.median(coverage)}
 
     first_epoch = len(history)
     last_epoch = tcfg.epochs if stop_after is None else min(tcfg.epochs, first_epoch + stop_after)
@@ -151,7 +156,8 @@ def train_cvae(
         if len(val_rows):
             terms = evaluate(params, Batch(*(jnp.asarray(a) for a in val)), jax.random.fold_in(epoch_key, steps_per_epoch + 1))
             record.update(val_reconstruction=float(terms["reconstruction"]), val_kl=float(terms["kl"]),
-                          val_loss=float(terms["reconstruction"] + beta * terms["kl"]))
+                          val_loss=float(terms["reconstruction"] + beta * terms["kl"]),
+                          val_prior_best_of_16=float(terms["prior_best_of_16"]))
         history.append(record)
         # Once beta is at its final value, keep the weights with the lowest validation loss.
         score = record.get("val_loss", record["train_loss"])
