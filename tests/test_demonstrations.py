@@ -77,3 +77,34 @@ def test_collect_resumes_without_duplicates(tmp_path):
     with pytest.raises(DatasetError, match="other settings"):
         collect(out, ["two-lane-d1.0"], episodes=2, **{**kwargs, "samples": 80})
     assert main(["collect", "--scenarios", "nowhere", "--out", str(out)]) == 2
+
+
+def test_terminated_collect_keeps_finished_episodes_and_resumes(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "demo.h5"
+    args = [sys.executable, "-m", "driveopt.cli", "collect", "--scenarios", "two-lane-d1.0", "--episodes", "40",
+            "--samples", "40", "--iterations", "1", "--duration", "0.3", "--seed", "5", "--out", str(out)]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "SDL_VIDEODRIVER": "offscreen"})
+    deadline = time.time() + 240
+    while time.time() < deadline and proc.poll() is None:
+        time.sleep(0.5)
+        if out.exists():
+            try:
+                if len(load_demonstrations(out).episodes["num_rows"]) >= 2:
+                    break
+            except DatasetError:  # locked while the collector writes
+                pass
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60) == 128 + signal.SIGTERM
+    kept = load_demonstrations(out)
+    finished = len(kept.episodes["num_rows"])
+    assert 2 <= finished < 40
+    summary = collect(out, ["two-lane-d1.0"], episodes=finished + 1, seed=5, samples=40, iterations=1, duration=0.3, progress=False)
+    assert summary["skipped"] == finished and summary["episodes"] == 1
+    data = load_demonstrations(out)
+    assert sorted(data.episodes["episode"]) == list(range(finished + 1))

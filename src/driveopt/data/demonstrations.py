@@ -16,13 +16,15 @@ datasets (n = rows, K = nodes)::
 
     episodes/scenario (str), seed, episode, env_seed, collided, duration [s], first_row, num_rows
 
-Episodes are the unit of writing: an episode's rows and its entry are appended together and the
-file is flushed, so an interrupted collection loses at most the episodes in flight. On reopening,
-rows beyond the last complete episode (a write cut short) are truncated away.
+Episodes are the unit of writing: an episode's rows and its entry are appended together, with the
+file opened for that write only, so an interrupted collection loses at most the episodes in flight
+and the file can be read between writes. On reopening, rows beyond the last complete episode (a
+write cut short) are truncated away.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 from typing import Any, Iterable, NamedTuple
@@ -88,89 +90,97 @@ class Demonstrations(NamedTuple):
 
 
 class DemonstrationWriter:
-    """Appends episodes to an HDF5 file (created with ``attrs`` if new). Use as a context manager."""
+    """Appends episodes to an HDF5 file (created with ``attrs`` if new).
+
+    The file is opened only for each write and closed after it, so between episodes it is complete
+    on disk and other processes (``train``, ``load_demonstrations``) can read it.
+    """
 
     def __init__(self, path: str | Path, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, observation_dim: int):
-        h5py = _h5py()
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        exists = self.path.exists()
-        try:
-            self.file = h5py.File(self.path, "a")
-        except OSError as exc:
-            raise DatasetError(f"cannot open demonstrations {self.path}: {exc}") from None
-        if not exists or "episodes" not in self.file:
-            self._create(attrs, num_nodes, num_coeffs, observation_dim)
-        else:
-            _check_attrs(self.file, self.path)
-            mismatch = {k: (self.file.attrs.get(k), v) for k, v in attrs.items() if _attr(self.file.attrs.get(k)) != v}
+        with self._open() as f:
+            if "episodes" not in f:
+                _create(f, attrs, num_nodes, num_coeffs, observation_dim)
+                return
+            _check_attrs(f, self.path)
+            mismatch = {k: (f.attrs.get(k), v) for k, v in attrs.items() if _attr(f.attrs.get(k)) != v}
             if mismatch:
-                self.file.close()
                 raise DatasetError(f"{self.path} was collected with other settings {mismatch} (stored, requested); use another file")
-            self._truncate_partial()
+            _truncate_partial(f)
 
-    def _create(self, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, observation_dim: int) -> None:
-        f = self.file
-        f.attrs["format"] = FORMAT
-        f.attrs["schema_version"] = SCHEMA_VERSION
-        for k, v in attrs.items():
-            f.attrs[k] = v
-        shapes = {"observation": (observation_dim,), "init_x": (3,), "init_y": (3,), "lane_bounds": (2,),
-                  "setpoints": (8,), "coeffs": (num_coeffs,), "trajectory": (num_nodes, 2), "status": (), "time": ()}
-        for name in ROW_FIELDS:
-            f.create_dataset(name, shape=(0, *shapes[name]), maxshape=(None, *shapes[name]),
-                             dtype=_ROW_DTYPES.get(name, np.float32), chunks=(256, *shapes[name]))
-        f.create_dataset("episode", shape=(0,), maxshape=(None,), dtype=np.int32, chunks=(256,))
-        group = f.create_group("episodes")
-        for name in EPISODE_FIELDS:
-            dtype = _h5py().string_dtype() if name == "scenario" else _EPISODE_DTYPES[name]
-            group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(64,))
-        f.flush()
-
-    def _truncate_partial(self) -> None:
-        eps = self.file["episodes"]
-        n_eps = eps["num_rows"].shape[0]
-        complete = int(eps["first_row"][-1] + eps["num_rows"][-1]) if n_eps else 0
-        for name in (*ROW_FIELDS, "episode"):
-            if self.file[name].shape[0] != complete:
-                self.file[name].resize(complete, axis=0)
-        self.file.flush()
+    @contextlib.contextmanager
+    def _open(self):
+        try:
+            f = _h5py().File(self.path, "a")
+        except OSError as exc:
+            raise DatasetError(f"cannot open demonstrations {self.path}{_locked_hint(exc)}: {exc}") from None
+        try:
+            yield f
+        finally:
+            f.close()
 
     def done(self) -> set[EpisodeKey]:
-        eps = self.file["episodes"]
-        scen = [s.decode() if isinstance(s, bytes) else str(s) for s in eps["scenario"][:]]
-        return {EpisodeKey(s, int(a), int(b)) for s, a, b in zip(scen, eps["seed"][:], eps["episode"][:])}
+        with self._open() as f:
+            eps = f["episodes"]
+            scen = [s.decode() if isinstance(s, bytes) else str(s) for s in eps["scenario"][:]]
+            return {EpisodeKey(s, int(a), int(b)) for s, a, b in zip(scen, eps["seed"][:], eps["episode"][:])}
 
     def append_episode(self, episode: dict[str, Any], rows: dict[str, np.ndarray]) -> None:
         """Append one episode: ``episode`` has EPISODE_FIELDS but first_row/num_rows; ``rows`` ROW_FIELDS."""
-        f = self.file
-        n = int(np.asarray(rows["observation"]).shape[0])
-        start = f["observation"].shape[0]
-        index = f["episodes/num_rows"].shape[0]
-        for name in ROW_FIELDS:
-            data = np.asarray(rows[name])
-            if data.shape[0] != n or data.shape[1:] != f[name].shape[1:]:
-                raise DatasetError(f"episode rows '{name}' have shape {data.shape}, expected ({n}, {f[name].shape[1:]})")
-            f[name].resize(start + n, axis=0)
-            f[name][start:] = data
-        f["episode"].resize(start + n, axis=0)
-        f["episode"][start:] = index
-        entry = {**episode, "first_row": start, "num_rows": n}
-        for name in EPISODE_FIELDS:  # the entry goes last: it marks the rows complete
-            ds = f["episodes"][name]
-            ds.resize(index + 1, axis=0)
-            ds[index] = entry[name]
-        f.flush()
-
-    def close(self) -> None:
-        if self.file.id.valid:
-            self.file.close()
+        with self._open() as f:
+            n = int(np.asarray(rows["observation"]).shape[0])
+            start = f["observation"].shape[0]
+            index = f["episodes/num_rows"].shape[0]
+            for name in ROW_FIELDS:
+                data = np.asarray(rows[name])
+                if data.shape[0] != n or data.shape[1:] != f[name].shape[1:]:
+                    raise DatasetError(f"episode rows '{name}' have shape {data.shape}, expected ({n}, {f[name].shape[1:]})")
+                f[name].resize(start + n, axis=0)
+                f[name][start:] = data
+            f["episode"].resize(start + n, axis=0)
+            f["episode"][start:] = index
+            entry = {**episode, "first_row": start, "num_rows": n}
+            for name in EPISODE_FIELDS:  # the entry goes last: it marks the rows complete
+                ds = f["episodes"][name]
+                ds.resize(index + 1, axis=0)
+                ds[index] = entry[name]
 
     def __enter__(self) -> "DemonstrationWriter":
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        self.close()
+        pass
+
+
+def _create(f: Any, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, observation_dim: int) -> None:
+    f.attrs["format"] = FORMAT
+    f.attrs["schema_version"] = SCHEMA_VERSION
+    for k, v in attrs.items():
+        f.attrs[k] = v
+    shapes = {"observation": (observation_dim,), "init_x": (3,), "init_y": (3,), "lane_bounds": (2,),
+              "setpoints": (8,), "coeffs": (num_coeffs,), "trajectory": (num_nodes, 2), "status": (), "time": ()}
+    for name in ROW_FIELDS:
+        f.create_dataset(name, shape=(0, *shapes[name]), maxshape=(None, *shapes[name]),
+                         dtype=_ROW_DTYPES.get(name, np.float32), chunks=(256, *shapes[name]))
+    f.create_dataset("episode", shape=(0,), maxshape=(None,), dtype=np.int32, chunks=(256,))
+    group = f.create_group("episodes")
+    for name in EPISODE_FIELDS:
+        dtype = _h5py().string_dtype() if name == "scenario" else _EPISODE_DTYPES[name]
+        group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(64,))
+
+
+def _truncate_partial(f: Any) -> None:
+    """Drop rows beyond the last complete episode (an append cut short)."""
+    eps = f["episodes"]
+    complete = int(eps["first_row"][-1] + eps["num_rows"][-1]) if eps["num_rows"].shape[0] else 0
+    for name in (*ROW_FIELDS, "episode"):
+        if f[name].shape[0] != complete:
+            f[name].resize(complete, axis=0)
+
+
+def _locked_hint(exc: OSError) -> str:
+    return " (is another process writing it?)" if "lock" in str(exc).lower() else ""
 
 
 def _attr(value: Any) -> Any:
@@ -218,7 +228,8 @@ def _load_one(path: Path) -> Demonstrations:
     except DatasetError:
         raise
     except (OSError, KeyError, ValueError, IndexError) as exc:
-        raise DatasetError(f"cannot read demonstrations {path} (corrupted or not HDF5?): {exc}") from None
+        reason = _locked_hint(exc) or " (corrupted or not HDF5?)"
+        raise DatasetError(f"cannot read demonstrations {path}{reason}: {exc}") from None
     for name, data in rows.items():
         if data.dtype.kind == "f" and not np.all(np.isfinite(data)):
             raise DatasetError(f"{path}: dataset '{name}' contains NaN or inf")
