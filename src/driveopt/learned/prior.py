@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore
-from driveopt.learned.cvae import CVAEConfig, Normaliser, init_params, sample_setpoints
+from driveopt.learned.cvae import FEATURE_DIM, CVAEConfig, Normaliser, init_params, sample_setpoints
 from driveopt.sampler import Proposal, clip_setpoints
 
 KIND = "cvae"
@@ -44,8 +44,6 @@ class CVAEPrior:
 
 def empty_state(cfg: CVAEConfig) -> dict[str, Any]:
     """The structure of a CVAE checkpoint's state (parameters and normaliser), for restoring."""
-    from driveopt.learned.cvae import FEATURE_DIM
-
     zeros = lambda n: jnp.zeros(n, jnp.float32)  # noqa: E731
     return {"params": init_params(cfg, jax.random.PRNGKey(0)),
             "normaliser": Normaliser(zeros(FEATURE_DIM), zeros(FEATURE_DIM), zeros(cfg.trajectory_features), zeros(cfg.trajectory_features))}
