@@ -50,10 +50,13 @@ def _gaussian(cfg: PlannerConfig, lanes: int = 4, weights: str | None = None) ->
     return GaussianPrior.from_config(cfg.sampler, cfg.projection.v_max)
 
 
-def _cvae(cfg: PlannerConfig, lanes: int, weights: str | None) -> Any:
-    from driveopt.learned.prior import prior_for
+def _cvae(gaussian_fraction: float) -> Callable[[PlannerConfig, int, str | None], Any]:
+    def make(cfg: PlannerConfig, lanes: int, weights: str | None) -> Any:
+        from driveopt.learned.prior import prior_for
 
-    return prior_for(lanes, cfg.projection.v_max, weights, fallback=_gaussian(cfg))
+        return prior_for(lanes, cfg.projection.v_max, weights, _gaussian(cfg), gaussian_fraction)
+
+    return make
 
 
 _BASE = PlannerConfig()
@@ -62,8 +65,10 @@ PLANNERS: dict[str, PlannerSpec] = {
     for spec in (
         PlannerSpec("bilevel", "P1 bi-level optimiser: Gaussian start, 5 CEM iterations x 20 projection iterations",
                     _BASE, _gaussian, warm_start=True),
-        PlannerSpec("cvae", "P1 bi-level optimiser started from the learned CVAE (shipped weights; Gaussian if none)",
-                    _BASE, _cvae),
+        PlannerSpec("cvae", "P1 bi-level optimiser started from the learned CVAE only (shipped weights; Gaussian if none)",
+                    _BASE, _cvae(0.0)),
+        PlannerSpec("cvae-mix", "bi-level optimiser: half the first batch from the CVAE, half from the bilevel Gaussian (warm start)",
+                    _BASE, _cvae(0.5), warm_start=True),
         PlannerSpec("random", "one Gaussian draw of set-points, no adaptation (MPC-Random)",
                     _BASE.replace(sampler=_single_iteration(1000)), _gaussian),
         PlannerSpec("grid", "fixed grid: constant speed x target lane x change quarter (MPC-Grid)",

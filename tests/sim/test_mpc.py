@@ -14,7 +14,7 @@ from driveopt.sim.scenarios import get_scenario, list_scenarios
 
 def small(name):
     spec = get_planner(name)
-    if name in ("bilevel", "random", "cvae"):
+    if name in ("bilevel", "random", "cvae", "cvae-mix"):
         spec = spec.with_overrides(sampler={"num_samples": 40, "num_constraint_elites": 20, "num_elites": 10},
                                    projection={"max_iterations": 5})
     return spec
