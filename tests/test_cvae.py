@@ -154,3 +154,21 @@ def test_train_cli_and_errors(data_file, tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
     assert main(["plot-prior", "--weights", str(out / "cvae.ckpt"), "--out", str(tmp_path / "prior.png")]) == 0
     assert (tmp_path / "prior.png").stat().st_size > 10_000
+
+
+def test_mixed_prior_keeps_gaussian_share_around_the_warm_start(trained):
+    import dataclasses
+
+    from driveopt.config import PlannerConfig
+    from driveopt.sampler import GaussianPrior
+
+    cfg = PlannerConfig()
+    gaussian = dataclasses.replace(GaussianPrior.from_config(cfg.sampler, 30.0), speed_std=0.1, lateral_std=0.1, structured_fraction=0.0)
+    prior = load_prior(trained[0] / "cvae.ckpt", 30.0, gaussian, 0.25)
+    problem = build_problem(load_scene("dense-snapshot"))
+    warm = jnp.array([29.0] * 4 + [float(problem.y_lb) + 0.5] * 4)
+    proposal = prior.propose(problem, jax.random.PRNGKey(0), 200, warm)
+    near = np.all(np.abs(np.asarray(proposal.samples) - np.asarray(warm)) < 0.6, axis=1)
+    assert near[150:].all() and near[:150].sum() < 10  # the last quarter is the Gaussian's
+    pure = load_prior(trained[0] / "cvae.ckpt").propose(problem, jax.random.PRNGKey(0), 200, warm)
+    assert np.all(np.isfinite(pure.cov)) and np.allclose(pure.mean, np.mean(np.asarray(pure.samples), 0), atol=1e-4)
