@@ -87,9 +87,10 @@ def test_terminated_collect_keeps_finished_episodes_and_resumes(tmp_path):
     import time
 
     out = tmp_path / "demo.h5"
+    # 2 s episodes (about a second of work each), so the poll below sees two finished ones long before the 40th
     args = [sys.executable, "-m", "driveopt.cli", "collect", "--scenarios", "two-lane-d1.0", "--episodes", "40",
-            "--samples", "40", "--iterations", "1", "--duration", "0.3", "--seed", "5", "--out", str(out)]
-    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "SDL_VIDEODRIVER": "offscreen"})
+            "--samples", "40", "--iterations", "1", "--duration", "2.0", "--seed", "5", "--out", str(out)]
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env={**os.environ, "SDL_VIDEODRIVER": "offscreen"})
     deadline = time.time() + 240
     while time.time() < deadline and proc.poll() is None:
         time.sleep(0.5)
@@ -99,12 +100,13 @@ def test_terminated_collect_keeps_finished_episodes_and_resumes(tmp_path):
                     break
             except DatasetError:  # locked while the collector writes
                 pass
+    assert proc.poll() is None, "the collector finished before it could be interrupted"
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(timeout=60) == 128 + signal.SIGTERM
     kept = load_demonstrations(out)
     finished = len(kept.episodes["num_rows"])
     assert 2 <= finished < 40
-    summary = collect(out, ["two-lane-d1.0"], episodes=finished + 1, seed=5, samples=40, iterations=1, duration=0.3, progress=False)
+    summary = collect(out, ["two-lane-d1.0"], episodes=finished + 1, seed=5, samples=40, iterations=1, duration=2.0, progress=False)
     assert summary["skipped"] == finished and summary["episodes"] == 1
     data = load_demonstrations(out)
     assert sorted(data.episodes["episode"]) == list(range(finished + 1))
