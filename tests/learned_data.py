@@ -38,8 +38,8 @@ def synthetic_rows(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
 
 def write_synthetic(path: str | Path, episodes: int = 4, rows: int = 64, seed: int = 0, scenario: str = "synthetic") -> Path:
     rng = np.random.default_rng(seed)
-    with DemonstrationWriter(path, {"expert": "synthetic"}, BasisConfig().num_nodes, 22, OBSERVATION_DIM) as writer:
-        for e in range(episodes):
-            entry = {"scenario": scenario, "seed": seed, "episode": e, "env_seed": e, "collided": False, "duration": rows / 10.0}
-            writer.append_episode(entry, synthetic_rows(rng, rows))
+    writer = DemonstrationWriter(path, {"expert": "synthetic"}, BasisConfig().num_nodes, 22, OBSERVATION_DIM)
+    for e in range(episodes):
+        entry = {"scenario": scenario, "seed": seed, "episode": e, "env_seed": e, "collided": False, "duration": rows / 10.0}
+        writer.append_episode(entry, synthetic_rows(rng, rows))
     return Path(path)

@@ -29,10 +29,10 @@ def test_partial_episode_is_truncated_on_reopen(tmp_path):
         for name in ("observation", "status", "episode"):
             f[name].resize(f[name].shape[0] + 5, axis=0)
     assert len(load_demonstrations(path)) == 16  # loading ignores the partial rows ...
-    with DemonstrationWriter(path, {"expert": "synthetic"}, 100, 22, 55) as writer:  # ... and reopening removes them
-        assert writer.done() == {EpisodeKey("synthetic", 0, 0), EpisodeKey("synthetic", 0, 1)}
-        writer.append_episode({"scenario": "synthetic", "seed": 0, "episode": 2, "env_seed": 2, "collided": True, "duration": 0.8},
-                              synthetic_rows(np.random.default_rng(3), 8))
+    writer = DemonstrationWriter(path, {"expert": "synthetic"}, 100, 22, 55)  # ... and reopening removes them
+    assert writer.done() == {EpisodeKey("synthetic", 0, 0), EpisodeKey("synthetic", 0, 1)}
+    writer.append_episode({"scenario": "synthetic", "seed": 0, "episode": 2, "env_seed": 2, "collided": True, "duration": 0.8},
+                          synthetic_rows(np.random.default_rng(3), 8))
     data = load_demonstrations(path)
     assert len(data) == 24 and all(f.shape[0] == 24 for f in (data.observation, data.status, data.trajectory))
     assert np.array_equal(data.episode, np.repeat([0, 1, 2], 8))

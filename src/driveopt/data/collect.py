@@ -92,27 +92,27 @@ def collect(
     jobs = [JobKey(s, EXPERT, seed, e) for s in scenarios for e in range(episodes)]
     summary = {"episodes": 0, "rows": 0, "collided": 0, "skipped": 0, "plan_seconds": 0.0, "sim_seconds": 0.0}
     start = time.perf_counter()
-    with DemonstrationWriter(out, settings, basis.num_nodes, 2 * (basis.order + 1), OBSERVATION_DIM) as writer:
-        done = writer.done()
-        todo = [j for j in jobs if EpisodeKey(j.scenario, j.seed, j.episode) not in done]
-        summary["skipped"] = len(jobs) - len(todo)
-        bar = tqdm(total=len(jobs), initial=summary["skipped"], desc="collect", unit="ep", disable=not progress)
+    writer = DemonstrationWriter(out, settings, basis.num_nodes, 2 * (basis.order + 1), OBSERVATION_DIM)
+    done = writer.done()
+    todo = [j for j in jobs if EpisodeKey(j.scenario, j.seed, j.episode) not in done]
+    summary["skipped"] = len(jobs) - len(todo)
+    bar = tqdm(total=len(jobs), initial=summary["skipped"], desc="collect", unit="ep", disable=not progress)
 
-        def finished(record: dict[str, Any]) -> None:
-            writer.append_episode(record["entry"], record["rows"])
-            summary["episodes"] += 1
-            summary["rows"] += len(record["rows"]["status"])
-            summary["collided"] += int(record["entry"]["collided"])
-            summary["plan_seconds"] += record["plan_seconds"]
-            summary["sim_seconds"] += record["sim_seconds"]
-            bar.update(1)
-            bar.set_postfix_str(f"{record['entry']['scenario']} rows={summary['rows']} crashed={summary['collided']}")
+    def finished(record: dict[str, Any]) -> None:
+        writer.append_episode(record["entry"], record["rows"])
+        summary["episodes"] += 1
+        summary["rows"] += len(record["rows"]["status"])
+        summary["collided"] += int(record["entry"]["collided"])
+        summary["plan_seconds"] += record["plan_seconds"]
+        summary["sim_seconds"] += record["sim_seconds"]
+        bar.update(1)
+        bar.set_postfix_str(f"{record['entry']['scenario']} rows={summary['rows']} crashed={summary['collided']}")
 
-        try:
-            execute(todo, {"samples": samples, "iterations": iterations, "duration": duration},
-                    "driveopt.data.collect:demonstration_episode", finished, workers=workers)
-        finally:
-            bar.close()
+    try:
+        execute(todo, {"samples": samples, "iterations": iterations, "duration": duration},
+                "driveopt.data.collect:demonstration_episode", finished, workers=workers)
+    finally:
+        bar.close()
     summary["wall_seconds"] = time.perf_counter() - start
     summary["settings"] = settings
     return summary

@@ -146,12 +146,6 @@ class DemonstrationWriter:
                 ds.resize(index + 1, axis=0)
                 ds[index] = entry[name]
 
-    def __enter__(self) -> "DemonstrationWriter":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        pass
-
 
 def _create(f: Any, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, observation_dim: int) -> None:
     f.attrs["format"] = FORMAT
