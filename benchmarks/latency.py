@@ -28,6 +28,7 @@ from tqdm import tqdm
 from driveopt.config import PlannerConfig
 from driveopt.planner import plan
 from driveopt.problem import build_problem, load_scene
+from driveopt.projection import XLA_CPU_COMPILER_OPTIONS, supported_compiler_options
 
 BATCHES = (250, 500, 1000)
 SCHEDULES = ((5, 20), (1, 100))
@@ -80,7 +81,9 @@ def main(argv=None) -> int:
 
     path = Path(args.json)
     path.parent.mkdir(parents=True, exist_ok=True)
-    report = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__, "device": str(jax.devices()[0])}, "results": []}
+    machine = {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__, "device": str(jax.devices()[0])}
+    machine["compiler_options"] = supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else {}
+    report = {"machine": machine, "results": []}
     if args.resume and path.exists():
         try:
             report["results"] = json.loads(path.read_text())["results"]

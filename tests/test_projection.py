@@ -10,7 +10,7 @@ import pytest
 from driveopt.config import ProjectionConfig, QPConfig
 from driveopt.costs import evaluate
 from driveopt.problem import EgoState, Neighbour, Road, Scene, build_problem, load_scene
-from driveopt.projection import XLA_CPU_COMPILER_OPTIONS, _fast_rsqrt, constraint_residuals, lane_constraint, project
+from driveopt.projection import XLA_CPU_COMPILER_OPTIONS, _fast_rsqrt, supported_compiler_options, constraint_residuals, lane_constraint, project
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
 
 MODEL = make_model()
@@ -190,10 +190,16 @@ def test_barrier_lane_rows_match_dense_rows():
 
 
 def test_cpu_compiler_options_keep_results(dense_batch):
-    """The vector-width option the planner compiles with is accepted and changes only rounding."""
+    """The options the planner compiles with are accepted and change only rounding."""
     problem, target, b_x, b_y = dense_batch
     cfg = ProjectionConfig(max_iterations=1, tolerance=0.0)  # more iterations amplify rounding (the clips are not smooth)
     run = lambda t: project(MODEL, problem, t, b_x, b_y, cfg)  # noqa: E731
     plain = jax.jit(run)(target)
-    tuned = jax.jit(run, compiler_options=XLA_CPU_COMPILER_OPTIONS)(target)
+    options = supported_compiler_options(XLA_CPU_COMPILER_OPTIONS)
+    tuned = jax.jit(run, compiler_options=options)(target)
     np.testing.assert_allclose(tuned.residuals.total, plain.residuals.total, rtol=1e-3, atol=1e-2)
+
+
+def test_unknown_compiler_options_are_dropped():
+    options = {"xla_cpu_prefer_vector_width": 256, "xla_cpu_no_such_option": True}
+    assert supported_compiler_options(options) == {"xla_cpu_prefer_vector_width": 256}

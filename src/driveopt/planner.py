@@ -30,7 +30,7 @@ import numpy as np
 from driveopt.config import PlannerConfig
 from driveopt.costs import COST_TERMS, Trajectory, cost_terms, evaluate, nearest_lane_center, weighted_cost
 from driveopt.problem import PlanningProblem, ProblemError, check_problem
-from driveopt.projection import FAMILIES, XLA_CPU_COMPILER_OPTIONS, project
+from driveopt.projection import FAMILIES, XLA_CPU_COMPILER_OPTIONS, project, supported_compiler_options
 from driveopt.qp import NUM_SEGMENTS, boundary_values, fit_positions, make_model, solve_setpoint_qp
 from driveopt.sampler import GaussianPrior, Prior, cem_update, clip_setpoints, sample_gaussian, select_lowest
 
@@ -250,7 +250,7 @@ def _plan_calls(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg:
 @functools.cache
 def _compiled_plan():
     """The jitted planning call; on the CPU with the projection's compiler options (a per-jit setting)."""
-    options = XLA_CPU_COMPILER_OPTIONS if jax.default_backend() == "cpu" else None
+    options = supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else None
     return jax.jit(_plan_calls, static_argnames=("cfg",), compiler_options=options)
 
 

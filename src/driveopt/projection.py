@@ -35,11 +35,28 @@ from driveopt.qp import TrajectoryModel, split
 _EPS = 1e-6
 CURVATURE_MIN_SPEED = 1.0  # [m/s] below this speed the curvature bound is not applied
 
-# Compiler options for the jit that runs the projection on CPU (jax.jit(..., compiler_options=...)). The
-# projection is arithmetic-bound in its elementwise loops; 512-bit vectors make a planning call ~10-15%
-# faster on AVX-512 machines (LLVM treats the width as a preference, so other CPUs are unaffected). A
-# per-jit option rather than XLA_FLAGS: it changes nothing else in the user's process.
-XLA_CPU_COMPILER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
+# Compiler options for the jit that runs the projection on CPU (jax.jit(..., compiler_options=...)); per-jit
+# settings rather than XLA_FLAGS, so nothing else in the user's process changes. Each one only changes how
+# the same HLO is emitted, never the maths:
+# - 512-bit vectors: the projection is arithmetic-bound in its elementwise loops; ~10% of a planning call
+#   on AVX-512 machines (LLVM treats the width as a preference, so other CPUs are unaffected).
+# - no YNNPACK fusions: recent jaxlibs hand dots and elementwise/reduce fusions to the YNNPACK library. For
+#   this problem's small (B, K) arrays its fusions are much slower than XLA's own loops: the per-sample
+#   residual sums alone took ~3 ms of each sampler iteration. 250 x 5 x 20 goes from ~57 to ~48 ms.
+XLA_CPU_COMPILER_OPTIONS = {"xla_cpu_prefer_vector_width": 512, "xla_cpu_experimental_ynn_fusion_type": ""}
+
+
+def supported_compiler_options(options: dict) -> dict:
+    """The entries of ``options`` that this jaxlib's compiler accepts (an unknown name is an error at
+    compile time, and option names come and go between releases)."""
+    supported = {}
+    for name, value in options.items():
+        try:
+            jax.jit(lambda x: x + 1, compiler_options={name: value}).lower(jnp.float32(0)).compile()
+        except Exception:  # jaxlib's error type has moved between releases; any failure means "not supported"
+            continue
+        supported[name] = value
+    return supported
 
 
 class ProjectionStatus(enum.IntEnum):
@@ -263,12 +280,14 @@ def _analysis_step(
     t = ops.lane_rows * (target_ub - target_lb)
     lane_pull = t - (1.0 - g) * _shift_left(t) if cfg.barrier else t
 
-    pos_y = cfg.rho_obstacle * h_oy + cfg.rho_lane * lane_pull
-    vectors = jnp.stack([
-        jnp.concatenate([cfg.rho_obstacle * h_ox, cfg.rho_velocity * d_vel * uvx, cfg.rho_acceleration * d_acc * uax], 1),
-        jnp.concatenate([pos_y, cfg.rho_velocity * d_vel * uvy, cfg.rho_acceleration * d_acc * uay], 1),
-    ])
-    pull = vectors @ ops.back  # (2, B, n)
+    # rho F'h per axis as three (B, K) x (K, n) products: no (B, 3K) concatenation is materialised.
+    back_pos, back_vel, back_acc = ops.back[:K], ops.back[K:2 * K], ops.back[2 * K:]
+    pull = jnp.stack([
+        (cfg.rho_obstacle * h_ox) @ back_pos + (cfg.rho_velocity * d_vel * uvx) @ back_vel
+        + (cfg.rho_acceleration * d_acc * uax) @ back_acc,
+        (cfg.rho_obstacle * h_oy + cfg.rho_lane * lane_pull) @ back_pos + (cfg.rho_velocity * d_vel * uvy) @ back_vel
+        + (cfg.rho_acceleration * d_acc * uay) @ back_acc,
+    ])  # (2, B, n)
     if not with_residuals:
         return pull, d_obs_next, d_acc, None
     free = ops.free_nodes
