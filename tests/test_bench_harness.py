@@ -6,7 +6,7 @@ import pytest
 
 from driveopt.bench.harness import BenchSpec, run_bench
 from driveopt.bench.store import StoreError, load_records
-from driveopt.bench.summary import summarise, wilson_interval
+from driveopt.bench.summary import markdown_table, summarise, wilson_interval
 
 
 class Interrupt(Exception):
@@ -81,3 +81,4 @@ def test_summary_statistics():
     low, high = wilson_interval(2, 10)
     assert row["collision_ci_low"] == low and 0.05 < low < 0.2 < high < 0.52
     assert wilson_interval(0, 50)[0] == 0.0 and wilson_interval(0, 50)[1] < 0.08
+    assert markdown_table([row]).splitlines()[-1].endswith("| 1.0 + 2.0 |")  # episode wall time: sim + plan

@@ -69,8 +69,8 @@ def write_csv(rows: list[dict[str, Any]], path: str | Path) -> Path:
 
 
 def markdown_table(rows: list[dict[str, Any]]) -> str:
-    head = "| scenario | planner | episodes | collision rate (95% CI) | speed, collision-free [m/s] | speed, all [m/s] | off-road | plan ms median / p95 |"
-    lines = [head, "|" + "---|" * 8]
+    head = "| scenario | planner | episodes | collision rate (95% CI) | speed, collision-free [m/s] | speed, all [m/s] | off-road | plan ms median / p95 | wall s/episode: sim + plan |"
+    lines = [head, "|" + "---|" * 9]
 
     def ms(value: float) -> str:
         return "-" if math.isnan(value) else f"{value:.0f}"
@@ -79,7 +79,8 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
         lines.append(
             f"| {r['scenario']} | {r['planner']} | {r['episodes']} | {r['collision_rate']:.2f} "
             f"({r['collision_ci_low']:.2f}-{r['collision_ci_high']:.2f}) | {r['mean_speed_collision_free']:.1f} | "
-            f"{r['mean_speed_all']:.1f} | {r['off_road_rate']:.2f} | {ms(r['plan_ms_median'])} / {ms(r['plan_ms_p95'])} |"
+            f"{r['mean_speed_all']:.1f} | {r['off_road_rate']:.2f} | {ms(r['plan_ms_median'])} / {ms(r['plan_ms_p95'])} | "
+            f"{r['sim_s_per_episode']:.1f} + {r['plan_s_per_episode']:.1f} |"
         )
     return "\n".join(lines) + "\n"
 
