@@ -1,13 +1,14 @@
 """Planner behaviours that closed-loop driving depends on."""
 
 import jax
+import pytest
 import jax.numpy as jnp
 import numpy as np
 
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, build_problem, plan
 from driveopt.config import ProjectionConfig, QPConfig
 from driveopt.planner import braking_coeffs
-from driveopt.problem import is_follower
+from driveopt.problem import ProblemError, is_follower, predict_neighbour
 from driveopt.projection import constraint_residuals
 from driveopt.qp import boundary_values, make_model
 from driveopt.sampler import GaussianPrior
@@ -53,3 +54,38 @@ def test_a_feasible_stop_beats_infeasible_samples(small_config):
     result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0))
     assert result.status == PlanStatus.SUCCESS
     assert float(jnp.max(jnp.asarray(result.trajectory.x))) < 25.0 - 7.0  # stops before the wall's ellipses
+
+
+def test_braking_neighbour_is_predicted_to_keep_braking_and_stop():
+    t = np.linspace(0.0, 15.0, 301)
+    road = (-2.0, 14.0)
+    cruising = Neighbour(x=10.0, y=4.0, vx=12.0, vy=0.5)
+    px, py = predict_neighbour(cruising, t, road)
+    np.testing.assert_allclose(px, 10.0 + 12.0 * t)
+    np.testing.assert_allclose(py, 4.0 + 0.5 * t)
+    accelerating = Neighbour(x=10.0, y=4.0, vx=12.0, accel=2.0)  # not extrapolated
+    np.testing.assert_allclose(predict_neighbour(accelerating, t, road)[0], px)
+    hard = Neighbour(x=10.0, y=4.0, vx=10.0, accel=-4.0)  # stops after 2.5 s, 12.5 m on
+    x = predict_neighbour(hard, t, road)[0]
+    np.testing.assert_allclose(x[t <= 2.5], 10.0 + 10.0 * t[t <= 2.5] - 2.0 * t[t <= 2.5] ** 2, atol=1e-9)
+    np.testing.assert_allclose(x[t >= 2.5], 22.5)  # and never reverses
+    mild = Neighbour(x=0.0, y=4.0, vx=10.0, accel=-1.0)  # brakes for 3 s (7 m/s, 25.5 m), then holds 7 m/s
+    x = predict_neighbour(mild, t, road, braking_time=3.0)[0]
+    np.testing.assert_allclose(x[t >= 3.0], 25.5 + 7.0 * (t[t >= 3.0] - 3.0), atol=1e-9)
+    with pytest.raises(ProblemError, match="accel"):
+        Neighbour(x=0.0, y=0.0, accel=float("nan"))
+
+
+def test_ego_slows_sooner_behind_a_braking_leader(small_config):
+    """One lane; the leader 17 m ahead brakes at 6 m/s^2 (a jam ahead of it): knowing that, the first plan
+    already brakes, where a constant-velocity prediction lets the ego hold its speed."""
+    def planned_speed(accel):
+        leader = Neighbour(x=17.0, y=0.0, vx=10.9, accel=accel)
+        scene = Scene(ego=EgoState(x=0.0, y=0.0, vx=10.0), road=Road(num_lanes=1), neighbours=(leader,), v_des=15.0)
+        result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0))
+        assert result.status == PlanStatus.SUCCESS
+        return np.interp([1.0, 3.0], result.trajectory.t, result.trajectory.speed)
+
+    braking, cruising = planned_speed(-6.0), planned_speed(0.0)
+    assert braking[0] < 8.0 and braking[1] < 2.0  # stopping behind the leader's predicted stop (26.9 m)
+    assert cruising[0] > 10.0

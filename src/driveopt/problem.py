@@ -6,7 +6,8 @@ across it, both in metres, ``y`` growing to the left of travel in the road frame
 
 A :class:`Scene` (ego, road, neighbours, desired speed) is validated on
 construction and turned into a :class:`PlanningProblem` pytree by
-:func:`build_problem`: neighbours are predicted with constant velocity, the
+:func:`build_problem`: neighbours are predicted with constant velocity (braking ones keep braking
+for a while, :func:`predict_neighbour`), the
 nearest ``max_obstacles`` are kept (masked padding when fewer), and each gets a
 collision ellipse that circumscribes the Minkowski sum of the two vehicle boxes.
 """
@@ -70,7 +71,7 @@ class EgoState:
 
 @dataclass(frozen=True)
 class Neighbour:
-    """Another vehicle, observed now; predicted with constant velocity."""
+    """Another vehicle, observed now; predicted with constant velocity, or braking (:func:`predict_neighbour`)."""
 
     x: float  # [m]
     y: float  # [m]
@@ -79,9 +80,10 @@ class Neighbour:
     length: float = 5.0  # [m]
     width: float = 2.0  # [m]
     yaw: float | None = None  # [rad] body heading relative to the road; None: the velocity's direction
+    accel: float = 0.0  # [m/s^2] acceleration along the velocity (< 0: braking); only braking is extrapolated
 
     def __post_init__(self) -> None:
-        for f in ("x", "y", "vx", "vy", "length", "width"):
+        for f in ("x", "y", "vx", "vy", "length", "width", "accel"):
             object.__setattr__(self, f, _finite(f"neighbour.{f}", getattr(self, f)))
         if self.yaw is not None:
             object.__setattr__(self, "yaw", _finite("neighbour.yaw", self.yaw))
@@ -212,9 +214,27 @@ def ellipse_semi_axes(ego: EgoState, other: Neighbour, margin: EllipseMargin) ->
     return math.sqrt(2.0) * half_long + margin.longitudinal, math.sqrt(2.0) * half_lat + margin.lateral
 
 
-def predict_constant_velocity(n: Neighbour, t: np.ndarray, y_range: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """[m] constant-velocity prediction of a neighbour's centre at times t [s]; y kept on the road."""
-    return n.x + n.vx * t, np.clip(n.y + n.vy * t, *y_range)
+BRAKING_TIME = 3.0  # [s] how long an observed braking is assumed to last in predictions
+
+
+def predict_neighbour(
+    n: Neighbour, t: np.ndarray, y_range: tuple[float, float], braking_time: float = BRAKING_TIME
+) -> tuple[np.ndarray, np.ndarray]:
+    """[m] predicted centre of a neighbour at times t [s]; y kept on the road.
+
+    Constant velocity, except that a braking neighbour (``accel`` < 0) keeps braking for
+    ``braking_time`` s (never reversing), then holds its speed: a car braking hard for a jam ahead
+    of it would otherwise be predicted to keep going and the ego would react a second late.
+    Acceleration is not extrapolated (a constant-velocity leader is the safer assumption).
+    """
+    speed = math.hypot(n.vx, n.vy)
+    decel = -min(n.accel, 0.0)
+    if decel == 0.0 or speed < 1e-6:
+        return n.x + n.vx * t, np.clip(n.y + n.vy * t, *y_range)
+    braking = min(braking_time, speed / decel)
+    tau = np.minimum(t, braking)
+    distance = speed * tau - 0.5 * decel * tau**2 + (speed - decel * braking) * (t - tau)
+    return n.x + n.vx / speed * distance, np.clip(n.y + n.vy / speed * distance, *y_range)
 
 
 def is_follower(scene: Scene, n: Neighbour) -> bool:
@@ -256,7 +276,7 @@ def build_problem(
     mask = np.zeros(N)
     for i, n in enumerate(nearest_neighbours(scene, N, ignore_followers)):
 
-        px, py = predict_constant_velocity(n, t, scene.road.edges)
+        px, py = predict_neighbour(n, t, scene.road.edges)
         ox[i], oy[i] = px - ego.x, py
         oa[i], ob[i] = ellipse_semi_axes(ego, n, scene.ellipse_margin)
         mask[i] = 1.0

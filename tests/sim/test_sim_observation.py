@@ -132,6 +132,8 @@ def test_scene_has_every_vehicle_in_road_coordinates(dense):
         s, r = lane0.local_coordinates(v.position)
         assert (n.x, n.y) == pytest.approx((s, r))
         assert (n.length, n.width) == (v.LENGTH, v.WIDTH)
+        assert n.accel == pytest.approx(v.action["acceleration"], abs=1e-6)  # IDM's, along the velocity
+    assert any(n.accel < -0.5 for n in scene.neighbours), "dense traffic has braking vehicles"
     s, r = lane0.local_coordinates(sim.vehicle.position)
     assert (scene.ego.x, scene.ego.y) == pytest.approx((s, r))
     assert scene.ego.length == sim.vehicle.LENGTH

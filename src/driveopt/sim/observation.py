@@ -48,7 +48,10 @@ def scene_from_env(env: Any, scenario: Scenario) -> Scene:
         others += [o for o in sim.road.objects if getattr(o, "collidable", True)]
         for other in others:
             m = vehicle_motion(other, reference)
-            neighbours.append(Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width, yaw=m.heading))
+            accel = (m.ax * m.vx + m.ay * m.vy) / m.speed if m.speed > 1e-6 else 0.0  # along the velocity
+            neighbours.append(
+                Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width, yaw=m.heading, accel=accel)
+            )
         return Scene(ego=ego, road=road, neighbours=tuple(neighbours), v_des=scenario.v_des, name=scenario.name)
     except ProblemError as exc:
         raise ObservationError(f"simulator state at t = {sim.steps / sim.config['simulation_frequency']:.2f} s: {exc}") from None
