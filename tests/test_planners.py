@@ -20,6 +20,14 @@ def test_registry_names_and_clear_error():
         get_planner("idm").prior()
 
 
+def test_batch_size_override_caps_elites_and_keeps_vanilla_single():
+    bilevel = get_planner("bilevel").with_samples(60).config.sampler
+    assert (bilevel.num_samples, bilevel.num_constraint_elites, bilevel.num_elites) == (60, 60, 40)
+    assert get_planner("vanilla").with_samples(250).config.sampler.num_samples == 1  # one sample is the method
+    assert get_planner("grid").with_samples(None) == get_planner("grid")
+    assert get_planner("idm").with_samples(250) == get_planner("idm")
+
+
 @pytest.mark.parametrize("name", ["random", "grid", "vanilla", "batch"])
 def test_baselines_plan_finite_trajectories(name):
     spec = get_planner(name).with_overrides(projection={"max_iterations": 10})

@@ -123,27 +123,17 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
-def _planner_spec(name: str, samples: int | None):
-    from driveopt.planners import get_planner
-
-    spec = get_planner(name)
-    if samples is not None and spec.is_optimiser:
-        sampler = spec.config.sampler
-        elites = min(sampler.num_constraint_elites, samples)
-        spec = spec.with_overrides(sampler={"num_samples": samples, "num_constraint_elites": elites, "num_elites": min(sampler.num_elites, elites)})
-    return spec
-
-
 def cmd_drive(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from driveopt.planners import get_planner
     from driveopt.sim.mpc import run_episode
     from driveopt.sim.scenarios import resolve_scenario
 
     scenario = resolve_scenario(args.scenario, config_file=args.scenario_config)
     if args.duration is not None:
         scenario = scenario.replace(duration=args.duration)
-    spec = _planner_spec(args.planner, args.samples).with_weights(args.weights)
+    spec = get_planner(args.planner).with_samples(args.samples).with_weights(args.weights)
     steps = int(round(scenario.duration * scenario.policy_frequency))
     with contextlib.ExitStack() as stack:
         bar = stack.enter_context(tqdm(total=steps, desc=f"{scenario.name} / {spec.name}", unit="step"))
@@ -332,7 +322,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", nargs="+", type=int, default=[42])
     p.add_argument("--episodes", type=_positive_int, default=50, help="episodes per scenario, planner and seed")
     p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
-    p.add_argument("--samples", type=_positive_int, help="override the optimisers' samples per iteration")
+    p.add_argument("--samples", type=_positive_int, help="override the optimisers' samples per iteration (not vanilla's single sample)")
     p.add_argument("--weights", help="learned-prior checkpoint for the cvae planner (default: shipped weights)")
     p.add_argument("--workers", type=_positive_int, help="parallel episodes (default: CPU count)")
     p.add_argument("--backend", choices=["local", "ray"], default="local")

@@ -22,6 +22,7 @@ class PlannerSpec:
     make_prior: Callable[[PlannerConfig, int, str | None], Any] | None = None  # (config, lanes, weights); None: idm
     warm_start: bool = False  # carry the sampling mean between replans
     weights: str | None = None  # learned priors: checkpoint file (default: the weights shipped for the road)
+    fixed_batch: bool = False  # the batch size is part of the method (vanilla: one sample); with_samples keeps it
 
     @property
     def is_optimiser(self) -> bool:
@@ -36,6 +37,17 @@ class PlannerSpec:
     def with_overrides(self, **sections: Any) -> "PlannerSpec":
         """Copy with config sections updated, e.g. ``sampler={"num_samples": 250}``."""
         return replace(self, config=self.config.replace(**sections))
+
+    def with_samples(self, samples: int | None) -> "PlannerSpec":
+        """Copy with ``samples`` per sampler iteration (elite counts capped at it); unchanged for ``None``,
+        for ``idm`` and for planners whose batch size is part of the method (``fixed_batch``)."""
+        if samples is None or not self.is_optimiser or self.fixed_batch:
+            return self
+        s = self.config.sampler
+        elites = min(s.num_constraint_elites, samples)
+        return self.with_overrides(
+            sampler={"num_samples": samples, "num_constraint_elites": elites, "num_elites": min(s.num_elites, elites)}
+        )
 
     def with_weights(self, weights: str | None) -> "PlannerSpec":
         """Copy that loads a learned prior from ``weights`` (a checkpoint file)."""
@@ -76,7 +88,7 @@ PLANNERS: dict[str, PlannerSpec] = {
         PlannerSpec("vanilla", "single speed set-point v_des in the current lane, no behavioural layer (MPC-Vanilla)",
                     _BASE.replace(sampler={"num_samples": 1, "num_iterations": 1, "num_constraint_elites": 1, "num_elites": 1},
                                   projection={"max_iterations": 100}),
-                    lambda c, *_: VanillaPrior(v_max=c.projection.v_max)),
+                    lambda c, *_: VanillaPrior(v_max=c.projection.v_max), fixed_batch=True),
         PlannerSpec("batch", "goal positions (x_f, y_f) on a grid with terminal constraints (Batch-MPC)",
                     _BASE.replace(qp={"terminal_position": True}, sampler=_single_iteration(200)),
                     lambda c, *_: GoalGridPrior(v_max=c.projection.v_max)),

@@ -27,14 +27,7 @@ EXPERT = "expert"  # planner field of the jobs
 
 def expert_spec(samples: int, iterations: int) -> PlannerSpec:
     """The bi-level planner with ``samples`` per batch and ``iterations`` sampler iterations."""
-    base = get_planner("bilevel")
-    s = base.config.sampler
-    return base.with_overrides(sampler={
-        "num_samples": samples,
-        "num_iterations": iterations,
-        "num_constraint_elites": min(s.num_constraint_elites, samples),
-        "num_elites": min(s.num_elites, samples),
-    })
+    return get_planner("bilevel").with_samples(samples).with_overrides(sampler={"num_iterations": iterations})
 
 
 def demonstration_episode(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:

@@ -208,15 +208,9 @@ def run_episode(
 def episode_record(job: Any, options: dict[str, Any]) -> dict[str, Any]:
     """Bench entry point: one episode of ``job`` (scenario, planner, seed, episode) as a record.
 
-    options: ``duration`` [s], ``samples`` (batch-size override), ``weights`` (learned prior checkpoint);
+    options: ``duration`` [s], ``samples`` (batch-size override, see ``PlannerSpec.with_samples``), ``weights`` (learned prior checkpoint);
     all optional.
     """
-    spec = get_planner(job.planner).with_weights(options.get("weights"))
-    if options.get("samples") and spec.is_optimiser:
-        samples = int(options["samples"])
-        spec = spec.with_overrides(sampler={
-            "num_samples": samples,
-            "num_constraint_elites": min(spec.config.sampler.num_constraint_elites, samples),
-            "num_elites": min(spec.config.sampler.num_elites, samples),
-        })
+    samples = options.get("samples")
+    spec = get_planner(job.planner).with_samples(int(samples) if samples else None).with_weights(options.get("weights"))
     return run_episode(job.scenario, spec, job.env_seed, duration=options.get("duration")).record()
