@@ -39,8 +39,6 @@ RENDER_CONFIG = {"screen_width": 1000, "screen_height": 250, "scaling": 7.0}  # 
 def adapt_to_vehicle(config: PlannerConfig, scenario: Scenario, model: BicycleModel) -> PlannerConfig:
     """Cap the planner's acceleration and curvature bounds at what the simulated car can do.
 
-
-
     Upstream's ego accelerates within ``acceleration_range`` and turns at most with curvature
     2 sin(beta_max) / L, beta_max = arctan(tan(delta_max) / 2).
     """
