@@ -272,8 +272,9 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
 def cmd_planners(args: argparse.Namespace) -> int:
     from driveopt.planners import PLANNERS
 
+    width = max(len(name) for name in PLANNERS)
     for spec in PLANNERS.values():
-        print(f"{spec.name:8s} {spec.description}")
+        print(f"{spec.name:{width}s}  {spec.description}")
     return 0
 
 

@@ -77,6 +77,8 @@ PLANNERS: dict[str, PlannerSpec] = {
     for spec in (
         PlannerSpec("bilevel", "P1 bi-level optimiser: Gaussian start, 5 CEM iterations x 20 projection iterations",
                     _BASE, _gaussian, warm_start=True),
+        PlannerSpec("bilevel-p1", "P1's Gaussian start exactly: independent set-points, no warm start (Fig. 9's baseline)",
+                    _BASE.replace(sampler={"structured_fraction": 0.0}), _gaussian),
         PlannerSpec("cvae", "P1 bi-level optimiser started from the learned CVAE only (shipped weights; Gaussian if none)",
                     _BASE, _cvae(0.0)),
         PlannerSpec("cvae-mix", "bi-level optimiser: half the first batch from the CVAE, half from the bilevel Gaussian (warm start)",
