@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import jax
@@ -124,6 +125,17 @@ def test_resume_with_other_data_or_settings_is_refused(trained, tmp_path):
     other = write_synthetic(tmp_path / "other.h5", episodes=3, seed=9)
     with pytest.raises(CheckpointError, match="other demonstrations"):
         train_cvae(other, trained[0], CFG, TCFG, progress=False)
+
+
+def test_train_episodes_shrinks_training_set_and_keeps_validation(tmp_path):
+    data = write_synthetic(tmp_path / "six.h5", episodes=6, seed=3)
+    quick = dataclasses.replace(TCFG, epochs=1, validation_fraction=0.2)
+    full = train_cvae(data, tmp_path / "all", CFG, quick, progress=False)["rows"]
+    two = train_cvae(data, tmp_path / "two", CFG, dataclasses.replace(quick, train_episodes=2), progress=False)["rows"]
+    assert two["validation"] == full["validation"] > 0
+    assert two["train"] == 2 * full["train"] // 5  # 2 of the 5 training episodes (64 rows each)
+    with pytest.raises(CheckpointError, match="other settings"):
+        train_cvae(data, tmp_path / "two", CFG, dataclasses.replace(quick, train_episodes=3), progress=False)
 
 
 def test_cvae_prior_in_the_planner(trained):

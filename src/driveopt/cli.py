@@ -216,7 +216,8 @@ def cmd_train_cvae(args: argparse.Namespace) -> int:
     from driveopt.learned.train_cvae import TrainConfig, train_cvae
 
     cfg = CVAEConfig(latent_dim=args.latent, hidden=tuple(args.hidden))
-    tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, beta=args.beta, seed=args.seed)
+    tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, beta=args.beta,
+                       validation_fraction=args.validation, train_episodes=args.train_episodes, seed=args.seed)
     summary = train_cvae(args.data, args.out, cfg, tcfg)
     last = summary["history"][-1] if summary["history"] else {}
     print(f"trained {summary['epochs']} epochs on {summary['rows']['train']} rows ({summary['rows']['validation']} validation) "
@@ -353,6 +354,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--beta", type=float, default=1.0, help="KL weight after annealing")
     p.add_argument("--latent", type=_positive_int, default=2, help="latent dimension")
     p.add_argument("--hidden", type=_positive_int, nargs="+", default=[256, 256, 256], help="MLP widths")
+    p.add_argument("--validation", type=float, default=0.1, help="share of episodes held out for validation")
+    p.add_argument("--train-episodes", type=int, default=0,
+                   help="learn from only this many of the other episodes (0: all; the held-out ones stay the same)")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=cmd_train_cvae)
 

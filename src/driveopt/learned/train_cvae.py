@@ -48,12 +48,13 @@ class TrainConfig:
     beta: float = 1.0  # [-] KL weight after annealing (reconstruction is in m^2)
     anneal_epochs: int = 10  # [epochs] beta rises linearly from 0 over these
     validation_fraction: float = 0.1  # [-] share of episodes held out
+    train_episodes: int = 0  # [-] learn from only this many of the other episodes (0: all); for learning curves
     crash_margin: float = 3.0  # [s] rows this close before a collision are left out
     seed: int = 0
 
     def __post_init__(self):
-        if self.epochs < 1 or self.batch_size < 1 or self.decay_every < 1 or self.anneal_epochs < 0:
-            raise ValueError("TrainConfig needs epochs, batch_size, decay_every >= 1 and anneal_epochs >= 0")
+        if self.epochs < 1 or self.batch_size < 1 or self.decay_every < 1 or self.anneal_epochs < 0 or self.train_episodes < 0:
+            raise ValueError("TrainConfig needs epochs, batch_size, decay_every >= 1 and anneal_epochs, train_episodes >= 0")
         if not 0.0 <= self.validation_fraction < 1.0 or self.learning_rate <= 0 or self.beta < 0:
             raise ValueError("TrainConfig needs 0 <= validation_fraction < 1, learning_rate > 0, beta >= 0")
 
@@ -104,6 +105,9 @@ def train_cvae(
     data = load_demonstrations(data_paths)
     rows = training_rows(data, tcfg.crash_margin)
     train_rows, val_rows = split_episodes(data, rows, tcfg.validation_fraction, tcfg.seed)
+    if tcfg.train_episodes:  # the validation episodes stay the same whatever the count
+        episodes = np.random.default_rng(tcfg.seed + 1).permutation(np.unique(data.episode[train_rows]))
+        train_rows = train_rows[np.isin(data.episode[train_rows], episodes[:tcfg.train_episodes])]
     if len(train_rows) < 2:
         raise ValueError(f"only {len(train_rows)} usable training rows in {data_paths}: collect more demonstrations")
     train, val = make_batch(data, train_rows), make_batch(data, val_rows)
@@ -180,7 +184,9 @@ def _resume(path: Path, cfg: CVAEConfig, tcfg: TrainConfig, fingerprint: str, pa
     if meta.get("config") != json.loads(json.dumps(cfg.to_dict())):
         raise CheckpointError(f"{path} has another CVAE configuration: {meta.get('config')}; use a new --out")
     stored = dict(meta.get("train_config", {}))
-    mismatch = {k: (stored.get(k), v) for k, v in dataclasses.asdict(tcfg).items() if k != "epochs" and stored.get(k) != v}
+    defaults = dataclasses.asdict(TrainConfig())  # settings added later read as their defaults
+    mismatch = {k: (stored.get(k, defaults[k]), v) for k, v in dataclasses.asdict(tcfg).items()
+                if k != "epochs" and stored.get(k, defaults[k]) != v}
     if mismatch:
         raise CheckpointError(f"{path} was trained with other settings {mismatch} (stored, now); use a new --out")
     target = {"params": params, "normaliser": normaliser, "opt_state": opt_state}
