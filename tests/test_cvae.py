@@ -13,7 +13,7 @@ import pytest
 from driveopt.cli import main
 from driveopt.data.demonstrations import load_demonstrations
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint
-from driveopt.learned.cvae import CVAEConfig, decode_setpoints, fit_normaliser, init_params, loss_terms, qp_layer, trajectory_model
+from driveopt.learned.cvae import CVAEConfig, decode_setpoints, fit_normaliser, init_params, qp_layer, trajectory_model
 from driveopt.learned.prior import CVAEPrior, load_prior, prior_for
 from driveopt.learned.train_cvae import TrainConfig, make_batch, train_cvae
 from driveopt.planner import PlanStatus, plan
