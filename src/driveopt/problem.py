@@ -6,9 +6,9 @@ across it, both in metres, ``y`` growing to the left of travel in the road frame
 
 A :class:`Scene` (ego, road, neighbours, desired speed) is validated on
 construction and turned into a :class:`PlanningProblem` pytree by
-:func:`build_problem`: neighbours are predicted with constant velocity (braking ones keep braking
-for a while, :func:`predict_neighbour`), the
-nearest ``max_obstacles`` are kept (masked padding when fewer), and each gets a
+:func:`build_problem`: neighbours are predicted with constant velocity (braking
+ones keep braking for a while, :func:`predict_neighbour`), the nearest
+``max_obstacles`` are kept (masked padding when fewer), and each gets a
 collision ellipse that circumscribes the Minkowski sum of the two vehicle boxes.
 """
 
@@ -275,7 +275,6 @@ def build_problem(
     ob = np.ones(N)
     mask = np.zeros(N)
     for i, n in enumerate(nearest_neighbours(scene, N, ignore_followers)):
-
         px, py = predict_neighbour(n, t, scene.road.edges)
         ox[i], oy[i] = px - ego.x, py
         oa[i], ob[i] = ellipse_semi_axes(ego, n, scene.ellipse_margin)

@@ -206,8 +206,8 @@ def run_episode(
 def episode_record(job: Any, options: dict[str, Any]) -> dict[str, Any]:
     """Bench entry point: one episode of ``job`` (scenario, planner, seed, episode) as a record.
 
-    options: ``duration`` [s], ``samples`` (batch-size override, see ``PlannerSpec.with_samples``), ``weights`` (learned prior checkpoint);
-    all optional.
+    options (all optional): ``duration`` [s], ``samples`` (batch-size override, see
+    ``PlannerSpec.with_samples``), ``weights`` (learned prior checkpoint).
     """
     samples = options.get("samples")
     spec = get_planner(job.planner).with_samples(int(samples) if samples else None).with_weights(options.get("weights"))
