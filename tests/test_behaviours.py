@@ -7,7 +7,7 @@ import numpy as np
 
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, build_problem, plan
 from driveopt.config import ProjectionConfig, QPConfig
-from driveopt.planner import braking_coeffs
+from driveopt.planner import PreviousPlan, braking_coeffs, previous_plan
 from driveopt.problem import ProblemError, is_follower, predict_neighbour
 from driveopt.projection import constraint_residuals
 from driveopt.qp import boundary_values, make_model
@@ -89,3 +89,46 @@ def test_ego_slows_sooner_behind_a_braking_leader(small_config):
     braking, cruising = planned_speed(-6.0), planned_speed(0.0)
     assert braking[0] < 8.0 and braking[1] < 2.0  # stopping behind the leader's predicted stop (26.9 m)
     assert cruising[0] > 10.0
+
+
+def _lane_change_plan(t: np.ndarray, start: float, target: float, speed: float) -> PreviousPlan:
+    tau = np.minimum(t / 4.0, 1.0)
+    lateral = start + (target - start) * (3 * tau**2 - 2 * tau**3)
+    return PreviousPlan(np.array([speed] * 4 + [target] * 4, np.float32), lateral.astype(np.float32))
+
+
+@pytest.mark.parametrize("target", [0.0, 8.0])
+def test_the_previous_plan_keeps_winning_between_equal_manoeuvres(small_config, target):
+    """A stopped car ahead, free lanes on both sides: passing left or right costs about the same, so
+    without the previous plan different draws choose different sides (the replan-to-replan
+    oscillation seen in closed loop). With it, the side already begun is kept."""
+    cfg = small_config.replace(cost={"consistency": 1.0})
+    scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=12.0), road=Road(num_lanes=4), neighbours=(Neighbour(x=35.0, y=4.0, vx=0.0),))
+    problem = build_problem(scene, cfg.basis)
+    t = np.linspace(0.0, cfg.basis.horizon, cfg.basis.num_nodes)
+    previous = _lane_change_plan(t, 4.0, target, 12.0)
+    for seed in range(3):
+        result = plan(problem, cfg, key=jax.random.PRNGKey(seed), previous=previous)
+        assert result.status == PlanStatus.SUCCESS
+        assert abs(float(result.trajectory.y[-1]) - target) < 2.0
+        assert result.costs["consistency"] < 2.0  # [m^2] mean squared lateral deviation
+
+
+def test_previous_plan_is_the_executed_plan_shifted_by_the_replan_period(small_config):
+    scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=8.0), neighbours=(Neighbour(x=25.0, y=4.0, vx=0.0),))
+    result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0))
+    previous = previous_plan(result, elapsed=0.5)
+    traj = result.safe_trajectory
+    inside = np.asarray(traj.t) <= traj.t[-1] - 0.5
+    assert np.allclose(previous.lateral[inside], np.interp(np.asarray(traj.t)[inside] + 0.5, traj.t, traj.y), atol=1e-5)
+    assert previous.lateral[-1] == pytest.approx(float(traj.y[-1]))  # held beyond the horizon
+    np.testing.assert_array_equal(previous.setpoints, result.setpoints)
+
+
+def test_malformed_previous_plan_is_rejected(small_config):
+    problem = build_problem(Scene(ego=EgoState(x=0.0, y=4.0, vx=8.0)), small_config.basis)
+    bad = PreviousPlan(np.zeros(8, np.float32), np.full(small_config.basis.num_nodes, np.nan, np.float32))
+    with pytest.raises(ProblemError, match="previous plan"):
+        plan(problem, small_config, key=jax.random.PRNGKey(0), previous=bad)
+    with pytest.raises(ProblemError, match="previous plan"):
+        plan(problem, small_config, key=jax.random.PRNGKey(0), previous=PreviousPlan(np.zeros(8), np.zeros(7)))

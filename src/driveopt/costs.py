@@ -13,7 +13,7 @@ from driveopt.config import CostConfig
 from driveopt.problem import PlanningProblem
 from driveopt.qp import TrajectoryModel, split
 
-COST_TERMS = ("speed", "lateral_acceleration", "heading", "curvature", "lane_centering")
+COST_TERMS = ("speed", "lateral_acceleration", "heading", "curvature", "lane_centering", "consistency")
 
 
 class Trajectory(NamedTuple):
@@ -52,8 +52,12 @@ def nearest_lane_center(problem: PlanningProblem, y: jnp.ndarray) -> jnp.ndarray
     return problem.lane_center0 + index * problem.lane_width
 
 
-def cost_terms(traj: Trajectory, problem: PlanningProblem) -> dict[str, jnp.ndarray]:
-    """Unweighted cost terms, each (...,): means over the nodes."""
+def cost_terms(traj: Trajectory, problem: PlanningProblem, previous_y: jnp.ndarray | None = None) -> dict[str, jnp.ndarray]:
+    """Unweighted cost terms, each (...,): means over the nodes.
+
+    previous_y: (K,) [m] lateral positions of the previous replan's plan at these nodes' times; the
+    ``consistency`` term is zero without it.
+    """
     lane_offset = traj.y - nearest_lane_center(problem, traj.y)
     # Curvature is only meaningful when moving; cap its influence at crawling speeds.
     curvature = jnp.clip(traj.curvature, -1.0, 1.0)
@@ -63,6 +67,7 @@ def cost_terms(traj: Trajectory, problem: PlanningProblem) -> dict[str, jnp.ndar
         "heading": jnp.mean(traj.heading**2, axis=-1),
         "curvature": jnp.mean(curvature**2, axis=-1),
         "lane_centering": jnp.mean(lane_offset**2, axis=-1),
+        "consistency": jnp.zeros(traj.y.shape[:-1]) if previous_y is None else jnp.mean((traj.y - previous_y) ** 2, axis=-1),
     }
 
 

@@ -2,6 +2,7 @@
 
     result = plan(problem, config, key=key)            # PlanResult
     result = plan(problem, config, key=key2, warm_start=result.mean)
+    result = plan(problem, config, key=key3, previous=previous_plan(result, elapsed=0.1))
 
 Per sampler iteration: draw set-points (the prior's proposal first, then the adapted Gaussian),
 solve the set-point QP for the batch, project the batch onto the constraints, rank, and update the
@@ -15,6 +16,10 @@ Two stopping plans ride in every batch and are ranked like any sample: a comfort
 feasible candidate over all iterations. When there is none the status is INFEASIBLE, the
 lowest-residual candidate is reported, and ``result.fallback`` offers the comfortable stop, or the
 emergency stop when its residual is lower.
+
+Given the previous replan's plan (``previous``), its set-points ride in every batch too, and the
+``consistency`` cost term measures each sample's lateral deviation from that plan: between two
+near-equal manoeuvres (pass left or right) the one already begun keeps winning.
 """
 
 from __future__ import annotations
@@ -70,6 +75,22 @@ class History(NamedTuple):
     median_residual: jnp.ndarray  # median total residual in the batch
     num_feasible: jnp.ndarray  # samples within the residual tolerance
     projection_iterations: jnp.ndarray
+
+
+class PreviousPlan(NamedTuple):
+    """The plan chosen by the previous replan, seen from this one."""
+
+    setpoints: jnp.ndarray  # (8,) its set-points (re-solved from the current state as a candidate)
+    lateral: jnp.ndarray  # (K,) [m] its lateral positions at this call's node times
+
+
+def previous_plan(result: "PlanResult", elapsed: float) -> PreviousPlan:
+    """The executed plan of ``result`` (``safe_trajectory``) shifted by ``elapsed`` [s] to the next call's
+    nodes; held at its last value beyond the horizon."""
+    traj = result.safe_trajectory
+    t = np.asarray(traj.t)
+    lateral = np.interp(t + elapsed, t, np.asarray(traj.y)).astype(np.float32)
+    return PreviousPlan(np.asarray(result.setpoints, dtype=np.float32), lateral)
 
 
 class _Best(NamedTuple):
@@ -165,10 +186,10 @@ def braking_coeffs(model, problem: PlanningProblem, decel: float, b_x, b_y, to_l
     return fit_positions(model, x, y, b_x, b_y)
 
 
-def _iteration(model, problem, cfg: PlannerConfig, setpoints):
+def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: PreviousPlan | None):
     """QP + projection + ranking for one batch of set-points.
 
-    Two rows are appended: the comfortable fallback (brake at ``fallback_deceleration`` towards the
+    Appended rows: the previous plan's set-points when given, then the comfortable fallback (brake at ``fallback_deceleration`` towards the
     nearest lane centre) and an emergency stop (brake at ``projection.a_max`` holding the current
     lateral position: a car straddling two lanes must not steer into the one it is about to hit);
     both are ranked like every sample.
@@ -176,14 +197,15 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints):
     s = cfg.sampler
     stops = ((cfg.fallback_deceleration, True), (cfg.projection.a_max, False))  # (decel [m/s^2], to lane centre)
     stop_rows = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
-    setpoints = jnp.concatenate([setpoints, stop_rows])
+    carried = [] if previous is None else [previous.setpoints[None]]
+    setpoints = jnp.concatenate([setpoints, *carried, stop_rows])
     b_x, b_y = _boundary(problem, cfg, setpoints)
     qp_coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
     row = (lambda b, i: b if b.ndim == 1 else b[i])  # noqa: E731  (boundary rows are per sample only for goals)
     for i, (decel, to_centre) in zip((-2, -1), stops):
         qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), to_centre))
     proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection)
-    terms = cost_terms(evaluate(model, proj.coeffs), problem)
+    terms = cost_terms(evaluate(model, proj.coeffs), problem, None if previous is None else previous.lateral)
     cost = weighted_cost(terms, cfg.cost)
     residual = proj.residuals.total
     score = cost + residual
@@ -218,7 +240,7 @@ def _better(a: _Best, b: _Best) -> _Best:
     return jax.tree_util.tree_map(lambda u, v: jnp.where(a.score <= b.score, u, v), a, b)
 
 
-def _plan_calls(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg: PlannerConfig) -> _RawResult:
+def _plan_calls(problem: PlanningProblem, key: jax.Array, warm_mean, previous, prior, cfg: PlannerConfig) -> _RawResult:
     model = make_model(cfg.basis, cfg.qp)
     s = cfg.sampler
     key_prior, key_loop = jax.random.split(key)
@@ -228,13 +250,13 @@ def _plan_calls(problem: PlanningProblem, key: jax.Array, warm_mean, prior, cfg:
         elites = snapshot.setpoints[snapshot.elite_index]
         return cem_update(mean, cov, elites, score[snapshot.elite_index], s)
 
-    best, (fallback, emergency), first, score, stats = _iteration(model, problem, cfg, proposal.samples)
+    best, (fallback, emergency), first, score, stats = _iteration(model, problem, cfg, proposal.samples, previous)
     mean, cov = adapt(proposal.mean, proposal.cov, first, score)
 
     def body(carry, iteration_key):
         mean, cov, best, _ = carry
         setpoints = clip_setpoints(sample_gaussian(iteration_key, mean, cov, s.num_samples), problem, cfg.projection.v_max)
-        cand, _, snapshot, score, stats = _iteration(model, problem, cfg, setpoints)
+        cand, _, snapshot, score, stats = _iteration(model, problem, cfg, setpoints, previous)
         best = _better(best, cand)
         mean, cov = adapt(mean, cov, snapshot, score)
         stats = (best.score,) + stats[1:]
@@ -265,6 +287,7 @@ def plan(
     key: jax.Array,
     prior: Prior | None = None,
     warm_start: np.ndarray | None = None,
+    previous: PreviousPlan | None = None,
     x_offset: float = 0.0,
 ) -> PlanResult:
     """Plan one trajectory. Raises ProblemError on malformed or non-finite input; never returns NaN.
@@ -273,6 +296,8 @@ def plan(
     key: JAX PRNG key; split it between calls so that every call draws fresh samples.
     prior: first-iteration proposal distribution (default: GaussianPrior from ``config.sampler``).
     warm_start: (8,) mean from a previous result (``result.mean``) to centre the first proposal.
+    previous: the previous replan's plan (``previous_plan``): a candidate row and the reference of the
+        ``consistency`` cost term (weighted by ``config.cost.consistency``).
     x_offset: [m] added to x of the returned trajectories (the ego's road-frame x).
     """
     check_problem(problem, config.basis)
@@ -283,7 +308,12 @@ def plan(
         if warm_start.shape != (2 * NUM_SEGMENTS,) or not np.all(np.isfinite(warm_start)):
             raise ProblemError(f"warm_start must be 8 finite numbers, got shape {warm_start.shape}")
         warm_start = jnp.asarray(warm_start)
-    raw = jax.device_get(_compiled_plan()(problem, key, warm_start, prior, config))
+    if previous is not None:
+        previous = PreviousPlan(*(np.asarray(a, dtype=np.float32) for a in previous))
+        shapes = (previous.setpoints.shape, previous.lateral.shape)
+        if shapes != ((2 * NUM_SEGMENTS,), (config.basis.num_nodes,)) or not all(np.all(np.isfinite(a)) for a in previous):
+            raise ProblemError(f"previous plan must be finite with shapes (8,) and ({config.basis.num_nodes},), got {shapes}")
+    raw = jax.device_get(_compiled_plan()(problem, key, warm_start, previous, prior, config))
     return _finish(raw, problem, config, float(x_offset))
 
 

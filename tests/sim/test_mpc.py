@@ -86,3 +86,17 @@ def test_before_step_sees_the_state_the_plan_starts_from():
 
     run_episode("four-lane-d1.0", small("grid"), seed=2, duration=1.0, before_step=before_step)
     assert len(gaps) == 10 and max(gaps) < 0.05
+
+
+@pytest.mark.parametrize("planner", ["grid", "bilevel"])
+def test_the_loop_carries_the_executed_plan_when_consistency_is_weighed(planner):
+    """Each call after the first compares its samples with the previous call's executed plan, shifted by
+    the replan period; compilation of that trace happens before the timed steps."""
+    spec = small(planner).with_overrides(cost={"consistency": 1.0})
+    results = []
+    episode = run_episode("four-lane-d1.0", spec, seed=2, duration=1.0, on_plan=lambda s, p, r: results.append(r))
+    assert len(results) == 10
+    assert results[0].costs["consistency"] == 0.0
+    carried = [r.costs["consistency"] for r in results[1:]]
+    assert all(np.isfinite(carried)) and max(carried) > 0.0
+    assert max(episode.plan_ms) < 10 * float(np.median(episode.plan_ms))

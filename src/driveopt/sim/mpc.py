@@ -4,7 +4,7 @@ Every policy step (``scenario.policy_frequency``, 10 Hz by default) the simulato
 ``Scene`` and a planning problem, the planner returns a trajectory (the fallback when it reports
 infeasible), and the exact inverse of upstream's bicycle model turns the plan's first action
 period into a ``ContinuousAction``. The sampling mean is carried to the next call when the planner
-warm-starts. The ``idm`` planner instead hands the ego to highway-env's IDM/MOBIL driver.
+warm-starts, and the executed plan when its config weighs ``cost.consistency``. The ``idm`` planner instead hands the ego to highway-env's IDM/MOBIL driver.
 Everything random derives from the seed: same seed, same episode.
 """
 
@@ -21,7 +21,7 @@ import jax
 import numpy as np
 
 from driveopt.config import PlannerConfig
-from driveopt.planner import PlanResult, PlanStatus, plan
+from driveopt.planner import PlanResult, PlanStatus, plan, previous_plan
 from driveopt.planners import PlannerSpec, get_planner
 from driveopt.problem import PlanningProblem, Scene, build_problem
 
@@ -155,15 +155,23 @@ def run_episode(
                 scene = plannable_scene(scene_from_env(env, scenario), env)
                 return scene, build_problem(scene, config.basis, ignore_followers=True)
 
-            # Compile outside the timed loop (with and without a warm start: two traces); results are discarded.
+            period = 1.0 / scenario.policy_frequency  # [s] between replans
+            carries_plan = config.cost.consistency > 0
+
+            def carried(result):  # (warm start, previous plan) handed to the next call
+                previous = previous_plan(result, period) if carries_plan else None
+                return (result.mean if spec.warm_start else None), previous
+
+            # Compile outside the timed loop (the first call's trace and the later calls'); results are discarded.
             start = time.perf_counter()
             warmup = plan(observe()[1], config, key=jax.random.fold_in(key, 1), prior=prior)
-            if spec.warm_start:
-                plan(observe()[1], config, key=jax.random.fold_in(key, 2), prior=prior, warm_start=warmup.mean)
+            if spec.warm_start or carries_plan:
+                warm, previous = carried(warmup)
+                plan(observe()[1], config, key=jax.random.fold_in(key, 2), prior=prior, warm_start=warm, previous=previous)
             episode.compile_seconds = time.perf_counter() - start
         else:
             _hand_ego_to_idm(env, scenario.v_des)
-        warm = None
+        warm = previous = None
         idle = np.zeros(2, dtype=np.float32)
         while True:
             result = None
@@ -172,12 +180,12 @@ def run_episode(
                 scene, problem = observe()
                 key, sub = jax.random.split(key)
                 start = time.perf_counter()
-                result = plan(problem, config, key=sub, prior=prior, warm_start=warm, x_offset=scene.ego.x)
+                result = plan(problem, config, key=sub, prior=prior, warm_start=warm, previous=previous, x_offset=scene.ego.x)
                 elapsed = time.perf_counter() - start
                 episode.plan_ms.append(1e3 * elapsed)
                 episode.plan_seconds += elapsed
                 episode.statuses[result.status.name] += 1
-                warm = result.mean if spec.warm_start else None
+                warm, previous = carried(result)
                 if on_plan is not None:
                     on_plan(scene, problem, result)
                 command = command_from_env(env, result.safe_trajectory, 0.0, model)
