@@ -66,6 +66,18 @@ def test_corrupted_results_file_is_reported(tmp_path):
         run_bench(SPEC, tmp_path, workers=1, episode_fn=fake_episode, progress=False)
 
 
+def test_resuming_with_other_options_is_refused(tmp_path):
+    """Extending a sweep (more planners, episodes) is a resume; changing how episodes run is not."""
+    run_bench(SPEC, tmp_path, workers=1, episode_fn=fake_episode, progress=False)
+    more = BenchSpec(SPEC.scenarios, SPEC.planners + ("random",), SPEC.seeds, SPEC.episodes + 1)
+    run_bench(more, tmp_path, workers=1, episode_fn=fake_episode, progress=False)
+    assert len(load_records(tmp_path / "episodes.jsonl")) == len(more.jobs())
+    other = BenchSpec(SPEC.scenarios, SPEC.planners, SPEC.seeds, SPEC.episodes, {"config": {"cost": {"consistency": 1.0}}})
+    with pytest.raises(StoreError, match="other output folder"):
+        run_bench(other, tmp_path, workers=1, episode_fn=fake_episode, progress=False)
+    assert len(load_records(tmp_path / "episodes.jsonl")) == len(more.jobs())
+
+
 def test_unknown_backend(tmp_path):
     with pytest.raises(ValueError, match="valid: local, ray"):
         run_bench(SPEC, tmp_path, backend="slurm", episode_fn=fake_episode, progress=False)

@@ -61,6 +61,18 @@ def _load_config(path: str | None, args: argparse.Namespace) -> PlannerConfig:
     return config.replace(**sections)
 
 
+def _config_overrides(path: str | None) -> dict[str, Any]:
+    """Planner-config overrides from a JSON file (nested sections), checked against the config schema."""
+    if not path:
+        return {}
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise UsageError(f"cannot read config {path}: {exc}") from None
+    from_dict(data)  # unknown sections, keys or bad values: ConfigError
+    return data
+
+
 def _tolist(a: Any) -> Any:
     return np.asarray(a).round(6).tolist()
 
@@ -134,6 +146,7 @@ def cmd_drive(args: argparse.Namespace) -> int:
     if args.duration is not None:
         scenario = scenario.replace(duration=args.duration)
     spec = get_planner(args.planner).with_samples(args.samples).with_weights(args.weights)
+    spec = spec.with_overrides(**_config_overrides(args.config))
     steps = int(round(scenario.duration * scenario.policy_frequency))
     with contextlib.ExitStack() as stack:
         bar = stack.enter_context(tqdm(total=steps, desc=f"{scenario.name} / {spec.name}", unit="step"))
@@ -188,7 +201,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         get_scenario(name)  # clear error listing the valid names
     for name in args.planners:
         get_planner(name)
-    options = {k: v for k, v in (("duration", args.duration), ("samples", args.samples), ("weights", args.weights)) if v is not None}
+    given = (("duration", args.duration), ("samples", args.samples), ("weights", args.weights), ("config", _config_overrides(args.config) or None))
+    options = {k: v for k, v in given if v is not None}
     spec = BenchSpec(tuple(args.scenarios), tuple(args.planners), tuple(args.seeds), args.episodes, options)
     rows = run_bench(spec, args.out, workers=args.workers, backend=args.backend)
     from driveopt.bench.summary import markdown_table
@@ -316,6 +330,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=_positive_int, help="samples per sampler iteration")
     p.add_argument("--video", default="out/drive.mp4", help="MP4 path ('' for none)")
     p.add_argument("--json", help="write the episode summary as JSON here")
+    p.add_argument("--config", help="planner config overrides, JSON (nested sections, e.g. {\"cost\": {\"consistency\": 1.0}})")
     p.set_defaults(func=cmd_drive)
 
     p = sub.add_parser("bench", help="scenarios x planners x seeds x episodes; resumable; summary table and plots")
@@ -326,6 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=_positive_int, help="override the optimisers' samples per iteration (not vanilla's single sample)")
     p.add_argument("--weights", help="learned-prior checkpoint for the cvae planner (default: shipped weights)")
+    p.add_argument("--config", help="planner config overrides applied to every optimiser, JSON (nested sections)")
     p.add_argument("--workers", type=_positive_int, help="parallel episodes (default: CPU count)")
     p.add_argument("--backend", choices=["local", "ray"], default="local")
     p.add_argument("--out", default="out/bench", help="output directory (rerun to resume)")

@@ -75,6 +75,22 @@ def test_bench_command_runs_real_episodes_and_resumes(tmp_path, capsys):
     assert "| two-lane-d1.0 | idm |" in (tmp_path / "summary.md").read_text()
 
 
+def test_bench_config_overrides_reach_every_optimiser_and_fix_the_folder(tmp_path, capsys):
+    slow = tmp_path / "slow.json"
+    slow.write_text(json.dumps({"projection": {"v_max": 2.0}}))  # [m/s]: every plan must brake hard
+    base = ["bench", "--scenarios", "two-lane-d1.0", "--planners", "grid", "--episodes", "1", "--duration", "0.5",
+            "--workers", "1"]
+    assert main(base + ["--out", str(tmp_path / "a")]) == 0
+    assert main(base + ["--out", str(tmp_path / "b"), "--config", str(slow)]) == 0
+    speed = {d: json.loads((tmp_path / d / "episodes.jsonl").read_text())["mean_speed"] for d in "ab"}
+    assert speed["b"] < speed["a"] - 0.5
+    assert main(base + ["--out", str(tmp_path / "a"), "--config", str(slow)]) == 2  # would mix two settings
+    assert "other output folder" in capsys.readouterr().err
+    slow.write_text(json.dumps({"cost": {"consistence": 1.0}}))
+    assert main(base + ["--out", str(tmp_path / "c"), "--config", str(slow)]) == 2
+    assert "consistency" in capsys.readouterr().err  # the valid keys are listed
+
+
 def test_before_step_sees_the_state_the_plan_starts_from():
     """Videos draw in before_step: the executed plan must start at the ego's current position there."""
     gaps = []

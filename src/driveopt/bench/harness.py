@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import importlib
+import json
 import multiprocessing
 import os
 from dataclasses import asdict, dataclass, field
@@ -19,7 +20,7 @@ from typing import Any, Callable, Sequence
 
 from tqdm import tqdm
 
-from driveopt.bench.store import JobKey, append_record, key_of, load_records, pending, repair
+from driveopt.bench.store import JobKey, StoreError, append_record, key_of, load_records, pending, repair
 
 from driveopt.bench.summary import markdown_table, plot_summary, summarise, write_csv
 
@@ -74,6 +75,7 @@ def run_bench(
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    _claim(out / "spec.json", spec)
     store = out / "episodes.jsonl"
     repair(store)
     jobs = spec.jobs()
@@ -96,10 +98,23 @@ def run_bench(
     rows = summarise(records)
     write_csv(rows, out / "summary.csv")
     (out / "summary.md").write_text(markdown_table(rows))
-    (out / "spec.json").write_text(__import__("json").dumps(asdict(spec), indent=1))
     if rows:
         plot_summary(rows, out / "summary.png")
     return rows
+
+
+def _claim(path: Path, spec: BenchSpec) -> None:
+    """Record ``spec`` in the output folder; StoreError when the folder holds episodes run with other
+    options (samples, duration, weights, config): resuming must not mix two settings in one table."""
+    if path.exists():
+        try:
+            options = json.loads(path.read_text())["options"]
+        except (json.JSONDecodeError, KeyError, TypeError) as exc:
+            raise StoreError(f"{path} is unreadable ({exc}); remove it or use another output folder") from None
+        if options != json.loads(json.dumps(spec.options)):
+            raise StoreError(f"{path.parent} holds episodes run with options {options}, not {spec.options}; "
+                             "use another output folder")
+    path.write_text(json.dumps(asdict(spec), indent=1))
 
 
 def execute(

@@ -215,8 +215,10 @@ def episode_record(job: Any, options: dict[str, Any]) -> dict[str, Any]:
     """Bench entry point: one episode of ``job`` (scenario, planner, seed, episode) as a record.
 
     options (all optional): ``duration`` [s], ``samples`` (batch-size override, see
-    ``PlannerSpec.with_samples``), ``weights`` (learned prior checkpoint).
+    ``PlannerSpec.with_samples``), ``weights`` (learned prior checkpoint), ``config`` (planner-config
+    overrides, nested sections).
     """
     samples = options.get("samples")
     spec = get_planner(job.planner).with_samples(int(samples) if samples else None).with_weights(options.get("weights"))
+    spec = spec.with_overrides(**options.get("config", {}))
     return run_episode(job.scenario, spec, job.env_seed, duration=options.get("duration")).record()
