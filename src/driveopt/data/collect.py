@@ -82,7 +82,8 @@ def collect(
     basis = BasisConfig()
     settings = {"expert": "bilevel", "samples": samples, "iterations": iterations, "duration": float(duration),
                 "num_nodes": basis.num_nodes, "horizon": basis.horizon}
-    jobs = [JobKey(s, EXPERT, seed, e) for s in scenarios for e in range(episodes)]
+    # Episode-major: a collection stopped part-way covers every scenario evenly.
+    jobs = [JobKey(s, EXPERT, seed, e) for e in range(episodes) for s in scenarios]
     summary = {"episodes": 0, "rows": 0, "collided": 0, "skipped": 0, "plan_seconds": 0.0, "sim_seconds": 0.0}
     start = time.perf_counter()
     writer = DemonstrationWriter(out, settings, basis.num_nodes, 2 * (basis.order + 1), OBSERVATION_DIM)
