@@ -189,10 +189,10 @@ def braking_coeffs(model, problem: PlanningProblem, decel: float, b_x, b_y, to_l
 def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: PreviousPlan | None):
     """QP + projection + ranking for one batch of set-points.
 
-    Appended rows: the previous plan's set-points when given, then the comfortable fallback (brake at ``fallback_deceleration`` towards the
-    nearest lane centre) and an emergency stop (brake at ``projection.a_max`` holding the current
-    lateral position: a car straddling two lanes must not steer into the one it is about to hit);
-    both are ranked like every sample.
+    Appended rows: the previous plan's set-points when given, then the comfortable fallback (brake
+    at ``fallback_deceleration`` towards the nearest lane centre) and an emergency stop (brake at
+    ``projection.a_max`` holding the current lateral position: a car straddling two lanes must not
+    steer into the one it is about to hit); all are ranked like every sample.
     """
     s = cfg.sampler
     stops = ((cfg.fallback_deceleration, True), (cfg.projection.a_max, False))  # (decel [m/s^2], to lane centre)
@@ -219,8 +219,8 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     ranked = constraint_elites[select_lowest(elite_key[constraint_elites], s.num_elites)]
 
     pick = ranked[jnp.argmin(key_score[ranked])]
-    families = jnp.stack(list(proj.residuals))  # (4, B + 1)
-    term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, B + 1)
+    families = jnp.stack(list(proj.residuals))  # (4, rows)
+    term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, rows)
 
     def candidate(i):
         return _Best(key_score[i], setpoints[i], proj.coeffs[i], families[:, i], term_values[:, i], cost[i])
