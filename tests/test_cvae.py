@@ -138,6 +138,20 @@ def test_train_episodes_shrinks_training_set_and_keeps_validation(tmp_path):
         train_cvae(data, tmp_path / "two", CFG, dataclasses.replace(quick, train_episodes=3), progress=False)
 
 
+def test_separate_validation_files_are_held_out_whole(data_file, tmp_path):
+    held = write_synthetic(tmp_path / "held.h5", episodes=2, seed=5)
+    quick = dataclasses.replace(TCFG, epochs=1)
+    rows = train_cvae(data_file, tmp_path / "a", CFG, quick, validation_paths=[held], progress=False)["rows"]
+    assert rows == {"train": 4 * 64, "validation": 2 * 64}  # all of data_file trains; all of held validates
+    history = json.loads((tmp_path / "a" / "history.json").read_text())
+    assert np.isfinite(history[0]["val_reconstruction"])
+    with pytest.raises(ValueError, match="other files"):
+        train_cvae(data_file, tmp_path / "b", CFG, quick, validation_paths=[data_file], progress=False)
+    with pytest.raises(CheckpointError, match="other demonstrations"):  # another validation set is other data
+        train_cvae(data_file, tmp_path / "a", CFG, quick, validation_paths=[write_synthetic(tmp_path / "h2.h5", 2, seed=6)],
+                   progress=False)
+
+
 def test_cvae_prior_in_the_planner(trained):
     prior = load_prior(trained[0] / "cvae.ckpt")
     assert isinstance(prior, CVAEPrior)

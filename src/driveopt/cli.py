@@ -232,7 +232,7 @@ def cmd_train_cvae(args: argparse.Namespace) -> int:
     cfg = CVAEConfig(latent_dim=args.latent, hidden=tuple(args.hidden))
     tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, beta=args.beta,
                        validation_fraction=args.validation, train_episodes=args.train_episodes, seed=args.seed)
-    summary = train_cvae(args.data, args.out, cfg, tcfg)
+    summary = train_cvae(args.data, args.out, cfg, tcfg, validation_paths=args.validation_data)
     last = summary["history"][-1] if summary["history"] else {}
     print(f"trained {summary['epochs']} epochs on {summary['rows']['train']} rows ({summary['rows']['validation']} validation) "
           f"in {summary['seconds']:.0f} s; last train loss {last.get('train_loss', float('nan')):.3f}, "
@@ -371,6 +371,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--latent", type=_positive_int, default=2, help="latent dimension")
     p.add_argument("--hidden", type=_positive_int, nargs="+", default=[256, 256, 256], help="MLP widths")
     p.add_argument("--validation", type=float, default=0.1, help="share of episodes held out for validation")
+    p.add_argument("--validation-data", nargs="+", help="hold out these demonstration files instead (--validation unused)")
     p.add_argument("--train-episodes", type=int, default=0,
                    help="learn from only this many of the other episodes (0: all; the held-out ones stay the same)")
     p.add_argument("--seed", type=int, default=0)

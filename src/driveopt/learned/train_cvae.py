@@ -2,7 +2,8 @@
 
 Rows: planning steps whose plan met every constraint (status SUCCESS), leaving out the last
 ``crash_margin`` seconds before a collision. Validation: whole episodes (``validation_fraction``
-of them, chosen by the seed), so no episode is split between the two sets.
+of them, chosen by the seed), so no episode is split between the two sets; or every usable row of
+separate validation files, so that models trained on different data meet the same held-out set.
 
 Optimiser: AdamW with a step decay (x ``decay_factor`` every ``decay_every`` epochs; P1:
 x 0.1 every 10 of 80 epochs); beta rises linearly from 0 to ``beta`` over ``anneal_epochs``.
@@ -94,27 +95,36 @@ def train_cvae(
     cfg: CVAEConfig = CVAEConfig(),
     tcfg: TrainConfig = TrainConfig(),
     *,
+    validation_paths: str | Path | Sequence[str | Path] | None = None,
     progress: bool = True,
     stop_after: int | None = None,
 ) -> dict[str, Any]:
     """Train (or resume training) into ``out_dir``; returns a summary with the history.
 
+    validation_paths: demonstrations held out whole (``validation_fraction`` is then not used).
     stop_after: return after this many epochs of this call (for tests of resumption).
     """
     out = Path(out_dir)
     data = load_demonstrations(data_paths)
     rows = training_rows(data, tcfg.crash_margin)
-    train_rows, val_rows = split_episodes(data, rows, tcfg.validation_fraction, tcfg.seed)
+    if validation_paths:
+        held = load_demonstrations(validation_paths)
+        if held.fingerprint() == data.fingerprint() or set(_paths(validation_paths)) & set(_paths(data_paths)):
+            raise ValueError("the validation demonstrations must be other files than the training ones")
+        train_rows, val_rows = rows, training_rows(held, tcfg.crash_margin)
+        fingerprint = f"{data.fingerprint()}, validation {held.fingerprint()}"
+    else:
+        held, fingerprint = data, data.fingerprint()
+        train_rows, val_rows = split_episodes(data, rows, tcfg.validation_fraction, tcfg.seed)
     if tcfg.train_episodes:  # the validation episodes stay the same whatever the count
         episodes = np.random.default_rng(tcfg.seed + 1).permutation(np.unique(data.episode[train_rows]))
         train_rows = train_rows[np.isin(data.episode[train_rows], episodes[:tcfg.train_episodes])]
     if len(train_rows) < 2:
         raise ValueError(f"only {len(train_rows)} usable training rows in {data_paths}: collect more demonstrations")
-    train, val = make_batch(data, train_rows), make_batch(data, val_rows)
+    train, val = make_batch(data, train_rows), make_batch(held, val_rows)
     batch_size = min(tcfg.batch_size, len(train_rows))
     steps_per_epoch = len(train_rows) // batch_size
     optimiser = _optimiser(tcfg, steps_per_epoch)
-    fingerprint = data.fingerprint()
     meta_base = {"config": cfg.to_dict(), "train_config": dataclasses.asdict(tcfg), "data": fingerprint,
                  "rows": {"train": int(len(train_rows)), "validation": int(len(val_rows))}}
 
@@ -175,6 +185,10 @@ def train_cvae(
     bar.close()
     return {"epochs": len(history), "history": history, "best_val_loss": best, "rows": meta_base["rows"],
             "seconds": time.perf_counter() - start, "out": str(out)}
+
+
+def _paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
+    return [Path(p).resolve() for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
 
 
 def _resume(path: Path, cfg: CVAEConfig, tcfg: TrainConfig, fingerprint: str, params, normaliser, opt_state):
