@@ -4,8 +4,9 @@ Every policy step (``scenario.policy_frequency``, 10 Hz by default) the simulato
 ``Scene`` and a planning problem, the planner returns a trajectory (the fallback when it reports
 infeasible), and the exact inverse of upstream's bicycle model turns the plan's first action
 period into a ``ContinuousAction``. The sampling mean is carried to the next call when the planner
-warm-starts, and the executed plan when its config weighs ``cost.consistency``. The ``idm`` planner instead hands the ego to highway-env's IDM/MOBIL driver.
-Everything random derives from the seed: same seed, same episode.
+warm-starts, and the executed plan when its config weighs ``cost.consistency``. The ``idm``
+planner instead hands the ego to highway-env's IDM/MOBIL driver. Everything random derives from
+the seed: same seed, same episode.
 """
 
 from __future__ import annotations
