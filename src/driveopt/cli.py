@@ -41,13 +41,7 @@ def _positive_int(text: str) -> int:
 
 
 def _load_config(path: str | None, args: argparse.Namespace) -> PlannerConfig:
-    config = PlannerConfig()
-    if path:
-        try:
-            data = json.loads(Path(path).read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise UsageError(f"cannot read config {path}: {exc}") from None
-        config = from_dict(data)
+    config = from_dict(_config_overrides(path))
     sampler: dict[str, Any] = {}
     if args.samples is not None:
         sampler["num_samples"] = args.samples
