@@ -30,10 +30,10 @@ class CVAEPrior:
     """First proposal from the CVAE; with ``gaussian_fraction`` > 0 that share of the batch comes from
     ``gaussian`` instead (a prior of :mod:`driveopt.sampler`, centred on the warm start).
 
-    P1 draws the whole batch from the CVAE (``gaussian_fraction = 0``). Its samples cluster tightly
-    (a few tenths of a m/s of spread in speed), so where the CVAE's modes are all infeasible the
-    optimiser keeps only the stopping plans and can stay stopped; the Gaussian share keeps the
-    behaviours around the current motion in every batch.
+    P1 draws the whole batch from the CVAE (``gaussian_fraction = 0``). Its samples stay around the
+    expert's choice (mostly one lane, about 3 m/s of spread in speed), so where that choice is
+    blocked hardly any sample projects to a feasible plan, the optimiser keeps the stopping plans and
+    can stay stopped; the Gaussian share keeps the behaviours around the current motion in every batch.
     """
 
     params: Any
