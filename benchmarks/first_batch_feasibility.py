@@ -23,7 +23,7 @@ import jax
 import numpy as np
 
 from driveopt.bench.store import JobKey
-from driveopt.planner import plan
+from driveopt.planner import PlanStatus, plan
 from driveopt.planners import get_planner
 from driveopt.sim import BicycleModel, adapt_to_vehicle, get_scenario, make_env, run_episode
 
@@ -62,7 +62,7 @@ def feasibility(problem, scenario, model, name: str, samples: int, keys: int) ->
         result = plan(problem, config, key=jax.random.PRNGKey(k), prior=prior)
         first.append(int(np.sum(np.asarray(result.first.residual)[:-STOP_ROWS] < tolerance)))
         last.append(int(np.sum(np.asarray(result.last.residual)[:-STOP_ROWS] < tolerance)))
-        moving.append(bool(result.status.name == "SUCCESS" and result.setpoints[3] > MOVING_SPEED))
+        moving.append(bool(result.status == PlanStatus.SUCCESS and result.setpoints[3] > MOVING_SPEED))
     return {"planner": name, "samples": samples, "keys": keys,
             "feasible_first_median": float(np.median(first)), "feasible_last_median": float(np.median(last)),
             "moving_share": float(np.mean(moving))}
