@@ -22,34 +22,29 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from driveopt.bench.store import JobKey
-from driveopt.planner import PlanStatus, plan
-from driveopt.planners import get_planner
-from driveopt.sim import BicycleModel, adapt_to_vehicle, get_scenario, make_env, run_episode
+from driveopt.drivers.optimiser import adapt_to_vehicle
+from driveopt.errors import DriveoptError
+from driveopt.experiments.store import JobKey
+from driveopt.planner import PlanStatus, RowKind, plan
+from driveopt.registry import get_planner
+from driveopt.sim import BicycleModel, get_scenario, make_env
+from driveopt.sim.rollout import Rollout
 
 MOVING_SPEED = 1.0  # [m/s] last speed set-point above which a chosen plan counts as moving
-STOP_ROWS = 2  # the stopping plans appended to every batch (driveopt.planner)
-
-
-class _Reached(Exception):
-    pass
-
-
 def state_at(scenario, drive: str, env_seed: int, samples: int, time_s: float):
     """The planning problem the ``drive`` planner faced at ``time_s`` [s] of the episode."""
     calls = int(round(time_s * scenario.policy_frequency)) + 1
-    captured = []
+    rollout = Rollout(scenario, get_planner(drive).with_samples(samples).driver(), env_seed)
+    for number, step in enumerate(rollout, start=1):
+        if number == calls:
+            return step.decision.problem
+    raise SystemExit(f"first_batch_feasibility: error: the episode ended at {rollout.episode.sim_duration:.1f} s, before --time {time_s}")
 
-    def on_plan(scene, problem, result):
-        captured.append(problem)
-        if len(captured) == calls:
-            raise _Reached
 
-    try:
-        episode = run_episode(scenario, get_planner(drive).with_samples(samples), env_seed, on_plan=on_plan)
-    except _Reached:
-        return captured[-1]
-    raise SystemExit(f"first_batch_feasibility: error: the episode ended at {episode.sim_duration:.1f} s, before --time {time_s}")
+def feasible_samples(snapshot, tolerance: float) -> int:
+    """Sampled rows (not the appended stops or previous plan) within the residual tolerance."""
+    sampled = np.asarray(snapshot.kind) == RowKind.SAMPLE
+    return int(np.sum(np.asarray(snapshot.residual)[sampled] < tolerance))
 
 
 def feasibility(problem, scenario, model, name: str, samples: int, keys: int) -> dict:
@@ -60,8 +55,8 @@ def feasibility(problem, scenario, model, name: str, samples: int, keys: int) ->
     first, last, moving = [], [], []
     for k in range(keys):
         result = plan(problem, config, key=jax.random.PRNGKey(k), prior=prior)
-        first.append(int(np.sum(np.asarray(result.first.residual)[:-STOP_ROWS] < tolerance)))
-        last.append(int(np.sum(np.asarray(result.last.residual)[:-STOP_ROWS] < tolerance)))
+        first.append(feasible_samples(result.first, tolerance))
+        last.append(feasible_samples(result.last, tolerance))
         moving.append(bool(result.status == PlanStatus.SUCCESS and result.setpoints[3] > MOVING_SPEED))
     return {"planner": name, "samples": samples, "keys": keys,
             "feasible_first_median": float(np.median(first)), "feasible_last_median": float(np.median(last)),
@@ -86,7 +81,7 @@ def main(argv=None) -> int:
         scenario = get_scenario(args.scenario)
         for name in (args.drive, *args.planners):
             get_planner(name)
-    except ValueError as exc:
+    except DriveoptError as exc:
         parser.error(str(exc))
     env = make_env(scenario)
     env.reset(seed=0)

@@ -27,8 +27,9 @@ from tqdm import tqdm
 
 from driveopt.config import PlannerConfig
 from driveopt.planner import plan
-from driveopt.problem import build_problem, load_scene
+from driveopt.problem import build_problem
 from driveopt.projection import XLA_CPU_COMPILER_OPTIONS, supported_compiler_options
+from driveopt.scene import load_scene
 
 BATCHES = (250, 500, 1000)
 SCHEDULES = ((5, 20), (1, 100))

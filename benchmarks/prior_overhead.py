@@ -20,10 +20,11 @@ import jax
 import numpy as np
 
 from driveopt.config import PlannerConfig
-from driveopt.learned.prior import load_prior, shipped_weights
 from driveopt.planner import plan
-from driveopt.problem import build_problem, load_scene
-from driveopt.sampler import GaussianPrior
+from driveopt.priors.cvae import load_prior, shipped_weights
+from driveopt.priors.gaussian import GaussianPrior
+from driveopt.problem import build_problem
+from driveopt.scene import load_scene
 
 
 def timed(fn, calls: int) -> tuple[float, list[float]]:
@@ -64,7 +65,7 @@ def main(argv=None) -> int:
     if weights is None:
         print("prior_overhead: error: no CVAE weights shipped; pass --weights", file=sys.stderr)
         return 2
-    priors = {"gaussian": GaussianPrior.from_config(PlannerConfig().sampler, 30.0), "cvae": load_prior(weights)}
+    priors = {"gaussian": GaussianPrior.from_config(PlannerConfig().sampler, PlannerConfig().projection.v_max), "cvae": load_prior(weights)}
     path = Path(args.json)
     path.parent.mkdir(parents=True, exist_ok=True)
     report = {"weights": str(weights), "results": []}

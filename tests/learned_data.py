@@ -9,9 +9,8 @@ import numpy as np
 
 from driveopt.config import BasisConfig, QPConfig
 from driveopt.data.demonstrations import DemonstrationWriter
-from driveopt.learned.cvae import qp_layer
 from driveopt.observation import DUMMY_DX, OBSERVATION_DIM
-from driveopt.qp import make_model
+from driveopt.qp import make_model, qp_layer
 
 LANES = (-2.0, 14.0)  # [m] y_lb, y_ub of a four-lane road
 

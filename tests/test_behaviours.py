@@ -1,17 +1,18 @@
 """Planner behaviours that closed-loop driving depends on."""
 
 import jax
-import pytest
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, build_problem, plan
 from driveopt.config import ProjectionConfig, QPConfig
 from driveopt.planner import PreviousPlan, braking_coeffs, previous_plan
-from driveopt.problem import ProblemError, is_follower, predict_neighbour
+from driveopt.prediction import is_follower, predict_neighbour
+from driveopt.priors.gaussian import GaussianPrior
 from driveopt.projection import constraint_residuals
 from driveopt.qp import boundary_values, make_model
-from driveopt.sampler import GaussianPrior
+from driveopt.scene import ProblemError
 
 
 def test_same_lane_followers_can_be_left_out():

@@ -55,3 +55,27 @@ def test_bad_config_file(tmp_path, capsys):
     cfg.write_text('{"sampler": {"num_samplez": 10}}')
     assert main(["plan", "--config", str(cfg), *FAST]) == 2
     assert "num_samplez" in capsys.readouterr().err
+
+
+def test_plan_speaks_the_registered_planner_names(tmp_path, capsys):
+    out = tmp_path / "grid.json"
+    assert main(["plan", "--problem", "dense-snapshot", "--planner", "grid", "--repeats", "0", "--json", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["planner"] == "grid" and report["config"]["sampler"]["num_iterations"] == 1  # grid's own config
+    assert report["config"]["sampler"]["num_samples"] == 320
+    assert main(["plan", "--planner", "idm"]) == 2  # no optimiser behind it
+    assert "optimisers: bilevel" in capsys.readouterr().err
+    assert main(["plan", "--planner", "mpc-magic"]) == 2
+    assert "valid planners" in capsys.readouterr().err
+
+
+def test_a_programming_error_is_not_reported_as_a_usage_error(monkeypatch):
+    """Only DriveoptError becomes the one-line exit 2; a bug keeps its traceback."""
+    import driveopt.cli.listing as listing
+
+    def broken(args):
+        raise ValueError("an internal invariant broke")
+
+    monkeypatch.setattr(listing, "run_planners", broken)
+    with pytest.raises(ValueError, match="internal invariant"):
+        main(["planners"])

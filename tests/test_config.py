@@ -1,6 +1,12 @@
 import pytest
 
-from driveopt.config import ConfigError, PlannerConfig, SamplerConfig, from_dict, to_dict
+from driveopt.config import (
+    ConfigError,
+    PlannerConfig,
+    SamplerConfig,
+    from_dict,
+    to_dict,
+)
 
 
 def test_round_trip_and_hashable():

@@ -9,16 +9,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from learned_data import LANES, write_synthetic
 
 from driveopt.cli import main
 from driveopt.data.demonstrations import load_demonstrations
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint
-from driveopt.learned.cvae import CVAEConfig, decode_setpoints, fit_normaliser, init_params, qp_layer, trajectory_model
-from driveopt.learned.prior import CVAEPrior, load_prior, prior_for
+from driveopt.learned.cvae import (
+    CVAEConfig,
+    decode_setpoints,
+    fit_normaliser,
+    init_params,
+    trajectory_model,
+)
 from driveopt.learned.train_cvae import TrainConfig, make_batch, train_cvae
 from driveopt.planner import PlanStatus, plan
-from driveopt.problem import build_problem, load_scene
-from learned_data import LANES, write_synthetic
+from driveopt.priors.cvae import CVAEPrior, load_prior, prior_for
+from driveopt.problem import build_problem
+from driveopt.qp import qp_layer
+from driveopt.scene import load_scene
 
 CFG = CVAEConfig(hidden=(32, 32))
 TCFG = TrainConfig(epochs=10, batch_size=32, learning_rate=3e-3, anneal_epochs=2, decay_every=8)
@@ -186,7 +194,7 @@ def test_mixed_prior_keeps_gaussian_share_around_the_warm_start(trained):
     import dataclasses
 
     from driveopt.config import PlannerConfig
-    from driveopt.sampler import GaussianPrior
+    from driveopt.priors.gaussian import GaussianPrior
 
     cfg = PlannerConfig()
     gaussian = dataclasses.replace(GaussianPrior.from_config(cfg.sampler, 30.0), speed_std=0.1, lateral_std=0.1, structured_fraction=0.0)

@@ -5,11 +5,16 @@ from __future__ import annotations
 import h5py
 import numpy as np
 import pytest
+from learned_data import synthetic_rows, write_synthetic
 
 from driveopt.cli import main
 from driveopt.data.collect import collect
-from driveopt.data.demonstrations import DatasetError, DemonstrationWriter, EpisodeKey, load_demonstrations
-from learned_data import synthetic_rows, write_synthetic
+from driveopt.data.demonstrations import (
+    DatasetError,
+    DemonstrationWriter,
+    EpisodeKey,
+    load_demonstrations,
+)
 
 
 def test_round_trip_and_episode_table(tmp_path):

@@ -1,7 +1,6 @@
 """The rectangle test used by the collision checks must itself be right."""
 
 import numpy as np
-
 from conftest import box_corners, boxes_overlap
 
 

@@ -9,9 +9,17 @@ import pytest
 
 from driveopt.config import ProjectionConfig, QPConfig
 from driveopt.costs import evaluate
-from driveopt.problem import EgoState, Neighbour, Road, Scene, build_problem, load_scene
-from driveopt.projection import XLA_CPU_COMPILER_OPTIONS, _fast_rsqrt, supported_compiler_options, constraint_residuals, lane_constraint, project
+from driveopt.problem import build_problem
+from driveopt.projection import (
+    XLA_CPU_COMPILER_OPTIONS,
+    _fast_rsqrt,
+    constraint_residuals,
+    lane_constraint,
+    project,
+    supported_compiler_options,
+)
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
+from driveopt.scene import EgoState, Neighbour, Road, Scene, load_scene
 
 MODEL = make_model()
 # Everything "off" except what a test turns on.

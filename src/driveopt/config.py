@@ -12,8 +12,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
+from driveopt.errors import DriveoptError
 
-class ConfigError(ValueError):
+
+class ConfigError(DriveoptError):
     """A configuration value is malformed or out of range."""
 
 
@@ -165,6 +167,13 @@ class PlannerConfig:
         250
         """
         return from_dict(sections, base=self)
+
+    def with_samples(self, samples: int) -> "PlannerConfig":
+        """Copy with ``samples`` per sampler iteration, the elite counts capped at it."""
+        elites = min(self.sampler.num_constraint_elites, samples)
+        return self.replace(
+            sampler={"num_samples": samples, "num_constraint_elites": elites, "num_elites": min(self.sampler.num_elites, elites)}
+        )
 
 
 _SECTIONS = {

@@ -10,8 +10,10 @@
 to the ego [m]; velocities [m/s] are in the road frame (not relative); headings [rad] are the
 directions of motion relative to the road (``EgoState.heading``, ``Neighbour.heading``).
 Neighbours are the ``num_neighbours`` nearest by Euclidean distance (the order ``build_problem``
-uses), nearest first; missing ones are dummies placed :data:`DUMMY_DX` ahead on the ego's line,
-at rest, after every real one. ``build_problem`` stores it as ``PlanningProblem.observation``.
+uses), nearest first; missing ones are padding rows ``(DUMMY_DX, 0, 0, 0, 0)`` (placed
+:data:`DUMMY_DX` ahead on the ego's line, at rest), after every real one. :func:`neighbour_mask`
+is the one place that tells padding from a real neighbour. ``build_problem`` stores the vector as
+``PlanningProblem.observation``.
 """
 
 from __future__ import annotations
@@ -20,16 +22,19 @@ from typing import Any
 
 import numpy as np
 
-from driveopt.problem import Scene, nearest_neighbours
+from driveopt.errors import DriveoptError
+from driveopt.prediction import nearest_neighbours
+from driveopt.scene import Scene
 
 NUM_NEIGHBOURS = 10  # [-] neighbours in the observation (both papers)
 EGO_FEATURES = 5  # [-] y_ub - y, y_lb - y, vx, vy, heading
 NEIGHBOUR_FEATURES = 5  # [-] dx, dy, vx, vy, heading
 OBSERVATION_DIM = EGO_FEATURES + NEIGHBOUR_FEATURES * NUM_NEIGHBOURS  # 55
 DUMMY_DX = 1000.0  # [m] padding neighbours sit this far ahead of the ego: beyond any 15 s plan (30 m/s * 15 s)
+PADDING_ROW = np.array([DUMMY_DX, 0.0, 0.0, 0.0, 0.0], dtype=np.float32)  # [m, m, m/s, m/s, rad] a missing neighbour
 
 
-class ObservationError(ValueError):
+class ObservationError(DriveoptError):
     """The simulator state or an observation is malformed (wrong shape, NaN, unsupported road)."""
 
 
@@ -44,7 +49,7 @@ def observation_vector(scene: Scene, num_neighbours: int = NUM_NEIGHBOURS) -> np
     obs = np.empty(EGO_FEATURES + NEIGHBOUR_FEATURES * num_neighbours, dtype=np.float64)
     obs[:EGO_FEATURES] = (y_ub - ego.y, y_lb - ego.y, ego.vx, ego.vy, ego.heading)
     rows = obs[EGO_FEATURES:].reshape(num_neighbours, NEIGHBOUR_FEATURES)
-    rows[:] = (DUMMY_DX, 0.0, 0.0, 0.0, 0.0)
+    rows[:] = PADDING_ROW
     for i, n in enumerate(nearest_neighbours(scene, num_neighbours)):
         rows[i] = (n.x - ego.x, n.y - ego.y, n.vx, n.vy, n.heading)
     obs = obs.astype(np.float32)
@@ -73,7 +78,15 @@ def split_observation(obs: Any, num_neighbours: int = NUM_NEIGHBOURS) -> tuple[n
     return arr[..., :EGO_FEATURES], arr[..., EGO_FEATURES:].reshape(*arr.shape[:-1], num_neighbours, NEIGHBOUR_FEATURES)
 
 
+def neighbour_mask(obs: Any) -> Any:
+    """(..., num_neighbours) bool, True for a real neighbour row of an observation (..., 5 + 5 * n).
+
+    Works on numpy and JAX arrays alike (the CVAE's features use it under jit).
+    """
+    rows = obs[..., EGO_FEATURES:].reshape(*obs.shape[:-1], -1, NEIGHBOUR_FEATURES)
+    return ~(rows == PADDING_ROW).all(axis=-1)
+
+
 def is_dummy(neighbours: np.ndarray) -> np.ndarray:
     """(..., num_neighbours) True where a neighbour row of :func:`split_observation` is padding."""
-    return np.all(np.asarray(neighbours) == np.array([DUMMY_DX, 0, 0, 0, 0], dtype=np.float32), axis=-1)
-
+    return (np.asarray(neighbours) == PADDING_ROW).all(axis=-1)

@@ -1,8 +1,15 @@
 """One planning call: bi-level sampling optimiser (P1 Alg. 1) over set-point QP + batch projection.
 
-    result = plan(problem, config, key=key)            # PlanResult
+    result = plan(problem, config, key=key)            # PlanResult (numpy; the host wrapper)
     result = plan(problem, config, key=key2, warm_start=result.mean)
     result = plan(problem, config, key=key3, previous=previous_plan(result, elapsed=0.1))
+    solution = solve(problem, key, config, prior)      # Solution (JAX arrays): pure, jittable, differentiable
+
+:func:`solve` is the optimiser itself: a pure function of arrays (``config`` static) whose status
+is decided inside (``Solution.status``, a :class:`PlanStatus` value), so it can be jitted, vmapped
+and differentiated (with ``unroll=True`` the projection runs a fixed number of iterations, which
+reverse-mode differentiation needs). :func:`plan` validates the input, runs the compiled
+``solve`` and returns a :class:`PlanResult` of numpy arrays in the road frame.
 
 Per sampler iteration: draw set-points (the prior's proposal first, then the adapted Gaussian),
 solve the set-point QP for the batch, project the batch onto the constraints, rank, and update the
@@ -10,36 +17,64 @@ Gaussian with P1 eq. 6 over the elite set. Ranking puts feasible samples (total 
 ``sampler.residual_tolerance``) first, by cost + residual; infeasible ones follow, by residual for
 the constraint-elite set and by cost + residual within it, as in P1.
 
-Two stopping plans ride in every batch and are ranked like any sample: a comfortable stop at
+Rows appended to every batch (their :class:`RowKind` is in ``Snapshot.kind``) are ranked like any
+sample: the previous replan's set-points when given, a comfortable stop at
 ``fallback_deceleration`` easing to the nearest lane centre, and an emergency stop at
 ``projection.a_max`` holding the current lateral position. The chosen trajectory is the best
 feasible candidate over all iterations. When there is none the status is INFEASIBLE, the
 lowest-residual candidate is reported, and ``result.fallback`` offers the comfortable stop, or the
 emergency stop when its residual is lower.
 
-Given the previous replan's plan (``previous``), its set-points ride in every batch too, and the
-``consistency`` cost term measures each sample's lateral deviation from that plan: between two
-near-equal manoeuvres (pass left or right) the one already begun keeps winning.
+Given the previous replan's plan (``previous``), the ``consistency`` cost term measures each
+sample's lateral deviation from that plan: between two near-equal manoeuvres (pass left or right)
+the one already begun keeps winning.
+
+A safety filter (``safety_filter``; P2's learned one) is any pytree with
+``initialise(problem, coeffs) -> FilterInit``: it sets the barrier parameters and the projection's
+first iterate and multipliers for every batch (:mod:`driveopt.safety`).
 """
 
 from __future__ import annotations
 
 import enum
 import functools
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from driveopt.config import PlannerConfig
-from driveopt.costs import COST_TERMS, Trajectory, cost_terms, evaluate, nearest_lane_center, weighted_cost
-from driveopt.problem import PlanningProblem, ProblemError, check_problem
-from driveopt.projection import FAMILIES, XLA_CPU_COMPILER_OPTIONS, project, supported_compiler_options
-from driveopt.qp import NUM_SEGMENTS, boundary_values, fit_positions, make_model, solve_setpoint_qp
-from driveopt.sampler import GaussianPrior, Prior, cem_update, clip_setpoints, sample_gaussian, select_lowest
+from driveopt.costs import (
+    COST_TERMS,
+    Trajectory,
+    cost_terms,
+    evaluate,
+    nearest_lane_center,
+    weighted_cost,
+)
+from driveopt.priors.base import Prior, clip_setpoints
+from driveopt.priors.gaussian import GaussianPrior
+from driveopt.problem import PlanningProblem, check_problem
+from driveopt.projection import (
+    FAMILIES,
+    XLA_CPU_COMPILER_OPTIONS,
+    project,
+    supported_compiler_options,
+)
+from driveopt.qp import (
+    NUM_SEGMENTS,
+    SETPOINT_DIM,
+    boundary_values,
+    fit_positions,
+    make_model,
+    solve_setpoint_qp,
+)
+from driveopt.safety.base import SafetyFilter
+from driveopt.sampler import cem_update, sample_gaussian, select_lowest
+from driveopt.scene import ProblemError
 
-_INFEASIBLE_PENALTY = 1e6
+INFEASIBLE_PENALTY = 1e6  # [-] added to the ranking key of an infeasible sample: feasible ones always rank first
 
 
 class PlanStatus(enum.IntEnum):
@@ -56,25 +91,37 @@ class PlanStatus(enum.IntEnum):
         }[self]
 
 
+class RowKind(enum.IntEnum):
+    """What a row of a sampler batch is (``Snapshot.kind``)."""
+
+    SAMPLE = 0  # drawn from the prior or the adapted Gaussian
+    PREVIOUS_PLAN = 1  # the previous replan's set-points (only when ``previous`` is given)
+    COMFORTABLE_STOP = 2  # brake at ``fallback_deceleration`` towards the nearest lane centre
+    EMERGENCY_STOP = 3  # brake at ``projection.a_max`` holding the current lateral position
+
+
 class Snapshot(NamedTuple):
-    """The whole batch of one sampler iteration (for plots and videos)."""
+    """The whole batch of one sampler iteration (for plots and videos); B rows, appended rows last."""
 
     setpoints: jnp.ndarray  # (B, 8)
     qp_coeffs: jnp.ndarray  # (B, 2n) set-point QP solutions
     projected_coeffs: jnp.ndarray  # (B, 2n) after projection
     residual: jnp.ndarray  # (B,) total residual after projection
     elite_index: jnp.ndarray  # (q,) indices of the elite set
+    kind: jnp.ndarray  # (B,) RowKind of each row
 
 
 class History(NamedTuple):
     """Per-iteration scalars, each (num_iterations,)."""
 
-    best_score: jnp.ndarray  # cost + residual of the best feasible-first elite so far
+    best_score: jnp.ndarray  # cost + residual of the best feasible-first candidate so far (+ INFEASIBLE_PENALTY if infeasible)
+    best_feasible: jnp.ndarray  # bool: the best candidate so far is feasible
     elite_cost: jnp.ndarray  # mean cost + residual over the elite set
     min_residual: jnp.ndarray  # smallest total residual in the batch
     median_residual: jnp.ndarray  # median total residual in the batch
     num_feasible: jnp.ndarray  # samples within the residual tolerance
-    projection_iterations: jnp.ndarray
+    projection_iterations: jnp.ndarray  # projection iterations run
+    projection_status: jnp.ndarray  # ProjectionStatus value of the batch's projection
 
 
 class PreviousPlan(NamedTuple):
@@ -93,58 +140,31 @@ def previous_plan(result: "PlanResult", elapsed: float) -> PreviousPlan:
     return PreviousPlan(np.asarray(result.setpoints, dtype=np.float32), lateral)
 
 
-class _Best(NamedTuple):
-    score: jnp.ndarray  # () feasibility-first key: cost + residual (+ penalty when infeasible)
+class Candidate(NamedTuple):
+    """One ranked row of a batch."""
+
+    score: jnp.ndarray  # () feasibility-first key: cost + residual (+ INFEASIBLE_PENALTY when infeasible)
     setpoints: jnp.ndarray  # (8,)
     coeffs: jnp.ndarray  # (2n,)
-    residuals: jnp.ndarray  # (4,) per family
-    terms: jnp.ndarray  # (len(COST_TERMS),)
+    residuals: jnp.ndarray  # (4,) per family (driveopt.projection.FAMILIES)
+    terms: jnp.ndarray  # (len(COST_TERMS),) unweighted cost terms
     cost: jnp.ndarray  # () weighted cost
 
 
-class _RawResult(NamedTuple):
-    best: _Best
-    mean: jnp.ndarray
-    cov: jnp.ndarray
+class Solution(NamedTuple):
+    """What :func:`solve` returns (JAX arrays, planning frame: the ego at x = 0)."""
+
+    status: jnp.ndarray  # () int32 PlanStatus value, decided inside the jitted call
+    best: Candidate  # the chosen candidate (best feasible-first over all iterations)
+    mean: jnp.ndarray  # (8,) final sampling mean
+    cov: jnp.ndarray  # (8, 8) final sampling covariance
     history: History
     first: Snapshot
     last: Snapshot
-    trajectory: Trajectory  # of the best coefficients (planning frame)
+    trajectory: Trajectory  # of the best coefficients
+    fallback: Candidate  # the stop offered as fallback
     fallback_trajectory: Trajectory
-    fallback: _Best  # the stop offered as fallback (identical in every iteration)
     fallback_emergency: jnp.ndarray  # () bool: the fallback is the emergency stop
-
-
-class PlanResult(NamedTuple):
-    """What one planning call returns (numpy arrays, planning frame shifted back to the road frame)."""
-
-    status: PlanStatus
-    setpoints: np.ndarray  # (8,) chosen (v_1..v_4 [m/s], y_1..y_4 [m])
-    coeffs: np.ndarray  # (2n,) chosen Bernstein coefficients (x in the planning frame, ego at x = 0)
-    trajectory: Trajectory  # chosen trajectory in the road frame
-    fallback: Trajectory  # stopping plan (comfortable, or emergency when less violating), always finite
-    costs: dict[str, float]  # weighted total under "total", plus every unweighted term
-    residuals: dict[str, float]  # per family and "total"
-    iterations: int  # sampler iterations run
-    mean: np.ndarray  # (8,) final sampling mean: pass as warm_start to the next call
-    history: History
-    first: Snapshot
-    last: Snapshot
-    x_offset: float  # [m] road-frame x of the planning-frame origin
-    fallback_residual: float  # total residual of the fallback
-    fallback_deceleration: float  # [m/s^2] the fallback's braking: fallback_deceleration, or a_max (emergency)
-
-    @property
-    def message(self) -> str:
-        return self.status.message
-
-    @property
-    def safe_trajectory(self) -> Trajectory:
-        """The chosen trajectory when it is feasible, else the fallback.
-
-        (Executing the less-violating of the two instead was tried in closed loop: it crashed
-        four-lane-d3.0 seed 42 at 11.8 s, where always braking completed the episode.)"""
-        return self.trajectory if self.status == PlanStatus.SUCCESS else self.fallback
 
 
 def stop_setpoints(problem: PlanningProblem, horizon: float, decel: float, to_lane_centre: bool) -> jnp.ndarray:
@@ -186,25 +206,31 @@ def braking_coeffs(model, problem: PlanningProblem, decel: float, b_x, b_y, to_l
     return fit_positions(model, x, y, b_x, b_y)
 
 
-def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: PreviousPlan | None):
-    """QP + projection + ranking for one batch of set-points.
+def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: PreviousPlan | None, safety_filter, unroll: bool):
+    """QP + projection + ranking for one batch of set-points (the appended rows: see the module docstring).
 
-    Appended rows: the previous plan's set-points when given, then the comfortable fallback (brake
-    at ``fallback_deceleration`` towards the nearest lane centre) and an emergency stop (brake at
-    ``projection.a_max`` holding the current lateral position: a car straddling two lanes must not
-    steer into the one it is about to hit); all are ranked like every sample.
+    Returns (pick, (fallback, emergency), snapshot, score, stats): the best row, the stop offered as
+    fallback, the batch, every row's cost + residual, and the iteration's History entries.
     """
     s = cfg.sampler
     stops = ((cfg.fallback_deceleration, True), (cfg.projection.a_max, False))  # (decel [m/s^2], to lane centre)
     stop_rows = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
     carried = [] if previous is None else [previous.setpoints[None]]
+    kinds = [RowKind.SAMPLE] * setpoints.shape[0] + [RowKind.PREVIOUS_PLAN] * len(carried)
+    kind = jnp.asarray(kinds + [RowKind.COMFORTABLE_STOP, RowKind.EMERGENCY_STOP], jnp.int32)
     setpoints = jnp.concatenate([setpoints, *carried, stop_rows])
     b_x, b_y = _boundary(problem, cfg, setpoints)
     qp_coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
     row = (lambda b, i: b if b.ndim == 1 else b[i])  # noqa: E731  (boundary rows are per sample only for goals)
     for i, (decel, to_centre) in zip((-2, -1), stops):
         qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), to_centre))
-    proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection)
+    if safety_filter is None:
+        proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection, unroll=unroll)
+    else:
+        init = safety_filter.initialise(problem, qp_coeffs)
+        proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection, gamma_obs=init.gamma_obs,
+                       gamma_lane=init.gamma_lane, init_coeffs=init.coeffs, init_multipliers=init.multipliers,
+                       unroll=unroll)
     terms = cost_terms(evaluate(model, proj.coeffs), problem, None if previous is None else previous.lateral)
     cost = weighted_cost(terms, cfg.cost)
     residual = proj.residuals.total
@@ -212,10 +238,10 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     feasible = residual <= s.residual_tolerance
     # ConstraintEliteSet: lowest residuals, where every feasible sample ties, so feasible samples come
     # first ordered by score, then infeasible ones by residual.
-    key_score = jnp.where(feasible, score, _INFEASIBLE_PENALTY + residual)
+    key_score = jnp.where(feasible, score, INFEASIBLE_PENALTY + residual)
     constraint_elites = select_lowest(key_score, s.num_constraint_elites)
     # EliteSet: lowest cost + residual of those (P1), feasible samples always ahead of infeasible ones.
-    elite_key = jnp.where(feasible, score - _INFEASIBLE_PENALTY, score)
+    elite_key = jnp.where(feasible, score - INFEASIBLE_PENALTY, score)
     ranked = constraint_elites[select_lowest(elite_key[constraint_elites], s.num_elites)]
 
     pick = ranked[jnp.argmin(key_score[ranked])]
@@ -223,61 +249,144 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, rows)
 
     def candidate(i):
-        return _Best(key_score[i], setpoints[i], proj.coeffs[i], families[:, i], term_values[:, i], cost[i])
+        return Candidate(key_score[i], setpoints[i], proj.coeffs[i], families[:, i], term_values[:, i], cost[i])
 
-    stats = (
-        jnp.min(key_score[ranked]), jnp.mean(score[ranked]), jnp.min(residual), jnp.median(residual), jnp.sum(feasible),
-        proj.iterations,
+    best_score = jnp.min(key_score[ranked])
+    stats = History(
+        best_score=best_score, best_feasible=best_score < INFEASIBLE_PENALTY, elite_cost=jnp.mean(score[ranked]),
+        min_residual=jnp.min(residual), median_residual=jnp.median(residual), num_feasible=jnp.sum(feasible),
+        projection_iterations=proj.iterations, projection_status=proj.status,
     )
-    snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked)
+    snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked, kind)
     # The fallback offered: the comfortable stop, unless the emergency stop has a lower residual.
     emergency = residual[-1] < residual[-2]
     fallback = jnp.where(emergency, residual.shape[0] - 1, residual.shape[0] - 2)
     return candidate(pick), (candidate(fallback), emergency), snapshot, score, stats
 
 
-def _better(a: _Best, b: _Best) -> _Best:
+def _better(a: Candidate, b: Candidate) -> Candidate:
     return jax.tree_util.tree_map(lambda u, v: jnp.where(a.score <= b.score, u, v), a, b)
 
 
-def _plan_calls(problem: PlanningProblem, key: jax.Array, warm_mean, previous, prior, cfg: PlannerConfig) -> _RawResult:
-    model = make_model(cfg.basis, cfg.qp)
-    s = cfg.sampler
+def _all_finite(*arrays) -> jnp.ndarray:
+    return functools.reduce(jnp.logical_and, [jnp.all(jnp.isfinite(a)) for a in arrays])
+
+
+def solve(
+    problem: PlanningProblem,
+    key: jax.Array,
+    config: PlannerConfig,
+    prior: Prior,
+    warm_start: jnp.ndarray | None = None,
+    previous: PreviousPlan | None = None,
+    safety_filter: SafetyFilter | None = None,
+    unroll: bool = False,
+) -> Solution:
+    """The bi-level optimiser as a pure function; jit it with ``config`` and ``unroll`` static.
+
+    problem: a checked PlanningProblem (planning frame, ego at x = 0). key: PRNG key.
+    prior: first-iteration proposal (any pytree with ``propose``, :mod:`driveopt.priors`).
+    warm_start: (8,) centre of the first proposal, or None. previous: the previous replan's plan, or None.
+    safety_filter: pytree with ``initialise(problem, coeffs) -> FilterInit``, or None (plain projection).
+    unroll: project with exactly ``projection.max_iterations`` steps (differentiable in reverse mode).
+    No validation happens here: :func:`plan` checks its input first.
+    """
+    model = make_model(config.basis, config.qp)
+    s = config.sampler
     key_prior, key_loop = jax.random.split(key)
-    proposal = prior.propose(problem, key_prior, s.num_samples, warm_mean)
+    proposal = prior.propose(problem, key_prior, s.num_samples, warm_start)
+
+    def iteration(setpoints):
+        return _iteration(model, problem, config, setpoints, previous, safety_filter, unroll)
 
     def adapt(mean, cov, snapshot, score):
         elites = snapshot.setpoints[snapshot.elite_index]
         return cem_update(mean, cov, elites, score[snapshot.elite_index], s)
 
-    best, (fallback, emergency), first, score, stats = _iteration(model, problem, cfg, proposal.samples, previous)
+    best, (fallback, emergency), first, score, stats = iteration(proposal.samples)
     mean, cov = adapt(proposal.mean, proposal.cov, first, score)
 
     def body(carry, iteration_key):
         mean, cov, best, _ = carry
-        setpoints = clip_setpoints(sample_gaussian(iteration_key, mean, cov, s.num_samples), problem, cfg.projection.v_max)
-        cand, _, snapshot, score, stats = _iteration(model, problem, cfg, setpoints, previous)
+        setpoints = clip_setpoints(sample_gaussian(iteration_key, mean, cov, s.num_samples), problem, config.projection.v_max)
+        cand, _, snapshot, score, stats = iteration(setpoints)
         best = _better(best, cand)
         mean, cov = adapt(mean, cov, snapshot, score)
-        stats = (best.score,) + stats[1:]
+        stats = stats._replace(best_score=best.score, best_feasible=best.score < INFEASIBLE_PENALTY)
         return (mean, cov, best, snapshot), stats
 
     keys = jax.random.split(key_loop, s.num_iterations - 1)
     (mean, cov, best, last), rest = jax.lax.scan(body, (mean, cov, best, first), keys)
-    history = History(*(jnp.concatenate([jnp.atleast_1d(a), b]) for a, b in zip(stats, rest)))
-    return _RawResult(best, mean, cov, history, first, last, evaluate(model, best.coeffs), evaluate(model, fallback.coeffs),
-                      fallback, emergency)
+    history = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([jnp.atleast_1d(a), b]), stats, rest)
+    status = jnp.where(
+        ~_all_finite(best.coeffs, best.residuals, best.terms, mean),
+        PlanStatus.NUMERICAL_ERROR,
+        jnp.where(best.score < INFEASIBLE_PENALTY, PlanStatus.SUCCESS, PlanStatus.INFEASIBLE),
+    ).astype(jnp.int32)
+    return Solution(status, best, mean, cov, history, first, last, evaluate(model, best.coeffs), fallback,
+                    evaluate(model, fallback.coeffs), emergency)
 
 
 @functools.cache
-def _compiled_plan():
-    """The jitted planning call; on the CPU with the projection's compiler options (a per-jit setting)."""
+def compiled_solve():
+    """:func:`solve`, jitted; on the CPU with the projection's compiler options (a per-jit setting)."""
     options = supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else None
-    return jax.jit(_plan_calls, static_argnames=("cfg",), compiler_options=options)
+    return jax.jit(solve, static_argnames=("config", "unroll"), compiler_options=options)
 
 
-def _shift(traj: Trajectory, dx: float) -> Trajectory:
-    return traj._replace(x=traj.x + dx)
+_TRAJECTORY_KEYS = ("t", "x", "y", "speed", "heading", "curvature", "acceleration", "vx", "vy")
+
+
+def _tolist(a: Any) -> Any:
+    a = np.asarray(a)
+    return (a.round(6) if np.issubdtype(a.dtype, np.floating) else a).tolist()
+
+
+class PlanResult(NamedTuple):
+    """What one planning call returns (numpy arrays, planning frame shifted back to the road frame)."""
+
+    status: PlanStatus
+    setpoints: np.ndarray  # (8,) chosen (v_1..v_4 [m/s], y_1..y_4 [m])
+    coeffs: np.ndarray  # (2n,) chosen Bernstein coefficients (x in the planning frame, ego at x = 0)
+    trajectory: Trajectory  # chosen trajectory in the road frame
+    fallback: Trajectory  # stopping plan (comfortable, or emergency when less violating), always finite
+    costs: dict[str, float]  # weighted total under "total", plus every unweighted term
+    residuals: dict[str, float]  # per family and "total"
+    iterations: int  # sampler iterations run
+    mean: np.ndarray  # (8,) final sampling mean: pass as warm_start to the next call
+    history: History
+    first: Snapshot
+    last: Snapshot
+    x_offset: float  # [m] road-frame x of the planning-frame origin
+    fallback_residual: float  # total residual of the fallback
+    fallback_deceleration: float  # [m/s^2] the fallback's braking: fallback_deceleration, or a_max (emergency)
+
+    @property
+    def message(self) -> str:
+        return self.status.message
+
+    @property
+    def safe_trajectory(self) -> Trajectory:
+        """The chosen trajectory when it is feasible, else the fallback.
+
+        (Executing the less-violating of the two instead was tried in closed loop: it crashed
+        four-lane-d3.0 seed 42 at 11.8 s, where always braking completed the episode.)"""
+        return self.trajectory if self.status == PlanStatus.SUCCESS else self.fallback
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready dict: status, message, trajectory and fallback (arrays keyed t, x, y, speed, heading,
+        curvature, acceleration, vx, vy), set-points, residuals, costs, iterations, history."""
+        return {
+            "status": self.status.name,
+            "message": self.message,
+            "trajectory": {k: _tolist(getattr(self.trajectory, k)) for k in _TRAJECTORY_KEYS},
+            "fallback": {k: _tolist(getattr(self.fallback, k)) for k in _TRAJECTORY_KEYS},
+            "setpoints": {"speed": _tolist(self.setpoints[:NUM_SEGMENTS]), "lateral": _tolist(self.setpoints[NUM_SEGMENTS:])},
+            "residuals": self.residuals,
+            "costs": self.costs,
+            "iterations": self.iterations,
+            "history": {k: _tolist(v) for k, v in self.history._asdict().items()},
+        }
 
 
 def plan(
@@ -288,6 +397,7 @@ def plan(
     prior: Prior | None = None,
     warm_start: np.ndarray | None = None,
     previous: PreviousPlan | None = None,
+    safety_filter: SafetyFilter | None = None,
     x_offset: float = 0.0,
 ) -> PlanResult:
     """Plan one trajectory. Raises ProblemError on malformed or non-finite input; never returns NaN.
@@ -298,6 +408,7 @@ def plan(
     warm_start: (8,) mean from a previous result (``result.mean``) to centre the first proposal.
     previous: the previous replan's plan (``previous_plan``): a candidate row and the reference of the
         ``consistency`` cost term (weighted by ``config.cost.consistency``).
+    safety_filter: sets the projection's barrier parameters and initialisation (:mod:`driveopt.safety`).
     x_offset: [m] added to x of the returned trajectories (the ego's road-frame x).
     """
     check_problem(problem, config.basis)
@@ -305,55 +416,46 @@ def plan(
         prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
     if warm_start is not None:
         warm_start = np.asarray(warm_start, dtype=np.float32)
-        if warm_start.shape != (2 * NUM_SEGMENTS,) or not np.all(np.isfinite(warm_start)):
-            raise ProblemError(f"warm_start must be 8 finite numbers, got shape {warm_start.shape}")
+        if warm_start.shape != (SETPOINT_DIM,) or not np.all(np.isfinite(warm_start)):
+            raise ProblemError(f"warm_start must be {SETPOINT_DIM} finite numbers, got shape {warm_start.shape}")
         warm_start = jnp.asarray(warm_start)
     if previous is not None:
         previous = PreviousPlan(*(np.asarray(a, dtype=np.float32) for a in previous))
         shapes = (previous.setpoints.shape, previous.lateral.shape)
-        if shapes != ((2 * NUM_SEGMENTS,), (config.basis.num_nodes,)) or not all(np.all(np.isfinite(a)) for a in previous):
+        if shapes != ((SETPOINT_DIM,), (config.basis.num_nodes,)) or not all(np.all(np.isfinite(a)) for a in previous):
             raise ProblemError(f"previous plan must be finite with shapes (8,) and ({config.basis.num_nodes},), got {shapes}")
-    raw = jax.device_get(_compiled_plan()(problem, key, warm_start, previous, prior, config))
-    return _finish(raw, problem, config, float(x_offset))
+    solution = jax.device_get(compiled_solve()(problem, key, config, prior, warm_start, previous, safety_filter))
+    return _to_result(solution, config, float(x_offset))
 
 
-def _finish(raw: _RawResult, problem: PlanningProblem, config: PlannerConfig, x_offset: float) -> PlanResult:
-    best = raw.best
-    finite = all(np.all(np.isfinite(np.asarray(a))) for a in (best.coeffs, best.residuals, best.terms, raw.mean))
-    if not finite:
-        status = PlanStatus.NUMERICAL_ERROR
-    elif best.score < _INFEASIBLE_PENALTY:
-        status = PlanStatus.SUCCESS
+def _shift(traj: Trajectory, dx: float) -> Trajectory:
+    return traj._replace(x=traj.x + dx)
+
+
+def _to_result(solution: Solution, config: PlannerConfig, x_offset: float) -> PlanResult:
+    """Numpy PlanResult in the road frame; on NUMERICAL_ERROR the fallback is reported as the choice."""
+    status = PlanStatus(int(solution.status))
+    fallback = _shift(solution.fallback_trajectory, x_offset)
+    if status == PlanStatus.NUMERICAL_ERROR:
+        chosen, trajectory, mean = solution.fallback, fallback, np.asarray(solution.fallback.setpoints)
     else:
-        status = PlanStatus.INFEASIBLE
-    fallback = _shift(raw.fallback_trajectory, x_offset)
-    if status == PlanStatus.NUMERICAL_ERROR:  # report the fallback itself
-        fb = raw.fallback
-        setpoints = np.asarray(fb.setpoints)
-        coeffs, trajectory, mean = np.asarray(fb.coeffs), fallback, setpoints
-        chosen_residuals, chosen_terms, cost = fb.residuals, fb.terms, float(fb.cost)
-    else:
-        coeffs, setpoints, mean = np.asarray(best.coeffs), np.asarray(best.setpoints), np.asarray(raw.mean)
-        trajectory = _shift(raw.trajectory, x_offset)
-
-        chosen_residuals, chosen_terms, cost = best.residuals, best.terms, float(best.cost)
-    residuals = {f: float(v) for f, v in zip(FAMILIES, chosen_residuals)}
-    terms = {k: float(v) for k, v in zip(COST_TERMS, chosen_terms)}
+        chosen, trajectory, mean = solution.best, _shift(solution.trajectory, x_offset), np.asarray(solution.mean)
+    residuals = {f: float(v) for f, v in zip(FAMILIES, chosen.residuals)}
     residuals["total"] = float(sum(residuals.values()))
     return PlanResult(
         status=status,
-        setpoints=setpoints,
-        coeffs=coeffs,
+        setpoints=np.asarray(chosen.setpoints),
+        coeffs=np.asarray(chosen.coeffs),
         trajectory=trajectory,
         fallback=fallback,
-        costs={"total": cost, **terms},
+        costs={"total": float(chosen.cost), **{k: float(v) for k, v in zip(COST_TERMS, chosen.terms)}},
         residuals=residuals,
         iterations=config.sampler.num_iterations,
         mean=mean,
-        history=jax.tree_util.tree_map(np.asarray, raw.history),
-        first=jax.tree_util.tree_map(np.asarray, raw.first),
-        last=jax.tree_util.tree_map(np.asarray, raw.last),
+        history=jax.tree_util.tree_map(np.asarray, solution.history),
+        first=jax.tree_util.tree_map(np.asarray, solution.first),
+        last=jax.tree_util.tree_map(np.asarray, solution.last),
         x_offset=x_offset,
-        fallback_residual=float(np.sum(raw.fallback.residuals)),
-        fallback_deceleration=config.projection.a_max if bool(raw.fallback_emergency) else config.fallback_deceleration,
+        fallback_residual=float(np.sum(solution.fallback.residuals)),
+        fallback_deceleration=config.projection.a_max if bool(solution.fallback_emergency) else config.fallback_deceleration,
     )

@@ -23,6 +23,7 @@ from driveopt.basis import Basis, make_basis
 from driveopt.config import BasisConfig, QPConfig
 
 NUM_SEGMENTS = 4  # set-points per axis; each holds over a quarter of the horizon
+SETPOINT_DIM = 2 * NUM_SEGMENTS  # p = (v_1..v_4 [m/s], y_1..y_4 [m])
 
 
 class TrajectoryModel(NamedTuple):
@@ -178,3 +179,12 @@ def split(coeffs: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
     """(c_x, c_y) halves of stacked coefficients."""
     n = coeffs.shape[-1] // 2
     return coeffs[..., :n], coeffs[..., n:]
+
+
+def qp_layer(model: TrajectoryModel, qp: QPConfig, setpoints, init_x, init_y) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """Set-points (B, 8) -> (coefficients (B, 2n), node positions (B, K, 2) [m]): the set-point QP as a
+    differentiable layer (the learned priors' decoders end in it)."""
+    b_x, b_y = boundary_values(init_x, init_y, qp)
+    coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
+    c_x, c_y = split(coeffs)
+    return coeffs, jnp.stack([c_x @ model.W.T, c_y @ model.W.T], axis=-1)

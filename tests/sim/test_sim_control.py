@@ -20,8 +20,8 @@ from driveopt.sim.control import (
     BicycleModel,
     Command,
     ControlError,
-    brake_at_least,
     EgoKinematics,
+    brake_at_least,
     command_from_env,
     from_action,
     predict,
@@ -31,7 +31,7 @@ from driveopt.sim.control import (
     track,
 )
 from driveopt.sim.env import make_env, step_env
-from driveopt.sim.observation import scene_from_env
+from driveopt.sim.perception import scene_from_env
 from driveopt.sim.road_frame import slip_angle
 from driveopt.sim.scenarios import get_scenario
 

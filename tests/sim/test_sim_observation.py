@@ -7,19 +7,21 @@ import math
 import numpy as np
 import pytest
 
-from driveopt.problem import EgoState, Neighbour, Road, Scene, build_problem, ellipse_semi_axes
-from driveopt.sim.env import make_env, step_env
-from driveopt.sim.observation import (
+from driveopt.observation import (
     DUMMY_DX,
     OBSERVATION_DIM,
     ObservationError,
     check_observation,
     is_dummy,
-    observation_from_env,
+    neighbour_mask,
     observation_vector,
-    scene_from_env,
     split_observation,
 )
+from driveopt.prediction import ellipse_semi_axes
+from driveopt.problem import build_problem
+from driveopt.scene import EgoState, Neighbour, Road, Scene
+from driveopt.sim.env import make_env, step_env
+from driveopt.sim.perception import perceive, scene_from_env
 from driveopt.sim.road_frame import RoadFrameError, driving_lanes, road_geometry
 from driveopt.sim.scenarios import get_scenario
 
@@ -139,13 +141,17 @@ def test_scene_has_every_vehicle_in_road_coordinates(dense):
     assert scene.ego.length == sim.vehicle.LENGTH
 
 
-def test_observation_from_env_matches_scene(dense):
+def test_perceived_scene_fills_every_observation_row(dense):
     scenario, env = dense
-    obs = observation_from_env(env, scenario)
-    scene = scene_from_env(env, scenario)
-    np.testing.assert_array_equal(obs, observation_vector(scene))
+    perception = perceive(env, scenario)
+    obs = observation_vector(perception.scene)
     _, rows = split_observation(obs)
     assert not is_dummy(rows).any()  # 50 vehicles: all ten rows real
+    assert neighbour_mask(obs).all() and not neighbour_mask(observation_vector(_scene([]))).any()
+    # the planning scene differs from the simulator's only in the ego velocity's direction (body heading, not course)
+    raw = scene_from_env(env, scenario)
+    assert perception.scene.neighbours == raw.neighbours and perception.scene.ego.x == raw.ego.x
+    assert math.hypot(perception.scene.ego.vx, perception.scene.ego.vy) == pytest.approx(abs(perception.kinematics.speed))
 
 
 def test_actual_vehicle_sizes_reach_the_collision_ellipses():

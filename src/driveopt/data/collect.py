@@ -16,30 +16,32 @@ from typing import Any, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from driveopt.bench.harness import execute
-from driveopt.bench.store import JobKey
+from driveopt.config import BasisConfig
 from driveopt.data.demonstrations import ROW_FIELDS, DemonstrationWriter, EpisodeKey
+from driveopt.drivers.optimiser import OptimiserSpec
+from driveopt.experiments.runner import execute
+from driveopt.experiments.store import JobKey
 from driveopt.observation import OBSERVATION_DIM
-from driveopt.planners import PlannerSpec, get_planner
+from driveopt.registry import get_optimiser
+from driveopt.sim.rollout import Rollout
+from driveopt.sim.scenarios import get_scenario
 
 EXPERT = "expert"  # planner field of the jobs
 
 
-def expert_spec(samples: int, iterations: int) -> PlannerSpec:
+def expert_spec(samples: int, iterations: int) -> OptimiserSpec:
     """The bi-level planner with ``samples`` per batch and ``iterations`` sampler iterations."""
-    return get_planner("bilevel").with_samples(samples).with_overrides(sampler={"num_iterations": iterations})
+    return get_optimiser("bilevel").with_samples(samples).with_overrides(sampler={"num_iterations": iterations})
 
 
 def demonstration_episode(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
     """Worker entry point: one expert episode as {"entry": episode fields, "rows": ROW_FIELDS arrays}."""
-    from driveopt.sim.mpc import run_episode
-    from driveopt.sim.scenarios import get_scenario
-
     scenario = get_scenario(job.scenario)
     spec = expert_spec(int(options["samples"]), int(options["iterations"]))
     rows: dict[str, list] = {name: [] for name in ROW_FIELDS}
-
-    def record(scene, problem, result) -> None:
+    rollout = Rollout(scenario, spec.driver(), job.env_seed, duration=options.get("duration"))
+    for step in rollout:
+        problem, result = step.decision.problem, step.decision.result
         executed = result.safe_trajectory
         rows["observation"].append(np.asarray(problem.observation))
         rows["init_x"].append(np.asarray(problem.init_x))
@@ -50,8 +52,7 @@ def demonstration_episode(job: JobKey, options: dict[str, Any]) -> dict[str, Any
         rows["trajectory"].append(np.stack([executed.x - result.x_offset, executed.y], axis=-1))
         rows["status"].append(int(result.status))
         rows["time"].append(len(rows["time"]) / scenario.policy_frequency)
-
-    episode = run_episode(scenario, spec, job.env_seed, duration=options.get("duration"), on_plan=record)
+    episode = rollout.episode
     arrays = {name: np.asarray(values, dtype=np.int8 if name == "status" else np.float32) for name, values in rows.items()}
     entry = {"scenario": job.scenario, "seed": job.seed, "episode": job.episode, "env_seed": job.env_seed,
              "collided": bool(episode.collided), "duration": float(episode.sim_duration)}
@@ -74,9 +75,6 @@ def collect(
 
     Returns a summary: episodes and rows written now, skipped as already present, wall time.
     """
-    from driveopt.config import BasisConfig
-    from driveopt.sim.scenarios import get_scenario
-
     for name in scenarios:
         get_scenario(name)  # unknown names fail before any work
     basis = BasisConfig()
@@ -104,7 +102,7 @@ def collect(
 
     try:
         execute(todo, {"samples": samples, "iterations": iterations, "duration": duration},
-                "driveopt.data.collect:demonstration_episode", finished, workers=workers)
+                demonstration_episode, finished, workers=workers)
     finally:
         bar.close()
     summary["wall_seconds"] = time.perf_counter() - start

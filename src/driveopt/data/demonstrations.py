@@ -31,6 +31,8 @@ from typing import Any, Iterable, NamedTuple
 
 import numpy as np
 
+from driveopt.errors import DriveoptError
+
 FORMAT = "driveopt-demonstrations"
 SCHEMA_VERSION = 1
 ROW_FIELDS = ("observation", "init_x", "init_y", "lane_bounds", "setpoints", "coeffs", "trajectory", "status", "time")
@@ -40,7 +42,7 @@ _EPISODE_DTYPES = {"seed": np.int64, "episode": np.int32, "env_seed": np.int64, 
                    "duration": np.float32, "first_row": np.int64, "num_rows": np.int64}
 
 
-class DatasetError(ValueError):
+class DatasetError(DriveoptError):
     """A demonstrations file is missing, corrupted, of another schema, or does not match the request."""
 
 

@@ -19,11 +19,13 @@ from typing import Any
 
 from flax import serialization
 
+from driveopt.errors import DriveoptError
+
 FORMAT = "driveopt-checkpoint"
 SCHEMA_VERSION = 1
 
 
-class CheckpointError(ValueError):
+class CheckpointError(DriveoptError):
     """A checkpoint is missing, corrupted, of another kind or version, or does not match its use."""
 
 

@@ -6,7 +6,7 @@
 
 Loss (P1 eq. 9): mean squared distance [m^2] between W xi and tau_e at the nodes, plus
 beta * KL(q(z | o, tau_e) || N(0, I)); beta is annealed from 0 by the trainer. At planning time
-z ~ N(0, I) gives the first batch of set-points (:class:`driveopt.learned.prior.CVAEPrior`).
+z ~ N(0, I) gives the first batch of set-points (:class:`driveopt.priors.cvae.CVAEPrior`).
 
 Inputs are standardised with statistics of the training data (:class:`Normaliser`, saved with the
 weights). Neighbour positions are clipped to ``position_clip`` first and a presence flag is added
@@ -23,6 +23,7 @@ any batch size) compute the same function.
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -30,11 +31,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.config import BasisConfig, QPConfig
-from driveopt.observation import DUMMY_DX, EGO_FEATURES, NEIGHBOUR_FEATURES, NUM_NEIGHBOURS, OBSERVATION_DIM
-from driveopt.qp import NUM_SEGMENTS, TrajectoryModel, boundary_values, make_model, solve_setpoint_qp, split
+from driveopt.config import BasisConfig, ConfigError, ProjectionConfig, QPConfig
+from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore
+from driveopt.observation import (
+    EGO_FEATURES,
+    NEIGHBOUR_FEATURES,
+    NUM_NEIGHBOURS,
+    OBSERVATION_DIM,
+    neighbour_mask,
+)
+from driveopt.qp import (
+    NUM_SEGMENTS,
+    SETPOINT_DIM,
+    TrajectoryModel,
+    make_model,
+    qp_layer,
+)
 
-SETPOINT_DIM = 2 * NUM_SEGMENTS
+CHECKPOINT_KIND = "cvae"
 FEATURE_DIM = OBSERVATION_DIM + NUM_NEIGHBOURS  # observation + a presence flag per neighbour
 
 
@@ -42,7 +56,7 @@ FEATURE_DIM = OBSERVATION_DIM + NUM_NEIGHBOURS  # observation + a presence flag 
 class CVAEConfig:
     latent_dim: int = 2  # [-] P1: 2
     hidden: tuple[int, ...] = (256, 256, 256)  # [-] widths of the encoder and decoder MLPs
-    v_max: float = 30.0  # [m/s] decoded speed set-points lie in (0, v_max)
+    v_max: float = ProjectionConfig.v_max  # [m/s] decoded speed set-points lie in (0, v_max)
     position_clip: float = 100.0  # [m] neighbour positions relative to the ego are clipped to +-this
     trajectory_stride: int = 4  # [-] every stride-th node of tau_e feeds the encoder
     basis: BasisConfig = BasisConfig()
@@ -50,9 +64,9 @@ class CVAEConfig:
 
     def __post_init__(self):
         if self.latent_dim < 1 or not self.hidden or min(self.hidden) < 1:
-            raise ValueError("CVAEConfig needs latent_dim >= 1 and positive hidden widths")
+            raise ConfigError("CVAEConfig needs latent_dim >= 1 and positive hidden widths")
         if self.v_max <= 0 or self.position_clip <= 0 or self.trajectory_stride < 1:
-            raise ValueError("CVAEConfig needs v_max > 0 [m/s], position_clip > 0 [m], trajectory_stride >= 1")
+            raise ConfigError("CVAEConfig needs v_max > 0 [m/s], position_clip > 0 [m], trajectory_stride >= 1")
 
     @property
     def trajectory_features(self) -> int:
@@ -105,7 +119,7 @@ def observation_features(obs: jnp.ndarray, position_clip: float) -> jnp.ndarray:
     """(..., 55) observation -> (..., 65): neighbour positions clipped, presence flags appended."""
     ego = obs[..., :EGO_FEATURES]
     nb = obs[..., EGO_FEATURES:].reshape(*obs.shape[:-1], NUM_NEIGHBOURS, NEIGHBOUR_FEATURES)
-    present = (jnp.abs(nb[..., 0]) < 0.5 * DUMMY_DX).astype(obs.dtype)
+    present = neighbour_mask(obs).astype(obs.dtype)
     nb = jnp.concatenate([jnp.clip(nb[..., :2], -position_clip, position_clip), nb[..., 2:]], axis=-1)
     return jnp.concatenate([ego, nb.reshape(*obs.shape[:-1], -1), present], axis=-1)
 
@@ -158,14 +172,6 @@ def decode_setpoints(params, cfg: CVAEConfig, norm: Normaliser, z: jnp.ndarray, 
     return jnp.concatenate([cfg.v_max * share[..., :NUM_SEGMENTS], y_lb + (y_ub - y_lb) * share[..., NUM_SEGMENTS:]], -1)
 
 
-def qp_layer(model: TrajectoryModel, qp: QPConfig, setpoints, init_x, init_y) -> tuple[jnp.ndarray, jnp.ndarray]:
-    """Set-points (B, 8) -> (coefficients (B, 2n), node positions (B, K, 2) [m]) by the planner's QP."""
-    b_x, b_y = boundary_values(init_x, init_y, qp)
-    coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
-    c_x, c_y = split(coeffs)
-    return coeffs, jnp.stack([c_x @ model.W.T, c_y @ model.W.T], axis=-1)
-
-
 def trajectory_model(cfg: CVAEConfig) -> TrajectoryModel:
     return make_model(cfg.basis, cfg.qp)
 
@@ -206,3 +212,22 @@ def sample_setpoints(params, cfg: CVAEConfig, norm: Normaliser, obs: jnp.ndarray
     z = jax.random.normal(key, (num, cfg.latent_dim))
     obs = jnp.broadcast_to(obs, (num, obs.shape[-1]))
     return decode_setpoints(params, cfg, norm, z, obs, jnp.broadcast_to(lane_bounds, (num, 2)))
+
+
+def empty_state(cfg: CVAEConfig) -> dict[str, Any]:
+    """The structure of a CVAE checkpoint's state (parameters and normaliser), for restoring."""
+    zeros = lambda n: jnp.zeros(n, jnp.float32)  # noqa: E731
+    return {"params": init_params(cfg, jax.random.PRNGKey(0)),
+            "normaliser": Normaliser(zeros(FEATURE_DIM), zeros(FEATURE_DIM), zeros(cfg.trajectory_features), zeros(cfg.trajectory_features))}
+
+
+def load_cvae(path: str | Path) -> tuple[CVAEConfig, Any, Normaliser, dict[str, Any]]:
+    """(config, params, normaliser, meta) of a CVAE checkpoint; CheckpointError when unusable."""
+    meta, state = load_checkpoint(path, CHECKPOINT_KIND)
+    try:
+        cfg = CVAEConfig.from_dict(meta["config"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{path}: invalid CVAE config in the header: {exc}") from None
+    target = empty_state(cfg)
+    restored = restore(target, {k: state.get(k) for k in target}, path, "the CVAE state")
+    return cfg, restored["params"], Normaliser(*restored["normaliser"]), meta

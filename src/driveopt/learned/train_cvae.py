@@ -32,10 +32,29 @@ import numpy as np
 import optax
 from tqdm import tqdm
 
-from driveopt.data.demonstrations import Demonstrations, load_demonstrations
-from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore, save_checkpoint
-from driveopt.learned.cvae import Batch, CVAEConfig, Normaliser, fit_normaliser, init_params, loss, loss_terms, prior_coverage
-from driveopt.learned.prior import KIND
+from driveopt.config import ConfigError
+from driveopt.data.demonstrations import (
+    DatasetError,
+    Demonstrations,
+    load_demonstrations,
+)
+from driveopt.learned.checkpoint import (
+    CheckpointError,
+    load_checkpoint,
+    restore,
+    save_checkpoint,
+)
+from driveopt.learned.cvae import (
+    CHECKPOINT_KIND,
+    Batch,
+    CVAEConfig,
+    Normaliser,
+    fit_normaliser,
+    init_params,
+    loss,
+    loss_terms,
+    prior_coverage,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,9 +74,9 @@ class TrainConfig:
 
     def __post_init__(self):
         if self.epochs < 1 or self.batch_size < 1 or self.decay_every < 1 or self.anneal_epochs < 0 or self.train_episodes < 0:
-            raise ValueError("TrainConfig needs epochs, batch_size, decay_every >= 1 and anneal_epochs, train_episodes >= 0")
+            raise ConfigError("TrainConfig needs epochs, batch_size, decay_every >= 1 and anneal_epochs, train_episodes >= 0")
         if not 0.0 <= self.validation_fraction < 1.0 or self.learning_rate <= 0 or self.beta < 0:
-            raise ValueError("TrainConfig needs 0 <= validation_fraction < 1, learning_rate > 0, beta >= 0")
+            raise ConfigError("TrainConfig needs 0 <= validation_fraction < 1, learning_rate > 0, beta >= 0")
 
     def beta_at(self, epoch: int) -> float:
         return self.beta * min(1.0, (epoch + 1) / self.anneal_epochs) if self.anneal_epochs else self.beta
@@ -110,7 +129,7 @@ def train_cvae(
     if validation_paths:
         held = load_demonstrations(validation_paths)
         if held.fingerprint() == data.fingerprint() or set(_paths(validation_paths)) & set(_paths(data_paths)):
-            raise ValueError("the validation demonstrations must be other files than the training ones")
+            raise DatasetError("the validation demonstrations must be other files than the training ones")
         train_rows, val_rows = rows, training_rows(held, tcfg.crash_margin)
         fingerprint = f"{data.fingerprint()}, validation {held.fingerprint()}"
     else:
@@ -120,7 +139,7 @@ def train_cvae(
         episodes = np.random.default_rng(tcfg.seed + 1).permutation(np.unique(data.episode[train_rows]))
         train_rows = train_rows[np.isin(data.episode[train_rows], episodes[:tcfg.train_episodes])]
     if len(train_rows) < 2:
-        raise ValueError(f"only {len(train_rows)} usable training rows in {data_paths}: collect more demonstrations")
+        raise DatasetError(f"only {len(train_rows)} usable training rows in {data_paths}: collect more demonstrations")
     train, val = make_batch(data, train_rows), make_batch(held, val_rows)
     batch_size = min(tcfg.batch_size, len(train_rows))
     steps_per_epoch = len(train_rows) // batch_size
@@ -177,8 +196,8 @@ def train_cvae(
         score = record.get("val_loss", record["train_loss"])
         if epoch + 1 >= min(tcfg.anneal_epochs, tcfg.epochs) and score < best:
             best = score
-            save_checkpoint(out / "cvae.ckpt", KIND, {"params": params, "normaliser": normaliser}, {**meta_base, "epoch": epoch + 1, "history": history})
-        save_checkpoint(last, KIND, {"params": params, "normaliser": normaliser, "opt_state": opt_state},
+            save_checkpoint(out / "cvae.ckpt", CHECKPOINT_KIND, {"params": params, "normaliser": normaliser}, {**meta_base, "epoch": epoch + 1, "history": history})
+        save_checkpoint(last, CHECKPOINT_KIND, {"params": params, "normaliser": normaliser, "opt_state": opt_state},
                         {**meta_base, "epoch": epoch + 1, "history": history, "best": best})
         (out / "history.json").write_text(json.dumps(history, indent=1))
         bar.set_postfix_str(f"train {record['train_loss']:.3f} val {record.get('val_loss', float('nan')):.3f} m^2")
@@ -192,7 +211,7 @@ def _paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
 
 
 def _resume(path: Path, cfg: CVAEConfig, tcfg: TrainConfig, fingerprint: str, params, normaliser, opt_state):
-    meta, state = load_checkpoint(path, KIND)
+    meta, state = load_checkpoint(path, CHECKPOINT_KIND)
     if meta.get("data") != fingerprint:
         raise CheckpointError(f"{path} was trained on other demonstrations (data {meta.get('data')}, now {fingerprint}); use a new --out")
     if meta.get("config") != json.loads(json.dumps(cfg.to_dict())):

@@ -1,13 +1,16 @@
-"""Closed-loop simulation in upstream highway-env: scenarios, env adapter, observation, control.
+"""Closed-loop simulation in upstream highway-env: scenarios, env adapter, road frame, perception, control, rollout.
 
-    from driveopt.sim import get_scenario, make_env, scene_from_env, command_from_env, step_env
+    from driveopt.sim import BicycleModel, get_scenario, make_env, perceive, step_env, track
 
     scenario = get_scenario("four-lane-d3.0")
     env = make_env(scenario)
     env.reset(seed=42)
-    scene = scene_from_env(env, scenario)            # -> driveopt.problem.build_problem(scene)
-    command = command_from_env(env, result.trajectory, elapsed=0.0)
+    perception = perceive(env, scenario)               # -> driveopt.problem.build_problem(perception.scene)
+    command = track(result.trajectory, 0.0, perception.kinematics, BicycleModel.from_env(env))
     outcome = step_env(env, command.action)
+
+The episode loop, :mod:`driveopt.sim.rollout` (``Rollout``, ``run_episode``), runs a driver
+(:mod:`driveopt.drivers`) and is imported from there: drivers build on this package.
 """
 
 from driveopt.sim.control import (
@@ -20,15 +23,16 @@ from driveopt.sim.control import (
     sample_trajectory,
     track,
 )
-from driveopt.sim.env import ENV_IDS, StepOutcome, env_config, is_off_road, make_env, sim_time, step_env
-from driveopt.sim.observation import (
-    OBSERVATION_DIM,
-    ObservationError,
-    observation_from_env,
-    observation_vector,
-    scene_from_env,
+from driveopt.sim.env import (
+    ENV_IDS,
+    StepOutcome,
+    env_config,
+    is_off_road,
+    make_env,
+    sim_time,
+    step_env,
 )
-from driveopt.sim.mpc import Episode, adapt_to_vehicle, run_episode
+from driveopt.sim.perception import Perception, perceive, scene_from_env
 from driveopt.sim.road_frame import RoadFrameError
 from driveopt.sim.scenarios import (
     Scenario,
@@ -44,8 +48,7 @@ __all__ = [
     "BicycleModel", "Command", "ControlError", "EgoKinematics", "command_from_env", "ego_kinematics", "sample_trajectory",
     "track",
     "ENV_IDS", "StepOutcome", "env_config", "is_off_road", "make_env", "sim_time", "step_env",
-    "OBSERVATION_DIM", "ObservationError", "observation_from_env", "observation_vector", "scene_from_env",
-    "Episode", "adapt_to_vehicle", "run_episode",
+    "Perception", "perceive", "scene_from_env",
     "RoadFrameError",
     "Scenario", "ScenarioError", "apply_overrides", "get_scenario", "list_scenarios", "load_overrides",
     "resolve_scenario",

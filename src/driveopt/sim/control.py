@@ -34,12 +34,13 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from driveopt.costs import Trajectory
+from driveopt.errors import DriveoptError
 from driveopt.sim.road_frame import driving_lanes, slip_angle, vehicle_motion
 
 _BISECTION_STEPS = 60  # halves the slip-angle bracket (< 1 rad) down to ~1e-18 rad
 
 
-class ControlError(ValueError):
+class ControlError(DriveoptError):
     """The env's action space or the trajectory cannot be tracked (wrong action type, shapes, NaN)."""
 
 

@@ -25,13 +25,14 @@ from typing import Any, NamedTuple
 import numpy as np
 from highway_env.road.lane import SineLane, StraightLane
 
-from driveopt.problem import Road
+from driveopt.errors import DriveoptError
+from driveopt.scene import Road
 
 _ALIGNED = 1e-6  # [-] tolerance on a lane direction being (1, 0)
 _GEOMETRY_TOL = 1e-6  # [m] tolerance on equal lane widths and even spacing
 
 
-class RoadFrameError(ValueError):
+class RoadFrameError(DriveoptError):
     """The simulator's road is not a set of straight, parallel, evenly spaced lanes along +x."""
 
 

@@ -29,6 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
+from driveopt.errors import DriveoptError
+
 ROADS = ("highway", "two-way", "merge")
 """Road layouts, each an upstream highway-env environment: highway-v0, two-way-v0, merge-v0."""
 
@@ -39,7 +41,7 @@ DEFAULT_SPEED_LIMIT = 15.0  # [m/s] neighbour speed limit of P1
 SLOW_SPEED_LIMIT = 7.0  # [m/s] P2's slow-traffic variant
 
 
-class ScenarioError(ValueError):
+class ScenarioError(DriveoptError):
     """Unknown scenario name, unknown field, or a field value of the wrong type or range."""
 
 

@@ -19,8 +19,8 @@ from matplotlib.patches import Rectangle  # noqa: E402
 
 from driveopt.config import PlannerConfig  # noqa: E402
 from driveopt.planner import PlanResult, Snapshot  # noqa: E402
-from driveopt.problem import Scene  # noqa: E402
 from driveopt.qp import make_model  # noqa: E402
+from driveopt.scene import Scene  # noqa: E402
 
 MAX_DRAWN = 150  # trajectories per panel
 
@@ -86,7 +86,7 @@ def plot_plan(result: PlanResult, scene: Scene, config: PlannerConfig, path: str
     hist = result.history
     its = np.arange(1, len(hist.best_score) + 1)
     ax = fig.add_subplot(grid[2, 0])
-    best = np.where(hist.best_score < 1e5, hist.best_score, np.nan)
+    best = np.where(hist.best_feasible, hist.best_score, np.nan)
     ax.plot(its, best, "o-", label="best cost + residual (feasible)")
     ax.plot(its, hist.elite_cost, "s--", label="mean elite cost + residual")
     ax.set_xlabel("sampler iteration")

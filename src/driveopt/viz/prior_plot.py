@@ -11,9 +11,9 @@ import jax
 import numpy as np
 
 from driveopt.config import PlannerConfig
-from driveopt.learned.cvae import qp_layer
-from driveopt.problem import Scene, build_problem
-from driveopt.qp import make_model
+from driveopt.problem import build_problem
+from driveopt.qp import make_model, qp_layer
+from driveopt.scene import Scene
 from driveopt.viz.plan_plot import draw_road, draw_vehicles, plt, save_figure
 
 

@@ -21,7 +21,13 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from driveopt.config import PlannerConfig
+from driveopt.errors import DriveoptError
 from driveopt.qp import make_model
+
+
+class VideoError(DriveoptError):
+    """A video cannot be recorded here (black-frame SDL driver, unwritable path)."""
+
 
 SAMPLE_RGBA = (40, 90, 230, 110)
 ELITE_RGBA = (255, 150, 0, 170)
@@ -33,7 +39,7 @@ TEXT_RGBA = (0, 0, 0, 255)
 
 
 def check_video_driver() -> None:
-    """Raise ValueError when SDL renders (or will render) with the ``dummy`` driver: its frames are black.
+    """Raise VideoError when SDL renders (or will render) with the ``dummy`` driver: its frames are black.
 
     Looks at SDL_VIDEODRIVER (read whenever pygame's display starts) and, when pygame's display is
     running, at the driver it actually uses.
@@ -47,7 +53,7 @@ def check_video_driver() -> None:
         except Exception:  # pragma: no cover - a pygame without a usable display module
             pass
     if any(d.strip().lower() == "dummy" for d in drivers):
-        raise ValueError(
+        raise VideoError(
             "SDL video driver is 'dummy', which renders black frames: "
             "set SDL_VIDEODRIVER=offscreen (or leave it unset) to record videos"
         )
@@ -228,7 +234,7 @@ class VideoWriter:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise ValueError(f"cannot create the directory of {self.path}: {exc}") from None
+            raise VideoError(f"cannot create the directory of {self.path}: {exc}") from None
         self._writer = imageio.get_writer(str(self.path), fps=fps, codec="libx264", macro_block_size=1, quality=7)
         self._shape: tuple[int, ...] | None = None
         self.frames = 0

@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 
 from driveopt.cli import main
-from driveopt.planners import get_planner, list_planners
-from driveopt.sim.mpc import adapt_to_vehicle, run_episode
-from driveopt.sim.control import BicycleModel
-from driveopt.sim.scenarios import get_scenario, list_scenarios
+from driveopt.registry import get_planner, list_planners
+from driveopt.sim.rollout import Rollout, run_episode
+from driveopt.sim.scenarios import list_scenarios
 
 
 def small(name):
@@ -40,13 +39,6 @@ def test_same_seed_same_episode():
     assert a.speeds != c.speeds
     # Compilation (with and without warm start: seconds) happens before the timed steps (milliseconds).
     assert get_planner("bilevel").warm_start and max(a.plan_ms) < 10 * float(np.median(a.plan_ms))
-
-
-def test_planner_bounds_fit_the_simulated_car():
-    scenario = get_scenario("four-lane-d3.0")
-    config = adapt_to_vehicle(get_planner("bilevel").config, scenario, BicycleModel())
-    assert config.projection.a_max <= 5.0 and config.projection.kappa_max < 2 * np.sin(np.arctan(0.5)) / 5.0
-    assert config.qp.initial_acceleration  # plans start from the applied acceleration (smooth commands)
 
 
 def test_drive_command_writes_a_summary(tmp_path, capsys):
@@ -91,17 +83,25 @@ def test_bench_config_overrides_reach_every_optimiser_and_fix_the_folder(tmp_pat
     assert "consistency" in capsys.readouterr().err  # the valid keys are listed
 
 
-def test_before_step_sees_the_state_the_plan_starts_from():
-    """Videos draw in before_step: the executed plan must start at the ego's current position there."""
+def test_each_step_shows_the_state_the_plan_starts_from():
+    """Videos draw at each yielded step: the executed plan must start at the ego's current position there."""
     gaps = []
-
-    def before_step(env, result):
-        ego = env.unwrapped.vehicle
-        traj = result.safe_trajectory
+    rollout = Rollout("four-lane-d1.0", small("grid").driver(), seed=2, duration=1.0)
+    for step in rollout:
+        ego = step.env.unwrapped.vehicle
+        traj = step.decision.result.safe_trajectory
         gaps.append(float(np.hypot(traj.x[0] - ego.position[0], traj.y[0] - ego.position[1])))
-
-    run_episode("four-lane-d1.0", small("grid"), seed=2, duration=1.0, before_step=before_step)
+        assert len(step.episode.speeds) == len(gaps) - 1  # the simulator has not advanced yet
     assert len(gaps) == 10 and max(gaps) < 0.05
+    assert len(rollout.episode.speeds) == 10
+
+
+def test_a_rollout_stopped_early_keeps_what_it_recorded():
+    rollout = Rollout("two-lane-d1.0", get_planner("idm").driver(), seed=3, duration=5.0)
+    for number, step in enumerate(rollout, start=1):
+        if number == 4:
+            break
+    assert len(rollout.episode.speeds) == 3 and not rollout.episode.plan_ms
 
 
 @pytest.mark.parametrize("planner", ["grid", "bilevel"])
@@ -109,8 +109,9 @@ def test_the_loop_carries_the_executed_plan_when_consistency_is_weighed(planner)
     """Each call after the first compares its samples with the previous call's executed plan, shifted by
     the replan period; compilation of that trace happens before the timed steps."""
     spec = small(planner).with_overrides(cost={"consistency": 1.0})
-    results = []
-    episode = run_episode("four-lane-d1.0", spec, seed=2, duration=1.0, on_plan=lambda s, p, r: results.append(r))
+    rollout = Rollout("four-lane-d1.0", spec.driver(), seed=2, duration=1.0)
+    results = [step.decision.result for step in rollout]
+    episode = rollout.episode
     assert len(results) == 10
     assert results[0].costs["consistency"] == 0.0
     carried = [r.costs["consistency"] for r in results[1:]]

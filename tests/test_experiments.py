@@ -4,9 +4,10 @@ import json
 
 import pytest
 
-from driveopt.bench.harness import BenchSpec, run_bench
-from driveopt.bench.store import StoreError, load_records
-from driveopt.bench.summary import markdown_table, summarise, wilson_interval
+from driveopt.errors import DriveoptError
+from driveopt.experiments.bench import BenchSpec, run_bench
+from driveopt.experiments.store import StoreError, load_records
+from driveopt.experiments.summary import markdown_table, summarise, wilson_interval
 
 
 class Interrupt(Exception):
@@ -94,3 +95,38 @@ def test_summary_statistics():
     assert row["collision_ci_low"] == low and 0.05 < low < 0.2 < high < 0.52
     assert wilson_interval(0, 50)[0] == 0.0 and wilson_interval(0, 50)[1] < 0.08
     assert markdown_table([row]).splitlines()[-1].endswith("| 1.0 + 2.0 |")  # episode wall time: sim + plan
+
+
+def test_ray_backend_runs_real_episodes_and_resumes(tmp_path):
+    """The same bench on a local Ray instance (RAY_ADDRESS would name a cluster): records, then a resume
+    that runs only the new jobs."""
+    ray = pytest.importorskip("ray")
+    from driveopt.experiments.bench import episode_record
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        spec = BenchSpec(("two-lane-d1.0",), ("idm",), (42,), 2, {"duration": 0.3})
+        run_bench(spec, tmp_path, backend="ray", episode_fn=episode_record, progress=False)
+        first = load_records(tmp_path / "episodes.jsonl")
+        assert sorted(r["episode"] for r in first) == [0, 1] and all(r["steps"] >= 1 for r in first)
+        more = BenchSpec(spec.scenarios, spec.planners, spec.seeds, 3, spec.options)
+        run_bench(more, tmp_path, backend="ray", episode_fn=episode_record, progress=False)
+        records = load_records(tmp_path / "episodes.jsonl")
+        assert records[:2] == first and sorted(r["episode"] for r in records) == [0, 1, 2]
+    finally:
+        ray.shutdown()
+
+
+def test_ray_backend_without_ray_is_a_clear_error(tmp_path, monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_ray(name, *args, **kwargs):
+        if name == "ray":
+            raise ImportError("No module named 'ray'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_ray)
+    with pytest.raises(DriveoptError, match=r"driveopt\[ray\]"):
+        run_bench(SPEC, tmp_path, backend="ray", episode_fn=fake_episode, progress=False)

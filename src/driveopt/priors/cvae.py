@@ -1,8 +1,11 @@
-"""The CVAE as the bi-level sampler's first proposal (P1 §III-D), and the weights shipped with driveopt.
+"""The CVAE prior: the bi-level sampler's first proposal from the learned CVAE (P1 §III-D); shipped weights.
 
 ``CVAEPrior.propose`` draws z ~ N(0, I), decodes set-points for the problem's observation, and
 initialises the sampler's Gaussian with their mean and covariance; later iterations adapt it as
 for any prior. The CVAE replaces the warm start (``warm_mean`` is not used).
+
+The network (:mod:`driveopt.learned.cvae`, Flax) is imported when a CVAE is loaded or sampled, not
+with this module: the registry names the CVAE planners without every command importing Flax.
 """
 
 from __future__ import annotations
@@ -16,11 +19,10 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore
-from driveopt.learned.cvae import FEATURE_DIM, CVAEConfig, Normaliser, init_params, sample_setpoints
-from driveopt.sampler import Proposal, clip_setpoints
+from driveopt.config import PlannerConfig, ProjectionConfig
+from driveopt.priors.base import Proposal, clip_setpoints, moments
+from driveopt.priors.gaussian import GaussianPrior
 
-KIND = "cvae"
 COVARIANCE_JITTER = 0.01  # [-] added to the diagonal of the proposal's covariance
 
 
@@ -37,13 +39,15 @@ class CVAEPrior:
     """
 
     params: Any
-    normaliser: Normaliser
-    config: CVAEConfig = dataclasses.field(metadata=dict(static=True))
-    v_max: float = dataclasses.field(default=30.0, metadata=dict(static=True))  # [m/s] planner's speed bound
+    normaliser: Any  # driveopt.learned.cvae.Normaliser
+    config: Any = dataclasses.field(metadata=dict(static=True))  # driveopt.learned.cvae.CVAEConfig
+    v_max: float = dataclasses.field(default=ProjectionConfig.v_max, metadata=dict(static=True))  # [m/s] planner's speed bound
     gaussian: Any = None
     gaussian_fraction: float = dataclasses.field(default=0.0, metadata=dict(static=True))  # [-]
 
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
+        from driveopt.learned.cvae import sample_setpoints
+
         k_cvae, k_gauss = jax.random.split(key)
         mixed = int(round(self.gaussian_fraction * num)) if self.gaussian is not None else 0
         lane_bounds = jnp.stack([problem.y_lb, problem.y_ub])
@@ -51,32 +55,12 @@ class CVAEPrior:
         if mixed:
             samples = jnp.concatenate([samples, self.gaussian.propose(problem, k_gauss, mixed, warm_mean).samples])
         samples = clip_setpoints(samples, problem, self.v_max)
-        mean = jnp.mean(samples, axis=0)
-        centred = samples - mean
-        cov = centred.T @ centred / num + COVARIANCE_JITTER * jnp.eye(samples.shape[1], dtype=samples.dtype)
-        return Proposal(samples, mean, cov)
+        return Proposal(samples, *moments(samples, COVARIANCE_JITTER))
 
 
-def empty_state(cfg: CVAEConfig) -> dict[str, Any]:
-    """The structure of a CVAE checkpoint's state (parameters and normaliser), for restoring."""
-    zeros = lambda n: jnp.zeros(n, jnp.float32)  # noqa: E731
-    return {"params": init_params(cfg, jax.random.PRNGKey(0)),
-            "normaliser": Normaliser(zeros(FEATURE_DIM), zeros(FEATURE_DIM), zeros(cfg.trajectory_features), zeros(cfg.trajectory_features))}
+def load_prior(path: str | Path, v_max: float = ProjectionConfig.v_max, gaussian: Any = None, gaussian_fraction: float = 0.0) -> CVAEPrior:
+    from driveopt.learned.cvae import load_cvae
 
-
-def load_cvae(path: str | Path) -> tuple[CVAEConfig, Any, Normaliser, dict[str, Any]]:
-    """(config, params, normaliser, meta) of a CVAE checkpoint; CheckpointError when unusable."""
-    meta, state = load_checkpoint(path, KIND)
-    try:
-        cfg = CVAEConfig.from_dict(meta["config"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CheckpointError(f"{path}: invalid CVAE config in the header: {exc}") from None
-    target = empty_state(cfg)
-    restored = restore(target, {k: state.get(k) for k in target}, path, "the CVAE state")
-    return cfg, restored["params"], Normaliser(*restored["normaliser"]), meta
-
-
-def load_prior(path: str | Path, v_max: float = 30.0, gaussian: Any = None, gaussian_fraction: float = 0.0) -> CVAEPrior:
     cfg, params, norm, _ = load_cvae(path)
     return CVAEPrior(params, norm, cfg, float(v_max), gaussian, float(gaussian_fraction))
 
@@ -99,3 +83,14 @@ def prior_for(lanes: int, v_max: float, weights: str | Path | None, fallback: An
         warnings.warn(f"no CVAE weights shipped for {lanes}-lane roads: using the Gaussian start instead", stacklevel=2)
         return fallback
     return load_prior(path, v_max, fallback, gaussian_fraction)
+
+
+def cvae_prior(gaussian_fraction: float):
+    """Prior factory of the registry's CVAE planners: ``(config, lanes, weights) -> prior`` that mixes
+    ``gaussian_fraction`` of the configuration's Gaussian prior into the CVAE's first batch."""
+
+    def make(config: PlannerConfig, lanes: int, weights: str | None) -> Any:
+        gaussian = GaussianPrior.from_config(config.sampler, config.projection.v_max)
+        return prior_for(lanes, config.projection.v_max, weights, gaussian, gaussian_fraction)
+
+    return make

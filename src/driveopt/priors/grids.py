@@ -1,4 +1,4 @@
-"""Proposal distributions of the MPC baselines of P1 §V (all share the QP, projection and ranking).
+"""Grid priors: the proposal distributions of the MPC baselines of P1 §V (all share the QP, projection and ranking).
 
 - ``VanillaPrior``: no behavioural layer: one sample, speed set-point v_des, keep the current lane.
 - ``GridPrior``: a fixed grid of behaviours: constant speed x target lane x when the lane change
@@ -19,23 +19,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from driveopt.config import ProjectionConfig
 from driveopt.costs import nearest_lane_center
+from driveopt.priors.base import Proposal, clip_setpoints, moments
 from driveopt.problem import PlanningProblem
-from driveopt.qp import NUM_SEGMENTS
-from driveopt.sampler import Proposal, clip_setpoints
+from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM
 
 MAX_LANES = 8  # lanes considered by the grids (masked beyond the road's lane count)
+GRID_COVARIANCE_JITTER = 1e-3  # [-] added to the diagonal of a grid's sample covariance
 
 
 def _static(default):
     return dataclasses.field(default=default, metadata=dict(static=True))
-
-
-def _moments(samples: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
-    mean = jnp.mean(samples, axis=0)
-    centred = samples - mean
-    cov = centred.T @ centred / samples.shape[0] + 1e-3 * jnp.eye(samples.shape[1], dtype=samples.dtype)
-    return mean, cov
 
 
 def _fill(rows: jnp.ndarray, valid: jnp.ndarray, num: int) -> jnp.ndarray:
@@ -56,13 +51,13 @@ def _lane_centres(problem: PlanningProblem) -> tuple[jnp.ndarray, jnp.ndarray]:
 class VanillaPrior:
     """Speed set-point v_des, lateral set-point the nearest lane centre; identical samples."""
 
-    v_max: float = _static(30.0)  # [m/s]
+    v_max: float = _static(ProjectionConfig.v_max)  # [m/s]
 
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
         v = jnp.full(NUM_SEGMENTS, jnp.minimum(problem.v_des, self.v_max))
         y = jnp.full(NUM_SEGMENTS, nearest_lane_center(problem, problem.init_y[0]))
-        p = jnp.broadcast_to(jnp.concatenate([v, y]), (num, 2 * NUM_SEGMENTS))
-        return Proposal(p, p[0], 1e-3 * jnp.eye(2 * NUM_SEGMENTS, dtype=p.dtype))
+        p = jnp.broadcast_to(jnp.concatenate([v, y]), (num, SETPOINT_DIM))
+        return Proposal(p, p[0], GRID_COVARIANCE_JITTER * jnp.eye(SETPOINT_DIM, dtype=p.dtype))
 
 
 @jax.tree_util.register_dataclass
@@ -71,7 +66,7 @@ class GridPrior:
     """Constant speed (num_speeds values on [0, v_max]) x target lane x lane-change quarter (1..4)."""
 
     num_speeds: int = _static(10)
-    v_max: float = _static(30.0)  # [m/s]
+    v_max: float = _static(ProjectionConfig.v_max)  # [m/s]
 
     def rows(self, problem: PlanningProblem) -> tuple[jnp.ndarray, jnp.ndarray]:
         speeds = np.linspace(0.0, self.v_max, self.num_speeds, dtype=np.float32)
@@ -83,14 +78,14 @@ class GridPrior:
         lateral = jnp.broadcast_to(lateral, (MAX_LANES, NUM_SEGMENTS, NUM_SEGMENTS))  # (lane, change, m)
         v = jnp.broadcast_to(jnp.asarray(speeds)[:, None, None, None], (self.num_speeds, MAX_LANES, NUM_SEGMENTS, NUM_SEGMENTS))
         y = jnp.broadcast_to(lateral[None], v.shape)
-        rows = jnp.concatenate([v, y], axis=-1).reshape(-1, 2 * NUM_SEGMENTS)
+        rows = jnp.concatenate([v, y], axis=-1).reshape(-1, SETPOINT_DIM)
         valid = jnp.broadcast_to(lane_ok[None, :, None], (self.num_speeds, MAX_LANES, NUM_SEGMENTS)).reshape(-1)
         return rows, valid
 
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
         rows, valid = self.rows(problem)
         samples = clip_setpoints(_fill(rows, valid, num), problem, self.v_max)
-        return Proposal(samples, *_moments(samples))
+        return Proposal(samples, *moments(samples, GRID_COVARIANCE_JITTER))
 
 
 @jax.tree_util.register_dataclass
@@ -99,14 +94,14 @@ class GoalGridPrior:
     """Goal grid: num_speeds average speeds (x_f = x_0 + v T) x lane centres (y_f)."""
 
     num_speeds: int = _static(25)
-    v_max: float = _static(30.0)  # [m/s]
+    v_max: float = _static(ProjectionConfig.v_max)  # [m/s]
 
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
         speeds = jnp.linspace(0.0, self.v_max, self.num_speeds, dtype=jnp.float32)
         centres, lane_ok = _lane_centres(problem)
         v = jnp.broadcast_to(speeds[:, None, None], (self.num_speeds, MAX_LANES, NUM_SEGMENTS))
         y = jnp.broadcast_to(centres[None, :, None], v.shape)
-        rows = jnp.concatenate([v, y], axis=-1).reshape(-1, 2 * NUM_SEGMENTS)
+        rows = jnp.concatenate([v, y], axis=-1).reshape(-1, SETPOINT_DIM)
         valid = jnp.broadcast_to(lane_ok[None, :], (self.num_speeds, MAX_LANES)).reshape(-1)
         samples = clip_setpoints(_fill(rows, valid, num), problem, self.v_max)
-        return Proposal(samples, *_moments(samples))
+        return Proposal(samples, *moments(samples, GRID_COVARIANCE_JITTER))

@@ -5,19 +5,22 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from driveopt.baselines import GoalGridPrior, GridPrior
 from driveopt.planner import goal_from_setpoints, plan
-from driveopt.planners import get_planner, list_planners
-from driveopt.problem import build_problem, load_scene
+from driveopt.priors.grids import GoalGridPrior, GridPrior
+from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
+from driveopt.errors import UnknownNameError
+from driveopt.registry import get_optimiser, get_planner, list_planners
+from driveopt.scene import load_scene
 
 
 def test_registry_names_and_clear_error():
     assert {"bilevel", "random", "grid", "vanilla", "batch", "idm"} <= set(list_planners())
-    with pytest.raises(ValueError, match="valid planners: bilevel"):
+    with pytest.raises(UnknownNameError, match="valid planners: bilevel"):
         get_planner("nope")
-    with pytest.raises(ValueError, match="optimiser"):
-        get_planner("idm").prior()
+    with pytest.raises(UnknownNameError, match="optimisers: bilevel"):
+        get_optimiser("idm")
+    assert get_optimiser("grid") is get_planner("grid")
 
 
 def test_batch_size_override_caps_elites_and_keeps_vanilla_single():

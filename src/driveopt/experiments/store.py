@@ -13,10 +13,12 @@ import os
 from pathlib import Path
 from typing import Any, Iterable, NamedTuple
 
+from driveopt.errors import DriveoptError
+
 SCHEMA_VERSION = 1
 
 
-class StoreError(ValueError):
+class StoreError(DriveoptError):
     """The results file is corrupted or was written by an incompatible version."""
 
 

@@ -1,31 +1,54 @@
-"""``driveopt bench``: scenarios x planners x seeds x episodes, resumable and parallel.
+"""``driveopt bench``: scenarios x planners x seeds x episodes of the closed loop, resumable and parallel.
 
-Jobs run in worker processes (local, spawn start method) or on a Ray cluster; the parent is the
+Jobs run through :mod:`driveopt.experiments.runner` (worker processes or Ray); the parent is the
 only writer of ``episodes.jsonl`` and appends each record as soon as its episode finishes. A
 rerun with the same output directory skips every finished job, so an interrupted sweep resumes
-with no episode lost or repeated. The episode function receives the job key and the options and
-must derive every random choice from them: same seeds, same results.
+with no episode lost or repeated. The episode function (:func:`episode_record` by default: one
+simulated episode, :mod:`driveopt.sim.rollout`) receives the job key and the options and derives
+every random choice from them: same seeds, same results.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
-import importlib
 import json
-import multiprocessing
 import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 from tqdm import tqdm
 
-from driveopt.bench.store import JobKey, StoreError, append_record, key_of, load_records, pending, repair
+from driveopt.experiments.runner import EpisodeFn, execute
+from driveopt.experiments.store import (
+    JobKey,
+    StoreError,
+    append_record,
+    key_of,
+    load_records,
+    pending,
+    repair,
+)
+from driveopt.experiments.summary import (
+    markdown_table,
+    plot_summary,
+    summarise,
+    write_csv,
+)
+from driveopt.registry import get_planner
+from driveopt.sim.rollout import run_episode
 
-from driveopt.bench.summary import markdown_table, plot_summary, summarise, write_csv
 
-EpisodeFn = Callable[[JobKey, dict], dict]
-DEFAULT_EPISODE_FN = "driveopt.sim.mpc:episode_record"
+def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
+    """One simulated episode of ``job`` (scenario, planner, seed, episode) as a bench record.
+
+    options (all optional): ``duration`` [s], ``samples`` (batch-size override, see
+    ``OptimiserSpec.with_samples``), ``weights`` (learned prior checkpoint), ``config`` (planner-config
+    overrides, nested sections).
+    """
+    samples = options.get("samples")
+    spec = get_planner(job.planner).with_samples(int(samples) if samples else None).with_weights(options.get("weights"))
+    spec = spec.with_overrides(**options.get("config", {}))
+    return run_episode(job.scenario, spec, job.env_seed, duration=options.get("duration")).record()
 
 
 @dataclass(frozen=True)
@@ -46,26 +69,13 @@ class BenchSpec:
         ]
 
 
-def resolve(fn: str | EpisodeFn) -> EpisodeFn:
-    """A callable, or 'module:function'."""
-    if callable(fn):
-        return fn
-    module, _, name = fn.partition(":")
-    return getattr(importlib.import_module(module), name)
-
-
-def _call(fn: str | EpisodeFn, job: JobKey, options: dict) -> dict:
-    record = resolve(fn)(job, options)
-    return {**record, **job._asdict()}
-
-
 def run_bench(
     spec: BenchSpec,
     out_dir: str | Path,
     *,
     workers: int | None = None,
     backend: str = "local",
-    episode_fn: str | EpisodeFn = DEFAULT_EPISODE_FN,
+    episode_fn: EpisodeFn = episode_record,
     progress: bool = True,
 ) -> list[dict[str, Any]]:
     """Run the missing jobs of ``spec``, then write summary.csv, summary.md and summary.png.
@@ -115,51 +125,3 @@ def _claim(path: Path, spec: BenchSpec) -> None:
             raise StoreError(f"{path.parent} holds episodes run with options {options}, not {spec.options}; "
                              "use another output folder")
     path.write_text(json.dumps(asdict(spec), indent=1))
-
-
-def execute(
-    todo: Sequence[JobKey],
-    options: dict,
-    episode_fn: str | EpisodeFn,
-    finished: Callable[[dict], None],
-    *,
-    workers: int = 1,
-    backend: str = "local",
-) -> None:
-    """Run ``episode_fn(job, options)`` for every job and hand each record to ``finished`` as it comes.
-
-    ``finished`` runs in this process (the single writer). workers: local processes (spawn);
-    1 runs in this process. backend: 'local' or 'ray'.
-    """
-    if backend == "ray":
-        _run_ray(todo, options, episode_fn, finished)
-    elif backend != "local":
-        raise ValueError(f"unknown backend '{backend}'; valid: local, ray")
-    elif workers == 1:
-        for job in todo:
-            finished(_call(episode_fn, job, options))
-    else:
-        ctx = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            futures = [pool.submit(_call, episode_fn, job, options) for job in todo]
-            try:
-                for future in cf.as_completed(futures):
-                    finished(future.result())
-            except BaseException:
-                for future in futures:
-                    future.cancel()
-                raise
-
-
-def _run_ray(todo: Sequence[JobKey], options: dict, episode_fn: str | EpisodeFn, finished: Callable[[dict], None]) -> None:
-    try:
-        import ray
-    except ImportError:
-        raise RuntimeError("the ray backend needs Ray: pip install 'ray[default]' (or use --backend local)") from None
-    if not ray.is_initialized():
-        ray.init(address=os.environ.get("RAY_ADDRESS"), ignore_reinit_error=True)
-    remote = ray.remote(_call)
-    refs = [remote.remote(episode_fn, job, options) for job in todo]
-    while refs:
-        done, refs = ray.wait(refs, num_returns=1)
-        finished(ray.get(done[0]))

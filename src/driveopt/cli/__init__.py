@@ -1,0 +1,52 @@
+"""The ``driveopt`` command: ``plan | problems | drive | bench | collect | train | plot-prior | scenarios | planners``.
+
+One module per command, each with ``register(subparsers)``. Errors in user input (a
+:class:`~driveopt.errors.DriveoptError`: unknown name, malformed file or config, unusable
+checkpoint) print one line ``driveopt: error: ...`` on stderr and exit with status 2; any other
+exception is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from typing import Sequence
+
+from driveopt.cli import bench, collect, drive, listing, plan, plot_prior, train
+from driveopt.cli.common import UsageError
+from driveopt.errors import DriveoptError
+
+__all__ = ["UsageError", "build_parser", "main"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="driveopt", description="Bi-level motion planning for dense highway traffic.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for command in (plan, drive, bench, collect, train, plot_prior, listing):
+        command.register(sub)
+    return parser
+
+
+def _exit_on_sigterm(signum, frame) -> None:
+    raise SystemExit(128 + signum)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if threading.current_thread() is threading.main_thread():
+        # A terminated long job (collect, train, bench) unwinds like Ctrl-C: files are closed, the
+        # finished work is kept, and a rerun resumes.
+        signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    try:
+        return args.func(args)
+    except DriveoptError as exc:
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"driveopt: error: {message}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,5 @@
+import sys
+
+from driveopt.cli import main
+
+sys.exit(main())

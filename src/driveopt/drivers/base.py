@@ -1,0 +1,68 @@
+"""Who acts in the closed loop: the :class:`Driver` protocol, what one step decides, and the spec that makes a driver.
+
+A driver is reset once per episode (``reset(env, scenario, seed)``: it may swap the ego vehicle,
+compile, draw its PRNG key from the seed) and then asked for one action per policy step
+(``act(env) -> Decision``). The rollout (:mod:`driveopt.sim.rollout`) owns the simulator; a driver
+only reads it and answers. A :class:`DriverSpec` is the registered, immutable description of a
+planner (``driveopt planners``) and makes a fresh driver for each episode.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+
+from driveopt.planner import PlanResult
+from driveopt.problem import PlanningProblem
+from driveopt.scene import Scene
+
+
+class Decision(NamedTuple):
+    """What a driver decided at one policy step."""
+
+    action: np.ndarray  # (2,) highway-env ContinuousAction in [-1, 1]^2 (acceleration, steering)
+    result: PlanResult | None = None  # the planning call's result (optimisers), else None
+    scene: Scene | None = None  # the scene it planned in
+    problem: PlanningProblem | None = None  # the planning problem it solved
+    plan_seconds: float = 0.0  # [s] wall time of the planning call
+
+
+class Driver(Protocol):
+    name: str
+    compile_seconds: float  # [s] wall time of the warm-up in ``reset`` (jit compilation); 0 when none
+
+    def reset(self, env: Any, scenario: Any, seed: int) -> None:
+        ...
+
+    def act(self, env: Any) -> Decision:
+        ...
+
+
+@dataclasses.dataclass(frozen=True)
+class DriverSpec:
+    """A registered planner: its name, a one-line description, and how to make its driver.
+
+    The ``with_*`` copies change what an optimiser plans with; they leave drivers without an
+    optimiser (``idm``) unchanged, so that one bench option can apply to every planner.
+    """
+
+    name: str
+    description: str
+
+    @property
+    def is_optimiser(self) -> bool:
+        return False
+
+    def driver(self) -> Driver:
+        raise NotImplementedError
+
+    def with_samples(self, samples: int | None) -> "DriverSpec":
+        return self
+
+    def with_overrides(self, **sections: Any) -> "DriverSpec":
+        return self
+
+    def with_weights(self, weights: str | None) -> "DriverSpec":
+        return self

@@ -1,0 +1,140 @@
+"""The bi-level optimiser (and every baseline built on it) as a closed-loop driver.
+
+Each policy step the driver perceives the simulator once (:func:`driveopt.sim.perception.perceive`),
+builds the planning problem (same-lane followers left out), plans with the spec's prior and
+configuration, and turns the plan's first action period into a ``ContinuousAction`` by the exact
+inverse of upstream's bicycle model. It carries the sampling mean to the next call when the spec
+warm-starts, and the executed plan when its configuration weighs ``cost.consistency``. When the
+planner reports anything but SUCCESS it follows the fallback and brakes at once at the fallback's
+deceleration. Its PRNG key derives from the episode seed: same seed, same episode.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Any, Callable
+
+import jax
+
+from driveopt.config import PlannerConfig
+from driveopt.drivers.base import Decision, DriverSpec
+from driveopt.planner import PlanResult, PlanStatus, plan, previous_plan
+from driveopt.problem import build_problem
+from driveopt.sim.control import BicycleModel, brake_at_least, track
+from driveopt.sim.perception import Perception, perceive
+from driveopt.sim.scenarios import Scenario
+
+SAFETY_FACTOR = 0.9  # [-] plans use at most this fraction of the simulator's acceleration and curvature
+
+PriorFactory = Callable[[PlannerConfig, int, "str | None"], Any]  # (config, lanes, weights file) -> prior
+
+
+def adapt_to_vehicle(config: PlannerConfig, scenario: Scenario, model: BicycleModel) -> PlannerConfig:
+    """Cap the planner's acceleration and curvature bounds at what the simulated car can do.
+
+    Upstream's ego accelerates within ``acceleration_range`` and turns at most with curvature
+    2 sin(beta_max) / L, beta_max = arctan(tan(delta_max) / 2).
+    """
+    a_max = SAFETY_FACTOR * min(abs(scenario.acceleration_range[0]), abs(scenario.acceleration_range[1]))
+    beta_max = math.atan(0.5 * math.tan(max(abs(s) for s in scenario.steering_range)))
+    kappa_max = SAFETY_FACTOR * 2.0 * math.sin(beta_max) / model.length
+    projection = dataclasses.replace(
+        config.projection,
+        a_max=min(config.projection.a_max, a_max),
+        kappa_max=min(config.projection.kappa_max, kappa_max) if config.projection.kappa_max > 0 else kappa_max,
+    )
+    return dataclasses.replace(config, projection=projection, fallback_deceleration=min(config.fallback_deceleration, a_max))
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimiserSpec(DriverSpec):
+    """A planner run by :func:`driveopt.planner.plan`: a configuration and a prior factory."""
+
+    config: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
+    make_prior: PriorFactory | None = None  # None: the Gaussian prior of ``config.sampler``
+    warm_start: bool = False  # carry the sampling mean between replans
+    weights: str | None = None  # learned priors: checkpoint file (default: the weights shipped for the road)
+    fixed_batch: bool = False  # the batch size is part of the method (vanilla: one sample); with_samples keeps it
+
+    @property
+    def is_optimiser(self) -> bool:
+        return True
+
+    def prior(self, lanes: int = 4) -> Any:
+        """The first-iteration proposal for a road with ``lanes`` lanes (learned priors pick weights by it)."""
+        if self.make_prior is None:
+            from driveopt.priors.gaussian import GaussianPrior
+
+            return GaussianPrior.from_config(self.config.sampler, self.config.projection.v_max)
+        return self.make_prior(self.config, lanes, self.weights)
+
+    def driver(self) -> "OptimiserDriver":
+        return OptimiserDriver(self)
+
+    def with_overrides(self, **sections: Any) -> "OptimiserSpec":
+        """Copy with config sections updated, e.g. ``sampler={"num_samples": 250}``."""
+        return dataclasses.replace(self, config=self.config.replace(**sections))
+
+    def with_samples(self, samples: int | None) -> "OptimiserSpec":
+        """Copy with ``samples`` per sampler iteration (elite counts capped at it); unchanged for ``None``
+        and for planners whose batch size is part of the method (``fixed_batch``)."""
+        if samples is None or self.fixed_batch:
+            return self
+        return dataclasses.replace(self, config=self.config.with_samples(samples))
+
+    def with_weights(self, weights: str | None) -> "OptimiserSpec":
+        """Copy that loads a learned prior from ``weights`` (a checkpoint file)."""
+        return dataclasses.replace(self, weights=weights)
+
+
+class OptimiserDriver:
+    """Plans every policy step; see the module docstring."""
+
+    def __init__(self, spec: OptimiserSpec) -> None:
+        self.spec = spec
+        self.name = spec.name
+        self.compile_seconds = 0.0
+
+    def reset(self, env: Any, scenario: Scenario, seed: int) -> None:
+        """Adapt the configuration to the env's car, load the prior, and compile (timed as ``compile_seconds``)."""
+        self.scenario = scenario
+        self.model = BicycleModel.from_env(env)
+        self.config = adapt_to_vehicle(self.spec.config, scenario, self.model)
+        self.prior = self.spec.prior(scenario.lanes)
+        self.key = jax.random.PRNGKey(seed)
+        self.period = 1.0 / scenario.policy_frequency  # [s] between replans
+        self.carries_plan = self.config.cost.consistency > 0
+        # Compile outside the timed loop (the first call's trace and the later calls'); results are discarded.
+        start = time.perf_counter()
+        problem = self._problem(perceive(env, scenario))
+        warmup = plan(problem, self.config, key=jax.random.fold_in(self.key, 1), prior=self.prior)
+        if self.spec.warm_start or self.carries_plan:
+            warm, previous = self._carried(warmup)
+            plan(problem, self.config, key=jax.random.fold_in(self.key, 2), prior=self.prior, warm_start=warm, previous=previous)
+        self.compile_seconds = time.perf_counter() - start
+        self.warm = self.previous = None
+
+    def _problem(self, perception: Perception):
+        return build_problem(perception.scene, self.config.basis, ignore_followers=True)
+
+    def _carried(self, result: PlanResult):
+        """(warm start, previous plan) handed to the next call."""
+        previous = previous_plan(result, self.period) if self.carries_plan else None
+        return (result.mean if self.spec.warm_start else None), previous
+
+    def act(self, env: Any) -> Decision:
+        perception = perceive(env, self.scenario)
+        scene = perception.scene
+        problem = self._problem(perception)
+        self.key, sub = jax.random.split(self.key)
+        start = time.perf_counter()
+        result = plan(problem, self.config, key=sub, prior=self.prior, warm_start=self.warm, previous=self.previous,
+                      x_offset=scene.ego.x)
+        elapsed = time.perf_counter() - start
+        self.warm, self.previous = self._carried(result)
+        command = track(result.safe_trajectory, 0.0, perception.kinematics, self.model)
+        if result.status != PlanStatus.SUCCESS:  # executing the fallback: brake now, not after a ramp
+            command = brake_at_least(command, result.fallback_deceleration, self.model, float(env.unwrapped.vehicle.speed))
+        return Decision(command.action, result, scene, problem, elapsed)

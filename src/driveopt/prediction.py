@@ -1,0 +1,64 @@
+"""What the planner assumes about the neighbours: their predicted motion, which ones count, their ellipses.
+
+Neighbours are predicted with constant velocity, except that a braking one keeps braking for
+:data:`BRAKING_TIME` (never reversing); the nearest ones (Euclidean distance now) are planned
+against, each inside a collision ellipse that circumscribes the Minkowski sum of the two vehicle
+boxes. Positions and times in the road frame: metres, seconds.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from driveopt.scene import EgoState, EllipseMargin, Neighbour, Scene
+
+
+def ellipse_semi_axes(ego: EgoState, other: Neighbour, margin: EllipseMargin) -> tuple[float, float]:
+    """[m] semi-axes of the ellipse that circumscribes the Minkowski sum of the two boxes, plus margins.
+
+    The axis-aligned ellipse with semi-axes sqrt(2) * (A, B) passes through the corners of a
+    box with half-sides (A, B): outside it, the two axis-aligned boxes cannot overlap. The
+    neighbour's box is first replaced by the axis-aligned box around it at its heading, so a car
+    turned across the road (changing lanes steeply, or stopped askew after a crash) is covered.
+    """
+    other_long, other_lat = other.half_extents
+    half_long = 0.5 * ego.length + other_long
+    half_lat = 0.5 * ego.width + other_lat
+    return math.sqrt(2.0) * half_long + margin.longitudinal, math.sqrt(2.0) * half_lat + margin.lateral
+
+
+BRAKING_TIME = 3.0  # [s] how long an observed braking is assumed to last in predictions
+
+
+def predict_neighbour(
+    n: Neighbour, t: np.ndarray, y_range: tuple[float, float], braking_time: float = BRAKING_TIME
+) -> tuple[np.ndarray, np.ndarray]:
+    """[m] predicted centre of a neighbour at times t [s]; y kept on the road.
+
+    Constant velocity, except that a braking neighbour (``accel`` < 0) keeps braking for
+    ``braking_time`` s (never reversing), then holds its speed: a car braking hard for a jam ahead
+    of it would otherwise be predicted to keep going and the ego would react a second late.
+    Acceleration is not extrapolated (a constant-velocity leader is the safer assumption).
+    """
+    speed = math.hypot(n.vx, n.vy)
+    decel = -min(n.accel, 0.0)
+    if decel == 0.0 or speed < 1e-6:
+        return n.x + n.vx * t, np.clip(n.y + n.vy * t, *y_range)
+    braking = min(braking_time, speed / decel)
+    tau = np.minimum(t, braking)
+    distance = speed * tau - 0.5 * decel * tau**2 + (speed - decel * braking) * (t - tau)
+    return n.x + n.vx / speed * distance, np.clip(n.y + n.vy / speed * distance, *y_range)
+
+
+def is_follower(scene: Scene, n: Neighbour) -> bool:
+    """A neighbour behind the ego in the ego's lane (it is the one that must keep its distance)."""
+    return n.x < scene.ego.x and abs(n.y - scene.ego.y) < 0.5 * scene.road.lane_width
+
+
+def nearest_neighbours(scene: Scene, count: int, ignore_followers: bool = False) -> list[Neighbour]:
+    """The ``count`` neighbours closest to the ego (Euclidean distance now), nearest first."""
+    ego = scene.ego
+    candidates = [n for n in scene.neighbours if not (ignore_followers and is_follower(scene, n))]
+    return sorted(candidates, key=lambda n: math.hypot(n.x - ego.x, n.y - ego.y))[:count]

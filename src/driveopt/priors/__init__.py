@@ -1,0 +1,14 @@
+"""Priors: where the first batch of set-points of a planning call comes from.
+
+One module per family: :mod:`~driveopt.priors.base` (the ``Prior`` protocol, ``Proposal``,
+``moments``), :mod:`~driveopt.priors.gaussian` (P1's Gaussian and driveopt's coherent behaviours),
+:mod:`~driveopt.priors.grids` (the MPC baselines' grids) and :mod:`~driveopt.priors.cvae` (the
+learned CVAE; imported on demand, it needs Flax).
+"""
+
+from driveopt.priors.base import Prior, Proposal, clip_setpoints, default_mean, moments
+from driveopt.priors.gaussian import GaussianPrior, coherent_behaviours
+from driveopt.priors.grids import GoalGridPrior, GridPrior, VanillaPrior
+
+__all__ = ["Prior", "Proposal", "clip_setpoints", "default_mean", "moments", "GaussianPrior", "coherent_behaviours",
+           "GoalGridPrior", "GridPrior", "VanillaPrior"]

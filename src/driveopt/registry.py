@@ -1,0 +1,72 @@
+"""Planner names -> driver specs: the bi-level optimiser, its baselines (P1 §V) and highway-env's IDM.
+
+Every optimiser is an :class:`~driveopt.drivers.optimiser.OptimiserSpec` (a ``PlannerConfig`` and a
+prior factory) run by the same ``plan()``; ``idm`` hands the ego to highway-env's IDM/MOBIL driver.
+A new planner is one entry of :data:`PLANNERS`; ``driveopt plan``, ``drive``, ``bench`` and
+``collect`` all look names up here.
+"""
+
+from __future__ import annotations
+
+from driveopt.config import PlannerConfig
+from driveopt.drivers.base import DriverSpec
+from driveopt.drivers.idm import IDMSpec
+from driveopt.drivers.optimiser import OptimiserSpec
+from driveopt.errors import UnknownNameError
+from driveopt.priors.cvae import cvae_prior
+from driveopt.priors.grids import GoalGridPrior, GridPrior, VanillaPrior
+
+
+class UnknownPlannerError(UnknownNameError):
+    """No planner of that name is registered."""
+
+
+def _single_iteration(config: PlannerConfig, samples: int) -> PlannerConfig:
+    return config.with_samples(samples).replace(sampler={"num_iterations": 1})
+
+
+_BASE = PlannerConfig()
+PLANNERS: dict[str, DriverSpec] = {
+    spec.name: spec
+    for spec in (
+        OptimiserSpec("bilevel", "P1 bi-level optimiser: Gaussian start, 5 CEM iterations x 20 projection iterations",
+                      _BASE, warm_start=True),
+        OptimiserSpec("bilevel-p1", "P1's Gaussian start exactly: independent set-points, no warm start (Fig. 9's baseline)",
+                      _BASE.replace(sampler={"structured_fraction": 0.0})),
+        OptimiserSpec("cvae", "P1 bi-level optimiser started from the learned CVAE only (shipped weights; Gaussian if none)",
+                      _BASE, cvae_prior(0.0)),
+        OptimiserSpec("cvae-mix", "bi-level optimiser: half the first batch from the CVAE, half from the bilevel Gaussian (warm start)",
+                      _BASE, cvae_prior(0.5), warm_start=True),
+        OptimiserSpec("random", "one Gaussian draw of set-points, no adaptation (MPC-Random)", _single_iteration(_BASE, 1000)),
+        OptimiserSpec("grid", "fixed grid: constant speed x target lane x change quarter (MPC-Grid)",
+                      _single_iteration(_BASE, 320), lambda c, *_: GridPrior(v_max=c.projection.v_max)),
+        OptimiserSpec("vanilla", "single speed set-point v_des in the current lane, no behavioural layer (MPC-Vanilla)",
+                      _single_iteration(_BASE, 1).replace(projection={"max_iterations": 100}),
+                      lambda c, *_: VanillaPrior(v_max=c.projection.v_max), fixed_batch=True),
+        OptimiserSpec("batch", "goal positions (x_f, y_f) on a grid with terminal constraints (Batch-MPC)",
+                      _single_iteration(_BASE.replace(qp={"terminal_position": True}), 200),
+                      lambda c, *_: GoalGridPrior(v_max=c.projection.v_max)),
+        IDMSpec("idm", "highway-env's IDM/MOBIL driver on the ego (rule-based reference)"),
+    )
+}
+
+
+def get_planner(name: str) -> DriverSpec:
+    """The registered planner ``name``; UnknownPlannerError listing the valid names otherwise."""
+    try:
+        return PLANNERS[name]
+    except KeyError:
+        raise UnknownPlannerError(f"unknown planner '{name}'; valid planners: {', '.join(PLANNERS)}") from None
+
+
+def list_planners() -> list[str]:
+    return list(PLANNERS)
+
+
+def get_optimiser(name: str) -> OptimiserSpec:
+    """The registered optimiser ``name`` (a planner that runs ``plan()``); UnknownPlannerError otherwise."""
+    spec = get_planner(name)
+    if not isinstance(spec, OptimiserSpec):
+        optimisers = [n for n, s in PLANNERS.items() if isinstance(s, OptimiserSpec)]
+        raise UnknownPlannerError(f"planner '{name}' does not plan with the optimiser; optimisers: {', '.join(optimisers)}")
+    return spec

@@ -1,0 +1,262 @@
+"""The world one planning call sees: ego, road, neighbours, desired speed; problem files in and out.
+
+Coordinates are the road (Frenet) frame: ``x`` along the road centre line, ``y``
+across it, both in metres, ``y`` growing to the left of travel in the road frame
+(highway-env's ``y`` grows downwards on screen; the frame is the same).
+
+A :class:`Scene` is validated on construction; :func:`driveopt.problem.build_problem` turns it
+into the arrays the planner consumes. Problem files are JSON (:func:`scene_from_dict`,
+:func:`scene_to_dict`, :func:`load_scene`); the built-in ones ship in ``driveopt/problems/``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from driveopt.errors import DriveoptError, UnknownNameError
+
+
+class ProblemError(DriveoptError):
+    """The planning problem is malformed (wrong shape, non-finite, inconsistent)."""
+
+
+def _finite(name: str, value: Any) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ProblemError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise ProblemError(f"{name} must be finite, got {v}")
+    return v
+
+
+@dataclass(frozen=True)
+class EgoState:
+    """Ego vehicle state in the road frame."""
+
+    x: float  # [m]
+    y: float  # [m]
+    vx: float  # [m/s]
+    vy: float = 0.0  # [m/s]
+    ax: float = 0.0  # [m/s^2]
+    ay: float = 0.0  # [m/s^2]
+    length: float = 5.0  # [m] (highway-env default vehicle)
+    width: float = 2.0  # [m]
+
+    def __post_init__(self) -> None:
+        for f in ("x", "y", "vx", "vy", "ax", "ay", "length", "width"):
+            object.__setattr__(self, f, _finite(f"ego.{f}", getattr(self, f)))
+        if self.length <= 0 or self.width <= 0:
+            raise ProblemError("ego.length and ego.width must be > 0 [m]")
+
+    @property
+    def speed(self) -> float:
+        return math.hypot(self.vx, self.vy)
+
+    @property
+    def heading(self) -> float:
+        """[rad] direction of travel relative to the road."""
+        return math.atan2(self.vy, self.vx) if self.speed > 1e-6 else 0.0
+
+
+@dataclass(frozen=True)
+class Neighbour:
+    """Another vehicle, observed now; predicted by :func:`driveopt.prediction.predict_neighbour`."""
+
+    x: float  # [m]
+    y: float  # [m]
+    vx: float = 0.0  # [m/s]
+    vy: float = 0.0  # [m/s]
+    length: float = 5.0  # [m]
+    width: float = 2.0  # [m]
+    yaw: float | None = None  # [rad] body heading relative to the road; None: the velocity's direction
+    accel: float = 0.0  # [m/s^2] acceleration along the velocity (< 0: braking); only braking is extrapolated
+
+    def __post_init__(self) -> None:
+        for f in ("x", "y", "vx", "vy", "length", "width", "accel"):
+            object.__setattr__(self, f, _finite(f"neighbour.{f}", getattr(self, f)))
+        if self.yaw is not None:
+            object.__setattr__(self, "yaw", _finite("neighbour.yaw", self.yaw))
+        if self.length <= 0 or self.width <= 0:
+            raise ProblemError("neighbour.length and neighbour.width must be > 0 [m]")
+
+    @property
+    def heading(self) -> float:
+        """[rad] heading of the box: ``yaw`` when given, else from the velocity (0 when nearly stopped)."""
+        if self.yaw is not None:
+            return self.yaw
+        return math.atan2(self.vy, self.vx) if math.hypot(self.vx, self.vy) > 0.5 else 0.0
+
+    @property
+    def half_extents(self) -> tuple[float, float]:
+        """[m] half-length and half-width of the axis-aligned box around the (rotated) vehicle."""
+        c, s = abs(math.cos(self.heading)), abs(math.sin(self.heading))
+        return 0.5 * (self.length * c + self.width * s), 0.5 * (self.length * s + self.width * c)
+
+
+@dataclass(frozen=True)
+class Road:
+    """Straight (or constant-curvature) multi-lane road; lane i is centred at first_lane_center + i * lane_width."""
+
+    num_lanes: int = 4  # [-]
+    lane_width: float = 4.0  # [m]
+    first_lane_center: float = 0.0  # [m]
+    curvature: float = 0.0  # [1/m] signed curvature of the centre line (used by the centripetal bound)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.num_lanes, int) or isinstance(self.num_lanes, bool) or self.num_lanes < 1:
+            raise ProblemError(f"road.num_lanes must be an int >= 1, got {self.num_lanes!r}")
+        for f in ("lane_width", "first_lane_center", "curvature"):
+            object.__setattr__(self, f, _finite(f"road.{f}", getattr(self, f)))
+        if self.lane_width <= 0:
+            raise ProblemError("road.lane_width must be > 0 [m]")
+
+    @property
+    def lane_centers(self) -> np.ndarray:
+        return self.first_lane_center + self.lane_width * np.arange(self.num_lanes)
+
+    @property
+    def edges(self) -> tuple[float, float]:
+        """[m] (lower, upper) road edges."""
+        lo = self.first_lane_center - 0.5 * self.lane_width
+        return lo, lo + self.num_lanes * self.lane_width
+
+
+@dataclass(frozen=True)
+class EllipseMargin:
+    """Extra clearance added to each semi-axis of the collision ellipse."""
+
+    longitudinal: float = 0.5  # [m]
+    lateral: float = 0.3  # [m] also covers the ego box turning by up to ~0.1 rad
+
+    def __post_init__(self) -> None:
+        for f in ("longitudinal", "lateral"):
+            v = _finite(f"ellipse_margin.{f}", getattr(self, f))
+            if v < 0:
+                raise ProblemError(f"ellipse_margin.{f} must be >= 0 [m]")
+            object.__setattr__(self, f, v)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Everything one planning call needs to know about the world."""
+
+    ego: EgoState
+    road: Road = field(default_factory=Road)
+    neighbours: tuple[Neighbour, ...] = ()
+    v_des: float = 20.0  # [m/s] desired speed
+    ellipse_margin: EllipseMargin = field(default_factory=EllipseMargin)
+    edge_margin: float = 0.0  # [m] extra distance the ego's side keeps from the road edge
+    name: str = "custom"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "neighbours", tuple(self.neighbours))
+        object.__setattr__(self, "v_des", _finite("v_des", self.v_des))
+        object.__setattr__(self, "edge_margin", _finite("edge_margin", self.edge_margin))
+        if self.v_des < 0:
+            raise ProblemError("v_des must be >= 0 [m/s]")
+        lo, hi = self.lateral_bounds
+        if lo >= hi:
+            raise ProblemError("the road is narrower than the ego vehicle plus edge margins")
+
+    @property
+    def lateral_bounds(self) -> tuple[float, float]:
+        """[m] bounds on the ego centre's y that keep its box on the road."""
+        lo, hi = self.road.edges
+        half = 0.5 * self.ego.width + self.edge_margin
+        return lo + half, hi - half
+
+
+def scene_to_dict(scene: Scene) -> dict[str, Any]:
+    """JSON-ready dict of a scene (the documented problem-file format)."""
+    return {
+        "name": scene.name,
+        "v_des": scene.v_des,
+        "road": asdict(scene.road),
+        "ego": asdict(scene.ego),
+        "neighbours": [asdict(n) for n in scene.neighbours],
+        "ellipse_margin": asdict(scene.ellipse_margin),
+        "edge_margin": scene.edge_margin,
+    }
+
+
+_TOP_KEYS = {"name", "description", "v_des", "road", "ego", "neighbours", "ellipse_margin", "edge_margin"}
+
+
+def _section(data: dict[str, Any], key: str, cls: type, required: bool) -> Any:
+    if key not in data:
+        if required:
+            raise ProblemError(f"problem file is missing '{key}'")
+        return cls()
+    value = data[key]
+    if not isinstance(value, dict):
+        raise ProblemError(f"'{key}' must be an object")
+    try:
+        return cls(**value)
+    except TypeError as exc:
+        raise ProblemError(f"bad '{key}': {exc}") from None
+
+
+def scene_from_dict(data: Any) -> Scene:
+    """Parse the problem-file format; every defect raises ProblemError with the offending key."""
+    if not isinstance(data, dict):
+        raise ProblemError("problem file must hold a JSON object")
+    unknown = sorted(set(data) - _TOP_KEYS)
+    if unknown:
+        raise ProblemError(f"unknown key(s) in problem file: {unknown}; valid: {sorted(_TOP_KEYS)}")
+    neighbours = data.get("neighbours", [])
+    if not isinstance(neighbours, list):
+        raise ProblemError("'neighbours' must be a list")
+    parsed = []
+    for i, n in enumerate(neighbours):
+        if not isinstance(n, dict):
+            raise ProblemError(f"neighbours[{i}] must be an object")
+        try:
+            parsed.append(Neighbour(**n))
+        except TypeError as exc:
+            raise ProblemError(f"bad neighbours[{i}]: {exc}") from None
+        except ProblemError as exc:
+            raise ProblemError(f"neighbours[{i}]: {exc}") from None
+    return Scene(
+        ego=_section(data, "ego", EgoState, required=True),
+        road=_section(data, "road", Road, required=False),
+        neighbours=tuple(parsed),
+        v_des=data.get("v_des", 20.0),
+        ellipse_margin=_section(data, "ellipse_margin", EllipseMargin, required=False),
+        edge_margin=data.get("edge_margin", 0.0),
+        name=str(data.get("name", "custom")),
+    )
+
+
+BUILTIN_DIR = Path(__file__).parent / "problems"
+
+
+class UnknownProblemError(ProblemError, UnknownNameError):
+    """No built-in problem of that name and no such file."""
+
+
+def builtin_problems() -> list[str]:
+    """Names of the problems shipped with the package."""
+    return sorted(p.stem for p in BUILTIN_DIR.glob("*.json"))
+
+
+def load_scene(name_or_path: str | Path) -> Scene:
+    """Load a built-in problem by name, or a problem file by path."""
+    path = Path(name_or_path)
+    if not path.suffix and (BUILTIN_DIR / f"{name_or_path}.json").exists():
+        path = BUILTIN_DIR / f"{name_or_path}.json"
+    if not path.exists():
+        raise UnknownProblemError(f"no problem named '{name_or_path}'; built-in problems: {builtin_problems()}, or give a JSON file path")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ProblemError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ProblemError(f"{path}: cannot read ({exc})") from None
+    return scene_from_dict(data)
