@@ -5,11 +5,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from driveopt.errors import UnknownNameError
 from driveopt.planner import goal_from_setpoints, plan
 from driveopt.priors.grids import GoalGridPrior, GridPrior
 from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
-from driveopt.errors import UnknownNameError
 from driveopt.registry import get_optimiser, get_planner, list_planners
 from driveopt.scene import load_scene
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -24,6 +25,35 @@ def _require(cond: bool, message: str) -> None:
         raise ConfigError(message)
 
 
+MAX_HORIZON = 120.0  # [s] longest planning horizon
+MAX_SPEED = 100.0  # [m/s] highest speed bound
+MAX_ACCELERATION = 100.0  # [m/s^2] highest acceleration bound
+MAX_WEIGHT = 1e6  # [-] highest cost weight, gain or penalty weight
+
+_EXPECTED = {"bool": "true or false", "int": "an integer", "float": "a number"}
+
+
+def _check_types(config: Any, section: str) -> None:
+    """Every field of the dataclass ``config`` has its declared type (a bool is a bool, an int an int
+    and not a bool, a float a real number and not a bool) and every float is finite; an int given for
+    a float field becomes a float. JSON values are never coerced (``"false"`` is not false)."""
+    for f in dataclasses.fields(config):
+        if f.type not in _EXPECTED:
+            continue  # nested sections check themselves
+        value = getattr(config, f.name)
+        name = f"{section}.{f.name}" if section else f.name
+        if f.type == "bool":
+            ok = isinstance(value, bool)
+        elif f.type == "int":
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        else:
+            ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
+        _require(ok, f"{name} must be {_EXPECTED[f.type]}, got {value!r}")
+        if f.type == "float":
+            _require(math.isfinite(value), f"{name} must be finite, got {value!r}")
+            object.__setattr__(config, f.name, float(value))
+
+
 @dataclass(frozen=True)
 class BasisConfig:
     """Bernstein polynomial trajectory basis."""
@@ -33,9 +63,10 @@ class BasisConfig:
     num_nodes: int = 100  # time nodes on [0, T], both ends included
 
     def __post_init__(self) -> None:
-        _require(isinstance(self.order, int) and 3 <= self.order <= 20, "basis.order must be an int in [3, 20]")
-        _require(math.isfinite(self.horizon) and self.horizon > 0, "basis.horizon must be > 0 [s]")
-        _require(isinstance(self.num_nodes, int) and self.num_nodes >= 8, "basis.num_nodes must be an int >= 8")
+        _check_types(self, "basis")
+        _require(3 <= self.order <= 20, f"basis.order must be in [3, 20], got {self.order}")
+        _require(0 < self.horizon <= MAX_HORIZON, f"basis.horizon must be in (0, {MAX_HORIZON:g}] s, got {self.horizon:g}")
+        _require(8 <= self.num_nodes <= 2000, f"basis.num_nodes must be in [8, 2000], got {self.num_nodes}")
         _require(self.num_nodes % 4 == 0, "basis.num_nodes must be divisible by 4 (one segment per set-point)")
 
     @property
@@ -64,9 +95,10 @@ class QPConfig:
     terminal_position: bool = False  # also impose x(T) = x_f, y(T) = y_f (goal-sampling baseline)
 
     def __post_init__(self) -> None:
+        _check_types(self, "qp")
         for name in ("w_smooth", "w_speed", "w_lateral", "k_pv", "k_p", "k_d"):
             value = getattr(self, name)
-            _require(math.isfinite(value) and value >= 0, f"qp.{name} must be finite and >= 0")
+            _require(0 <= value <= MAX_WEIGHT, f"qp.{name} must be in [0, {MAX_WEIGHT:g}], got {value:g}")
         _require(self.w_smooth > 0, "qp.w_smooth must be > 0 (it keeps the QP strictly convex)")
 
 
@@ -88,14 +120,16 @@ class ProjectionConfig:
     barrier: bool = False  # P2's discrete-time barrier forms for obstacles and lanes
 
     def __post_init__(self) -> None:
-        _require(isinstance(self.max_iterations, int) and self.max_iterations >= 1, "projection.max_iterations must be an int >= 1")
+        _check_types(self, "projection")
+        _require(1 <= self.max_iterations <= 10_000, f"projection.max_iterations must be in [1, 10000], got {self.max_iterations}")
         _require(self.tolerance >= 0, "projection.tolerance must be >= 0")
         for name in ("rho_obstacle", "rho_velocity", "rho_acceleration", "rho_lane"):
-            _require(getattr(self, name) > 0, f"projection.{name} must be > 0")
-        _require(0 <= self.v_min < self.v_max, "projection needs 0 <= v_min < v_max [m/s]")
-        _require(self.a_max > 0, "projection.a_max must be > 0 [m/s^2]")
-        _require(self.kappa_max >= 0, "projection.kappa_max must be >= 0 [1/m]")
-        _require(self.centripetal_max > 0, "projection.centripetal_max must be > 0 [m/s^2]")
+            value = getattr(self, name)
+            _require(0 < value <= MAX_WEIGHT, f"projection.{name} must be in (0, {MAX_WEIGHT:g}], got {value:g}")
+        _require(0 <= self.v_min < self.v_max <= MAX_SPEED, f"projection needs 0 <= v_min < v_max <= {MAX_SPEED:g} m/s")
+        _require(0 < self.a_max <= MAX_ACCELERATION, f"projection.a_max must be in (0, {MAX_ACCELERATION:g}] m/s^2")
+        _require(0 <= self.kappa_max <= 10, "projection.kappa_max must be in [0, 10] 1/m")
+        _require(0 < self.centripetal_max <= MAX_ACCELERATION, f"projection.centripetal_max must be in (0, {MAX_ACCELERATION:g}] m/s^2")
 
 
 @dataclass(frozen=True)
@@ -110,9 +144,10 @@ class CostConfig:
     consistency: float = 0.0  # [1/m^2] (y(t) - y_previous(t))^2 against the previous replan's plan (0: not used)
 
     def __post_init__(self) -> None:
+        _check_types(self, "cost")
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            _require(math.isfinite(value) and value >= 0, f"cost.{f.name} must be finite and >= 0")
+            _require(0 <= value <= MAX_WEIGHT, f"cost.{f.name} must be in [0, {MAX_WEIGHT:g}], got {value:g}")
 
 
 @dataclass(frozen=True)
@@ -132,17 +167,18 @@ class SamplerConfig:
     structured_fraction: float = 0.5  # [-] share of the first batch drawn as whole-horizon behaviours (0: P1)
 
     def __post_init__(self) -> None:
-        _require(isinstance(self.num_samples, int) and self.num_samples >= 1, "sampler.num_samples must be an int >= 1")
-        _require(isinstance(self.num_iterations, int) and self.num_iterations >= 1, "sampler.num_iterations must be an int >= 1")
+        _check_types(self, "sampler")
+        _require(1 <= self.num_samples <= 100_000, f"sampler.num_samples must be in [1, 100000], got {self.num_samples}")
+        _require(1 <= self.num_iterations <= 1000, f"sampler.num_iterations must be in [1, 1000], got {self.num_iterations}")
         _require(
             1 <= self.num_elites <= self.num_constraint_elites <= self.num_samples,
             "sampler needs 1 <= num_elites <= num_constraint_elites <= num_samples",
         )
-        _require(self.temperature > 0, "sampler.temperature must be > 0")
+        _require(0 < self.temperature <= MAX_WEIGHT, f"sampler.temperature must be in (0, {MAX_WEIGHT:g}]")
         _require(0 < self.learning_rate <= 1, "sampler.learning_rate must be in (0, 1]")
-        _require(self.covariance_jitter >= 0, "sampler.covariance_jitter must be >= 0")
-        _require(self.speed_std > 0 and self.lateral_std > 0, "sampler std values must be > 0")
-        _require(self.residual_tolerance >= 0, "sampler.residual_tolerance must be >= 0")
+        _require(0 <= self.covariance_jitter <= 1e3, "sampler.covariance_jitter must be in [0, 1000]")
+        _require(0 < self.speed_std <= MAX_SPEED and 0 < self.lateral_std <= 100, "sampler needs speed_std in (0, 100] m/s and lateral_std in (0, 100] m")
+        _require(0 <= self.residual_tolerance <= 1e3, "sampler.residual_tolerance must be in [0, 1000]")
         _require(0 <= self.structured_fraction <= 1, "sampler.structured_fraction must be in [0, 1]")
 
 
@@ -158,7 +194,8 @@ class PlannerConfig:
     fallback_deceleration: float = 3.0  # [m/s^2] comfortable braking of the fallback plan
 
     def __post_init__(self) -> None:
-        _require(self.fallback_deceleration > 0, "fallback_deceleration must be > 0 [m/s^2]")
+        _check_types(self, "")
+        _require(0 < self.fallback_deceleration <= MAX_ACCELERATION, f"fallback_deceleration must be in (0, {MAX_ACCELERATION:g}] m/s^2")
 
     def replace(self, **sections: Mapping[str, Any] | Any) -> "PlannerConfig":
         """Copy with sections replaced; a mapping value updates fields of that section.
@@ -208,7 +245,7 @@ def from_dict(data: Mapping[str, Any], base: PlannerConfig | None = None) -> Pla
             except TypeError as exc:
                 raise ConfigError(f"bad value in '{key}': {exc}") from None
         elif key == "fallback_deceleration":
-            updates[key] = float(value)
+            updates[key] = value  # type and range: PlannerConfig checks them
         else:
             raise ConfigError(f"unknown config section '{key}'; valid: {sorted([*_SECTIONS, 'fallback_deceleration'])}")
     return dataclasses.replace(base, **updates)

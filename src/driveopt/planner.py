@@ -50,26 +50,14 @@ from driveopt.costs import (
     Trajectory,
     cost_terms,
     evaluate,
-    nearest_lane_center,
     weighted_cost,
 )
+from driveopt.fallback import braking_coeffs, stop_setpoints, stop_trajectory
 from driveopt.priors.base import Prior, clip_setpoints
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import PlanningProblem, check_problem
-from driveopt.projection import (
-    FAMILIES,
-    XLA_CPU_COMPILER_OPTIONS,
-    project,
-    supported_compiler_options,
-)
-from driveopt.qp import (
-    NUM_SEGMENTS,
-    SETPOINT_DIM,
-    boundary_values,
-    fit_positions,
-    make_model,
-    solve_setpoint_qp,
-)
+from driveopt.projection import FAMILIES, XLA_CPU_COMPILER_OPTIONS, constraint_residuals, project, supported_compiler_options
+from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, boundary_values, fit_positions, make_model, solve_setpoint_qp
 from driveopt.safety.base import SafetyFilter
 from driveopt.sampler import cem_update, sample_gaussian, select_lowest
 from driveopt.scene import ProblemError
@@ -162,19 +150,9 @@ class Solution(NamedTuple):
     first: Snapshot
     last: Snapshot
     trajectory: Trajectory  # of the best coefficients
-    fallback: Candidate  # the stop offered as fallback
-    fallback_trajectory: Trajectory
+    fallback: Candidate  # the stop offered as fallback (its coefficients: the polynomial closest to it)
+    fallback_trajectory: Trajectory  # the stop itself (driveopt.fallback): speed never increases, never below 0
     fallback_emergency: jnp.ndarray  # () bool: the fallback is the emergency stop
-
-
-def stop_setpoints(problem: PlanningProblem, horizon: float, decel: float, to_lane_centre: bool) -> jnp.ndarray:
-    """(8,) set-points describing a stop: speed at each quarter's end, lateral target."""
-    quarter = horizon / NUM_SEGMENTS
-    ends = quarter * jnp.arange(1, NUM_SEGMENTS + 1, dtype=jnp.float32)
-    speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
-    v = jnp.maximum(speed - decel * ends, 0.0)
-    y = nearest_lane_center(problem, problem.init_y[0]) if to_lane_centre else problem.init_y[0]
-    return jnp.concatenate([v, jnp.full(NUM_SEGMENTS, y)])
 
 
 def goal_from_setpoints(setpoints: jnp.ndarray, init_x: jnp.ndarray, horizon: float) -> jnp.ndarray:
@@ -190,27 +168,11 @@ def _boundary(problem: PlanningProblem, cfg: PlannerConfig, setpoints: jnp.ndarr
     return boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
 
 
-def braking_coeffs(model, problem: PlanningProblem, decel: float, b_x, b_y, to_lane_centre: bool = True) -> jnp.ndarray:
-    """(2n,) stop at constant deceleration ``decel`` [m/s^2], easing to the nearest lane centre in 3 s
-    (or holding the current lateral position).
-
-    A least-squares fit of that motion (the set-point QP's step set-points would overshoot it).
-    """
-    t = jnp.asarray(model.t)
-    speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
-    moving = jnp.minimum(t, speed / decel)
-    x = problem.init_x[0] + speed * moving - 0.5 * decel * moving**2
-    centre = nearest_lane_center(problem, problem.init_y[0]) if to_lane_centre else problem.init_y[0]
-    tau = jnp.minimum(t / 3.0, 1.0)
-    y = problem.init_y[0] + (centre - problem.init_y[0]) * (3 * tau**2 - 2 * tau**3)
-    return fit_positions(model, x, y, b_x, b_y)
-
-
 def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: PreviousPlan | None, safety_filter, unroll: bool):
     """QP + projection + ranking for one batch of set-points (the appended rows: see the module docstring).
 
-    Returns (pick, (fallback, emergency), snapshot, score, stats): the best row, the stop offered as
-    fallback, the batch, every row's cost + residual, and the iteration's History entries.
+    Returns (pick, snapshot, score, stats): the best row, the batch, every row's cost + residual, and
+    the iteration's History entries.
     """
     s = cfg.sampler
     stops = ((cfg.fallback_deceleration, True), (cfg.projection.a_max, False))  # (decel [m/s^2], to lane centre)
@@ -258,10 +220,31 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
         projection_iterations=proj.iterations, projection_status=proj.status,
     )
     snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked, kind)
-    # The fallback offered: the comfortable stop, unless the emergency stop has a lower residual.
-    emergency = residual[-1] < residual[-2]
-    fallback = jnp.where(emergency, residual.shape[0] - 1, residual.shape[0] - 2)
-    return candidate(pick), (candidate(fallback), emergency), snapshot, score, stats
+    return candidate(pick), snapshot, score, stats
+
+
+def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Candidate, jnp.ndarray, Trajectory]:
+    """(candidate, emergency, trajectory) of the stop offered as fallback (:mod:`driveopt.fallback`): the
+    comfortable stop, unless the emergency stop is closer to meeting the constraints."""
+    options = []
+    for decel, to_centre in ((cfg.fallback_deceleration, True), (cfg.projection.a_max, False)):
+        trajectory = stop_trajectory(problem, jnp.asarray(model.t), decel, to_centre)
+        goal = jnp.stack([trajectory.x[-1], trajectory.y[-1]]) if cfg.qp.terminal_position else None
+        b_x, b_y = boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
+        coeffs = fit_positions(model, trajectory.x, trajectory.y, b_x, b_y)
+        residuals = constraint_residuals(model, problem, coeffs[None], cfg.projection)
+        families = jnp.stack([r[0] for r in residuals])
+        terms = cost_terms(trajectory, problem)
+        cost = weighted_cost(terms, cfg.cost)
+        total = jnp.sum(families)
+        score = jnp.where(total <= cfg.sampler.residual_tolerance, cost + total, INFEASIBLE_PENALTY + total)
+        setpoints = stop_setpoints(problem, cfg.basis.horizon, decel, to_centre)
+        options.append((Candidate(score, setpoints, coeffs, families, jnp.stack([terms[k] for k in COST_TERMS]), cost),
+                        trajectory))
+    (comfortable, comfortable_path), (emergency_stop, emergency_path) = options
+    emergency = jnp.sum(emergency_stop.residuals) < jnp.sum(comfortable.residuals)
+    pick = lambda a, b: jax.tree_util.tree_map(lambda u, v: jnp.where(emergency, u, v), a, b)  # noqa: E731
+    return pick(emergency_stop, comfortable), emergency, pick(emergency_path, comfortable_path)
 
 
 def _better(a: Candidate, b: Candidate) -> Candidate:
@@ -303,13 +286,13 @@ def solve(
         elites = snapshot.setpoints[snapshot.elite_index]
         return cem_update(mean, cov, elites, score[snapshot.elite_index], s)
 
-    best, (fallback, emergency), first, score, stats = iteration(proposal.samples)
+    best, first, score, stats = iteration(proposal.samples)
     mean, cov = adapt(proposal.mean, proposal.cov, first, score)
 
     def body(carry, iteration_key):
         mean, cov, best, _ = carry
         setpoints = clip_setpoints(sample_gaussian(iteration_key, mean, cov, s.num_samples), problem, config.projection.v_max)
-        cand, _, snapshot, score, stats = iteration(setpoints)
+        cand, snapshot, score, stats = iteration(setpoints)
         best = _better(best, cand)
         mean, cov = adapt(mean, cov, snapshot, score)
         stats = stats._replace(best_score=best.score, best_feasible=best.score < INFEASIBLE_PENALTY)
@@ -323,8 +306,9 @@ def solve(
         PlanStatus.NUMERICAL_ERROR,
         jnp.where(best.score < INFEASIBLE_PENALTY, PlanStatus.SUCCESS, PlanStatus.INFEASIBLE),
     ).astype(jnp.int32)
+    fallback, emergency, fallback_trajectory = _fallback(model, problem, config)
     return Solution(status, best, mean, cov, history, first, last, evaluate(model, best.coeffs), fallback,
-                    evaluate(model, fallback.coeffs), emergency)
+                    fallback_trajectory, emergency)
 
 
 @functools.cache

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,13 +27,31 @@ class ProblemError(DriveoptError):
     """The planning problem is malformed (wrong shape, non-finite, inconsistent)."""
 
 
-def _finite(name: str, value: Any) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ProblemError(f"{name} must be a number, got {value!r}") from None
+# The physical range of every number of a scene: (lowest, highest, unit). Beyond it a problem is refused
+# rather than planned in float32 (where, e.g., a speed of 1e30 m/s has no finite trajectory).
+RANGES = {
+    "x": (-1e5, 1e5, "m"), "y": (-1e3, 1e3, "m"),
+    "vx": (-100.0, 100.0, "m/s"), "vy": (-100.0, 100.0, "m/s"),
+    "ax": (-100.0, 100.0, "m/s^2"), "ay": (-100.0, 100.0, "m/s^2"), "accel": (-100.0, 100.0, "m/s^2"),
+    "length": (0.1, 100.0, "m"), "width": (0.1, 100.0, "m"), "yaw": (-100.0, 100.0, "rad"),
+    "lane_width": (0.5, 100.0, "m"), "first_lane_center": (-1e3, 1e3, "m"), "curvature": (-1.0, 1.0, "1/m"),
+    "longitudinal": (0.0, 100.0, "m"), "lateral": (0.0, 100.0, "m"),
+    "v_des": (0.0, 100.0, "m/s"), "edge_margin": (0.0, 100.0, "m"),
+}
+MAX_LANES = 64  # [-] lanes of a road
+
+
+def _number(name: str, value: Any, field: str | None = None) -> float:
+    """``value`` as a float after checking that it is a real number (not a bool or a string), finite,
+    and within ``RANGES[field]`` (field: the last part of ``name`` by default)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ProblemError(f"{name} must be a number, got {value!r}")
+    v = float(value)
     if not math.isfinite(v):
         raise ProblemError(f"{name} must be finite, got {v}")
+    low, high, unit = RANGES[field or name.rpartition(".")[2]]
+    if not low <= v <= high:
+        raise ProblemError(f"{name} must be within [{low:g}, {high:g}] {unit}, got {v:g}")
     return v
 
 
@@ -51,9 +70,7 @@ class EgoState:
 
     def __post_init__(self) -> None:
         for f in ("x", "y", "vx", "vy", "ax", "ay", "length", "width"):
-            object.__setattr__(self, f, _finite(f"ego.{f}", getattr(self, f)))
-        if self.length <= 0 or self.width <= 0:
-            raise ProblemError("ego.length and ego.width must be > 0 [m]")
+            object.__setattr__(self, f, _number(f"ego.{f}", getattr(self, f)))
 
     @property
     def speed(self) -> float:
@@ -80,11 +97,9 @@ class Neighbour:
 
     def __post_init__(self) -> None:
         for f in ("x", "y", "vx", "vy", "length", "width", "accel"):
-            object.__setattr__(self, f, _finite(f"neighbour.{f}", getattr(self, f)))
+            object.__setattr__(self, f, _number(f"neighbour.{f}", getattr(self, f)))
         if self.yaw is not None:
-            object.__setattr__(self, "yaw", _finite("neighbour.yaw", self.yaw))
-        if self.length <= 0 or self.width <= 0:
-            raise ProblemError("neighbour.length and neighbour.width must be > 0 [m]")
+            object.__setattr__(self, "yaw", _number("neighbour.yaw", self.yaw))
 
     @property
     def heading(self) -> float:
@@ -110,12 +125,10 @@ class Road:
     curvature: float = 0.0  # [1/m] signed curvature of the centre line (used by the centripetal bound)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.num_lanes, int) or isinstance(self.num_lanes, bool) or self.num_lanes < 1:
-            raise ProblemError(f"road.num_lanes must be an int >= 1, got {self.num_lanes!r}")
+        if not isinstance(self.num_lanes, int) or isinstance(self.num_lanes, bool) or not 1 <= self.num_lanes <= MAX_LANES:
+            raise ProblemError(f"road.num_lanes must be an int in [1, {MAX_LANES}], got {self.num_lanes!r}")
         for f in ("lane_width", "first_lane_center", "curvature"):
-            object.__setattr__(self, f, _finite(f"road.{f}", getattr(self, f)))
-        if self.lane_width <= 0:
-            raise ProblemError("road.lane_width must be > 0 [m]")
+            object.__setattr__(self, f, _number(f"road.{f}", getattr(self, f)))
 
     @property
     def lane_centers(self) -> np.ndarray:
@@ -137,10 +150,7 @@ class EllipseMargin:
 
     def __post_init__(self) -> None:
         for f in ("longitudinal", "lateral"):
-            v = _finite(f"ellipse_margin.{f}", getattr(self, f))
-            if v < 0:
-                raise ProblemError(f"ellipse_margin.{f} must be >= 0 [m]")
-            object.__setattr__(self, f, v)
+            object.__setattr__(self, f, _number(f"ellipse_margin.{f}", getattr(self, f)))
 
 
 @dataclass(frozen=True)
@@ -157,10 +167,10 @@ class Scene:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "neighbours", tuple(self.neighbours))
-        object.__setattr__(self, "v_des", _finite("v_des", self.v_des))
-        object.__setattr__(self, "edge_margin", _finite("edge_margin", self.edge_margin))
-        if self.v_des < 0:
-            raise ProblemError("v_des must be >= 0 [m/s]")
+        object.__setattr__(self, "v_des", _number("v_des", self.v_des))
+        object.__setattr__(self, "edge_margin", _number("edge_margin", self.edge_margin))
+        if not isinstance(self.name, str):
+            raise ProblemError(f"name must be a string, got {self.name!r}")
         lo, hi = self.lateral_bounds
         if lo >= hi:
             raise ProblemError("the road is narrower than the ego vehicle plus edge margins")
@@ -230,7 +240,7 @@ def scene_from_dict(data: Any) -> Scene:
         v_des=data.get("v_des", 20.0),
         ellipse_margin=_section(data, "ellipse_margin", EllipseMargin, required=False),
         edge_margin=data.get("edge_margin", 0.0),
-        name=str(data.get("name", "custom")),
+        name=data.get("name", "custom"),
     )
 
 

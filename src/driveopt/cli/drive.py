@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 
-from driveopt.cli.common import config_overrides, positive_int, write_json
+from driveopt.cli.common import config_overrides, positive_int, seed, writable_file, write_json
 
 
 def register(sub) -> None:
@@ -14,7 +14,7 @@ def register(sub) -> None:
     p.add_argument("--scenario-config", help="JSON file overriding scenario fields")
     p.add_argument("--planner", default="cvae-mix", help="planner name (see `driveopt planners`)")
     p.add_argument("--weights", help="learned-prior checkpoint (default: the weights shipped for the road)")
-    p.add_argument("--seed", type=int, default=42, help="traffic and sampling seed")
+    p.add_argument("--seed", type=seed, default=42, help="traffic and sampling seed")
     p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="samples per sampler iteration")
     p.add_argument("--video", default="out/drive.mp4", help="MP4 path ('' for none)")
@@ -31,6 +31,8 @@ def run(args: argparse.Namespace) -> int:
     from driveopt.sim.rollout import Rollout
     from driveopt.sim.scenarios import resolve_scenario
 
+    writable_file(args.json, "--json")
+    writable_file(args.video, "--video")
     scenario = resolve_scenario(args.scenario, config_file=args.scenario_config)
     if args.duration is not None:
         scenario = scenario.replace(duration=args.duration)
@@ -40,6 +42,7 @@ def run(args: argparse.Namespace) -> int:
     rollout = Rollout(scenario, spec.driver(), args.seed, render=bool(args.video))
     with contextlib.ExitStack() as stack:
         bar = stack.enter_context(tqdm(total=steps, desc=f"{scenario.name} / {spec.name}", unit="step"))
+        bar.set_postfix_str("compiling")
         writer = None
         if args.video:
             from driveopt.viz.video import VideoWriter, draw_plan, plan_overlay_arrays
@@ -55,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
                                       fallback=result.status != PlanStatus.SUCCESS)
                 writer.append(frame)
             episode = step.episode
+            if not episode.speeds:  # the first step came after compilation: time the rest from here
+                bar.reset(total=steps)
             bar.update(1)
             bar.set_postfix(v=f"{episode.speeds[-1]:.1f}" if episode.speeds else "-",
                             plan_ms=f"{1e3 * step.decision.plan_seconds:.0f}" if result is not None else "-")
@@ -63,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"{scenario.name} / {spec.name} (seed {args.seed}): collided {episode.collided}, off-road {episode.off_road}, "
         f"{episode.sim_duration:.1f} s simulated, mean speed {episode.mean_speed:.1f} m/s, "
-        f"planning {summary['plan_ms_median']:.0f} ms median / {summary['plan_ms_p95']:.0f} ms p95"
+        f"planning {summary['plan_ms_median']:.0f} ms median / {summary['plan_ms_p95']:.0f} ms p95, "
+        f"compile {episode.compile_seconds:.1f} s"
     )
     if args.json:
         print(f"  wrote {write_json(args.json, summary)}")

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from driveopt.cli.common import config_overrides, positive_int, write_json
+from driveopt.cli.common import config_overrides, non_negative_int, positive_int, seed, writable_file, write_json
 from driveopt.config import to_dict
 from driveopt.problem import build_problem
 from driveopt.scene import builtin_problems, load_scene, scene_to_dict
@@ -21,10 +21,10 @@ def register(sub) -> None:
     p.add_argument("--samples", type=positive_int, help="samples per sampler iteration (default: the planner's)")
     p.add_argument("--iterations", type=positive_int, help="sampler iterations (default: the planner's)")
     p.add_argument("--projection-iterations", type=positive_int, help="projection iterations (default: the planner's)")
-    p.add_argument("--seed", type=int, default=0, help="PRNG seed")
+    p.add_argument("--seed", type=seed, default=0, help="PRNG seed")
     p.add_argument("--config", help="planner config JSON (nested sections: basis, qp, projection, sampler, cost)")
     p.add_argument("--max-obstacles", type=positive_int, default=10, help="nearest neighbours considered")
-    p.add_argument("--repeats", type=int, default=3, help="extra timed calls after the first (compile) call")
+    p.add_argument("--repeats", type=non_negative_int, default=3, help="extra timed calls after the first (compile) call; 0: none")
     p.add_argument("--json", help="write the result as JSON here")
     p.add_argument("--plot", help="write a plot (PNG) here")
     p.set_defaults(func=run)
@@ -52,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
 
     from driveopt.planner import plan
 
+    writable_file(args.json, "--json")
+    writable_file(args.plot, "--plot")
     scene = load_scene(args.problem)
     spec = _spec(args)
     config = spec.config
@@ -66,14 +68,17 @@ def run(args: argparse.Namespace) -> int:
         start = time.perf_counter()
         plan(problem, config, key=key, prior=prior, x_offset=scene.ego.x)
         solves.append(time.perf_counter() - start)
-    solve = float(np.median(solves)) if solves else first
-    timing = {"compile_s": max(first - solve, 0.0), "solve_s": solve, "first_call_s": first}
+    solve = float(np.median(solves)) if solves else None
+    timing = {"compile_s": None if solve is None else max(first - solve, 0.0), "solve_s": solve, "first_call_s": first}
     traj = result.trajectory
     print(f"{scene.name} / {spec.name}: {result.status.name} - {result.message}")
     fmt = lambda values: ", ".join(f"{v:.1f}" for v in values)  # noqa: E731
     print(f"  set-points: speed [{fmt(result.setpoints[:4])}] m/s, lateral [{fmt(result.setpoints[4:])}] m")
     print(f"  residual {result.residuals['total']:.4f}, cost {result.costs['total']:.3f}; end speed {traj.speed[-1]:.1f} m/s, end y {traj.y[-1]:.2f} m")
-    print(f"  timing: compile {timing['compile_s']:.2f} s, solve {1e3 * solve:.1f} ms (median of {len(solves)})")
+    if solve is None:
+        print(f"  timing: first call {first:.2f} s (compilation included; --repeats 0 times no further call)")
+    else:
+        print(f"  timing: compile {timing['compile_s']:.2f} s, solve {1e3 * solve:.1f} ms (median of {len(solves)})")
     if args.json:
         report = {**result.to_json(), "timing": timing, "problem": scene_to_dict(scene), "planner": spec.name,
                   "config": to_dict(config)}

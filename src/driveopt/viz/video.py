@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -223,7 +224,7 @@ class VideoWriter:
 
     Frames of odd width or height are padded to even (their last row / column repeated), as H.264
     needs; every frame must have the shape of the first. Refuses SDL's ``dummy`` video driver
-    (black frames) with a ValueError.
+    (black frames) with a VideoError.
     """
 
     def __init__(self, path: str | Path, fps: float):
@@ -246,7 +247,11 @@ class VideoWriter:
             self._shape = frame.shape
         elif frame.shape != self._shape:
             raise ValueError(f"frame shape changed from {self._shape} to {frame.shape}")
-        self._writer.append_data(pad_to_even(frame))
+        with warnings.catch_warnings():
+            # The first frame starts ffmpeg (fork, then exec at once); JAX's fork detector would warn of a
+            # deadlock that cannot happen in a process that only execs.
+            warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
+            self._writer.append_data(pad_to_even(frame))
         self.frames += 1
 
     def close(self) -> None:

@@ -1,0 +1,113 @@
+"""Stopping plans: the two stop rows that ride in every sampler batch, and the fallback, a stop by construction.
+
+The fallback is what a planner offers when no sample is feasible (``PlanResult.fallback``). It is
+not a polynomial and it is never projected: it brakes at a constant deceleration along a path,
+so its speed ``max(v0 - d t, 0)`` [m/s] never increases and never goes below zero, and it never
+turns back (the path's heading stays within 72 degrees of the road). The path eases from the
+current lateral position and heading to a target inside the road: the nearest lane centre
+(comfortable stop) or the current position clipped to the road (emergency stop). Where the ego
+starts on the road the path stays between the road bounds; an ego off the road never moves
+further away from it. Its residual (how far it is from meeting the constraints) is that of the
+polynomial closest to it; when that is not zero the planner still offers the stop and says so
+in its status.
+
+The stop rows of the batches (:func:`stop_setpoints`, :func:`braking_coeffs`) are ordinary
+candidates: projected and ranked like every sample, so a feasible stop can be the chosen plan.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from driveopt.costs import Trajectory, nearest_lane_center
+from driveopt.problem import PlanningProblem
+from driveopt.qp import NUM_SEGMENTS, TrajectoryModel, fit_positions
+
+EASING_TIME = 3.0  # [s] the stop rows reach their lateral target in this time
+MIN_EASING_DISTANCE = 20.0  # [m] the fallback's lateral change is spread over at least this path length
+EASING_DISTANCE_PER_METRE = 6.0  # [m/m] ... and over at least this many metres per metre of lateral change
+MAX_HEADING_SINE = 0.95  # [-] |sin| of the fallback path's heading relative to the road (72 degrees)
+_FINE_STEPS = 512  # [-] path samples for integrating x along the path
+
+
+def stop_setpoints(problem: PlanningProblem, horizon: float, decel: float, to_lane_centre: bool) -> jnp.ndarray:
+    """(8,) set-points describing a stop: speed [m/s] at each quarter's end, lateral target [m]."""
+    quarter = horizon / NUM_SEGMENTS
+    ends = quarter * jnp.arange(1, NUM_SEGMENTS + 1, dtype=jnp.float32)
+    speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
+    v = jnp.maximum(speed - decel * ends, 0.0)
+    y = nearest_lane_center(problem, problem.init_y[0]) if to_lane_centre else problem.init_y[0]
+    return jnp.concatenate([v, jnp.full(NUM_SEGMENTS, y)])
+
+
+def braking_coeffs(model: TrajectoryModel, problem: PlanningProblem, decel: float, b_x, b_y,
+                   to_lane_centre: bool = True) -> jnp.ndarray:
+    """(2n,) stop at constant deceleration ``decel`` [m/s^2], easing to the nearest lane centre in
+    :data:`EASING_TIME` (or holding the current lateral position): the batches' stop rows.
+
+    A least-squares fit of that motion (the set-point QP's step set-points would overshoot it).
+    """
+    t = jnp.asarray(model.t)
+    speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
+    moving = jnp.minimum(t, speed / decel)
+    x = problem.init_x[0] + speed * moving - 0.5 * decel * moving**2
+    centre = nearest_lane_center(problem, problem.init_y[0]) if to_lane_centre else problem.init_y[0]
+    tau = jnp.minimum(t / EASING_TIME, 1.0)
+    y = problem.init_y[0] + (centre - problem.init_y[0]) * (3 * tau**2 - 2 * tau**3)
+    return fit_positions(model, x, y, b_x, b_y)
+
+
+def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, to_lane_centre: bool):
+    """(y, dy/ds, d2y/ds2) of the fallback path at path lengths s [m] (arc-length parametrised)."""
+    y0 = problem.init_y[0]
+    inside = jnp.clip(y0, problem.y_lb, problem.y_ub)
+    target = jnp.clip(nearest_lane_center(problem, inside), problem.y_lb, problem.y_ub) if to_lane_centre else inside
+    speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
+    slope0 = jnp.clip(jnp.where(speed > 1e-3, problem.init_y[1] / jnp.maximum(speed, 1e-3), 0.0), -0.5, 0.5)
+    length = jnp.maximum(MIN_EASING_DISTANCE, EASING_DISTANCE_PER_METRE * jnp.abs(target - y0))
+    u = jnp.clip(s / length, 0.0, 1.0)
+    easing = s < length
+    # cubic Hermite from (y0, slope0) to (target, 0) over [0, length]; the target beyond
+    h00, h10, h01 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u, -2 * u**3 + 3 * u**2
+    y = h00 * y0 + h10 * length * slope0 + h01 * target
+    dy = jnp.where(easing, ((6 * u**2 - 6 * u) * (y0 - target) + (3 * u**2 - 4 * u + 1) * length * slope0) / length, 0.0)
+    d2y = jnp.where(easing, ((12 * u - 6) * (y0 - target) + (6 * u - 4) * length * slope0) / length**2, 0.0)
+    # never beyond the road bounds (or beyond the start, for an ego outside them): flat where clipped
+    low, high = jnp.minimum(y0, problem.y_lb), jnp.maximum(y0, problem.y_ub)
+    clipped = (y < low) | (y > high)
+    y = jnp.clip(y, low, high)
+    dy = jnp.clip(jnp.where(clipped, 0.0, dy), -MAX_HEADING_SINE, MAX_HEADING_SINE)
+    d2y = jnp.where(clipped | (jnp.abs(dy) >= MAX_HEADING_SINE), 0.0, d2y)
+    return y, dy, d2y
+
+
+def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, to_lane_centre: bool) -> Trajectory:
+    """The fallback: brake at ``decel`` [m/s^2] from the current speed along the eased path (planning frame).
+
+    t: (K,) [s] node times. Speed max(v0 - decel t, 0), path length s(t) = its integral.
+    """
+    speed0 = jnp.hypot(problem.init_x[1], problem.init_y[1])
+    stop_time = speed0 / decel
+    moving = jnp.minimum(t, stop_time)
+    s = speed0 * moving - 0.5 * decel * moving**2
+    v = jnp.maximum(speed0 - decel * t, 0.0)
+    a = jnp.where(t < stop_time, -decel, 0.0)
+    # x along the path: integral of sqrt(1 - (dy/ds)^2) ds, on a fine grid up to the stopping distance
+    fine = jnp.linspace(0.0, 1.0, _FINE_STEPS) * jnp.max(s)
+    _, dy_fine, _ = _lateral_path(problem, fine, to_lane_centre)
+    cos_fine = jnp.sqrt(1.0 - dy_fine**2)
+    x_fine = jnp.concatenate([jnp.zeros(1), jnp.cumsum(0.5 * (cos_fine[1:] + cos_fine[:-1]) * jnp.diff(fine))])
+    x = problem.init_x[0] + jnp.interp(s, fine, x_fine)
+    y, dy, d2y = _lateral_path(problem, s, to_lane_centre)
+    dx = jnp.sqrt(1.0 - dy**2)
+    d2x = -dy * d2y / dx
+    vx, vy = v * dx, v * dy
+    ax, ay = a * dx + v**2 * d2x, a * dy + v**2 * d2y
+    heading = jnp.arctan2(dy, dx)
+    curvature = (dx * d2y - dy * d2x)
+    return Trajectory(t, x, y, vx, vy, ax, ay, v, heading, curvature, a)
+
+
+def fit_stop(model: TrajectoryModel, trajectory: Trajectory, b_x, b_y) -> jnp.ndarray:
+    """(2n,) the polynomial closest to a stop (what its residual and costs are measured on)."""
+    return fit_positions(model, trajectory.x, trajectory.y, b_x, b_y)
