@@ -1,6 +1,7 @@
 """Drivers: the optimiser's adaptation to the simulated car, IDM's hand-over, and one step of each."""
 
 import numpy as np
+import pytest
 
 from driveopt.drivers.optimiser import adapt_to_vehicle
 from driveopt.planner import PlanStatus
@@ -17,33 +18,32 @@ def test_planner_bounds_fit_the_simulated_car():
     assert config.qp.initial_acceleration  # plans start from the applied acceleration (smooth commands)
 
 
-def test_optimiser_driver_plans_from_the_current_state_and_returns_a_valid_action():
+@pytest.fixture
+def env_and_scenario():
     scenario = get_scenario("two-lane-d1.0")
     env = make_env(scenario)
-    try:
-        env.reset(seed=4)
-        driver = get_planner("grid").driver()
-        driver.reset(env, scenario, seed=4)
-        assert driver.compile_seconds > 0
-        decision = driver.act(env)
-        assert decision.action.shape == (2,) and np.all(np.abs(decision.action) <= 1.0)
-        assert decision.result.status in tuple(PlanStatus) and decision.plan_seconds > 0
-        ego = env.unwrapped.vehicle
-        assert abs(decision.scene.ego.x - ego.position[0]) < 1e-6  # planned from where the car is
-    finally:
-        env.close()
+    env.reset(seed=4)
+    yield env, scenario
+    env.close()
 
 
-def test_idm_driver_takes_over_the_ego():
+def test_optimiser_driver_plans_from_the_current_state_and_returns_a_valid_action(env_and_scenario):
+    env, scenario = env_and_scenario
+    driver = get_planner("grid").driver()
+    driver.reset(env, scenario, seed=4)
+    assert driver.compile_seconds > 0
+    decision = driver.act(env)
+    assert decision.action.shape == (2,) and np.all(np.abs(decision.action) <= 1.0)
+    assert decision.result.status in tuple(PlanStatus) and decision.plan_seconds > 0
+    ego = env.unwrapped.vehicle
+    assert abs(decision.scene.ego.x - ego.position[0]) < 1e-6  # planned from where the car is
+
+
+def test_idm_driver_takes_over_the_ego(env_and_scenario):
     from highway_env.vehicle.behavior import IDMVehicle
 
-    scenario = get_scenario("two-lane-d1.0")
-    env = make_env(scenario)
-    try:
-        env.reset(seed=4)
-        driver = get_planner("idm").driver()
-        driver.reset(env, scenario, seed=4)
-        assert isinstance(env.unwrapped.vehicle, IDMVehicle) and env.unwrapped.vehicle.target_speed == scenario.v_des
-        assert driver.act(env).result is None
-    finally:
-        env.close()
+    env, scenario = env_and_scenario
+    driver = get_planner("idm").driver()
+    driver.reset(env, scenario, seed=4)
+    assert isinstance(env.unwrapped.vehicle, IDMVehicle) and env.unwrapped.vehicle.target_speed == scenario.v_des
+    assert driver.act(env).result is None
