@@ -129,4 +129,67 @@ def test_ray_backend_without_ray_is_a_clear_error(tmp_path, monkeypatch):
 
     monkeypatch.setattr(builtins, "__import__", no_ray)
     with pytest.raises(DriveoptError, match=r"driveopt\[ray\]"):
-        run_bench(SPEC, tmp_path, backend="ray", episode_fn=fake_episode, progress=False)
+        run_bench(SPEC, tmp_path / "out", backend="ray", episode_fn=fake_episode, progress=False)
+    assert not (tmp_path / "out").exists()  # refused before anything was written
+
+
+@pytest.mark.parametrize("options, match", [
+    ({"duration": -3.0}, "duration must be a finite number > 0"),
+    ({"duration": float("nan")}, "duration must be a finite number > 0"),
+    ({"duration": float("inf")}, "duration must be a finite number > 0"),
+    ({"samples": 0}, "samples must be an integer >= 1"),
+    ({"weights": "no/such/file.ckpt"}, "weights file no/such/file.ckpt does not exist"),
+    ({"config": {"cost": {"no_such_weight": 1.0}}}, "no_such_weight"),
+])
+def test_invalid_options_are_refused_before_anything_is_written(tmp_path, options, match):
+    spec = BenchSpec(SPEC.scenarios, SPEC.planners, SPEC.seeds, SPEC.episodes, options)
+    with pytest.raises(DriveoptError, match=match):
+        run_bench(spec, tmp_path / "out", workers=1, episode_fn=fake_episode, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("names, match", [
+    ({"scenarios": ("no-such-scenario",)}, "no-such-scenario"),
+    ({"planners": ("grid", "no-such-planner")}, "no-such-planner"),
+])
+def test_unknown_names_are_refused_before_anything_is_written(tmp_path, names, match):
+    spec = BenchSpec(**{"scenarios": SPEC.scenarios, "planners": SPEC.planners, **names})
+    with pytest.raises(DriveoptError, match=match):
+        run_bench(spec, tmp_path / "out", workers=1, episode_fn=fake_episode, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_folder_without_episodes_takes_other_options(tmp_path):
+    """spec.json alone (a run stopped before its first episode) does not bind the folder."""
+    run_bench(BenchSpec(SPEC.scenarios, SPEC.planners, episodes=0, options={"duration": 5.0}), tmp_path,
+              workers=1, episode_fn=fake_episode, progress=False)
+    assert json.loads((tmp_path / "spec.json").read_text())["options"] == {"duration": 5.0}
+    run_bench(SPEC, tmp_path, workers=1, episode_fn=fake_episode, progress=False)
+    assert json.loads((tmp_path / "spec.json").read_text())["options"] == {}
+    assert len(load_records(tmp_path / "episodes.jsonl")) == len(SPEC.jobs())
+
+
+def test_cli_bench_refuses_bad_options_without_writing_then_runs(tmp_path, capsys, monkeypatch):
+    """`driveopt bench --duration -3 --out D` is one line and exit 2, and leaves D free for the corrected rerun."""
+    import functools
+
+    from driveopt.cli import main
+    from driveopt.experiments import bench
+
+    monkeypatch.setattr(bench, "run_bench", functools.partial(bench.run_bench, episode_fn=fake_episode, progress=False))
+    out = tmp_path / "D"
+    argv = ["bench", "--scenarios", "two-lane-d1.0", "--planners", "idm", "--episodes", "2", "--workers", "1", "--out", str(out)]
+    assert main([*argv, "--duration", "-3"]) == 2
+    assert capsys.readouterr().err == "driveopt: error: duration must be a finite number > 0 [s], got -3.0\n"
+    assert not out.exists()
+    assert main([*argv, "--duration", "3"]) == 0
+    assert len(load_records(out / "episodes.jsonl")) == 2
+
+
+def test_cli_bench_out_is_a_file(tmp_path, capsys):
+    from driveopt.cli import main
+
+    (tmp_path / "X").write_text("not a folder")
+    assert main(["bench", "--scenarios", "two-lane-d1.0", "--planners", "idm", "--out", str(tmp_path / "X")]) == 2
+    assert capsys.readouterr().err == f"driveopt: error: {tmp_path / 'X'} is a file, not a folder; use another output folder\n"
+    assert (tmp_path / "X").read_text() == "not a folder"

@@ -2,8 +2,10 @@
 
 One module per command, each with ``register(subparsers)``. Errors in user input (a
 :class:`~driveopt.errors.DriveoptError`: unknown name, malformed file or config, unusable
-checkpoint) print one line ``driveopt: error: ...`` on stderr and exit with status 2; any other
-exception is a bug and keeps its traceback.
+checkpoint) print one line ``driveopt: error: ...`` on stderr and exit with status 2; Ctrl-C prints
+``driveopt: interrupted`` (and what the command kept, when it says) and exits with status 130;
+SIGTERM unwinds the same way silently, with status 143; any other exception is a bug and keeps its
+traceback.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ import argparse
 import signal
 import sys
 import threading
-from typing import Sequence
+from collections.abc import Sequence
 
 from driveopt.cli import bench, collect, drive, listing, plan, plot_prior, train
 from driveopt.cli.common import UsageError
@@ -43,9 +45,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return args.func(args)
     except DriveoptError as exc:
-        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        print(f"driveopt: error: {message}", file=sys.stderr)
+        print(f"driveopt: error: {_first_line(exc) or type(exc).__name__}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:  # a command may re-raise it with what it kept as the message
+        detail = _first_line(exc)
+        print(f"driveopt: interrupted: {detail}" if detail else "driveopt: interrupted", file=sys.stderr)
+        return 128 + signal.SIGINT
+
+
+def _first_line(exc: BaseException) -> str:
+    return str(exc).splitlines()[0] if str(exc) else ""
 
 
 if __name__ == "__main__":

@@ -6,19 +6,29 @@ rerun with the same output directory skips every finished job, so an interrupted
 with no episode lost or repeated. The episode function (:func:`episode_record` by default: one
 simulated episode, :mod:`driveopt.sim.rollout`) receives the job key and the options and derives
 every random choice from them: same seeds, same results.
+
+Everything a user can get wrong (names, options, backend) is checked before the output folder is
+created or touched, and a folder is only refused when it holds episodes run with other options.
+Ctrl-C or SIGTERM while episodes run stops at once (see :mod:`driveopt.experiments.runner`): the
+finished episodes are kept and the summaries left as they were; summaries and ``spec.json`` are
+replaced whole, never left half-written.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from tqdm import tqdm
 
-from driveopt.experiments.runner import EpisodeFn, execute
+from driveopt.drivers.base import DriverSpec
+from driveopt.errors import DriveoptError
+from driveopt.experiments.runner import EpisodeFn, check_backend, execute
 from driveopt.experiments.store import (
     JobKey,
     StoreError,
@@ -36,6 +46,11 @@ from driveopt.experiments.summary import (
 )
 from driveopt.registry import get_planner
 from driveopt.sim.rollout import run_episode
+from driveopt.sim.scenarios import get_scenario
+
+
+class BenchOptionError(DriveoptError):
+    """A bench option out of range (duration, samples) or naming a file that does not exist (weights)."""
 
 
 def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
@@ -45,10 +60,15 @@ def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
     ``OptimiserSpec.with_samples``), ``weights`` (learned prior checkpoint), ``config`` (planner-config
     overrides, nested sections).
     """
-    samples = options.get("samples")
-    spec = get_planner(job.planner).with_samples(int(samples) if samples else None).with_weights(options.get("weights"))
-    spec = spec.with_overrides(**options.get("config", {}))
+    spec = planner_spec(job.planner, options)
     return run_episode(job.scenario, spec, job.env_seed, duration=options.get("duration")).record()
+
+
+def planner_spec(name: str, options: dict[str, Any]) -> DriverSpec:
+    """The registered planner ``name`` with the bench options (samples, weights, config) applied."""
+    samples = options.get("samples")
+    spec = get_planner(name).with_samples(int(samples) if samples else None).with_weights(options.get("weights"))
+    return spec.with_overrides(**options.get("config", {}))
 
 
 @dataclass(frozen=True)
@@ -68,6 +88,31 @@ class BenchSpec:
             for planner in self.planners
         ]
 
+    def check(self) -> None:
+        """Refuse, as a DriveoptError, what an episode would refuse: an unknown scenario or planner, a
+        duration that is not a finite number > 0, samples that are not an integer >= 1, a weights file
+        that does not exist, config overrides the planner config rejects. Other options (those of a
+        custom episode function) pass unchecked."""
+        for name in self.scenarios:
+            get_scenario(name)
+        _check_options(self.options)
+        for name in self.planners:
+            planner_spec(name, self.options)
+
+
+def _check_options(options: dict[str, Any]) -> None:
+    duration, samples, weights = options.get("duration"), options.get("samples"), options.get("weights")
+    if duration is not None and not (_is_number(duration) and math.isfinite(duration) and duration > 0):
+        raise BenchOptionError(f"duration must be a finite number > 0 [s], got {duration!r}")
+    if samples is not None and not (isinstance(samples, int) and not isinstance(samples, bool) and samples >= 1):
+        raise BenchOptionError(f"samples must be an integer >= 1, got {samples!r}")
+    if weights is not None and not Path(weights).is_file():
+        raise BenchOptionError(f"weights file {weights} does not exist")
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
 
 def run_bench(
     spec: BenchSpec,
@@ -83,13 +128,16 @@ def run_bench(
     workers: parallel episodes (default: CPU count); 1 runs in this process. backend: 'local' or 'ray'.
     Returns the summary rows over all records of the spec (old and new).
     """
+    spec.check()
+    check_backend(backend)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    _claim(out / "spec.json", spec)
+    _make_folder(out)
     store = out / "episodes.jsonl"
+    done = load_records(store)
+    _claim(out / "spec.json", spec, has_episodes=bool(done))
     repair(store)
     jobs = spec.jobs()
-    todo = pending(jobs, load_records(store))
+    todo = pending(jobs, done)
     workers = workers or os.cpu_count() or 1
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="bench", unit="ep", disable=not progress)
 
@@ -106,22 +154,44 @@ def run_bench(
     order = {job: i for i, job in enumerate(jobs)}  # summaries follow the spec, not completion order
     records = sorted((r for r in load_records(store) if key_of(r) in order), key=lambda r: order[key_of(r)])
     rows = summarise(records)
-    write_csv(rows, out / "summary.csv")
-    (out / "summary.md").write_text(markdown_table(rows))
+    _replace(out / "summary.csv", lambda path: write_csv(rows, path))
+    _replace(out / "summary.md", lambda path: path.write_text(markdown_table(rows)))
     if rows:
-        plot_summary(rows, out / "summary.png")
+        _replace(out / "summary.png", lambda path: plot_summary(rows, path))
     return rows
 
 
-def _claim(path: Path, spec: BenchSpec) -> None:
+def _make_folder(out: Path) -> None:
+    """Create the output folder; StoreError when ``out`` (or a parent) is a file or cannot be created."""
+    if out.exists() and not out.is_dir():
+        raise StoreError(f"{out} is a file, not a folder; use another output folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StoreError(f"cannot create the output folder {out}: {exc.strerror or exc}") from None
+
+
+def _claim(path: Path, spec: BenchSpec, *, has_episodes: bool) -> None:
     """Record ``spec`` in the output folder; StoreError when the folder holds episodes run with other
-    options (samples, duration, weights, config): resuming must not mix two settings in one table."""
-    if path.exists():
+    options (samples, duration, weights, config): resuming must not mix two settings in one table.
+    A folder without episodes is free, whatever its spec.json says."""
+    if has_episodes and path.exists():
         try:
             options = json.loads(path.read_text())["options"]
-        except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as exc:
             raise StoreError(f"{path} is unreadable ({exc}); remove it or use another output folder") from None
         if options != json.loads(json.dumps(spec.options)):
             raise StoreError(f"{path.parent} holds episodes run with options {options}, not {spec.options}; "
                              "use another output folder")
-    path.write_text(json.dumps(asdict(spec), indent=1))
+    _replace(path, lambda tmp: tmp.write_text(json.dumps(asdict(spec), indent=1)))
+
+
+def _replace(path: Path, write: Callable[[Path], Any]) -> None:
+    """``write`` a temporary sibling of ``path`` (same suffix) and rename it over ``path``: an interrupted
+    write leaves the previous file whole."""
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)

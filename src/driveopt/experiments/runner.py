@@ -5,22 +5,35 @@ processes, or a Ray cluster.
 and derive every random choice from the job and the options. The parent process is the only one that
 writes: ``finished(record)`` is called in it, once per job, in completion order.
 
-Local workers are spawned processes. Ray runs the same function as Ray tasks on the cluster that
-``RAY_ADDRESS`` names (a local instance when unset); install it with ``pip install 'driveopt[ray]'``.
+Local workers are spawned processes bound to the parent: they ignore Ctrl-C (the parent handles it),
+end within a second when the parent ends however it ends (``kill -9`` included), and are killed at
+once, not waited for, when :func:`execute` stops on an exception (Ctrl-C, SIGTERM's SystemExit, a
+failed episode): the results of the episodes in flight would be dropped anyway. Ray runs the same
+function as Ray tasks on the cluster that ``RAY_ADDRESS`` names (a local instance when unset), and
+the unfinished tasks are cancelled on an exception; install it with ``pip install 'driveopt[ray]'``.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
+import ctypes
 import multiprocessing
 import os
-from typing import Any, Callable, Sequence
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
 
 from driveopt.errors import DriveoptError, UnknownNameError
 from driveopt.experiments.store import JobKey
 
 EpisodeFn = Callable[[JobKey, dict], dict]
 BACKENDS = ("local", "ray")
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+ORPHAN_POLL_S = 0.5  # [s] how often a worker checks that its parent is alive
 
 
 class BackendError(DriveoptError):
@@ -30,6 +43,14 @@ class BackendError(DriveoptError):
 def call(episode_fn: EpisodeFn, job: JobKey, options: dict) -> dict[str, Any]:
     """``episode_fn``'s record with the job's key fields added."""
     return {**episode_fn(job, options), **job._asdict()}
+
+
+def check_backend(backend: str) -> None:
+    """UnknownNameError for an unknown backend, BackendError when it cannot run here (Ray not installed)."""
+    if backend not in BACKENDS:
+        raise UnknownNameError(f"unknown backend '{backend}'; valid: {', '.join(BACKENDS)}")
+    if backend == "ray":
+        _import_ray()
 
 
 def execute(
@@ -45,31 +66,77 @@ def execute(
 
     workers: local processes (spawn); 1 runs in this process. backend: 'local' or 'ray'.
     """
-    if backend not in BACKENDS:
-        raise UnknownNameError(f"unknown backend '{backend}'; valid: {', '.join(BACKENDS)}")
+    check_backend(backend)
     if backend == "ray":
         _run_ray(todo, options, episode_fn, finished)
     elif workers == 1:
         for job in todo:
             finished(call(episode_fn, job, options))
     else:
-        ctx = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            futures = [pool.submit(call, episode_fn, job, options) for job in todo]
-            try:
-                for future in cf.as_completed(futures):
-                    finished(future.result())
-            except BaseException:
-                for future in futures:
-                    future.cancel()
-                raise
+        _run_pool(todo, options, episode_fn, finished, workers)
 
 
-def _run_ray(todo: Sequence[JobKey], options: dict, episode_fn: EpisodeFn, finished: Callable[[dict], None]) -> None:
+def _run_pool(todo: Sequence[JobKey], options: dict, episode_fn: EpisodeFn, finished: Callable[[dict], None],
+              workers: int) -> None:
+    # With the spawn context, submit() starts the workers in this thread, which outlives them: the
+    # parent-death signal (sent when the creating thread ends) cannot fire while the pool is in use.
+    pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                  initializer=_bind_to_parent, initargs=(os.getpid(),))
+    try:
+        futures = [pool.submit(call, episode_fn, job, options) for job in todo]
+        for future in cf.as_completed(futures):
+            finished(future.result())
+    except BaseException:
+        _kill_workers(pool)
+        raise
+    finally:
+        pool.shutdown(wait=True)
+
+
+def _kill_workers(pool: cf.ProcessPoolExecutor) -> None:
+    """Cancel the queued jobs and kill the workers now (what ``kill_workers`` does from Python 3.14)."""
+    if hasattr(pool, "kill_workers"):
+        pool.kill_workers()
+        return
+    processes = list((pool._processes or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        with contextlib.suppress(ProcessLookupError, ValueError):  # already ended, or closed
+            process.kill()
+
+
+def _bind_to_parent(parent: int) -> None:
+    """Worker initializer: leave Ctrl-C to the parent, and end this worker as soon as ``parent`` ends."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _set_parent_death_signal()
+    threading.Thread(target=_exit_when_orphaned, args=(parent,), name="driveopt-parent-watch", daemon=True).start()
+
+
+def _set_parent_death_signal() -> None:
+    """On Linux, have the kernel SIGKILL this process when its parent ends (best effort elsewhere: none)."""
+    if not sys.platform.startswith("linux"):
+        return
+    with contextlib.suppress(OSError, AttributeError):  # no libc or no prctl: the watch thread remains
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+
+
+def _exit_when_orphaned(parent: int) -> None:
+    """Exit the process once ``parent`` is no longer its parent (also when it ended before the worker was set up)."""
+    while os.getppid() == parent:
+        time.sleep(ORPHAN_POLL_S)
+    os._exit(1)
+
+
+def _import_ray() -> Any:
     try:
         import ray
     except ImportError:
         raise BackendError("the ray backend needs Ray: pip install 'driveopt[ray]' (or use --backend local)") from None
+    return ray
+
+
+def _run_ray(todo: Sequence[JobKey], options: dict, episode_fn: EpisodeFn, finished: Callable[[dict], None]) -> None:
+    ray = _import_ray()
     if not ray.is_initialized():
         ray.init(address=os.environ.get("RAY_ADDRESS"), ignore_reinit_error=True, log_to_driver=False)
     remote = ray.remote(call)

@@ -1,0 +1,129 @@
+"""A real ``driveopt bench`` process (tests/bench_child.py: fake episodes that sleep, two spawned workers)
+interrupted by Ctrl-C or SIGTERM, or killed with SIGKILL: it stops at once, keeps every finished
+episode, resumes, and leaves no worker behind."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from driveopt.experiments.store import load_records
+
+pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads processes from /proc")
+
+CHILD = Path(__file__).with_name("bench_child.py")
+STARTUP_S = 180  # imports and two spawned workers on a loaded machine
+PROMPT_S = 10  # a stop or a worker's end, once asked for
+FAST = 3  # episodes 0..2 of each planner take 0.1 s, the others a minute: 6 finish, then both workers are busy
+
+
+def start_bench(out: Path, marks: Path, *, slow: float, episodes: int = 8) -> subprocess.Popen:
+    marks.mkdir(exist_ok=True)
+    env = {**os.environ, "BENCH_CHILD_SLOW": str(slow), "BENCH_CHILD_FAST": str(FAST), "BENCH_CHILD_MARKS": str(marks)}
+    args = [sys.executable, str(CHILD), "--scenarios", "two-lane-d1.0", "--planners", "idm", "grid",
+            "--episodes", str(episodes), "--workers", "2", "--out", str(out)]
+    # Its own session, so that a signal to its process group is a Ctrl-C in its terminal.
+    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True)
+
+
+def wait_for(condition, timeout: float, proc: subprocess.Popen | None = None) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if proc is not None and proc.poll() is not None:
+            pytest.fail(f"the bench ended early ({proc.returncode}): {proc.communicate()[1][-2000:]}")
+        if time.monotonic() > deadline:
+            pytest.fail("timed out")
+        time.sleep(0.1)
+
+
+def alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie has ended)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rpartition(")")[2].split()[0] != "Z"
+
+
+def workers(parent: int) -> list[int]:
+    """The parent's spawned worker processes (PPid in /proc; the resource tracker is not one)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            fields = (entry / "stat").read_text().rpartition(")")[2].split()
+            cmdline = (entry / "cmdline").read_bytes()
+        except OSError:  # not a process, or it ended
+            continue
+        if int(fields[1]) == parent and b"spawn_main" in cmdline:
+            found.append(int(entry.name))
+    return found
+
+
+def busy_workers(marks: Path, parent: int) -> list[int]:
+    """Workers of ``parent`` that have started an episode."""
+    return sorted(set(workers(parent)) & {int(p.name) for p in marks.iterdir()})
+
+
+def reap(proc: subprocess.Popen, pids: list[int]) -> None:
+    """Kill what a failed test leaves behind: the bench and its workers (all started here)."""
+    for pid in [proc.pid, *pids]:
+        if alive(pid):
+            os.kill(pid, signal.SIGKILL)
+    proc.wait()
+
+
+def test_workers_die_with_a_killed_parent(tmp_path):
+    proc = start_bench(tmp_path / "out", tmp_path / "marks", slow=120, episodes=2)
+    pids: list[int] = []
+    try:
+        wait_for(lambda: len(busy_workers(tmp_path / "marks", proc.pid)) == 2, STARTUP_S, proc)
+        pids = busy_workers(tmp_path / "marks", proc.pid)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=PROMPT_S)
+        wait_for(lambda: not any(alive(pid) for pid in pids), PROMPT_S)
+    finally:
+        reap(proc, pids)
+
+
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+def test_interrupted_bench_stops_at_once_keeps_episodes_and_resumes(tmp_path, how):
+    out, marks = tmp_path / "out", tmp_path / "marks"
+    proc = start_bench(out, marks, slow=60)
+    pids: list[int] = []
+    try:
+        wait_for(lambda: len(load_records(out / "episodes.jsonl")) == 2 * FAST, STARTUP_S, proc)
+        wait_for(lambda: len(busy_workers(marks, proc.pid)) == 2, STARTUP_S, proc)  # both in a minute-long episode
+        time.sleep(0.5)
+        pids = workers(proc.pid)
+        start = time.monotonic()
+        if how == "ctrl-c":
+            os.killpg(proc.pid, signal.SIGINT)  # the terminal sends it to every process of the group
+        else:
+            proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=PROMPT_S)
+        assert time.monotonic() - start < PROMPT_S
+        wait_for(lambda: not any(alive(pid) for pid in pids), PROMPT_S)
+    finally:
+        reap(proc, pids)
+    assert "Traceback" not in stderr
+    if how == "ctrl-c":
+        assert proc.returncode == 130
+        assert stderr.rstrip().splitlines()[-1] == (
+            f"driveopt: interrupted: {2 * FAST} episodes kept in {out}; rerun the same command to resume")
+    else:
+        assert proc.returncode == 128 + signal.SIGTERM
+    kept = load_records(out / "episodes.jsonl")
+    assert len(kept) == 2 * FAST and not (out / "summary.csv").exists()
+
+    rerun = start_bench(out, marks, slow=0)
+    _, stderr = rerun.communicate(timeout=STARTUP_S)
+    assert rerun.returncode == 0, stderr[-2000:]
+    records = load_records(out / "episodes.jsonl")
+    keys = [(r["planner"], r["episode"]) for r in records]
+    assert records[: len(kept)] == kept and len(keys) == len(set(keys)) == 16
+    assert (out / "summary.csv").exists()
