@@ -13,6 +13,7 @@ from driveopt.observation import DUMMY_DX, OBSERVATION_DIM
 from driveopt.qp import make_model, qp_layer
 
 LANES = (-2.0, 14.0)  # [m] y_lb, y_ub of a four-lane road
+SCENARIO = "four-lane-d3.0"  # a registered four-lane scenario: checkpoints record its lane count
 
 
 def synthetic_rows(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
@@ -35,7 +36,7 @@ def synthetic_rows(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
             "status": np.zeros(n, np.int8), "time": np.arange(n, dtype=np.float32) / 10.0}
 
 
-def write_synthetic(path: str | Path, episodes: int = 4, rows: int = 64, seed: int = 0, scenario: str = "synthetic") -> Path:
+def write_synthetic(path: str | Path, episodes: int = 4, rows: int = 64, seed: int = 0, scenario: str = SCENARIO) -> Path:
     rng = np.random.default_rng(seed)
     writer = DemonstrationWriter(path, {"expert": "synthetic"}, BasisConfig().num_nodes, 22, OBSERVATION_DIM)
     for e in range(episodes):

@@ -12,24 +12,42 @@ import pytest
 from learned_data import LANES, write_synthetic
 
 from driveopt.cli import main
-from driveopt.data.demonstrations import load_demonstrations
+from driveopt.config import ConfigError
+from driveopt.data.demonstrations import DatasetError, load_demonstrations
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint
 from driveopt.learned.cvae import (
     CVAEConfig,
     decode_setpoints,
     fit_normaliser,
     init_params,
+    load_cvae,
     trajectory_model,
 )
-from driveopt.learned.train_cvae import TrainConfig, make_batch, train_cvae
+from driveopt.learned.train_cvae import (
+    TrainConfig,
+    TrainingError,
+    make_batch,
+    road_lanes,
+    train_cvae,
+    training_rows,
+)
 from driveopt.planner import PlanStatus, plan
-from driveopt.priors.cvae import CVAEPrior, load_prior, prior_for
+from driveopt.priors.cvae import CVAEPrior, load_prior, prior_for, shipped_weights
 from driveopt.problem import build_problem
 from driveopt.qp import qp_layer
 from driveopt.scene import load_scene
 
 CFG = CVAEConfig(hidden=(32, 32))
 TCFG = TrainConfig(epochs=10, batch_size=32, learning_rate=3e-3, anneal_epochs=2, decay_every=8)
+
+
+def _with_meta(path, dest, change):
+    """Copy of the checkpoint ``path`` at ``dest`` whose header meta went through ``change`` (the body is kept)."""
+    header, body = path.read_bytes().split(b"\n", 1)
+    doc = json.loads(header)
+    change(doc["meta"])
+    dest.write_bytes(json.dumps(doc).encode() + b"\n" + body)
+    return dest
 
 
 @pytest.fixture(scope="module")
@@ -108,15 +126,11 @@ def test_corrupted_checkpoint_is_refused(trained, tmp_path, damage):
 
 
 def test_checkpoint_of_another_architecture_is_refused(trained, tmp_path):
-    meta, _ = load_checkpoint(trained[0] / "cvae.ckpt", "cvae")
-    raw = (trained[0] / "cvae.ckpt").read_bytes()
-    header, body = raw.split(b"\n", 1)
-    doc = json.loads(header)
-    doc["meta"]["config"]["hidden"] = [64, 64]  # header claims widths the weights do not have
-    path = tmp_path / "mismatch.ckpt"
-    path.write_bytes(json.dumps(doc).encode() + b"\n" + body)
+    def wider(meta):
+        meta["config"]["hidden"] = [64, 64]  # header claims widths the weights do not have
+
     with pytest.raises(CheckpointError, match="does not match|shape"):
-        load_prior(path)
+        load_prior(_with_meta(trained[0] / "cvae.ckpt", tmp_path / "mismatch.ckpt", wider))
 
 
 def test_training_resumes_to_the_same_weights(data_file, trained, tmp_path):
@@ -155,7 +169,7 @@ def test_separate_validation_files_are_held_out_whole(data_file, tmp_path):
     assert np.isfinite(history[0]["val_reconstruction"])
     with pytest.raises(ValueError, match="other files"):
         train_cvae(data_file, tmp_path / "b", CFG, quick, validation_paths=[data_file], progress=False)
-    with pytest.raises(CheckpointError, match="other demonstrations"):  # another validation set is other data
+    with pytest.raises(CheckpointError, match="other validation episodes"):
         train_cvae(data_file, tmp_path / "a", CFG, quick, validation_paths=[write_synthetic(tmp_path / "h2.h5", 2, seed=6)],
                    progress=False)
 
@@ -206,3 +220,104 @@ def test_mixed_prior_keeps_gaussian_share_around_the_warm_start(trained):
     assert near[150:].all() and near[:150].sum() < 10  # the last quarter is the Gaussian's
     pure = load_prior(trained[0] / "cvae.ckpt").propose(problem, jax.random.PRNGKey(0), 200, warm)
     assert np.all(np.isfinite(pure.cov)) and np.allclose(pure.mean, np.mean(np.asarray(pure.samples), 0), atol=1e-4)
+
+
+FLOAT_SETTINGS = [("train", f.name) for f in dataclasses.fields(TrainConfig) if f.type == "float"] + [
+    ("cvae", f.name) for f in dataclasses.fields(CVAEConfig) if f.type == "float"]
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -1.0])
+@pytest.mark.parametrize(("config", "name"), FLOAT_SETTINGS)
+def test_non_finite_or_negative_settings_are_refused(config, name, value):
+    make = {"train": TrainConfig, "cvae": CVAEConfig}[config]
+    with pytest.raises(ConfigError, match=name):
+        make(**{name: value})
+
+
+@pytest.mark.parametrize("bad", [["--lr", "nan"], ["--lr", "inf"], ["--lr", "-0.001"], ["--beta", "nan"], ["--beta", "-1"],
+                                 ["--validation", "nan"], ["--validation", "1.5"], ["--seed", "-3"]])
+def test_train_cli_refuses_bad_settings_before_writing(data_file, tmp_path, capsys, bad):
+    out = tmp_path / "out"
+    assert main(["train", "cvae", "--data", str(data_file), "--out", str(out), "--epochs", "1", *bad]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("driveopt: error: ") and err.count("\n") == 1 and bad[1] in err
+    assert not out.exists()
+
+
+def test_train_into_an_existing_file_is_refused(data_file, tmp_path, capsys):
+    out = tmp_path / "weights.ckpt"
+    out.write_text("keep me")
+    assert main(["train", "cvae", "--data", str(data_file), "--out", str(out), "--epochs", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "existing file" in err
+    assert out.read_text() == "keep me" and list(tmp_path.iterdir()) == [out]
+
+
+def test_diverging_training_is_an_error(data_file, tmp_path):
+    with pytest.raises(TrainingError, match="diverged"):
+        train_cvae(data_file, tmp_path, CFG, dataclasses.replace(TCFG, epochs=2, learning_rate=1e30), progress=False)
+    assert not (tmp_path / "cvae.ckpt").exists()
+
+
+def test_file_order_changes_neither_split_nor_training(tmp_path):
+    a = write_synthetic(tmp_path / "a.h5", episodes=3, rows=32, seed=0)
+    b = write_synthetic(tmp_path / "b.h5", episodes=3, rows=32, seed=1)
+    quick = dataclasses.replace(TCFG, epochs=2, anneal_epochs=1, validation_fraction=0.34)
+    ab = train_cvae([a, b], tmp_path / "ab", CFG, quick, progress=False)
+    ba = train_cvae([b, a], tmp_path / "ba", CFG, quick, progress=False)
+    assert ab["history"] == ba["history"] and ab["rows"] == ba["rows"] == {"train": 4 * 32, "validation": 2 * 32}
+    records = [load_checkpoint(tmp_path / out / "last.ckpt", "cvae")[0]["data"] for out in ("ab", "ba")]
+    assert records[0] == records[1]
+    train_cvae([a, b], tmp_path / "resumed", CFG, quick, progress=False, stop_after=1)
+    resumed = train_cvae([b, a], tmp_path / "resumed", CFG, quick, progress=False)  # same episodes, other order: same run
+    assert resumed["history"] == ab["history"]
+
+
+def test_resume_with_another_validation_split_is_refused(data_file, trained, tmp_path):
+    def other_split(meta):
+        meta["data"]["validation"] = "0123456789abcdef"
+
+    def older(meta):
+        meta["data"] = "2a67782b73976205"  # the record of earlier driveopt versions: no split
+
+    for change, reason in ((other_split, "other validation episodes"), (older, "no validation split")):
+        out = tmp_path / change.__name__
+        out.mkdir()
+        _with_meta(trained[0] / "last.ckpt", out / "last.ckpt", change)
+        with pytest.raises(CheckpointError, match=reason):
+            train_cvae(data_file, out, CFG, TCFG, progress=False)
+
+
+def test_weights_record_their_road_and_refuse_other_lane_counts(trained, tmp_path):
+    weights = trained[0] / "cvae.ckpt"
+    assert load_checkpoint(weights, "cvae")[0]["lanes"] == [4]  # learned_data's scenario is a four-lane road
+    assert isinstance(prior_for(4, 30.0, weights, None), CVAEPrior)
+    with pytest.raises(CheckpointError, match="4-lane roads, not this 2-lane road"):
+        prior_for(2, 30.0, weights, None)
+    older = _with_meta(weights, tmp_path / "older.ckpt", lambda meta: meta.pop("lanes"))
+    assert isinstance(prior_for(2, 30.0, older, None), CVAEPrior)  # no record: accepted unchecked
+
+
+def test_recorded_lanes_come_from_the_scenarios(tmp_path):
+    two = write_synthetic(tmp_path / "two.h5", episodes=1, rows=4, scenario="two-lane-d2.5")
+    four = write_synthetic(tmp_path / "four.h5", episodes=1, rows=4, seed=1)
+    data = load_demonstrations([two, four])
+    assert road_lanes(data, training_rows(data, 3.0)) == [2, 4]
+    unknown = load_demonstrations(write_synthetic(tmp_path / "x.h5", episodes=1, rows=4, scenario="moon-road"))
+    with pytest.raises(DatasetError, match="moon-road"):
+        road_lanes(unknown, training_rows(unknown, 3.0))
+
+
+@pytest.mark.parametrize(("lanes", "other"), [(2, 4), (4, 2)])
+def test_shipped_weights_refuse_the_other_road(lanes, other, capsys):
+    path = shipped_weights(lanes)
+    meta, _ = load_checkpoint(path, "cvae")
+    assert meta["lanes"] == [lanes]
+    _, params, _, _ = load_cvae(path, lanes)
+    assert all(np.all(np.isfinite(p)) for p in jax.tree_util.tree_leaves(params))
+    with pytest.raises(CheckpointError, match=f"{lanes}-lane roads, not this {other}-lane road"):
+        prior_for(other, 30.0, path, None)
+    scenario = {2: "two-lane-d1.0", 4: "four-lane-d1.0"}[other]
+    assert main(["drive", "--planner", "cvae", "--weights", str(path), "--scenario", scenario, "--duration", "0.2", "--video", ""]) == 2
+    error = capsys.readouterr().err.splitlines()[-1]  # after drive's progress bar
+    assert error.startswith("driveopt: error: ") and f"{other}-lane road" in error

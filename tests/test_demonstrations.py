@@ -5,7 +5,7 @@ from __future__ import annotations
 import h5py
 import numpy as np
 import pytest
-from learned_data import synthetic_rows, write_synthetic
+from learned_data import SCENARIO, synthetic_rows, write_synthetic
 
 from driveopt.cli import main
 from driveopt.data.collect import collect
@@ -15,6 +15,14 @@ from driveopt.data.demonstrations import (
     EpisodeKey,
     load_demonstrations,
 )
+
+
+def _entry(episode: int, rows: int = 8, seed: int = 0) -> dict:
+    return {"scenario": SCENARIO, "seed": seed, "episode": episode, "env_seed": episode, "collided": False, "duration": rows / 10.0}
+
+
+def _writer(path) -> DemonstrationWriter:
+    return DemonstrationWriter(path, {"expert": "synthetic"}, 100, 22, 55)
 
 
 def test_round_trip_and_episode_table(tmp_path):
@@ -34,14 +42,69 @@ def test_partial_episode_is_truncated_on_reopen(tmp_path):
         for name in ("observation", "status", "episode"):
             f[name].resize(f[name].shape[0] + 5, axis=0)
     assert len(load_demonstrations(path)) == 16  # loading ignores the partial rows ...
-    writer = DemonstrationWriter(path, {"expert": "synthetic"}, 100, 22, 55)  # ... and reopening removes them
-    assert writer.done() == {EpisodeKey("synthetic", 0, 0), EpisodeKey("synthetic", 0, 1)}
-    writer.append_episode({"scenario": "synthetic", "seed": 0, "episode": 2, "env_seed": 2, "collided": True, "duration": 0.8},
-                          synthetic_rows(np.random.default_rng(3), 8))
+    writer = _writer(path)  # ... and reopening removes them
+    assert writer.done() == {EpisodeKey(SCENARIO, 0, 0), EpisodeKey(SCENARIO, 0, 1)}
+    writer.append_episode({**_entry(2), "collided": True}, synthetic_rows(np.random.default_rng(3), 8))
     data = load_demonstrations(path)
     assert len(data) == 24 and all(f.shape[0] == 24 for f in (data.observation, data.status, data.trajectory))
     assert np.array_equal(data.episode, np.repeat([0, 1, 2], 8))
     assert data.time_to_crash()[-1] == pytest.approx(0.1)
+
+
+class Killed(BaseException):
+    """Stands for the process being killed: nothing after it runs (except closing the file)."""
+
+
+@pytest.mark.parametrize(("dataset", "step"), [("/episodes/seed", "resize"), ("/episodes/first_row", "resize"),
+                                               ("/episodes/num_rows", "resize"), ("/episodes/num_rows", "__setitem__")])
+def test_torn_episode_entry_is_redone(tmp_path, monkeypatch, dataset, step):
+    path = write_synthetic(tmp_path / "d.h5", episodes=2, rows=8)
+    rows = synthetic_rows(np.random.default_rng(3), 8)
+    original = getattr(h5py.Dataset, step)
+
+    def killed_at(self, *args, **kwargs):  # the writer dies while writing ``dataset``: rows and earlier fields are on disk
+        if self.name == dataset:
+            raise Killed
+        return original(self, *args, **kwargs)
+
+    with monkeypatch.context() as m:
+        m.setattr(h5py.Dataset, step, killed_at)
+        with pytest.raises(Killed):
+            _writer(path).append_episode(_entry(2), rows)
+    torn = load_demonstrations(path)  # reading sees the complete episodes only
+    assert len(torn) == 16 and len(torn.episodes["scenario"]) == 2
+    writer = _writer(path)
+    assert writer.done() == {EpisodeKey(SCENARIO, 0, 0), EpisodeKey(SCENARIO, 0, 1)}  # the rerun redoes episode 2
+    writer.append_episode(_entry(2), rows)
+    data = load_demonstrations(path)
+    assert sorted(data.episodes["episode"]) == [0, 1, 2] and len(data) == 24
+    assert np.array_equal(data.episode, np.repeat([0, 1, 2], 8))
+    np.testing.assert_array_equal(data.trajectory[16:], rows["trajectory"])
+
+
+def test_rows_of_the_wrong_shape_are_refused_before_writing(tmp_path):
+    path = write_synthetic(tmp_path / "d.h5", episodes=2, rows=8)
+    writer = _writer(path)
+    bad = synthetic_rows(np.random.default_rng(3), 8)
+    bad["trajectory"] = bad["trajectory"][:, :50]
+    with pytest.raises(DatasetError, match="trajectory"):
+        writer.append_episode(_entry(2), bad)
+    good = synthetic_rows(np.random.default_rng(4), 8)
+    writer.append_episode(_entry(2), good)  # the same writer, no reopening
+    data = load_demonstrations(path)
+    assert len(data) == 24 and np.array_equal(data.episode, np.repeat([0, 1, 2], 8))
+    np.testing.assert_array_equal(data.observation[16:], good["observation"])
+
+
+def test_same_episodes_have_the_same_fingerprint_in_any_file_order(tmp_path):
+    a = write_synthetic(tmp_path / "a.h5", episodes=2, rows=8, seed=0)
+    b = write_synthetic(tmp_path / "b.h5", episodes=2, rows=8, seed=1)
+    ab, ba = load_demonstrations([a, b]), load_demonstrations([b, a])
+    assert ab.fingerprint() == ba.fingerprint()
+    assert [ab.episode_ids()[i] for i in np.argsort(ab.episode_rank())] == [ba.episode_ids()[i] for i in np.argsort(ba.episode_rank())]
+    with h5py.File(b, "a") as f:  # same keys and row count, other content
+        f["observation"][3, 2] += 1.0
+    assert load_demonstrations([a, b]).fingerprint() != ab.fingerprint()
 
 
 def test_bad_files_are_refused(tmp_path):
@@ -82,6 +145,25 @@ def test_collect_resumes_without_duplicates(tmp_path):
     with pytest.raises(DatasetError, match="other settings"):
         collect(out, ["two-lane-d1.0"], episodes=2, **{**kwargs, "samples": 80})
     assert main(["collect", "--scenarios", "nowhere", "--out", str(out)]) == 2
+
+
+@pytest.mark.parametrize("bad", [["--duration", "nan"], ["--duration", "inf"], ["--duration", "0"], ["--duration", "-1"],
+                                 ["--scenarios", "nowhere"], ["--seed", "-1"]])
+def test_collect_checks_options_before_touching_the_file(tmp_path, capsys, bad):
+    out = tmp_path / "sub" / "demo.h5"
+    assert main(["collect", "--scenarios", "two-lane-d1.0", "--episodes", "1", "--out", str(out), *bad]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("driveopt: error: ") and err.count("\n") == 1 and bad[1] in err
+    assert not out.exists() and not out.parent.exists()
+
+
+def test_collect_into_a_directory_is_refused(tmp_path, capsys):
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    assert main(["collect", "--scenarios", "two-lane-d1.0", "--episodes", "1", "--out", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is a directory" in err
+    assert list(folder.iterdir()) == []
 
 
 def test_terminated_collect_keeps_finished_episodes_and_resumes(tmp_path):

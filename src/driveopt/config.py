@@ -54,6 +54,26 @@ def _check_types(config: Any, section: str) -> None:
             object.__setattr__(config, f.name, float(value))
 
 
+def check_number(name: str, value: Any, low: float, high: float = math.inf, *, low_open: bool = False,
+                 high_open: bool = False, unit: str = "") -> None:
+    """ConfigError naming ``name`` unless ``value`` is a finite real number (not a bool) between ``low``
+    and ``high``, each bound included unless ``low_open`` / ``high_open``; ``unit`` goes into the message."""
+    real = isinstance(value, numbers.Real) and not isinstance(value, bool)
+    ok = real and math.isfinite(value) and (low < value if low_open else low <= value) and (
+        value < high if high_open else value <= high)
+    if not ok:
+        lower = f"> {low:g}" if low_open else f">= {low:g}"
+        upper = "" if high == math.inf else f" and {'<' if high_open else '<='} {high:g}"
+        raise ConfigError(f"{name} must be a finite number {lower}{upper}{' ' + unit if unit else ''}, got {value!r}")
+
+
+def check_count(name: str, value: Any, minimum: int = 1) -> None:
+    """ConfigError naming ``name`` unless ``value`` is an integer (not a bool) >= ``minimum``."""
+    if not (isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= minimum):
+        raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
+
+
+
 @dataclass(frozen=True)
 class BasisConfig:
     """Bernstein polynomial trajectory basis."""

@@ -1,4 +1,7 @@
-"""``driveopt collect``: expert demonstrations into an HDF5 file, resumable."""
+"""``driveopt collect``: expert demonstrations into an HDF5 file, resumable.
+
+The options are checked (:func:`driveopt.data.collect.check_options`) before the file is created or opened.
+"""
 
 from __future__ import annotations
 

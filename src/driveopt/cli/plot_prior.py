@@ -52,6 +52,6 @@ def run(args: argparse.Namespace) -> int:
     gaussian = GaussianPrior.from_config(config.sampler, config.projection.v_max)
     priors = {"Gaussian (P1's initial distribution)": dataclasses.replace(gaussian, structured_fraction=0.0),
               "Gaussian + coherent behaviours (bilevel planner)": gaussian,
-              f"CVAE ({Path(weights).name})": load_prior(weights, config.projection.v_max)}
+              f"CVAE ({Path(weights).name})": load_prior(weights, config.projection.v_max, lanes=scene.road.num_lanes)}
     print(f"wrote {plot_priors(priors, scene, config, args.out, num=args.samples, seed=args.seed)}")
     return 0

@@ -1,4 +1,9 @@
-"""``driveopt train MODEL``: fit a learned component to demonstrations, resumable (``cvae`` today)."""
+"""``driveopt train MODEL``: fit a learned component to demonstrations, resumable (``cvae`` today).
+
+The settings are checked (:class:`~driveopt.learned.train_cvae.TrainConfig`,
+:class:`~driveopt.learned.cvae.CVAEConfig`: NaN, infinite and out-of-range values are refused) before
+any data is read or output written.
+"""
 
 from __future__ import annotations
 
@@ -38,5 +43,5 @@ def run_cvae(args: argparse.Namespace) -> int:
     last = summary["history"][-1] if summary["history"] else {}
     print(f"trained {summary['epochs']} epochs on {summary['rows']['train']} rows ({summary['rows']['validation']} validation) "
           f"in {summary['seconds']:.0f} s; last train loss {last.get('train_loss', float('nan')):.3f}, "
-          f"best validation loss {summary['best_val_loss']:.3f}; weights: {args.out}/cvae.ckpt")
+          f"best validation loss {summary['best_val_loss']:.3f}; weights: {summary['weights'] or 'none written yet'}")
     return 0

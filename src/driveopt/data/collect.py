@@ -16,8 +16,12 @@ from typing import Any, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from driveopt.config import BasisConfig
-from driveopt.data.demonstrations import ROW_FIELDS, DemonstrationWriter, EpisodeKey
+from driveopt.config import BasisConfig, ConfigError, check_count, check_number
+from driveopt.data.demonstrations import (
+    ROW_FIELDS,
+    DemonstrationWriter,
+    EpisodeKey,
+)
 from driveopt.drivers.optimiser import OptimiserSpec
 from driveopt.experiments.runner import execute
 from driveopt.experiments.store import JobKey
@@ -59,6 +63,20 @@ def demonstration_episode(job: JobKey, options: dict[str, Any]) -> dict[str, Any
     return {"entry": entry, "rows": arrays, "plan_seconds": episode.plan_seconds, "sim_seconds": episode.sim_seconds}
 
 
+def check_options(scenarios: Sequence[str], *, seed: int, episodes: int, samples: int, iterations: int,
+                  duration: float, workers: int) -> None:
+    """ConfigError (ScenarioError for an unknown scenario) unless the scenarios are registered, seed >= 0,
+    episodes, samples, iterations and workers are integers >= 1 and duration is finite and > 0 [s]."""
+    if not scenarios:
+        raise ConfigError("collect needs at least one scenario")
+    for name in scenarios:
+        get_scenario(name)
+    check_count("seed", seed, 0)
+    for name, value in (("episodes", episodes), ("samples", samples), ("iterations", iterations), ("workers", workers)):
+        check_count(name, value)
+    check_number("duration", duration, 0.0, low_open=True, unit="s")
+
+
 def collect(
     out: str | Path,
     scenarios: Sequence[str],
@@ -74,9 +92,10 @@ def collect(
     """Append the missing expert episodes (scenarios x episodes, traffic from ``seed``) to ``out``.
 
     Returns a summary: episodes and rows written now, skipped as already present, wall time.
+    Options are checked (:func:`check_options`) before the file is created or opened.
     """
-    for name in scenarios:
-        get_scenario(name)  # unknown names fail before any work
+    check_options(scenarios, seed=seed, episodes=episodes, samples=samples, iterations=iterations,
+                  duration=duration, workers=workers)
     basis = BasisConfig()
     settings = {"expert": "bilevel", "samples": samples, "iterations": iterations, "duration": float(duration),
                 "num_nodes": basis.num_nodes, "horizon": basis.horizon}

@@ -18,13 +18,22 @@ datasets (n = rows, K = nodes)::
 
 Episodes are the unit of writing: an episode's rows and its entry are appended together, with the
 file opened for that write only, so an interrupted collection loses at most the episodes in flight
-and the file can be read between writes. On reopening, rows beyond the last complete episode (a
-write cut short) are truncated away.
+and the file can be read between writes. The rows go first, then the entry field by field. An entry
+is complete when every field has it and its ``first_row`` / ``num_rows`` cover exactly the rows whose
+``episode`` is its index; reading uses complete entries only, and reopening for writing truncates a
+partly written entry and every row after the last complete one (a write cut short), so a rerun
+redoes that episode.
+
+An episode is identified by (scenario, seed, episode) and a digest of its rows
+(:meth:`Demonstrations.episode_ids`): the same episode gives the same identity in any file and at
+any position, so fingerprints and orders built on it do not depend on the order of the files.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import itertools
 import json
 from pathlib import Path
 from typing import Any, Iterable, NamedTuple
@@ -37,6 +46,7 @@ FORMAT = "driveopt-demonstrations"
 SCHEMA_VERSION = 1
 ROW_FIELDS = ("observation", "init_x", "init_y", "lane_bounds", "setpoints", "coeffs", "trajectory", "status", "time")
 EPISODE_FIELDS = ("scenario", "seed", "episode", "env_seed", "collided", "duration", "first_row", "num_rows")
+_POSITION_FIELDS = ("first_row", "num_rows")  # of EPISODE_FIELDS: set by the writer, last
 _ROW_DTYPES = {"status": np.int8}
 _EPISODE_DTYPES = {"seed": np.int64, "episode": np.int32, "env_seed": np.int64, "collided": np.bool_,
                    "duration": np.float32, "first_row": np.int64, "num_rows": np.int64}
@@ -83,12 +93,33 @@ class Demonstrations(NamedTuple):
         end = self.episodes["duration"][self.episode]
         return np.where(collided, end - self.time, np.inf)
 
-    def fingerprint(self) -> str:
-        """Identifies the data (episode keys and row count): a checkpoint trained on it records this."""
-        import hashlib
+    def episode_ids(self) -> list[tuple[str, int, int, str]]:
+        """(E,) per episode: (scenario, seed, episode, sha256 of its rows), whatever file or position it has."""
+        order = np.argsort(self.episode, kind="stable")
+        bounds = np.searchsorted(self.episode[order], np.arange(len(self.episodes["num_rows"]) + 1))
+        ids = []
+        for index, (lo, hi) in enumerate(itertools.pairwise(bounds)):
+            digest = hashlib.sha256()
+            for name in ROW_FIELDS:
+                digest.update(np.ascontiguousarray(getattr(self, name)[order[lo:hi]]).tobytes())
+            ids.append((str(self.episodes["scenario"][index]), int(self.episodes["seed"][index]),
+                        int(self.episodes["episode"][index]), digest.hexdigest()))
+        return ids
 
-        keys = [f"{s}/{int(a)}/{int(b)}" for s, a, b in zip(self.episodes["scenario"], self.episodes["seed"], self.episodes["episode"])]
-        return hashlib.sha256((";".join(sorted(keys)) + f"#{len(self)}").encode()).hexdigest()[:16]
+    def episode_rank(self) -> np.ndarray:
+        """(E,) each episode's position when sorted by :meth:`episode_ids` (file order does not change it)."""
+        ids = self.episode_ids()
+        rank = np.empty(len(ids), np.int64)
+        rank[sorted(range(len(ids)), key=ids.__getitem__)] = np.arange(len(ids))
+        return rank
+
+    def fingerprint(self, episodes: Iterable[int] | None = None) -> str:
+        """16 hex digits identifying the content of ``episodes`` (indices into ``episodes``; default: all),
+        the same for the same episodes in any file order: a checkpoint records it for its data and split."""
+        ids = self.episode_ids()
+        chosen = range(len(ids)) if episodes is None else episodes
+        text = ";".join(sorted("/".join(map(str, ids[int(e)])) for e in chosen))
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 class DemonstrationWriter:
@@ -100,7 +131,12 @@ class DemonstrationWriter:
 
     def __init__(self, path: str | Path, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, observation_dim: int):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if self.path.is_dir():
+            raise DatasetError(f"{self.path} is a directory; give the demonstrations file's path (e.g. {self.path / 'demonstrations.h5'})")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise DatasetError(f"cannot create the folder of {self.path}: {exc.strerror or exc}") from None
         with self._open() as f:
             if "episodes" not in f:
                 _create(f, attrs, num_nodes, num_coeffs, observation_dim)
@@ -129,20 +165,18 @@ class DemonstrationWriter:
             return {EpisodeKey(s, int(a), int(b)) for s, a, b in zip(scen, eps["seed"][:], eps["episode"][:])}
 
     def append_episode(self, episode: dict[str, Any], rows: dict[str, np.ndarray]) -> None:
-        """Append one episode: ``episode`` has EPISODE_FIELDS but first_row/num_rows; ``rows`` ROW_FIELDS."""
+        """Append one episode: ``episode`` has EPISODE_FIELDS but first_row/num_rows; ``rows`` ROW_FIELDS.
+
+        Everything is checked before the first byte is written; a write cut short before is removed first."""
         with self._open() as f:
-            n = int(np.asarray(rows["observation"]).shape[0])
-            start = f["observation"].shape[0]
-            index = f["episodes/num_rows"].shape[0]
+            index, start = _truncate_partial(f)
+            data = _checked_rows(f, rows)
+            n = int(data["observation"].shape[0])
+            entry = {**{name: episode[name] for name in EPISODE_FIELDS if name not in _POSITION_FIELDS},
+                     "first_row": start, "num_rows": n}
             for name in ROW_FIELDS:
-                data = np.asarray(rows[name])
-                if data.shape[0] != n or data.shape[1:] != f[name].shape[1:]:
-                    raise DatasetError(f"episode rows '{name}' have shape {data.shape}, expected ({n}, {f[name].shape[1:]})")
-                f[name].resize(start + n, axis=0)
-                f[name][start:] = data
-            f["episode"].resize(start + n, axis=0)
-            f["episode"][start:] = index
-            entry = {**episode, "first_row": start, "num_rows": n}
+                _write_from(f[name], start, data[name])
+            _write_from(f["episode"], start, np.full(n, index, np.int32))
             for name in EPISODE_FIELDS:  # the entry goes last: it marks the rows complete
                 ds = f["episodes"][name]
                 ds.resize(index + 1, axis=0)
@@ -166,13 +200,55 @@ def _create(f: Any, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, obse
         group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(64,))
 
 
-def _truncate_partial(f: Any) -> None:
-    """Drop rows beyond the last complete episode (an append cut short)."""
+def _checked_rows(f: Any, rows: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``rows`` as arrays after checking that every field has the same row count and the file's row shape."""
+    data = {name: np.asarray(rows[name]) for name in ROW_FIELDS}
+    n = data["observation"].shape[0]
+    for name, values in data.items():
+        if values.shape[:1] != (n,) or values.shape[1:] != f[name].shape[1:]:
+            raise DatasetError(f"episode rows '{name}' have shape {values.shape}, expected ({n}, {f[name].shape[1:]})")
+    return data
+
+
+def _write_from(dataset: Any, start: int, values: np.ndarray) -> None:
+    """Resize ``dataset`` to end with ``values`` written from row ``start``."""
+    dataset.resize(start + len(values), axis=0)
+    dataset[start:] = values
+
+
+def _complete_extent(f: Any) -> tuple[int, int]:
+    """(complete episode entries, rows they cover): see the module docstring for what is complete."""
     eps = f["episodes"]
-    complete = int(eps["first_row"][-1] + eps["num_rows"][-1]) if eps["num_rows"].shape[0] else 0
+    count = min(eps[name].shape[0] for name in EPISODE_FIELDS)
+    if count and not _entry_matches_rows(f, count - 1):
+        count -= 1  # only the last entry can be torn: appends are sequential
+    end = int(eps["first_row"][count - 1] + eps["num_rows"][count - 1]) if count else 0
+    return count, end
+
+
+def _entry_matches_rows(f: Any, index: int) -> bool:
+    """Whether entry ``index`` starts where the previous one ends and covers exactly the rows labelled ``index``."""
+    eps = f["episodes"]
+    first, num = int(eps["first_row"][index]), int(eps["num_rows"][index])
+    expected = int(eps["first_row"][index - 1] + eps["num_rows"][index - 1]) if index else 0
+    available = min(f[name].shape[0] for name in (*ROW_FIELDS, "episode"))
+    if first != expected or num < 0 or first + num > available:
+        return False
+    labels = f["episode"][first:min(first + num + 1, available)]
+    return bool(np.all(labels[:num] == index)) and not np.any(labels[num:] == index)
+
+
+def _truncate_partial(f: Any) -> tuple[int, int]:
+    """Drop a partly written episode entry and the rows beyond the last complete episode (an append cut
+    short); returns (complete episodes, their rows): where the next episode goes."""
+    count, end = _complete_extent(f)
+    for name in EPISODE_FIELDS:
+        if f["episodes"][name].shape[0] != count:
+            f["episodes"][name].resize(count, axis=0)
     for name in (*ROW_FIELDS, "episode"):
-        if f[name].shape[0] != complete:
-            f[name].resize(complete, axis=0)
+        if f[name].shape[0] != end:
+            f[name].resize(end, axis=0)
+    return count, end
 
 
 def _locked_hint(exc: OSError) -> str:
@@ -216,10 +292,10 @@ def _load_one(path: Path) -> Demonstrations:
     try:
         with h5py.File(path, "r") as f:
             _check_attrs(f, path)
-            eps = {name: f["episodes"][name][:] for name in EPISODE_FIELDS}
+            count, end = _complete_extent(f)
+            eps = {name: f["episodes"][name][:count] for name in EPISODE_FIELDS}
             eps["scenario"] = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in eps["scenario"]])
-            complete = int(eps["first_row"][-1] + eps["num_rows"][-1]) if len(eps["num_rows"]) else 0
-            rows = {name: f[name][:complete] for name in (*ROW_FIELDS, "episode")}
+            rows = {name: f[name][:end] for name in (*ROW_FIELDS, "episode")}
             attrs = {k: _attr(v) for k, v in f.attrs.items()}
     except DatasetError:
         raise

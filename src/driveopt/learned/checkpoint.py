@@ -3,6 +3,11 @@
     {"format": "driveopt-checkpoint", "schema_version": 1, "kind": "cvae", "sha256": ..., "meta": {...}}\\n
     <msgpack of the state dict>
 
+``meta`` is the writer's (for the CVAE: configuration, training settings, the data record with the
+validation split, the lane counts of the training roads, history; see
+:mod:`driveopt.learned.train_cvae`). Adding a field to the header changes neither the body nor its
+checksum, so the weights stay byte-identical.
+
 Writes are atomic (a temporary file in the same folder, fsynced, then renamed), so an interrupted
 save leaves the previous checkpoint intact. Loading checks the format, version, kind and checksum
 and raises :class:`CheckpointError` with the reason, never returns a partly read state.

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.config import BasisConfig, ConfigError, ProjectionConfig, QPConfig
+from driveopt.config import BasisConfig, ConfigError, ProjectionConfig, QPConfig, check_count, check_number
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore
 from driveopt.observation import (
     EGO_FEATURES,
@@ -63,10 +63,14 @@ class CVAEConfig:
     qp: QPConfig = QPConfig()
 
     def __post_init__(self):
-        if self.latent_dim < 1 or not self.hidden or min(self.hidden) < 1:
-            raise ConfigError("CVAEConfig needs latent_dim >= 1 and positive hidden widths")
-        if self.v_max <= 0 or self.position_clip <= 0 or self.trajectory_stride < 1:
-            raise ConfigError("CVAEConfig needs v_max > 0 [m/s], position_clip > 0 [m], trajectory_stride >= 1")
+        check_count("CVAEConfig.latent_dim", self.latent_dim)
+        if not self.hidden:
+            raise ConfigError("CVAEConfig.hidden needs at least one width")
+        for width in self.hidden:
+            check_count("CVAEConfig.hidden widths", width)
+        check_number("CVAEConfig.v_max", self.v_max, 0.0, low_open=True, unit="m/s")
+        check_number("CVAEConfig.position_clip", self.position_clip, 0.0, low_open=True, unit="m")
+        check_count("CVAEConfig.trajectory_stride", self.trajectory_stride)
 
     @property
     def trajectory_features(self) -> int:
@@ -221,9 +225,12 @@ def empty_state(cfg: CVAEConfig) -> dict[str, Any]:
             "normaliser": Normaliser(zeros(FEATURE_DIM), zeros(FEATURE_DIM), zeros(cfg.trajectory_features), zeros(cfg.trajectory_features))}
 
 
-def load_cvae(path: str | Path) -> tuple[CVAEConfig, Any, Normaliser, dict[str, Any]]:
-    """(config, params, normaliser, meta) of a CVAE checkpoint; CheckpointError when unusable."""
+def load_cvae(path: str | Path, lanes: int | None = None) -> tuple[CVAEConfig, Any, Normaliser, dict[str, Any]]:
+    """(config, params, normaliser, meta) of a CVAE checkpoint; CheckpointError when unusable, or when
+    ``lanes`` is given and the checkpoint was trained for roads with other lane counts (:func:`check_lanes`)."""
     meta, state = load_checkpoint(path, CHECKPOINT_KIND)
+    if lanes is not None:
+        check_lanes(meta, lanes, path)
     try:
         cfg = CVAEConfig.from_dict(meta["config"])
     except (KeyError, TypeError, ValueError) as exc:
@@ -231,3 +238,21 @@ def load_cvae(path: str | Path) -> tuple[CVAEConfig, Any, Normaliser, dict[str, 
     target = empty_state(cfg)
     restored = restore(target, {k: state.get(k) for k in target}, path, "the CVAE state")
     return cfg, restored["params"], Normaliser(*restored["normaliser"]), meta
+
+
+def check_lanes(meta: dict[str, Any], lanes: int, path: str | Path) -> None:
+    """CheckpointError unless the checkpoint's ``meta["lanes"]`` (the lane counts of the roads of its
+    training demonstrations) includes ``lanes``.
+
+    A checkpoint without the record (written before driveopt recorded it) is accepted unchecked: a
+    user's older weights keep working, and nothing in them tells the road; the shipped weights carry it.
+    """
+    trained = meta.get("lanes")
+    if trained is None:
+        return
+    if not isinstance(trained, list) or not all(isinstance(n, int) and not isinstance(n, bool) for n in trained):
+        raise CheckpointError(f"{path}: invalid lane record {trained!r} in the header (expected a list of lane counts)")
+    if int(lanes) not in trained:
+        roads = " or ".join(str(n) for n in trained)
+        raise CheckpointError(f"{path} was trained for {roads}-lane roads, not this {int(lanes)}-lane road: "
+                              f"use weights trained on {int(lanes)}-lane demonstrations")

@@ -1,9 +1,12 @@
 """``driveopt train cvae``: fit the CVAE to expert demonstrations, resumably.
 
 Rows: planning steps whose plan met every constraint (status SUCCESS), leaving out the last
-``crash_margin`` seconds before a collision. Validation: whole episodes (``validation_fraction``
-of them, chosen by the seed), so no episode is split between the two sets; or every usable row of
-separate validation files, so that models trained on different data meet the same held-out set.
+``crash_margin`` seconds before a collision, in the canonical episode order (sorted by scenario,
+seed, episode and content: :meth:`~driveopt.data.demonstrations.Demonstrations.episode_rank`), so
+the same demonstrations given in any file order train the same model. Validation: whole episodes
+(``validation_fraction`` of them, drawn by the seed from that order), so no episode is split between
+the two sets; or every usable row of separate validation files, so that models trained on different
+data meet the same held-out set.
 
 Optimiser: AdamW with a step decay (x ``decay_factor`` every ``decay_every`` epochs; P1:
 x 0.1 every 10 of 80 epochs); beta rises linearly from 0 to ``beta`` over ``anneal_epochs``.
@@ -15,13 +18,20 @@ Output folder: ``last.ckpt`` (everything needed to resume: parameters, optimiser
 history, normaliser), ``cvae.ckpt`` (the weights with the lowest validation loss: what the
 planner loads) and ``history.json``. Both checkpoints are written atomically after every epoch,
 so an interruption loses at most the epoch in flight; rerunning the same command resumes.
-A checkpoint made from other data or another configuration is refused with the reason.
+Checkpoints record the data (``meta["data"]``: fingerprints of the training demonstrations and of the
+held-out episodes, see :func:`data_record`) and the lane counts of the training roads
+(``meta["lanes"]``, checked by the planner). A checkpoint made from other data, another validation
+split or another configuration is refused with the reason, and so is one of an older driveopt that
+records no split (its split depended on the order of the files). Settings are checked when
+:class:`TrainConfig` is made and the output folder before the data is read, so bad input writes
+nothing; a NaN or infinite training loss stops training with :class:`TrainingError`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -32,12 +42,13 @@ import numpy as np
 import optax
 from tqdm import tqdm
 
-from driveopt.config import ConfigError
+from driveopt.config import check_count, check_number
 from driveopt.data.demonstrations import (
     DatasetError,
     Demonstrations,
     load_demonstrations,
 )
+from driveopt.errors import DriveoptError
 from driveopt.learned.checkpoint import (
     CheckpointError,
     load_checkpoint,
@@ -55,6 +66,11 @@ from driveopt.learned.cvae import (
     loss_terms,
     prior_coverage,
 )
+from driveopt.sim.scenarios import ScenarioError, get_scenario
+
+
+class TrainingError(DriveoptError):
+    """Training cannot go on: the loss became NaN or infinite (diverged)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,13 +86,18 @@ class TrainConfig:
     validation_fraction: float = 0.1  # [-] share of episodes held out
     train_episodes: int = 0  # [-] learn from only this many of the other episodes (0: all); for learning curves
     crash_margin: float = 3.0  # [s] rows this close before a collision are left out
-    seed: int = 0
+    seed: int = 0  # [-] >= 0
 
     def __post_init__(self):
-        if self.epochs < 1 or self.batch_size < 1 or self.decay_every < 1 or self.anneal_epochs < 0 or self.train_episodes < 0:
-            raise ConfigError("TrainConfig needs epochs, batch_size, decay_every >= 1 and anneal_epochs, train_episodes >= 0")
-        if not 0.0 <= self.validation_fraction < 1.0 or self.learning_rate <= 0 or self.beta < 0:
-            raise ConfigError("TrainConfig needs 0 <= validation_fraction < 1, learning_rate > 0, beta >= 0")
+        for name, minimum in (("epochs", 1), ("batch_size", 1), ("decay_every", 1), ("anneal_epochs", 0),
+                              ("train_episodes", 0), ("seed", 0)):
+            check_count(f"TrainConfig.{name}", getattr(self, name), minimum)
+        check_number("TrainConfig.learning_rate", self.learning_rate, 0.0, low_open=True)
+        check_number("TrainConfig.weight_decay", self.weight_decay, 0.0)
+        check_number("TrainConfig.decay_factor", self.decay_factor, 0.0, 1.0, low_open=True)
+        check_number("TrainConfig.beta", self.beta, 0.0)
+        check_number("TrainConfig.validation_fraction", self.validation_fraction, 0.0, 1.0, high_open=True)
+        check_number("TrainConfig.crash_margin", self.crash_margin, 0.0, unit="s")
 
     def beta_at(self, epoch: int) -> float:
         return self.beta * min(1.0, (epoch + 1) / self.anneal_epochs) if self.anneal_epochs else self.beta
@@ -87,15 +108,46 @@ def training_rows(data: Demonstrations, crash_margin: float) -> np.ndarray:
     return np.flatnonzero((data.status == 0) & (data.time_to_crash() > crash_margin))
 
 
+def canonical_order(data: Demonstrations, rows: np.ndarray) -> np.ndarray:
+    """``rows`` sorted by their episode's canonical rank, then by row (time within an episode): the same
+    rows in the same order whatever the order of the files."""
+    rank = data.episode_rank()[data.episode[rows]]
+    return rows[np.lexsort((rows, rank))]
+
+
+def drawn_episodes(data: Demonstrations, rows: np.ndarray, count: int, seed: int) -> np.ndarray:
+    """(len(rows),) mask of the rows of ``count`` episodes drawn by ``seed`` from the episodes of ``rows``
+    in their canonical order (file order does not change the draw)."""
+    rank = data.episode_rank()[data.episode[rows]]
+    chosen = np.random.default_rng(seed).permutation(np.unique(rank))[:count]
+    return np.isin(rank, chosen)
+
+
 def split_episodes(data: Demonstrations, rows: np.ndarray, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """(train rows, validation rows) with whole episodes held out."""
-    episodes = np.unique(data.episode[rows])
-    held = int(round(fraction * len(episodes)))
-    if fraction > 0 and len(episodes) > 1:
+    """(train rows, validation rows) with ``fraction`` of the episodes (at least one when fraction > 0
+    and there are two) held out whole, drawn by ``seed`` (:func:`drawn_episodes`)."""
+    episodes = len(np.unique(data.episode[rows]))
+    held = int(round(fraction * episodes))
+    if fraction > 0 and episodes > 1:
         held = max(held, 1)
-    chosen = np.random.default_rng(seed).permutation(episodes)[:held]
-    is_val = np.isin(data.episode[rows], chosen)
+    is_val = drawn_episodes(data, rows, held, seed)
     return rows[~is_val], rows[is_val]
+
+
+def data_record(data: Demonstrations, held: Demonstrations, val_rows: np.ndarray) -> dict[str, Any]:
+    """What a checkpoint records of its data: fingerprints (independent of the file order) of the training
+    demonstrations and of the held-out episodes of ``held`` (those with rows in ``val_rows``), and their count."""
+    episodes = np.unique(held.episode[val_rows])
+    return {"train": data.fingerprint(), "validation": held.fingerprint(episodes), "validation_episodes": len(episodes)}
+
+
+def road_lanes(data: Demonstrations, rows: np.ndarray) -> list[int]:
+    """Sorted lane counts of the roads (registered scenarios) of the episodes of ``rows``."""
+    names = np.unique(data.episodes["scenario"][np.unique(data.episode[rows])])
+    try:
+        return sorted({get_scenario(str(name)).lanes for name in names})
+    except ScenarioError as exc:
+        raise DatasetError(f"demonstrations of a scenario whose road is unknown, so the weights could not name their lane count: {exc}") from None
 
 
 def make_batch(data: Demonstrations, rows: np.ndarray) -> Batch:
@@ -122,30 +174,18 @@ def train_cvae(
 
     validation_paths: demonstrations held out whole (``validation_fraction`` is then not used).
     stop_after: return after this many epochs of this call (for tests of resumption).
+    The summary's ``weights`` is the path of ``cvae.ckpt``, or None when no epoch has written it yet.
     """
     out = Path(out_dir)
-    data = load_demonstrations(data_paths)
-    rows = training_rows(data, tcfg.crash_margin)
-    if validation_paths:
-        held = load_demonstrations(validation_paths)
-        if held.fingerprint() == data.fingerprint() or set(_paths(validation_paths)) & set(_paths(data_paths)):
-            raise DatasetError("the validation demonstrations must be other files than the training ones")
-        train_rows, val_rows = rows, training_rows(held, tcfg.crash_margin)
-        fingerprint = f"{data.fingerprint()}, validation {held.fingerprint()}"
-    else:
-        held, fingerprint = data, data.fingerprint()
-        train_rows, val_rows = split_episodes(data, rows, tcfg.validation_fraction, tcfg.seed)
-    if tcfg.train_episodes:  # the validation episodes stay the same whatever the count
-        episodes = np.random.default_rng(tcfg.seed + 1).permutation(np.unique(data.episode[train_rows]))
-        train_rows = train_rows[np.isin(data.episode[train_rows], episodes[:tcfg.train_episodes])]
-    if len(train_rows) < 2:
-        raise DatasetError(f"only {len(train_rows)} usable training rows in {data_paths}: collect more demonstrations")
+    if out.exists() and not out.is_dir():
+        raise CheckpointError(f"the output folder {out} is an existing file; give a folder (for last.ckpt, cvae.ckpt, history.json)")
+    data, held, train_rows, val_rows = _rows(data_paths, validation_paths, tcfg)
     train, val = make_batch(data, train_rows), make_batch(held, val_rows)
     batch_size = min(tcfg.batch_size, len(train_rows))
     steps_per_epoch = len(train_rows) // batch_size
     optimiser = _optimiser(tcfg, steps_per_epoch)
-    meta_base = {"config": cfg.to_dict(), "train_config": dataclasses.asdict(tcfg), "data": fingerprint,
-                 "rows": {"train": int(len(train_rows)), "validation": int(len(val_rows))}}
+    meta_base = {"config": cfg.to_dict(), "train_config": dataclasses.asdict(tcfg), "data": data_record(data, held, val_rows),
+                 "lanes": road_lanes(data, train_rows), "rows": {"train": int(len(train_rows)), "validation": int(len(val_rows))}}
 
     key = jax.random.PRNGKey(tcfg.seed)
     params = init_params(cfg, jax.random.fold_in(key, 0))
@@ -155,7 +195,8 @@ def train_cvae(
     best = float("inf")
     last = out / "last.ckpt"
     if last.exists():
-        params, normaliser, opt_state, history, best = _resume(last, cfg, tcfg, fingerprint, params, normaliser, opt_state)
+        params, normaliser, opt_state, history, best = _resume(last, cfg, tcfg, meta_base["data"], params, normaliser, opt_state)
+    _make_folder(out)
 
     @jax.jit
     def step(params, opt_state, batch, key, beta):
@@ -191,6 +232,9 @@ def train_cvae(
             record.update(val_reconstruction=float(terms["reconstruction"]), val_kl=float(terms["kl"]),
                           val_loss=float(terms["reconstruction"] + beta * terms["kl"]),
                           val_prior_best_of_16=float(terms["prior_best_of_16"]))
+        if not math.isfinite(record["train_loss"]):
+            raise TrainingError(f"training diverged in epoch {epoch + 1} (train loss {record['train_loss']}): "
+                                f"lower the learning rate (now {tcfg.learning_rate:g})")
         history.append(record)
         # Once beta is at its final value, keep the weights with the lowest validation loss.
         score = record.get("val_loss", record["train_loss"])
@@ -202,18 +246,56 @@ def train_cvae(
         (out / "history.json").write_text(json.dumps(history, indent=1))
         bar.set_postfix_str(f"train {record['train_loss']:.3f} val {record.get('val_loss', float('nan')):.3f} m^2")
     bar.close()
+    weights = out / "cvae.ckpt"
     return {"epochs": len(history), "history": history, "best_val_loss": best, "rows": meta_base["rows"],
-            "seconds": time.perf_counter() - start, "out": str(out)}
+            "seconds": time.perf_counter() - start, "out": str(out), "weights": str(weights) if weights.exists() else None}
+
+
+def _rows(data_paths, validation_paths, tcfg: TrainConfig) -> tuple[Demonstrations, Demonstrations, np.ndarray, np.ndarray]:
+    """(training data, validation data, train rows, validation rows), rows in canonical order."""
+    data = load_demonstrations(data_paths)
+    rows = canonical_order(data, training_rows(data, tcfg.crash_margin))
+    if validation_paths:
+        held = load_demonstrations(validation_paths)
+        if held.fingerprint() == data.fingerprint() or set(_paths(validation_paths)) & set(_paths(data_paths)):
+            raise DatasetError("the validation demonstrations must be other files than the training ones")
+        train_rows, val_rows = rows, canonical_order(held, training_rows(held, tcfg.crash_margin))
+    else:
+        held = data
+        train_rows, val_rows = split_episodes(data, rows, tcfg.validation_fraction, tcfg.seed)
+    if tcfg.train_episodes:  # the validation episodes stay the same whatever the count
+        train_rows = train_rows[drawn_episodes(data, train_rows, tcfg.train_episodes, tcfg.seed + 1)]
+    if len(train_rows) < 2:
+        raise DatasetError(f"only {len(train_rows)} usable training rows in {data_paths}: collect more demonstrations")
+    return data, held, train_rows, val_rows
+
+
+def _make_folder(out: Path) -> None:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CheckpointError(f"cannot create the output folder {out}: {exc.strerror or exc}") from None
 
 
 def _paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
     return [Path(p).resolve() for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
 
 
-def _resume(path: Path, cfg: CVAEConfig, tcfg: TrainConfig, fingerprint: str, params, normaliser, opt_state):
+def _check_same_data(path: Path, stored: Any, now: dict[str, Any]) -> None:
+    """CheckpointError unless the checkpoint's data record ``stored`` equals ``now`` (see :func:`data_record`)."""
+    if not isinstance(stored, dict) or "validation" not in stored:
+        raise CheckpointError(f"{path} records no validation split (written by an older driveopt, whose split depended "
+                              "on the order of the files); use a new --out")
+    if stored.get("train") != now["train"]:
+        raise CheckpointError(f"{path} was trained on other demonstrations (data {stored.get('train')}, now {now['train']}); use a new --out")
+    if stored != now:
+        raise CheckpointError(f"{path} held out other validation episodes ({stored.get('validation_episodes')} episodes "
+                              f"{stored.get('validation')}, now {now['validation_episodes']} episodes {now['validation']}); "
+                              "resume with the same validation demonstrations, or use a new --out")
+
+
+def _resume(path: Path, cfg: CVAEConfig, tcfg: TrainConfig, data: dict[str, Any], params, normaliser, opt_state):
     meta, state = load_checkpoint(path, CHECKPOINT_KIND)
-    if meta.get("data") != fingerprint:
-        raise CheckpointError(f"{path} was trained on other demonstrations (data {meta.get('data')}, now {fingerprint}); use a new --out")
     if meta.get("config") != json.loads(json.dumps(cfg.to_dict())):
         raise CheckpointError(f"{path} has another CVAE configuration: {meta.get('config')}; use a new --out")
     stored = dict(meta.get("train_config", {}))
@@ -222,6 +304,7 @@ def _resume(path: Path, cfg: CVAEConfig, tcfg: TrainConfig, fingerprint: str, pa
                 if k != "epochs" and stored.get(k, defaults[k]) != v}
     if mismatch:
         raise CheckpointError(f"{path} was trained with other settings {mismatch} (stored, now); use a new --out")
+    _check_same_data(path, meta.get("data"), data)
     target = {"params": params, "normaliser": normaliser, "opt_state": opt_state}
     restored = restore(target, {k: state.get(k) for k in target}, path, "the training state")
     return restored["params"], Normaliser(*restored["normaliser"]), restored["opt_state"], list(meta.get("history", [])), float(meta.get("best", float("inf")))

@@ -4,6 +4,10 @@
 initialises the sampler's Gaussian with their mean and covariance; later iterations adapt it as
 for any prior. The CVAE replaces the warm start (``warm_mean`` is not used).
 
+Checkpoints record the lane counts of the roads they were trained on; :func:`prior_for` refuses
+weights trained for another lane count than the scenario's (checkpoints without the record, from
+before it was kept, are accepted unchecked).
+
 The network (:mod:`driveopt.learned.cvae`, Flax) is imported when a CVAE is loaded or sampled, not
 with this module: the registry names the CVAE planners without every command importing Flax.
 """
@@ -58,10 +62,13 @@ class CVAEPrior:
         return Proposal(samples, *moments(samples, COVARIANCE_JITTER))
 
 
-def load_prior(path: str | Path, v_max: float = ProjectionConfig.v_max, gaussian: Any = None, gaussian_fraction: float = 0.0) -> CVAEPrior:
+def load_prior(path: str | Path, v_max: float = ProjectionConfig.v_max, gaussian: Any = None, gaussian_fraction: float = 0.0,
+               lanes: int | None = None) -> CVAEPrior:
+    """The prior of the checkpoint ``path``; with ``lanes``, CheckpointError when the checkpoint records that
+    it was trained for roads with other lane counts (see :func:`driveopt.learned.cvae.check_lanes`)."""
     from driveopt.learned.cvae import load_cvae
 
-    cfg, params, norm, _ = load_cvae(path)
+    cfg, params, norm, _ = load_cvae(path, lanes)
     return CVAEPrior(params, norm, cfg, float(v_max), gaussian, float(gaussian_fraction))
 
 
@@ -77,12 +84,13 @@ def shipped_weights(lanes: int) -> Path | None:
 def prior_for(lanes: int, v_max: float, weights: str | Path | None, fallback: Any, gaussian_fraction: float = 0.0) -> Any:
     """The CVAE prior from ``weights`` (or the shipped weights for ``lanes``), mixing in
     ``gaussian_fraction`` of ``fallback``; ``fallback`` alone with a notice when there are no
-    weights. A given but unusable file raises CheckpointError."""
+    weights. A given but unusable file, or one trained for roads with another lane count, raises
+    CheckpointError."""
     path = Path(weights) if weights else shipped_weights(lanes)
     if path is None:
         warnings.warn(f"no CVAE weights shipped for {lanes}-lane roads: using the Gaussian start instead", stacklevel=2)
         return fallback
-    return load_prior(path, v_max, fallback, gaussian_fraction)
+    return load_prior(path, v_max, fallback, gaussian_fraction, lanes=lanes)
 
 
 def cvae_prior(gaussian_fraction: float):
