@@ -180,3 +180,26 @@ def test_plan_with_no_repeats_says_it_timed_nothing(capsys):
     assert main(["plan", "--samples", "60", "--iterations", "1", "--projection-iterations", "5", "--repeats", "0"]) == 0
     out = capsys.readouterr().out
     assert "--repeats 0" in out and "median of 0" not in out
+
+
+def test_the_video_writer_raises_no_fork_warning(tmp_path):
+    """The default drive printed JAX's os.fork() warning when the writer started ffmpeg."""
+    import warnings
+
+    import jax.numpy as jnp
+
+    from driveopt.viz.video import VideoWriter
+
+    jnp.zeros(3).block_until_ready()  # JAX is running: its fork detector is armed
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with VideoWriter(tmp_path / "v.mp4", fps=10) as writer:
+            for _ in range(3):
+                writer.append(np.zeros((32, 48, 3), np.uint8))
+    assert not [w for w in caught if "fork" in str(w.message)]
+    assert (tmp_path / "v.mp4").stat().st_size > 0
+
+
+def test_drive_says_it_is_compiling(tmp_path, capsys):
+    assert main(["drive", "--scenario", "two-lane-d1.0", "--planner", "grid", "--duration", "0.3", "--video", ""]) == 0
+    assert "compiling" in capsys.readouterr().err
