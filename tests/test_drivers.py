@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from driveopt.config import ConfigError
 from driveopt.drivers.optimiser import adapt_to_vehicle
 from driveopt.planner import PlanStatus
 from driveopt.registry import get_planner
@@ -47,3 +48,17 @@ def test_idm_driver_takes_over_the_ego(env_and_scenario):
     driver.reset(env, scenario, seed=4)
     assert isinstance(env.unwrapped.vehicle, IDMVehicle) and env.unwrapped.vehicle.target_speed == scenario.v_des
     assert driver.act(env).result is None
+
+
+def test_replan_every_executes_each_plan_for_several_periods():
+    """P1's protocol: plan, track the same plan open-loop for the next periods, plan again."""
+    from driveopt.sim.rollout import Rollout
+
+    spec = get_planner("grid").with_replan_every(5)
+    rollout = Rollout("two-lane-d1.0", spec.driver(), seed=2, duration=1.0)
+    planned = [step.decision.result is not None for step in rollout]
+    assert planned == [True, False, False, False, False] * 2
+    assert len(rollout.episode.plan_ms) == 2 and len(rollout.episode.speeds) == 10
+    assert get_planner("idm").with_replan_every(5) == get_planner("idm")
+    with pytest.raises(ConfigError, match="replan_every"):
+        get_planner("grid").with_replan_every(0)

@@ -193,3 +193,16 @@ def test_cli_bench_out_is_a_file(tmp_path, capsys):
     assert main(["bench", "--scenarios", "two-lane-d1.0", "--planners", "idm", "--out", str(tmp_path / "X")]) == 2
     assert capsys.readouterr().err == f"driveopt: error: {tmp_path / 'X'} is a file, not a folder; use another output folder\n"
     assert (tmp_path / "X").read_text() == "not a folder"
+
+
+def test_scenario_overrides_and_replan_period_are_bench_options(tmp_path):
+    from driveopt.experiments.bench import episode_record
+    from driveopt.experiments.store import JobKey
+
+    with pytest.raises(DriveoptError, match="traffic_reverses must be true or false"):
+        BenchSpec(("two-lane-d1.0",), ("grid",), options={"scenario": {"traffic_reverses": "no"}}).check()
+    with pytest.raises(DriveoptError, match="replan_every"):
+        BenchSpec(("two-lane-d1.0",), ("grid",), options={"replan_every": 0}).check()
+    options = {"duration": 0.5, "replan_every": 5, "scenario": {"traffic_reverses": False}}
+    record = episode_record(JobKey("two-lane-d1.0", "grid", 42, 0), options)
+    assert record["steps"] == 5 and len(record["plan_ms"]) == 1  # one plan executed for five periods

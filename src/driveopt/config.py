@@ -110,13 +110,14 @@ class QPConfig:
     k_p: float = 20.0  # [1/s^2] P gain of lateral tracking
     k_d: float = 2.0 * math.sqrt(20.0)  # [1/s] D gain of lateral tracking
     initial_acceleration: bool = True  # impose x''(0), y''(0); False when acceleration is a control input that can jump
+    initial_acceleration_weight: float = 0.0  # [-] with initial_acceleration False: weight of (x''(0) - a_x0)^2 + (y''(0) - a_y0)^2
     terminal_lateral_acceleration: bool = False  # also impose y''(T) = 0
 
     terminal_position: bool = False  # also impose x(T) = x_f, y(T) = y_f (goal-sampling baseline)
 
     def __post_init__(self) -> None:
         _check_types(self, "qp")
-        for name in ("w_smooth", "w_speed", "w_lateral", "k_pv", "k_p", "k_d"):
+        for name in ("w_smooth", "w_speed", "w_lateral", "k_pv", "k_p", "k_d", "initial_acceleration_weight"):
             value = getattr(self, name)
             _require(0 <= value <= MAX_WEIGHT, f"qp.{name} must be in [0, {MAX_WEIGHT:g}], got {value:g}")
         _require(self.w_smooth > 0, "qp.w_smooth must be > 0 (it keeps the QP strictly convex)")

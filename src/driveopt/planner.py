@@ -57,7 +57,15 @@ from driveopt.priors.base import Prior, clip_setpoints
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import PlanningProblem, check_problem
 from driveopt.projection import FAMILIES, XLA_CPU_COMPILER_OPTIONS, constraint_residuals, project, supported_compiler_options
-from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, boundary_values, fit_positions, make_model, solve_setpoint_qp
+from driveopt.qp import (
+    NUM_SEGMENTS,
+    SETPOINT_DIM,
+    boundary_values,
+    fit_positions,
+    initial_acceleration,
+    make_model,
+    solve_setpoint_qp,
+)
 from driveopt.safety.base import SafetyFilter
 from driveopt.sampler import cem_update, sample_gaussian, select_lowest
 from driveopt.scene import ProblemError
@@ -182,7 +190,7 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     kind = jnp.asarray(kinds + [RowKind.COMFORTABLE_STOP, RowKind.EMERGENCY_STOP], jnp.int32)
     setpoints = jnp.concatenate([setpoints, *carried, stop_rows])
     b_x, b_y = _boundary(problem, cfg, setpoints)
-    qp_coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
+    qp_coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y, initial_acceleration(problem.init_x, problem.init_y))
     row = (lambda b, i: b if b.ndim == 1 else b[i])  # noqa: E731  (boundary rows are per sample only for goals)
     for i, (decel, to_centre) in zip((-2, -1), stops):
         qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), to_centre))
@@ -225,26 +233,25 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
 
 def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Candidate, jnp.ndarray, Trajectory]:
     """(candidate, emergency, trajectory) of the stop offered as fallback (:mod:`driveopt.fallback`): the
-    comfortable stop, unless the emergency stop is closer to meeting the constraints."""
-    options = []
-    for decel, to_centre in ((cfg.fallback_deceleration, True), (cfg.projection.a_max, False)):
-        trajectory = stop_trajectory(problem, jnp.asarray(model.t), decel, to_centre)
-        goal = jnp.stack([trajectory.x[-1], trajectory.y[-1]]) if cfg.qp.terminal_position else None
-        b_x, b_y = boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
-        coeffs = fit_positions(model, trajectory.x, trajectory.y, b_x, b_y)
-        residuals = constraint_residuals(model, problem, coeffs[None], cfg.projection)
-        families = jnp.stack([r[0] for r in residuals])
-        terms = cost_terms(trajectory, problem)
-        cost = weighted_cost(terms, cfg.cost)
-        total = jnp.sum(families)
-        score = jnp.where(total <= cfg.sampler.residual_tolerance, cost + total, INFEASIBLE_PENALTY + total)
-        setpoints = stop_setpoints(problem, cfg.basis.horizon, decel, to_centre)
-        options.append((Candidate(score, setpoints, coeffs, families, jnp.stack([terms[k] for k in COST_TERMS]), cost),
-                        trajectory))
-    (comfortable, comfortable_path), (emergency_stop, emergency_path) = options
-    emergency = jnp.sum(emergency_stop.residuals) < jnp.sum(comfortable.residuals)
-    pick = lambda a, b: jax.tree_util.tree_map(lambda u, v: jnp.where(emergency, u, v), a, b)  # noqa: E731
-    return pick(emergency_stop, comfortable), emergency, pick(emergency_path, comfortable_path)
+    comfortable stop, unless the emergency stop is closer to meeting the constraints. Both are measured
+    in one batch: their closest polynomials' residuals and their own cost terms."""
+    stops = ((cfg.fallback_deceleration, True), (cfg.projection.a_max, False))  # (decel [m/s^2], to lane centre)
+    paths = [stop_trajectory(problem, jnp.asarray(model.t), decel, to_centre) for decel, to_centre in stops]
+    both = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths)  # (2, K) fields
+    goal = jnp.stack([both.x[:, -1], both.y[:, -1]], axis=-1) if cfg.qp.terminal_position else None
+    b_x, b_y = boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
+    coeffs = fit_positions(model, both.x, both.y, jnp.broadcast_to(b_x, (2, b_x.shape[-1])), jnp.broadcast_to(b_y, (2, b_y.shape[-1])))
+    families = jnp.stack(list(constraint_residuals(model, problem, coeffs, cfg.projection)))  # (4, 2)
+    terms = cost_terms(both, problem)
+    cost = weighted_cost(terms, cfg.cost)
+    total = jnp.sum(families, axis=0)
+    score = jnp.where(total <= cfg.sampler.residual_tolerance, cost + total, INFEASIBLE_PENALTY + total)
+    setpoints = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
+    emergency = total[1] < total[0]
+    pick = jnp.where(emergency, 1, 0)
+    term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, 2)
+    candidate = Candidate(score[pick], setpoints[pick], coeffs[pick], families[:, pick], term_values[:, pick], cost[pick])
+    return candidate, emergency, jax.tree_util.tree_map(lambda a: a[pick], both)
 
 
 def _better(a: Candidate, b: Candidate) -> Candidate:

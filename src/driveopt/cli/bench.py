@@ -22,6 +22,8 @@ def register(sub) -> None:
     p.add_argument("--samples", type=positive_int, help="override the optimisers' samples per iteration (not vanilla's single sample)")
     p.add_argument("--weights", help="learned-prior checkpoint for the cvae planner (default: shipped weights)")
     p.add_argument("--config", help="planner config overrides applied to every optimiser, JSON (nested sections)")
+    p.add_argument("--replan-every", type=positive_int, help="policy periods each plan is executed open-loop (P1: 5; default 1)")
+    p.add_argument("--scenario-config", help="JSON file of scenario-field overrides applied to every scenario")
     p.add_argument("--workers", type=positive_int, help="parallel episodes (default: CPU count)")
     p.add_argument("--backend", choices=["local", "ray"], default="local",
                    help="local processes, or Ray (RAY_ADDRESS names the cluster; needs driveopt[ray])")
@@ -34,8 +36,11 @@ def run(args: argparse.Namespace) -> int:
     from driveopt.experiments.store import load_records
     from driveopt.experiments.summary import markdown_table
 
+    from driveopt.sim.scenarios import load_overrides
+
+    scenario = load_overrides(args.scenario_config) if args.scenario_config else None
     given = (("duration", args.duration), ("samples", args.samples), ("weights", args.weights),
-             ("config", config_overrides(args.config) or None))
+             ("config", config_overrides(args.config) or None), ("replan_every", args.replan_every), ("scenario", scenario))
     options = {k: v for k, v in given if v is not None}
     spec = BenchSpec(tuple(args.scenarios), tuple(args.planners), tuple(args.seeds), args.episodes, options)
     try:

@@ -17,6 +17,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=seed, default=42, help="traffic and sampling seed")
     p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="samples per sampler iteration")
+    p.add_argument("--replan-every", type=positive_int, help="policy periods each plan is executed open-loop (P1: 5; default 1)")
     p.add_argument("--video", default="out/drive.mp4", help="MP4 path ('' for none)")
     p.add_argument("--json", help="write the episode summary as JSON here")
     p.add_argument("--config", help="planner config overrides, JSON (nested sections, e.g. {\"cost\": {\"consistency\": 1.0}})")
@@ -37,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None:
         scenario = scenario.replace(duration=args.duration)
     spec = get_planner(args.planner).with_samples(args.samples).with_weights(args.weights)
-    spec = spec.with_overrides(**config_overrides(args.config))
+    spec = spec.with_overrides(**config_overrides(args.config)).with_replan_every(args.replan_every)
     if spec.is_optimiser:
         spec.prior(scenario.lanes)  # unusable or wrong-road weights: the error comes before the progress bar
     steps = int(round(scenario.duration * scenario.policy_frequency))

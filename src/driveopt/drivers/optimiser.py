@@ -6,7 +6,9 @@ configuration, and turns the plan's first action period into a ``ContinuousActio
 inverse of upstream's bicycle model. It carries the sampling mean to the next call when the spec
 warm-starts, and the executed plan when its configuration weighs ``cost.consistency``. When the
 planner reports anything but SUCCESS it follows the fallback and brakes at once at the fallback's
-deceleration. Its PRNG key derives from the episode seed: same seed, same episode.
+deceleration. With ``replan_every`` N > 1 (P1 §V executes five control periods per plan) it plans
+every N-th step and tracks the same plan open-loop in between. Its PRNG key derives from the
+episode seed: same seed, same episode.
 """
 
 from __future__ import annotations
@@ -18,11 +20,11 @@ from typing import Any, Callable
 
 import jax
 
-from driveopt.config import PlannerConfig
+from driveopt.config import ConfigError, PlannerConfig
 from driveopt.drivers.base import Decision, DriverSpec
 from driveopt.planner import PlanResult, PlanStatus, plan, previous_plan
 from driveopt.problem import build_problem
-from driveopt.sim.control import BicycleModel, brake_at_least, track
+from driveopt.sim.control import BicycleModel, brake_at_least, ego_kinematics, track
 from driveopt.sim.perception import Perception, perceive
 from driveopt.sim.scenarios import Scenario
 
@@ -57,6 +59,11 @@ class OptimiserSpec(DriverSpec):
     warm_start: bool = False  # carry the sampling mean between replans
     weights: str | None = None  # learned priors: checkpoint file (default: the weights shipped for the road)
     fixed_batch: bool = False  # the batch size is part of the method (vanilla: one sample); with_samples keeps it
+    replan_every: int = 1  # [policy periods] each plan is executed for this many periods (P1 §V: 5)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.replan_every, int) or isinstance(self.replan_every, bool) or self.replan_every < 1:
+            raise ConfigError(f"replan_every must be an integer >= 1, got {self.replan_every!r}")
 
     @property
     def is_optimiser(self) -> bool:
@@ -88,6 +95,10 @@ class OptimiserSpec(DriverSpec):
         """Copy that loads a learned prior from ``weights`` (a checkpoint file)."""
         return dataclasses.replace(self, weights=weights)
 
+    def with_replan_every(self, periods: int | None) -> "OptimiserSpec":
+        """Copy that executes each plan for ``periods`` policy periods (unchanged for ``None``)."""
+        return self if periods is None else dataclasses.replace(self, replan_every=periods)
+
 
 class OptimiserDriver:
     """Plans every policy step; see the module docstring."""
@@ -104,7 +115,8 @@ class OptimiserDriver:
         self.config = adapt_to_vehicle(self.spec.config, scenario, self.model)
         self.prior = self.spec.prior(scenario.lanes)
         self.key = jax.random.PRNGKey(seed)
-        self.period = 1.0 / scenario.policy_frequency  # [s] between replans
+        self.period = 1.0 / scenario.policy_frequency  # [s] one policy period
+        self.replan_period = self.spec.replan_every * self.period  # [s] between replans
         self.carries_plan = self.config.cost.consistency > 0
         # Compile outside the timed loop (the first call's trace and the later calls'); results are discarded.
         start = time.perf_counter()
@@ -114,17 +126,20 @@ class OptimiserDriver:
             warm, previous = self._carried(warmup)
             plan(problem, self.config, key=jax.random.fold_in(self.key, 2), prior=self.prior, warm_start=warm, previous=previous)
         self.compile_seconds = time.perf_counter() - start
-        self.warm = self.previous = None
+        self.warm = self.previous = self.executing = None
+        self.executed_periods = 0
 
     def _problem(self, perception: Perception):
         return build_problem(perception.scene, self.config.basis, ignore_followers=True)
 
     def _carried(self, result: PlanResult):
         """(warm start, previous plan) handed to the next call."""
-        previous = previous_plan(result, self.period) if self.carries_plan else None
+        previous = previous_plan(result, self.replan_period) if self.carries_plan else None
         return (result.mean if self.spec.warm_start else None), previous
 
     def act(self, env: Any) -> Decision:
+        if self.executing is not None and self.executed_periods < self.spec.replan_every:
+            return Decision(self._command(self.executing, self.executed_periods * self.period, ego_kinematics(env), env))
         perception = perceive(env, self.scenario)
         scene = perception.scene
         problem = self._problem(perception)
@@ -134,7 +149,13 @@ class OptimiserDriver:
                       x_offset=scene.ego.x)
         elapsed = time.perf_counter() - start
         self.warm, self.previous = self._carried(result)
-        command = track(result.safe_trajectory, 0.0, perception.kinematics, self.model)
+        self.executing, self.executed_periods = result, 0
+        return Decision(self._command(result, 0.0, perception.kinematics, env), result, scene, problem, elapsed)
+
+    def _command(self, result: PlanResult, elapsed: float, kinematics, env: Any):
+        """The action that follows ``result``'s executed plan ``elapsed`` [s] after it was made."""
+        self.executed_periods += 1
+        command = track(result.safe_trajectory, elapsed, kinematics, self.model)
         if result.status != PlanStatus.SUCCESS:  # executing the fallback: brake now, not after a ramp
             command = brake_at_least(command, result.fallback_deceleration, self.model, float(env.unwrapped.vehicle.speed))
-        return Decision(command.action, result, scene, problem, elapsed)
+        return command.action

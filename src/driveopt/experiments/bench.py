@@ -46,7 +46,7 @@ from driveopt.experiments.summary import (
 )
 from driveopt.registry import get_planner
 from driveopt.sim.rollout import run_episode
-from driveopt.sim.scenarios import get_scenario
+from driveopt.sim.scenarios import resolve_scenario
 
 
 class BenchOptionError(DriveoptError):
@@ -58,17 +58,19 @@ def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
 
     options (all optional): ``duration`` [s], ``samples`` (batch-size override, see
     ``OptimiserSpec.with_samples``), ``weights`` (learned prior checkpoint), ``config`` (planner-config
-    overrides, nested sections).
+    overrides, nested sections), ``replan_every`` (policy periods each plan is executed), ``scenario``
+    (scenario-field overrides applied to every scenario, e.g. ``{"traffic_reverses": false}``).
     """
     spec = planner_spec(job.planner, options)
-    return run_episode(job.scenario, spec, job.env_seed, duration=options.get("duration")).record()
+    scenario = resolve_scenario(job.scenario, overrides=options.get("scenario"))
+    return run_episode(scenario, spec, job.env_seed, duration=options.get("duration")).record()
 
 
 def planner_spec(name: str, options: dict[str, Any]) -> DriverSpec:
-    """The registered planner ``name`` with the bench options (samples, weights, config) applied."""
+    """The registered planner ``name`` with the bench options (samples, weights, config, replan_every) applied."""
     samples = options.get("samples")
     spec = get_planner(name).with_samples(int(samples) if samples else None).with_weights(options.get("weights"))
-    return spec.with_overrides(**options.get("config", {}))
+    return spec.with_overrides(**options.get("config", {})).with_replan_every(options.get("replan_every"))
 
 
 @dataclass(frozen=True)
@@ -94,7 +96,7 @@ class BenchSpec:
         that does not exist, config overrides the planner config rejects. Other options (those of a
         custom episode function) pass unchecked."""
         for name in self.scenarios:
-            get_scenario(name)
+            resolve_scenario(name, overrides=self.options.get("scenario"))
         _check_options(self.options)
         for name in self.planners:
             planner_spec(name, self.options)

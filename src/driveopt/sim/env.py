@@ -37,6 +37,8 @@ from highway_env.envs.two_way_env import TwoWayEnv
 
 from driveopt.sim.scenarios import Scenario
 
+UPSTREAM_TRAFFIC = "highway_env.vehicle.behavior.IDMVehicle"
+FORWARD_TRAFFIC = "driveopt.sim.traffic.ForwardIDMVehicle"
 ENV_IDS = {"highway": "driveopt/highway-v0", "two-way": "driveopt/two-way-v0", "merge": "driveopt/merge-v0"}
 """gymnasium id of the adapter env of each road layout."""
 
@@ -195,7 +197,8 @@ def env_config(scenario: Scenario) -> dict[str, Any]:
         "speed_limit": scenario.speed_limit,  # [m/s]
         "target_speed_fraction": scenario.target_speed_fraction,  # [-]
         "ego_initial_speed": scenario.ego_speed,  # [m/s]
-        "other_vehicles_type": "highway_env.vehicle.behavior.IDMVehicle",  # IDM + MOBIL
+        # IDM + MOBIL; upstream's may roll backwards when braking hard, driveopt's forward-only one stops at 0 m/s
+        "other_vehicles_type": UPSTREAM_TRAFFIC if scenario.traffic_reverses else FORWARD_TRAFFIC,
     }
     if scenario.road == "highway":
         config.update(

@@ -62,6 +62,7 @@ class Scenario:
     vehicles_count: int = 50  # [-] neighbours spawned (highway only)
     speed_limit: float = DEFAULT_SPEED_LIMIT  # [m/s] neighbours' road speed limit
     target_speed_fraction: tuple[float, float] = (0.7, 0.8)  # [-] neighbour target speed ~ U(lo, hi) * speed_limit
+    traffic_reverses: bool = True  # upstream IDM cars may roll backwards (to -40 m/s); False: they stop at 0 m/s
     ego_speed: float = 10.0  # [m/s] ego speed at reset (a slow ego behind the traffic, as in P1)
     min_initial_gap: float = 10.0  # [m] highway: every neighbour spawns at least this far ahead of the ego centre
     min_spawn_gap: float = 5.0  # [m] highway: bumper gap between same-lane vehicles at reset (upstream overlaps cars)
@@ -142,6 +143,9 @@ def _coerce(name: str, value: Any, hint: Any) -> Any:
     """Check ``value`` against the field's annotation; return it in canonical form (float, tuple)."""
     if hint is str:
         _check(isinstance(value, str), f"{name} must be a string, got {value!r}")
+        return value
+    if hint is bool:
+        _check(isinstance(value, bool), f"{name} must be true or false, got {value!r}")
         return value
     if hint is int:
         _check(isinstance(value, int) and not isinstance(value, bool), f"{name} must be an integer, got {value!r}")
