@@ -26,9 +26,14 @@ def start_bench(out: Path, marks: Path, *, slow: float, episodes: int = 8) -> su
     env = {**os.environ, "BENCH_CHILD_SLOW": str(slow), "BENCH_CHILD_FAST": str(FAST), "BENCH_CHILD_MARKS": str(marks)}
     args = [sys.executable, str(CHILD), "--scenarios", "two-lane-d1.0", "--planners", "idm", "grid",
             "--episodes", str(episodes), "--workers", "2", "--out", str(out)]
-    # Its own session, so that a signal to its process group is a Ctrl-C in its terminal.
+    # Its own session, so that a signal to its process group is a Ctrl-C in its terminal; started with
+    # SIGINT ignored, as a script's background job (CI's, say) would start it: Ctrl-C must stop it all the same.
     return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=_ignore_sigint)
+
+
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def wait_for(condition, timeout: float, proc: subprocess.Popen | None = None) -> None:

@@ -42,6 +42,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         # A terminated long job (collect, train, bench) unwinds like Ctrl-C: files are closed, the
         # finished work is kept, and a rerun resumes.
         signal.signal(signal.SIGTERM, _exit_on_sigterm)
+        # Ctrl-C interrupts even where the shell that started us ignored SIGINT (a background job of a
+        # script, which Python would otherwise inherit): the long jobs stop cleanly either way.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         return args.func(args)
     except DriveoptError as exc:
