@@ -17,7 +17,6 @@ replaced whole, never left half-written.
 from __future__ import annotations
 
 import json
-import math
 import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -26,6 +25,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from driveopt.config import check_count, check_number
 from driveopt.drivers.base import DriverSpec
 from driveopt.errors import DriveoptError
 from driveopt.experiments.runner import EpisodeFn, check_backend, execute
@@ -50,7 +50,7 @@ from driveopt.sim.scenarios import resolve_scenario
 
 
 class BenchOptionError(DriveoptError):
-    """A bench option out of range (duration, samples) or naming a file that does not exist (weights)."""
+    """A bench option naming a file that does not exist (weights); ranges are ConfigErrors (driveopt.config)."""
 
 
 def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
@@ -104,16 +104,12 @@ class BenchSpec:
 
 def _check_options(options: dict[str, Any]) -> None:
     duration, samples, weights = options.get("duration"), options.get("samples"), options.get("weights")
-    if duration is not None and not (_is_number(duration) and math.isfinite(duration) and duration > 0):
-        raise BenchOptionError(f"duration must be a finite number > 0 [s], got {duration!r}")
-    if samples is not None and not (isinstance(samples, int) and not isinstance(samples, bool) and samples >= 1):
-        raise BenchOptionError(f"samples must be an integer >= 1, got {samples!r}")
+    if duration is not None:
+        check_number("duration", duration, 0.0, low_open=True, unit="s")
+    if samples is not None:
+        check_count("samples", samples)
     if weights is not None and not Path(weights).is_file():
         raise BenchOptionError(f"weights file {weights} does not exist")
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def run_bench(
