@@ -180,7 +180,7 @@ def test_cli_bench_refuses_bad_options_without_writing_then_runs(tmp_path, capsy
     out = tmp_path / "D"
     argv = ["bench", "--scenarios", "two-lane-d1.0", "--planners", "idm", "--episodes", "2", "--workers", "1", "--out", str(out)]
     assert main([*argv, "--duration", "-3"]) == 2
-    assert capsys.readouterr().err == "driveopt: error: duration must be a finite number > 0 [s], got -3.0\n"
+    assert capsys.readouterr().err == "driveopt: error: duration must be a finite number > 0 s, got -3.0\n"
     assert not out.exists()
     assert main([*argv, "--duration", "3"]) == 0
     assert len(load_records(out / "episodes.jsonl")) == 2
