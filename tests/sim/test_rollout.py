@@ -19,16 +19,29 @@ def small(name):
     return spec
 
 
-@pytest.mark.parametrize("planner", list_planners())
-def test_every_scenario_runs_with_every_planner(planner):
+REPRESENTATIVE = ("two-lane-d1.0", "three-lane-d2.0", "four-lane-d3.0", "five-lane-d2.5", "two-way", "merge")
+
+
+def _runs(planner, scenario):
     spec = small(planner)
+    episode = run_episode(scenario, spec, seed=1, duration=0.3)
+    assert len(episode.speeds) >= 1 and np.all(np.isfinite(episode.speeds))
+    assert episode.sim_duration > 0
+    if spec.is_optimiser:
+        assert sum(episode.statuses.values()) == len(episode.speeds) == len(episode.plan_ms)
+        assert episode.compile_seconds > 0
+
+
+@pytest.mark.parametrize("planner", list_planners())
+def test_every_planner_runs_on_every_road_layout_and_lane_count(planner):
+    for scenario in REPRESENTATIVE:
+        _runs(planner, scenario)
+
+
+def test_every_scenario_runs():
+    assert {"three-lane-d1.0", "five-lane-d3.0"} <= set(list_scenarios())
     for scenario in list_scenarios():
-        episode = run_episode(scenario, spec, seed=1, duration=0.3)
-        assert len(episode.speeds) >= 1 and np.all(np.isfinite(episode.speeds))
-        assert episode.sim_duration > 0
-        if spec.is_optimiser:
-            assert sum(episode.statuses.values()) == len(episode.speeds) == len(episode.plan_ms)
-            assert episode.compile_seconds > 0
+        _runs("grid", scenario)
 
 
 def test_same_seed_same_episode():

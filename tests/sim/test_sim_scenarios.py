@@ -23,16 +23,17 @@ def test_registry_names_follow_the_scheme():
     names = list_scenarios()
     expected = {
         f"{word}-lane-d{d:.1f}{suffix}" for word in ("two", "four") for d in DENSITIES for suffix in ("", "-slow")
-    } | {"two-way", "merge"}
+    } | {f"{word}-lane-d{d:.1f}" for word in ("three", "five") for d in DENSITIES} | {"two-way", "merge"}
     assert set(names) == expected
-    assert len(names) == len(expected) == 22
+    assert len(names) == len(expected) == 32
 
 
-@pytest.mark.parametrize("name", ["four-lane-d3.0", "two-lane-d2.5", "two-lane-d1.0-slow", "four-lane-d1.5-slow"])
+@pytest.mark.parametrize("name", ["four-lane-d3.0", "two-lane-d2.5", "two-lane-d1.0-slow", "four-lane-d1.5-slow",
+                                  "three-lane-d2.0", "five-lane-d3.0"])
 def test_highway_scenarios_carry_their_name(name):
     s = get_scenario(name)
     assert s.name == name and s.road == "highway"
-    assert s.lanes == (4 if name.startswith("four") else 2)
+    assert s.lanes == {"two": 2, "three": 3, "four": 4, "five": 5}[name.split("-")[0]]
     assert s.density == float(name.split("-d")[1][:3])
     assert s.speed_limit == (7.0 if name.endswith("-slow") else 15.0)
     assert s.target_speed_fraction == (0.7, 0.8)

@@ -4,6 +4,7 @@ Naming scheme (``list_scenarios()`` prints them all)::
 
     two-lane-d1.0 ... two-lane-d3.0      straight 2-lane highway (highway-env ``highway-v0`` layout)
     four-lane-d1.0 ... four-lane-d3.0    straight 4-lane highway
+    three-lane-d*, five-lane-d*          the same with 3 and 5 lanes (the papers use 2 and 4)
     <any of the above>-slow              the same with a 7 m/s neighbour speed limit (P2) instead of 15 m/s
     two-way                              ``two-way-v0``: overtaking on a lane shared with oncoming traffic (P1)
     merge                                ``merge-v0``: 2-lane highway with vehicles merging from an on-ramp
@@ -191,7 +192,7 @@ def load_overrides(path: str | Path) -> dict[str, Any]:
 
 
 def _highway(lanes: int, density: float, slow: bool) -> Scenario:
-    word = {2: "two", 4: "four"}[lanes]
+    word = {2: "two", 3: "three", 4: "four", 5: "five"}[lanes]
     limit = SLOW_SPEED_LIMIT if slow else DEFAULT_SPEED_LIMIT
     return Scenario(
         name=f"{word}-lane-d{density:.1f}" + ("-slow" if slow else ""),
@@ -207,6 +208,8 @@ def _highway(lanes: int, density: float, slow: bool) -> Scenario:
 
 def _registry() -> dict[str, Scenario]:
     scenarios = [_highway(lanes, d, slow) for slow in (False, True) for lanes in (2, 4) for d in DENSITIES]
+    # other lane counts (P1 and P2 use 2 and 4): the planner must not depend on them
+    scenarios += [_highway(lanes, d, False) for lanes in (3, 5) for d in DENSITIES]
     scenarios.append(
         Scenario(
             name="two-way",
