@@ -138,8 +138,10 @@ class OptimiserDriver:
         return (result.mean if self.spec.warm_start else None), previous
 
     def act(self, env: Any) -> Decision:
-        if self.executing is not None and self.executed_periods < self.spec.replan_every:
-            return Decision(self._command(self.executing, self.executed_periods * self.period, ego_kinematics(env), env))
+        if self.executing is not None and self.executed_periods < self.spec.replan_every:  # P1's open-loop periods
+            action = self._command(self.executing, self.executed_periods * self.period, ego_kinematics(env), env)
+            self.executed_periods += 1
+            return Decision(action)
         perception = perceive(env, self.scenario)
         scene = perception.scene
         problem = self._problem(perception)
@@ -149,12 +151,11 @@ class OptimiserDriver:
                       x_offset=scene.ego.x)
         elapsed = time.perf_counter() - start
         self.warm, self.previous = self._carried(result)
-        self.executing, self.executed_periods = result, 0
+        self.executing, self.executed_periods = result, 1
         return Decision(self._command(result, 0.0, perception.kinematics, env), result, scene, problem, elapsed)
 
     def _command(self, result: PlanResult, elapsed: float, kinematics, env: Any):
         """The action that follows ``result``'s executed plan ``elapsed`` [s] after it was made."""
-        self.executed_periods += 1
         command = track(result.safe_trajectory, elapsed, kinematics, self.model)
         if result.status != PlanStatus.SUCCESS:  # executing the fallback: brake now, not after a ramp
             command = brake_at_least(command, result.fallback_deceleration, self.model, float(env.unwrapped.vehicle.speed))
