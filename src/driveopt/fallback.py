@@ -106,8 +106,3 @@ def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, to_l
     heading = jnp.arctan2(dy, dx)
     curvature = (dx * d2y - dy * d2x)
     return Trajectory(t, x, y, vx, vy, ax, ay, v, heading, curvature, a)
-
-
-def fit_stop(model: TrajectoryModel, trajectory: Trajectory, b_x, b_y) -> jnp.ndarray:
-    """(2n,) the polynomial closest to a stop (what its residual and costs are measured on)."""
-    return fit_positions(model, trajectory.x, trajectory.y, b_x, b_y)
