@@ -10,7 +10,8 @@ from driveopt.config import (
 
 
 def test_round_trip_and_hashable():
-    cfg = PlannerConfig().replace(sampler={"num_samples": 250}, projection={"max_iterations": 100})
+    cfg = PlannerConfig().replace(sampler={"num_samples": 250, "feasibility_first": False}, projection={"max_iterations": 100},
+                                  stop_rows=False)
     assert from_dict(to_dict(cfg)) == cfg
     assert hash(cfg) == hash(from_dict(to_dict(cfg)))
 
@@ -24,6 +25,9 @@ def test_round_trip_and_hashable():
         ({"projection": {"v_min": 40.0}}, "v_min"),
         ({"cost": {"speed": -1.0}}, "cost.speed"),
         ({"sampler": 5}, "mapping"),
+        ({"sampler": {"feasibility_first": "false"}}, "sampler.feasibility_first must be true or false"),
+        ({"stop_rows": 0}, "stop_rows must be true or false"),
+        ({"stop_rowz": False}, "valid: .*stop_rows"),
     ],
 )
 def test_bad_config_is_rejected(data, needle):

@@ -1,14 +1,22 @@
-"""Drivers: the optimiser's adaptation to the simulated car, IDM's hand-over, and one step of each."""
+"""Drivers: the optimiser's adaptation to the simulated car, IDM's hand-over, and one step of each;
+what the P1-faithful specs execute and predict."""
+
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from driveopt.config import ConfigError
-from driveopt.drivers.optimiser import adapt_to_vehicle
-from driveopt.planner import PlanStatus
+from driveopt.costs import Trajectory
+from driveopt.drivers.optimiser import OptimiserSpec, adapt_to_vehicle
+from driveopt.planner import PlanResult, PlanStatus
+from driveopt.prediction import BRAKING_TIME
+from driveopt.problem import build_problem
 from driveopt.registry import get_planner
-from driveopt.sim.control import BicycleModel
+from driveopt.scene import EgoState, Neighbour, Road, Scene
+from driveopt.sim.control import BicycleModel, EgoKinematics, brake_at_least, track
 from driveopt.sim.env import make_env
+from driveopt.sim.perception import Perception
 from driveopt.sim.scenarios import get_scenario
 
 
@@ -62,3 +70,59 @@ def test_replan_every_executes_each_plan_for_several_periods():
     assert get_planner("idm").with_replan_every(5) == get_planner("idm")
     with pytest.raises(ConfigError, match="replan_every"):
         get_planner("grid").with_replan_every(0)
+
+
+def _straight(accel: float, speed: float = 10.0) -> Trajectory:
+    """Along the road from x = 0 at ``speed`` [m/s], accelerating at ``accel`` [m/s^2] (never reversing)."""
+    t = np.linspace(0.0, 15.0, 301)
+    v = np.maximum(speed + accel * t, 0.0)
+    x = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+    a = np.where(v > 0.0, accel, 0.0)
+    zero = np.zeros_like(t)
+    return Trajectory(t=t, x=x, y=zero + 4.0, vx=v, vy=zero, ax=a, ay=zero, speed=v, heading=zero, curvature=zero, acceleration=a)
+
+
+@pytest.mark.parametrize("status", [PlanStatus.INFEASIBLE, PlanStatus.NUMERICAL_ERROR])
+def test_p1_driver_executes_its_plan_unless_it_is_not_finite(status):
+    """executes_infeasible (P1): an INFEASIBLE plan is tracked as it is; on NUMERICAL_ERROR the fallback is
+    followed with the brake-now of every other driver (which also brakes on INFEASIBLE)."""
+    chosen, fallback = _straight(1.0), _straight(-1.0)  # the stop eases in; the driver brakes at 3 m/s^2 at once
+    result = PlanResult(**dict.fromkeys(PlanResult._fields))._replace(
+        status=status, trajectory=chosen, fallback=fallback, fallback_deceleration=3.0)
+    model, state = BicycleModel(), EgoKinematics(speed=10.0, heading=0.0)
+    env = SimpleNamespace(unwrapped=SimpleNamespace(vehicle=SimpleNamespace(speed=10.0)))
+    follows_plan = track(chosen, 0.0, state, model)
+    brakes_now = brake_at_least(track(fallback, 0.0, state, model), 3.0, model, 10.0)
+    assert follows_plan.acceleration > 0.0 and brakes_now.acceleration == pytest.approx(-3.0)
+
+    actions = {}
+    for name in ("grid", "grid-p1"):
+        driver = get_planner(name).driver()
+        driver.model = model
+        actions[name] = driver._command(result, 0.0, state, env)
+    np.testing.assert_array_equal(actions["grid"], brakes_now.action)
+    expected = follows_plan if status == PlanStatus.INFEASIBLE else brakes_now
+    np.testing.assert_array_equal(actions["grid-p1"], expected.action)
+
+
+def test_p1_driver_predicts_neighbours_at_constant_velocity():
+    """A leader braking at 4 m/s^2: braking-aware by default, straight on at its current speed without."""
+    leader = Neighbour(x=30.0, y=4.0, vx=10.0, accel=-4.0)
+    scene = Scene(ego=EgoState(x=5.0, y=4.0, vx=10.0), road=Road(num_lanes=2), neighbours=(leader,), v_des=15.0)
+    rows = {}
+    for name in ("grid", "grid-p1"):
+        spec = get_planner(name)
+        driver = spec.driver()
+        driver.config = spec.config
+        rows[name] = np.asarray(driver._problem(Perception(scene, None)).obstacle_x[0])
+    t = np.linspace(0.0, spec.config.basis.horizon, spec.config.basis.num_nodes)
+    np.testing.assert_allclose(rows["grid-p1"], 25.0 + 10.0 * t, rtol=1e-6, atol=1e-4)  # planning frame: ego at x = 0
+    assert rows["grid"][-1] == pytest.approx(25.0 + 12.5, abs=1e-3)  # stopped 12.5 m on
+    assert (get_planner("grid").braking_time, get_planner("grid-p1").braking_time) == (BRAKING_TIME, 0.0)
+    np.testing.assert_allclose(build_problem(scene, braking_time=0.0).obstacle_x[0], rows["grid-p1"], rtol=1e-6)
+
+
+@pytest.mark.parametrize("field", ["executes_infeasible", "braking_prediction", "warm_start"])
+def test_optimiser_spec_flags_must_be_bools(field):
+    with pytest.raises(ConfigError, match=field):
+        OptimiserSpec("x", "y", **{field: 1})

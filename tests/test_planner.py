@@ -133,3 +133,23 @@ def test_random_problems_give_finite_well_shaped_results(small_config, ego_y, eg
     assert result.status in (PlanStatus.SUCCESS, PlanStatus.INFEASIBLE)
     if result.status == PlanStatus.SUCCESS:
         assert result.residuals["total"] <= small_config.sampler.residual_tolerance + 1e-6
+
+
+@pytest.mark.parametrize("lanes, side", [(3, 1), (5, -1), (2, 1)])
+def test_off_road_start_plans_back_onto_the_road(small_config, lanes, side):
+    """An ego 1.5 m beyond the lane bounds (drifting outward) still gets a feasible plan, and it re-enters
+    the road within the recovery time and stays there; without the recovery nothing is feasible."""
+    road = Road(num_lanes=lanes, curvature=0.0)
+    probe = Scene(ego=EgoState(x=0.0, y=0.0, vx=10.0), road=road)
+    lo, hi = probe.lateral_bounds
+    y0 = hi + 1.5 if side > 0 else lo - 1.5
+    scene = Scene(ego=EgoState(x=0.0, y=y0, vx=10.0, vy=0.3 * side), road=road)
+    problem = build_problem(scene, small_config.basis)
+    result = plan(problem, small_config, key=jax.random.PRNGKey(0))
+    assert result.status == PlanStatus.SUCCESS
+    traj = result.trajectory
+    back = traj.t >= small_config.projection.recovery_time
+    assert np.all((traj.y[back] >= lo - 0.05) & (traj.y[back] <= hi + 0.05)), "the plan must be back on the road"
+    never_relaxed = small_config.replace(projection={"recovery_time": 0.0})
+    stuck = plan(problem, never_relaxed, key=jax.random.PRNGKey(0))
+    assert stuck.status == PlanStatus.INFEASIBLE

@@ -16,6 +16,7 @@ from driveopt.scene import load_scene
 
 def test_registry_names_and_clear_error():
     assert {"bilevel", "random", "grid", "vanilla", "batch", "idm"} <= set(list_planners())
+    assert {"random-p1", "grid-p1", "vanilla-p1", "batch-p1"} <= set(list_planners())
     with pytest.raises(UnknownNameError, match="valid planners: bilevel"):
         get_planner("nope")
     with pytest.raises(UnknownNameError, match="optimisers: bilevel"):
@@ -39,6 +40,17 @@ def test_baselines_plan_finite_trajectories(name):
     for arr in (*result.trajectory, result.coeffs, result.setpoints):
         assert np.all(np.isfinite(arr))
     assert result.history.best_score.shape == (1,)  # no adaptation: a single sampler iteration
+
+
+@pytest.mark.parametrize("name", ["random", "grid", "vanilla", "batch"])
+def test_p1_faithful_baselines_differ_only_in_what_p1_did_not_have(name):
+    base, p1 = get_optimiser(name), get_optimiser(f"{name}-p1")
+    assert p1.config == base.config.replace(stop_rows=False, sampler={"feasibility_first": False, "structured_fraction": 0.0})
+    assert p1.make_prior is base.make_prior and p1.fixed_batch == base.fixed_batch and p1.warm_start == base.warm_start
+    assert (p1.executes_infeasible, p1.braking_prediction, p1.replan_every) == (True, False, 5)
+    assert (base.executes_infeasible, base.braking_prediction, base.replan_every) == (False, True, 1)
+    assert p1.description.startswith("P1-faithful")
+    assert p1.with_replan_every(1).replan_every == 1  # bench --replan-every still overrides it
 
 
 def test_grid_prior_covers_lanes_speeds_and_only_valid_lanes():

@@ -1,10 +1,15 @@
-"""solve(): the pure, jittable, differentiable optimiser behind plan(); status decided inside; row kinds."""
+"""solve(): the pure, jittable, differentiable optimiser behind plan(); status decided inside; row kinds;
+P1's ranking and batch (``sampler.feasibility_first``, ``stop_rows``)."""
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from driveopt.config import PlannerConfig
 from driveopt.planner import PlanStatus, RowKind, compiled_solve, plan, previous_plan, solve
+from driveopt.priors.base import Proposal
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import build_problem
 from driveopt.safety import FilterInit
@@ -63,3 +68,57 @@ def test_appended_rows_carry_their_kind(small_config):
     assert list(again.last.kind[-3:]) == [RowKind.PREVIOUS_PLAN, RowKind.COMFORTABLE_STOP, RowKind.EMERGENCY_STOP]
     assert len(again.last.kind) == len(again.last.residual) == 27
     assert set(np.asarray(again.history.projection_status)) <= {0, 1}  # ProjectionStatus values reach the result
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class FixedPrior:
+    """Test prior: proposes exactly its rows (a deterministic batch)."""
+
+    samples: jnp.ndarray  # (num, 8)
+
+    def propose(self, problem, key, num, warm_mean=None):
+        return Proposal(self.samples, self.samples[0], jnp.eye(self.samples.shape[1], dtype=self.samples.dtype))
+
+
+# Two rows, one iteration, no stops: every row is in both elite sets, so only the ranking decides.
+P1_BATCH = PlannerConfig().replace(sampler={"num_samples": 2, "num_iterations": 1, "num_constraint_elites": 2, "num_elites": 2},
+                                   stop_rows=False)
+
+
+def _blockage_rows():
+    """static-blockage (the ego's lane blocked 40 m ahead, v_des 20 m/s): (problem, prior) with row 0 holding
+    v_des in the lane (cheap, runs into the blockage: infeasible) and row 1 stopping in it (feasible, slow: costly)."""
+    problem = build_problem(load_scene("static-blockage"), P1_BATCH.basis)
+    y0 = float(problem.init_y[0])
+    rows = jnp.asarray([[float(problem.v_des)] * 4 + [y0] * 4, [0.0] * 4 + [y0] * 4], jnp.float32)
+    return problem, FixedPrior(rows)
+
+
+def test_p1_ranking_picks_the_lowest_cost_plus_residual_even_when_infeasible():
+    problem, prior = _blockage_rows()
+    results = {}
+    for first in (True, False):
+        config = P1_BATCH.replace(sampler={"feasibility_first": first})
+        results[first] = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior)
+    residual = results[True].first.residual
+    assert residual[0] > P1_BATCH.sampler.residual_tolerance >= residual[1]  # the case is what it claims
+
+    feasible_first = results[True]  # the feasible stop, though it costs more
+    assert feasible_first.status == PlanStatus.SUCCESS and feasible_first.setpoints[0] == 0.0
+    p1 = results[False]  # the fast row: lower cost + residual, infeasible
+    assert p1.status == PlanStatus.INFEASIBLE and p1.setpoints[0] == float(problem.v_des)
+    assert p1.costs["total"] + p1.residuals["total"] < feasible_first.costs["total"] + feasible_first.residuals["total"]
+    # History keeps P1's key and the chosen candidate's actual feasibility.
+    assert not p1.history.best_feasible[0] and bool(feasible_first.history.best_feasible[0])
+    np.testing.assert_allclose(p1.history.best_score[0], p1.costs["total"] + p1.residuals["total"], rtol=1e-5)
+
+
+def test_without_stop_rows_the_batch_is_the_samples_alone():
+    problem, prior = _blockage_rows()
+    config = P1_BATCH.replace(sampler={"feasibility_first": False})
+    result = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior)
+    for snapshot in (result.first, result.last):
+        assert list(snapshot.kind) == [RowKind.SAMPLE] * config.sampler.num_samples
+        assert snapshot.setpoints.shape[0] == len(snapshot.residual) == config.sampler.num_samples
+    assert np.all(np.isfinite(result.fallback.x)) and np.all(np.diff(result.fallback.speed) <= 1e-5)  # still offered

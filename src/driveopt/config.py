@@ -110,6 +110,7 @@ class QPConfig:
     k_p: float = 20.0  # [1/s^2] P gain of lateral tracking
     k_d: float = 2.0 * math.sqrt(20.0)  # [1/s] D gain of lateral tracking
     initial_acceleration: bool = True  # impose x''(0), y''(0); False when acceleration is a control input that can jump
+    initial_lateral_acceleration: bool = True  # with initial_acceleration: impose y''(0) too; False frees the lateral one only
     initial_acceleration_weight: float = 0.0  # [-] with initial_acceleration False: weight of (x''(0) - a_x0)^2 + (y''(0) - a_y0)^2
     terminal_lateral_acceleration: bool = False  # also impose y''(T) = 0
 
@@ -139,6 +140,7 @@ class ProjectionConfig:
     kappa_max: float = 0.23  # [1/m] path-curvature bound (0 disables it)
     centripetal_max: float = 4.0  # [m/s^2] bound on v^2 * |road curvature|
     barrier: bool = False  # P2's discrete-time barrier forms for obstacles and lanes
+    recovery_time: float = 3.0  # [s] a car off the lane bounds (or drifting past them) must be back by then (0: never relaxed)
 
     def __post_init__(self) -> None:
         _check_types(self, "projection")
@@ -151,6 +153,7 @@ class ProjectionConfig:
         _require(0 < self.a_max <= MAX_ACCELERATION, f"projection.a_max must be in (0, {MAX_ACCELERATION:g}] m/s^2")
         _require(0 <= self.kappa_max <= 10, "projection.kappa_max must be in [0, 10] 1/m")
         _require(0 < self.centripetal_max <= MAX_ACCELERATION, f"projection.centripetal_max must be in (0, {MAX_ACCELERATION:g}] m/s^2")
+        _require(0 <= self.recovery_time <= MAX_HORIZON, f"projection.recovery_time must be in [0, {MAX_HORIZON:g}] s")
 
 
 @dataclass(frozen=True)
@@ -186,6 +189,7 @@ class SamplerConfig:
     lateral_std: float = math.sqrt(46.0)  # [m] initial std of every lateral set-point
     residual_tolerance: float = 0.05  # [-] total residual under which a sample counts as feasible
     structured_fraction: float = 0.5  # [-] share of the first batch drawn as whole-horizon behaviours (0: P1)
+    feasibility_first: bool = True  # rank feasible samples ahead of infeasible ones (False: P1's cost + residual ranking)
 
     def __post_init__(self) -> None:
         _check_types(self, "sampler")
@@ -213,6 +217,7 @@ class PlannerConfig:
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     cost: CostConfig = field(default_factory=CostConfig)
     fallback_deceleration: float = 3.0  # [m/s^2] comfortable braking of the fallback plan
+    stop_rows: bool = True  # append the comfortable and the emergency stop to every batch (False: P1)
 
     def __post_init__(self) -> None:
         _check_types(self, "")
@@ -241,6 +246,7 @@ _SECTIONS = {
     "sampler": SamplerConfig,
     "cost": CostConfig,
 }
+_SCALARS = tuple(f.name for f in dataclasses.fields(PlannerConfig) if f.name not in _SECTIONS)  # top-level fields
 
 
 def from_dict(data: Mapping[str, Any], base: PlannerConfig | None = None) -> PlannerConfig:
@@ -265,10 +271,10 @@ def from_dict(data: Mapping[str, Any], base: PlannerConfig | None = None) -> Pla
                 updates[key] = dataclasses.replace(section, **value)
             except TypeError as exc:
                 raise ConfigError(f"bad value in '{key}': {exc}") from None
-        elif key == "fallback_deceleration":
+        elif key in _SCALARS:
             updates[key] = value  # type and range: PlannerConfig checks them
         else:
-            raise ConfigError(f"unknown config section '{key}'; valid: {sorted([*_SECTIONS, 'fallback_deceleration'])}")
+            raise ConfigError(f"unknown config section '{key}'; valid: {sorted([*_SECTIONS, *_SCALARS])}")
     return dataclasses.replace(base, **updates)
 
 

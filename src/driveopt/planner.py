@@ -13,17 +13,22 @@ reverse-mode differentiation needs). :func:`plan` validates the input, runs the 
 
 Per sampler iteration: draw set-points (the prior's proposal first, then the adapted Gaussian),
 solve the set-point QP for the batch, project the batch onto the constraints, rank, and update the
-Gaussian with P1 eq. 6 over the elite set. Ranking puts feasible samples (total residual within
-``sampler.residual_tolerance``) first, by cost + residual; infeasible ones follow, by residual for
-the constraint-elite set and by cost + residual within it, as in P1.
+Gaussian with P1 eq. 6 over the elite set. Ranking (``sampler.feasibility_first``, the default) puts
+feasible samples (total residual within ``sampler.residual_tolerance``) first, by cost + residual;
+infeasible ones follow, by residual for the constraint-elite set and by cost + residual within it,
+as in P1. With ``feasibility_first`` False it is P1's ranking alone: the ``num_constraint_elites``
+lowest residuals, the ``num_elites`` lowest cost + residual of those, and the lowest cost + residual
+is picked, feasible or not.
 
 Rows appended to every batch (their :class:`RowKind` is in ``Snapshot.kind``) are ranked like any
-sample: the previous replan's set-points when given, a comfortable stop at
-``fallback_deceleration`` easing to the nearest lane centre, and an emergency stop at
-``projection.a_max`` holding the current lateral position. The chosen trajectory is the best
-feasible candidate over all iterations. When there is none the status is INFEASIBLE, the
-lowest-residual candidate is reported, and ``result.fallback`` offers the comfortable stop, or the
-emergency stop when its residual is lower.
+sample: the previous replan's set-points when given, and, unless ``stop_rows`` is False (P1), a
+comfortable stop at ``fallback_deceleration`` easing to the nearest lane centre and an emergency
+stop at ``projection.a_max`` holding the current lateral position. The chosen trajectory is the
+best candidate over all iterations by the same key (cost + residual, infeasible ones last when
+feasibility comes first). The status is SUCCESS only when it is feasible; otherwise it is
+INFEASIBLE, the chosen candidate (with feasibility first: the lowest-residual one) is reported, and
+``result.fallback`` offers the comfortable stop, or the emergency stop when its residual is lower
+(computed whether or not the stops ride in the batch).
 
 Given the previous replan's plan (``previous``), the ``consistency`` cost term measures each
 sample's lateral deviation from that plan: between two near-equal manoeuvres (pass left or right)
@@ -44,7 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.config import PlannerConfig
+from driveopt.config import PlannerConfig, SamplerConfig
 from driveopt.costs import (
     COST_TERMS,
     Trajectory,
@@ -70,7 +75,7 @@ from driveopt.safety.base import SafetyFilter
 from driveopt.sampler import cem_update, sample_gaussian, select_lowest
 from driveopt.scene import ProblemError
 
-INFEASIBLE_PENALTY = 1e6  # [-] added to the ranking key of an infeasible sample: feasible ones always rank first
+INFEASIBLE_PENALTY = 1e6  # [-] added to the ranking key of an infeasible sample (feasibility_first): feasible ones rank first
 
 
 class PlanStatus(enum.IntEnum):
@@ -82,7 +87,8 @@ class PlanStatus(enum.IntEnum):
     def message(self) -> str:
         return {
             PlanStatus.SUCCESS: "a sampled trajectory meets every constraint within the residual tolerance",
-            PlanStatus.INFEASIBLE: "no sampled trajectory met the residual tolerance; use result.fallback",
+            PlanStatus.INFEASIBLE: "the chosen trajectory misses the residual tolerance (feasibility first: every sample did); "
+                                   "use result.fallback",
             PlanStatus.NUMERICAL_ERROR: "the optimiser produced non-finite values; use result.fallback",
         }[self]
 
@@ -110,8 +116,8 @@ class Snapshot(NamedTuple):
 class History(NamedTuple):
     """Per-iteration scalars, each (num_iterations,)."""
 
-    best_score: jnp.ndarray  # cost + residual of the best feasible-first candidate so far (+ INFEASIBLE_PENALTY if infeasible)
-    best_feasible: jnp.ndarray  # bool: the best candidate so far is feasible
+    best_score: jnp.ndarray  # ranking key (Candidate.score) of the best candidate so far
+    best_feasible: jnp.ndarray  # bool: the best candidate so far is feasible (what the status reports)
     elite_cost: jnp.ndarray  # mean cost + residual over the elite set
     min_residual: jnp.ndarray  # smallest total residual in the batch
     median_residual: jnp.ndarray  # median total residual in the batch
@@ -139,7 +145,8 @@ def previous_plan(result: "PlanResult", elapsed: float) -> PreviousPlan:
 class Candidate(NamedTuple):
     """One ranked row of a batch."""
 
-    score: jnp.ndarray  # () feasibility-first key: cost + residual (+ INFEASIBLE_PENALTY when infeasible)
+    score: jnp.ndarray  # () ranking key: cost + residual; with feasibility_first INFEASIBLE_PENALTY + residual when infeasible
+    feasible: jnp.ndarray  # () bool: total residual within sampler.residual_tolerance
     setpoints: jnp.ndarray  # (8,)
     coeffs: jnp.ndarray  # (2n,)
     residuals: jnp.ndarray  # (4,) per family (driveopt.projection.FAMILIES)
@@ -151,7 +158,7 @@ class Solution(NamedTuple):
     """What :func:`solve` returns (JAX arrays, planning frame: the ego at x = 0)."""
 
     status: jnp.ndarray  # () int32 PlanStatus value, decided inside the jitted call
-    best: Candidate  # the chosen candidate (best feasible-first over all iterations)
+    best: Candidate  # the chosen candidate (lowest ranking key over all iterations)
     mean: jnp.ndarray  # (8,) final sampling mean
     cov: jnp.ndarray  # (8, 8) final sampling covariance
     history: History
@@ -183,16 +190,16 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     the iteration's History entries.
     """
     s = cfg.sampler
-    stops = ((cfg.fallback_deceleration, True), (cfg.projection.a_max, False))  # (decel [m/s^2], to lane centre)
-    stop_rows = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
-    carried = [] if previous is None else [previous.setpoints[None]]
-    kinds = [RowKind.SAMPLE] * setpoints.shape[0] + [RowKind.PREVIOUS_PLAN] * len(carried)
-    kind = jnp.asarray(kinds + [RowKind.COMFORTABLE_STOP, RowKind.EMERGENCY_STOP], jnp.int32)
-    setpoints = jnp.concatenate([setpoints, *carried, stop_rows])
+    stops = _stops(cfg) if cfg.stop_rows else ()
+    appended = [] if previous is None else [previous.setpoints[None]]
+    appended += [stop_setpoints(problem, cfg.basis.horizon, *stop)[None] for stop in stops]
+    kinds = [RowKind.SAMPLE] * setpoints.shape[0] + [RowKind.PREVIOUS_PLAN] * (previous is not None)
+    kind = jnp.asarray(kinds + [RowKind.COMFORTABLE_STOP, RowKind.EMERGENCY_STOP][:len(stops)], jnp.int32)
+    setpoints = jnp.concatenate([setpoints, *appended])
     b_x, b_y = _boundary(problem, cfg, setpoints)
     qp_coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y, initial_acceleration(problem.init_x, problem.init_y))
     row = (lambda b, i: b if b.ndim == 1 else b[i])  # noqa: E731  (boundary rows are per sample only for goals)
-    for i, (decel, to_centre) in zip((-2, -1), stops):
+    for i, (decel, to_centre) in zip(range(-len(stops), 0), stops):
         qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), to_centre))
     if safety_filter is None:
         proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection, unroll=unroll)
@@ -206,12 +213,16 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     residual = proj.residuals.total
     score = cost + residual
     feasible = residual <= s.residual_tolerance
-    # ConstraintEliteSet: lowest residuals, where every feasible sample ties, so feasible samples come
-    # first ordered by score, then infeasible ones by residual.
-    key_score = jnp.where(feasible, score, INFEASIBLE_PENALTY + residual)
-    constraint_elites = select_lowest(key_score, s.num_constraint_elites)
-    # EliteSet: lowest cost + residual of those (P1), feasible samples always ahead of infeasible ones.
-    elite_key = jnp.where(feasible, score - INFEASIBLE_PENALTY, score)
+    key_score = _ranking_key(score, residual, feasible, s)
+    if s.feasibility_first:
+        # ConstraintEliteSet: lowest residuals, where every feasible sample ties, so feasible samples come
+        # first ordered by score, then infeasible ones by residual.
+        constraint_elites = select_lowest(key_score, s.num_constraint_elites)
+        # EliteSet: lowest cost + residual of those (P1), feasible samples always ahead of infeasible ones.
+        elite_key = jnp.where(feasible, score - INFEASIBLE_PENALTY, score)
+    else:  # P1: the n lowest residuals, then the q lowest cost + residual of those
+        constraint_elites = select_lowest(residual, s.num_constraint_elites)
+        elite_key = score
     ranked = constraint_elites[select_lowest(elite_key[constraint_elites], s.num_elites)]
 
     pick = ranked[jnp.argmin(key_score[ranked])]
@@ -219,11 +230,10 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, rows)
 
     def candidate(i):
-        return Candidate(key_score[i], setpoints[i], proj.coeffs[i], families[:, i], term_values[:, i], cost[i])
+        return Candidate(key_score[i], feasible[i], setpoints[i], proj.coeffs[i], families[:, i], term_values[:, i], cost[i])
 
-    best_score = jnp.min(key_score[ranked])
     stats = History(
-        best_score=best_score, best_feasible=best_score < INFEASIBLE_PENALTY, elite_cost=jnp.mean(score[ranked]),
+        best_score=key_score[pick], best_feasible=feasible[pick], elite_cost=jnp.mean(score[ranked]),
         min_residual=jnp.min(residual), median_residual=jnp.median(residual), num_feasible=jnp.sum(feasible),
         projection_iterations=proj.iterations, projection_status=proj.status,
     )
@@ -231,11 +241,22 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     return candidate(pick), snapshot, score, stats
 
 
+def _stops(cfg: PlannerConfig) -> tuple[tuple[float, bool], tuple[float, bool]]:
+    """(deceleration [m/s^2], to the lane centre) of the comfortable and of the emergency stop."""
+    return (cfg.fallback_deceleration, True), (cfg.projection.a_max, False)
+
+
+def _ranking_key(score: jnp.ndarray, residual: jnp.ndarray, feasible: jnp.ndarray, s: SamplerConfig) -> jnp.ndarray:
+    """What the pick and the best over iterations minimise: cost + residual (``score``, P1), with
+    ``feasibility_first`` every infeasible row behind every feasible one (INFEASIBLE_PENALTY + residual)."""
+    return jnp.where(feasible, score, INFEASIBLE_PENALTY + residual) if s.feasibility_first else score
+
+
 def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Candidate, jnp.ndarray, Trajectory]:
     """(candidate, emergency, trajectory) of the stop offered as fallback (:mod:`driveopt.fallback`): the
     comfortable stop, unless the emergency stop is closer to meeting the constraints. Both are measured
     in one batch: their closest polynomials' residuals and their own cost terms."""
-    stops = ((cfg.fallback_deceleration, True), (cfg.projection.a_max, False))  # (decel [m/s^2], to lane centre)
+    stops = _stops(cfg)
     paths = [stop_trajectory(problem, jnp.asarray(model.t), decel, to_centre) for decel, to_centre in stops]
     both = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths)  # (2, K) fields
     goal = jnp.stack([both.x[:, -1], both.y[:, -1]], axis=-1) if cfg.qp.terminal_position else None
@@ -245,12 +266,13 @@ def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Cand
     terms = cost_terms(both, problem)
     cost = weighted_cost(terms, cfg.cost)
     total = jnp.sum(families, axis=0)
-    score = jnp.where(total <= cfg.sampler.residual_tolerance, cost + total, INFEASIBLE_PENALTY + total)
+    feasible = total <= cfg.sampler.residual_tolerance
+    score = _ranking_key(cost + total, total, feasible, cfg.sampler)
     setpoints = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
     emergency = total[1] < total[0]
     pick = jnp.where(emergency, 1, 0)
     term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, 2)
-    candidate = Candidate(score[pick], setpoints[pick], coeffs[pick], families[:, pick], term_values[:, pick], cost[pick])
+    candidate = Candidate(score[pick], feasible[pick], setpoints[pick], coeffs[pick], families[:, pick], term_values[:, pick], cost[pick])
     return candidate, emergency, jax.tree_util.tree_map(lambda a: a[pick], both)
 
 
@@ -302,7 +324,7 @@ def solve(
         cand, snapshot, score, stats = iteration(setpoints)
         best = _better(best, cand)
         mean, cov = adapt(mean, cov, snapshot, score)
-        stats = stats._replace(best_score=best.score, best_feasible=best.score < INFEASIBLE_PENALTY)
+        stats = stats._replace(best_score=best.score, best_feasible=best.feasible)
         return (mean, cov, best, snapshot), stats
 
     keys = jax.random.split(key_loop, s.num_iterations - 1)
@@ -311,7 +333,7 @@ def solve(
     status = jnp.where(
         ~_all_finite(best.coeffs, best.residuals, best.terms, mean),
         PlanStatus.NUMERICAL_ERROR,
-        jnp.where(best.score < INFEASIBLE_PENALTY, PlanStatus.SUCCESS, PlanStatus.INFEASIBLE),
+        jnp.where(best.feasible, PlanStatus.SUCCESS, PlanStatus.INFEASIBLE),
     ).astype(jnp.int32)
     fallback, emergency, fallback_trajectory = _fallback(model, problem, config)
     return Solution(status, best, mean, cov, history, first, last, evaluate(model, best.coeffs), fallback,

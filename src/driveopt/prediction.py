@@ -1,9 +1,10 @@
 """What the planner assumes about the neighbours: their predicted motion, which ones count, their ellipses.
 
 Neighbours are predicted with constant velocity, except that a braking one keeps braking for
-:data:`BRAKING_TIME` (never reversing); the nearest ones (Euclidean distance now) are planned
-against, each inside a collision ellipse that circumscribes the Minkowski sum of the two vehicle
-boxes. Positions and times in the road frame: metres, seconds.
+:data:`BRAKING_TIME` (never reversing; a braking time of 0 is P1's constant velocity); the nearest
+ones (Euclidean distance now) are planned against, each inside a collision ellipse that
+circumscribes the Minkowski sum of the two vehicle boxes. Positions and times in the road frame:
+metres, seconds.
 """
 
 from __future__ import annotations
@@ -41,10 +42,11 @@ def predict_neighbour(
     ``braking_time`` s (never reversing), then holds its speed: a car braking hard for a jam ahead
     of it would otherwise be predicted to keep going and the ego would react a second late.
     Acceleration is not extrapolated (a constant-velocity leader is the safer assumption).
+    ``braking_time`` 0: constant velocity for every neighbour (P1).
     """
     speed = math.hypot(n.vx, n.vy)
     decel = -min(n.accel, 0.0)
-    if decel == 0.0 or speed < 1e-6:
+    if decel == 0.0 or speed < 1e-6 or braking_time <= 0.0:
         return n.x + n.vx * t, np.clip(n.y + n.vy * t, *y_range)
     braking = min(braking_time, speed / decel)
     tau = np.minimum(t, braking)

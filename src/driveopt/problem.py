@@ -16,7 +16,7 @@ import numpy as np
 
 from driveopt.config import BasisConfig
 from driveopt.observation import OBSERVATION_DIM, observation_vector
-from driveopt.prediction import ellipse_semi_axes, nearest_neighbours, predict_neighbour
+from driveopt.prediction import BRAKING_TIME, ellipse_semi_axes, nearest_neighbours, predict_neighbour
 from driveopt.scene import ProblemError, Scene
 
 
@@ -44,13 +44,15 @@ class PlanningProblem(NamedTuple):
 
 
 def build_problem(
-    scene: Scene, basis: BasisConfig = BasisConfig(), max_obstacles: int = 10, ignore_followers: bool = False
+    scene: Scene, basis: BasisConfig = BasisConfig(), max_obstacles: int = 10, ignore_followers: bool = False,
+    braking_time: float = BRAKING_TIME,
 ) -> PlanningProblem:
     """Turn a scene into the planner's arrays, in the frame where the ego starts at x = 0.
 
     ignore_followers: leave out same-lane vehicles behind the ego. Constant-velocity prediction
     drives a faster follower straight through a slow ego, which no plan can avoid, whereas
     car-following traffic (IDM) brakes for the vehicle ahead of it.
+    braking_time: [s] how long a braking neighbour is predicted to keep braking (0: constant velocity, P1).
     """
     if not isinstance(scene, Scene):
         raise ProblemError(f"build_problem needs a Scene, got {type(scene).__name__}")
@@ -67,7 +69,7 @@ def build_problem(
     ob = np.ones(N)
     mask = np.zeros(N)
     for i, n in enumerate(nearest_neighbours(scene, N, ignore_followers)):
-        px, py = predict_neighbour(n, t, scene.road.edges)
+        px, py = predict_neighbour(n, t, scene.road.edges, braking_time)
         ox[i], oy[i] = px - ego.x, py
         oa[i], ob[i] = ellipse_semi_axes(ego, n, scene.ellipse_margin)
         mask[i] = 1.0

@@ -120,17 +120,50 @@ class _State(NamedTuple):
     error: jnp.ndarray  # () max over samples of the coefficient change of the last step
 
 
-def lane_constraint(model: TrajectoryModel, y_lb, y_ub, gamma_lane, barrier: bool) -> tuple[jnp.ndarray, jnp.ndarray]:
+RECOVERY_REACTION = 0.5  # [s] the widened bounds are held this long beyond the time to stop the lateral motion
+
+
+def lane_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """[m] (lower, upper) bounds of the ego centre at every node (K,): the road's, except near t = 0 when the
+    car is outside them or cannot stop its outward lateral motion before them (off-road recovery).
+
+    A bound is widened to the car's reach y0 + vy0^2 / (2 ``a_max``) (outward vy0 only), held until the
+    lateral motion can have stopped (vy0 / ``a_max`` +
+    :data:`RECOVERY_REACTION`, at most half of ``recovery_time``), then narrowed linearly back to the
+    road's bound at ``recovery_time``. A plan that re-enters the road in time counts as feasible, so a
+    car that has drifted off keeps planning its way back instead of finding every plan infeasible.
+    On the road with no motion that would carry it past a bound, the bounds are the road's.
+    """
+    t = jnp.asarray(model.t)
+    y0, vy0 = problem.init_y[0], problem.init_y[1]
+    stop_time = jnp.abs(vy0) / cfg.a_max  # [s] to stop the current lateral motion
+    stopping = 0.5 * jnp.abs(vy0) * stop_time  # [m] lateral distance covered meanwhile
+    above = jnp.maximum(y0 + jnp.where(vy0 > 0, stopping, 0.0) - problem.y_ub, 0.0)
+    below = jnp.maximum(problem.y_lb - y0 + jnp.where(vy0 < 0, stopping, 0.0), 0.0)
+    if cfg.recovery_time > 0:
+        hold = jnp.minimum(stop_time + RECOVERY_REACTION, 0.5 * cfg.recovery_time)
+        fade = jnp.clip((cfg.recovery_time - t) / (cfg.recovery_time - hold), 0.0, 1.0)
+    else:
+        fade = jnp.zeros_like(t)
+    return problem.y_lb - below * fade, problem.y_ub + above * fade
+
+
+def lane_constraint(model: TrajectoryModel, lower, upper, gamma_lane, barrier: bool) -> tuple[jnp.ndarray, jnp.ndarray]:
     """Lane rows G (2(K-1), n) and bounds e with G c_y <= e, on nodes 1..K-1 (node 0 is fixed by A_eq).
 
-    Plain: y[k] <= y_ub, -y[k] <= -y_lb. Barrier (P2 eq. 16-19):
-    y[k+1] - y_ub <= (1 - g)(y[k] - y_ub) and its mirror; g = 1 recovers the plain rows.
+    lower, upper: [m] bounds of y per node (K,) (:func:`lane_bounds`), or scalars.
+    Plain: y[k] <= upper[k], -y[k] <= -lower[k]. Barrier (P2 eq. 16-19):
+    y[k+1] - upper[k+1] <= (1 - g)(y[k] - upper[k]) and its mirror; g = 1 recovers the plain rows.
     """
     g = gamma_lane if barrier else 1.0
     W = jnp.asarray(model.W)
-    upper = W[1:] - (1.0 - g) * W[:-1]
-    ones = jnp.ones(upper.shape[0], upper.dtype)
-    return jnp.concatenate([upper, -upper]), jnp.concatenate([g * y_ub * ones, -g * y_lb * ones])
+    K = W.shape[0]
+    upper, lower = (jnp.broadcast_to(b, (K,)) for b in (upper, lower))
+    rows = W[1:] - (1.0 - g) * W[:-1]
+    return (
+        jnp.concatenate([rows, -rows]),
+        jnp.concatenate([upper[1:] - (1.0 - g) * upper[:-1], -(lower[1:] - (1.0 - g) * lower[:-1])]),
+    )
 
 
 def _shift_right(a):
@@ -146,7 +179,7 @@ def _shift_left(a):
 def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig, gamma_lane) -> _Operators:
     n_active = jnp.sum(problem.obstacle_mask)
     W, Wd, Wdd = (jnp.asarray(a) for a in (model.W, model.Wd, model.Wdd))
-    G, e = lane_constraint(model, problem.y_lb, problem.y_ub, gamma_lane, cfg.barrier)
+    G, e = lane_constraint(model, *lane_bounds(model, problem, cfg), gamma_lane, cfg.barrier)
     # Values fixed by A_eq (the current state at node 0) are not constraint rows: no plan can change them.
     free = jnp.asarray(model.free_nodes)
     Wm, Wdm, Wddm = (a * f[:, None] for a, f in zip((W, Wd, Wdd), free))

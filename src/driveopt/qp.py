@@ -63,17 +63,23 @@ def segment_matrix(num_nodes: int) -> np.ndarray:
 def equality_rows(basis: Basis, qp: QPConfig) -> tuple[np.ndarray, np.ndarray]:
     """Equality rows (A_x, A_y): initial x, x', x'' (and x(T)); initial y, y', y'', y'(T) (and y''(T), y(T)).
 
-    The initial accelerations are left out when ``qp.initial_acceleration`` is False.
+    The initial accelerations are left out when ``qp.initial_acceleration`` is False, the lateral one
+    also when ``qp.initial_lateral_acceleration`` is False (:func:`imposed_accelerations`).
     """
-    initial = [basis.W[0], basis.Wd[0]] + ([basis.Wdd[0]] if qp.initial_acceleration else [])
-    rows_x = list(initial)
-    rows_y = initial + [basis.Wd[-1]]
+    impose_x, impose_y = imposed_accelerations(qp)
+    rows_x = [basis.W[0], basis.Wd[0]] + ([basis.Wdd[0]] if impose_x else [])
+    rows_y = [basis.W[0], basis.Wd[0]] + ([basis.Wdd[0]] if impose_y else []) + [basis.Wd[-1]]
     if qp.terminal_lateral_acceleration:
         rows_y.append(basis.Wdd[-1])
     if qp.terminal_position:
         rows_x.append(basis.W[-1])
         rows_y.append(basis.W[-1])
     return np.stack(rows_x), np.stack(rows_y)
+
+
+def imposed_accelerations(qp: QPConfig) -> tuple[bool, bool]:
+    """Whether the plan must start from the current (x'', y'') (equality rows) on each axis."""
+    return qp.initial_acceleration, qp.initial_acceleration and qp.initial_lateral_acceleration
 
 
 def quadratic_costs(basis: Basis, qp: QPConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -127,7 +133,7 @@ def make_model(basis_config: BasisConfig = BasisConfig(), qp: QPConfig = QPConfi
     speed_map, init_map_x = _affine_solution(H_x, G_x, A_x)
     lateral_map, init_map_y = _affine_solution(H_y, G_y, A_y)
     free_nodes = np.ones((3, basis_config.num_nodes))
-    free_nodes[:2 if not qp.initial_acceleration else 3, 0] = 0.0
+    free_nodes[:3 if all(imposed_accelerations(qp)) else 2, 0] = 0.0  # acceleration at t = 0: fixed only when both axes are
 
     # numpy (not jnp) constants: the cache must never hold values created under a jit trace.
     f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
@@ -176,8 +182,8 @@ def boundary_values(
         init_x = jnp.broadcast_to(init_x, shape + (3,))
         init_y = jnp.broadcast_to(init_y, shape + (3,))
     zero = jnp.zeros(init_y.shape[:-1] + (1,), init_y.dtype)
-    used = 3 if qp.initial_acceleration else 2
-    parts_x, parts_y = [init_x[..., :used]], [init_y[..., :used], zero]
+    used_x, used_y = (3 if imposed else 2 for imposed in imposed_accelerations(qp))
+    parts_x, parts_y = [init_x[..., :used_x]], [init_y[..., :used_y], zero]
     if qp.terminal_lateral_acceleration:
         parts_y.append(zero)
     if goal is not None:

@@ -3,10 +3,13 @@
 Every optimiser is an :class:`~driveopt.drivers.optimiser.OptimiserSpec` (a ``PlannerConfig`` and a
 prior factory) run by the same ``plan()``; ``idm`` hands the ego to highway-env's IDM/MOBIL driver.
 A new planner is one entry of :data:`PLANNERS`; ``driveopt plan``, ``drive``, ``bench`` and
-``collect`` all look names up here.
+``collect`` all look names up here. ``random-p1``, ``grid-p1``, ``vanilla-p1`` and ``batch-p1`` are
+the MPC baselines as P1 §V-A3 ran them (:func:`_p1_faithful`): none of the machinery driveopt adds.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 from driveopt.config import PlannerConfig
 from driveopt.drivers.base import DriverSpec
@@ -25,7 +28,28 @@ def _single_iteration(config: PlannerConfig, samples: int) -> PlannerConfig:
     return config.with_samples(samples).replace(sampler={"num_iterations": 1})
 
 
+def _p1_faithful(spec: OptimiserSpec, p1_name: str) -> OptimiserSpec:
+    """``spec`` (same prior, samples and iterations) as P1 ran its ``p1_name``: cost + residual ranking, no stop
+    rows, independent set-points, its plan executed feasible or not for five periods, constant-velocity prediction."""
+    config = spec.config.replace(stop_rows=False, sampler={"feasibility_first": False, "structured_fraction": 0.0})
+    description = (f"P1-faithful {p1_name}: {spec.name} without feasibility-first ranking, stop rows, structured first "
+                   "batch, brake-now fallback or braking prediction; 5 periods per plan")
+    return dataclasses.replace(spec, name=f"{spec.name}-p1", description=description, config=config,
+                               executes_infeasible=True, braking_prediction=False, replan_every=5)
+
+
 _BASE = PlannerConfig()
+_MPC_BASELINES = {  # P1 §V-A3's name -> driveopt's version
+    "MPC-Random": OptimiserSpec("random", "one Gaussian draw of set-points, no adaptation (MPC-Random)", _single_iteration(_BASE, 1000)),
+    "MPC-Grid": OptimiserSpec("grid", "fixed grid: constant speed x target lane x change quarter (MPC-Grid)",
+                              _single_iteration(_BASE, 320), lambda c, *_: GridPrior(v_max=c.projection.v_max)),
+    "MPC-Vanilla": OptimiserSpec("vanilla", "single speed set-point v_des in the current lane, no behavioural layer (MPC-Vanilla)",
+                                 _single_iteration(_BASE, 1).replace(projection={"max_iterations": 100}),
+                                 lambda c, *_: VanillaPrior(v_max=c.projection.v_max), fixed_batch=True),
+    "Batch-MPC": OptimiserSpec("batch", "goal positions (x_f, y_f) on a grid with terminal constraints (Batch-MPC)",
+                               _single_iteration(_BASE.replace(qp={"terminal_position": True}), 200),
+                               lambda c, *_: GoalGridPrior(v_max=c.projection.v_max)),
+}
 PLANNERS: dict[str, DriverSpec] = {
     spec.name: spec
     for spec in (
@@ -37,15 +61,8 @@ PLANNERS: dict[str, DriverSpec] = {
                       _BASE, cvae_prior(0.0)),
         OptimiserSpec("cvae-mix", "bi-level optimiser: half the first batch from the CVAE, half from the bilevel Gaussian (warm start)",
                       _BASE, cvae_prior(0.5), warm_start=True),
-        OptimiserSpec("random", "one Gaussian draw of set-points, no adaptation (MPC-Random)", _single_iteration(_BASE, 1000)),
-        OptimiserSpec("grid", "fixed grid: constant speed x target lane x change quarter (MPC-Grid)",
-                      _single_iteration(_BASE, 320), lambda c, *_: GridPrior(v_max=c.projection.v_max)),
-        OptimiserSpec("vanilla", "single speed set-point v_des in the current lane, no behavioural layer (MPC-Vanilla)",
-                      _single_iteration(_BASE, 1).replace(projection={"max_iterations": 100}),
-                      lambda c, *_: VanillaPrior(v_max=c.projection.v_max), fixed_batch=True),
-        OptimiserSpec("batch", "goal positions (x_f, y_f) on a grid with terminal constraints (Batch-MPC)",
-                      _single_iteration(_BASE.replace(qp={"terminal_position": True}), 200),
-                      lambda c, *_: GoalGridPrior(v_max=c.projection.v_max)),
+        *_MPC_BASELINES.values(),
+        *(_p1_faithful(spec, p1_name) for p1_name, spec in _MPC_BASELINES.items()),
         IDMSpec("idm", "highway-env's IDM/MOBIL driver on the ego (rule-based reference)"),
     )
 }

@@ -130,3 +130,4 @@ def test_the_loop_carries_the_executed_plan_when_consistency_is_weighed(planner)
     carried = [r.costs["consistency"] for r in results[1:]]
     assert all(np.isfinite(carried)) and max(carried) > 0.0
     assert max(episode.plan_ms) < 10 * float(np.median(episode.plan_ms))
+

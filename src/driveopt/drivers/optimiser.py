@@ -6,8 +6,11 @@ configuration, and turns the plan's first action period into a ``ContinuousActio
 inverse of upstream's bicycle model. It carries the sampling mean to the next call when the spec
 warm-starts, and the executed plan when its configuration weighs ``cost.consistency``. When the
 planner reports anything but SUCCESS it follows the fallback and brakes at once at the fallback's
-deceleration. With ``replan_every`` N > 1 (P1 §V executes five control periods per plan) it plans
-every N-th step and tracks the same plan open-loop in between. Its PRNG key derives from the
+deceleration; a spec with ``executes_infeasible`` (P1) tracks the chosen plan whatever its residual,
+and follows the fallback only on NUMERICAL_ERROR. Neighbours are predicted braking-aware
+(:data:`driveopt.prediction.BRAKING_TIME`) unless the spec's ``braking_prediction`` is False (P1:
+constant velocity). With ``replan_every`` N > 1 (P1 §V executes five control periods per plan) it
+plans every N-th step and tracks the same plan open-loop in between. Its PRNG key derives from the
 episode seed: same seed, same episode.
 """
 
@@ -20,9 +23,10 @@ from typing import Any, Callable
 
 import jax
 
-from driveopt.config import ConfigError, PlannerConfig
+from driveopt.config import PlannerConfig, _check_types, check_count
 from driveopt.drivers.base import Decision, DriverSpec
 from driveopt.planner import PlanResult, PlanStatus, plan, previous_plan
+from driveopt.prediction import BRAKING_TIME
 from driveopt.problem import build_problem
 from driveopt.sim.control import BicycleModel, brake_at_least, ego_kinematics, track
 from driveopt.sim.perception import Perception, perceive
@@ -60,10 +64,17 @@ class OptimiserSpec(DriverSpec):
     weights: str | None = None  # learned priors: checkpoint file (default: the weights shipped for the road)
     fixed_batch: bool = False  # the batch size is part of the method (vanilla: one sample); with_samples keeps it
     replan_every: int = 1  # [policy periods] each plan is executed for this many periods (P1 §V: 5)
+    executes_infeasible: bool = False  # track the chosen plan even when INFEASIBLE, no brake-now fallback (P1)
+    braking_prediction: bool = True  # braking neighbours keep braking for BRAKING_TIME (False: constant velocity, P1)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.replan_every, int) or isinstance(self.replan_every, bool) or self.replan_every < 1:
-            raise ConfigError(f"replan_every must be an integer >= 1, got {self.replan_every!r}")
+        _check_types(self, "")
+        check_count("replan_every", self.replan_every)
+
+    @property
+    def braking_time(self) -> float:
+        """[s] how long the planning problem predicts a braking neighbour to keep braking (0: constant velocity)."""
+        return BRAKING_TIME if self.braking_prediction else 0.0
 
     @property
     def is_optimiser(self) -> bool:
@@ -130,7 +141,7 @@ class OptimiserDriver:
         self.executed_periods = 0
 
     def _problem(self, perception: Perception):
-        return build_problem(perception.scene, self.config.basis, ignore_followers=True)
+        return build_problem(perception.scene, self.config.basis, ignore_followers=True, braking_time=self.spec.braking_time)
 
     def _carried(self, result: PlanResult):
         """(warm start, previous plan) handed to the next call."""
@@ -156,6 +167,8 @@ class OptimiserDriver:
 
     def _command(self, result: PlanResult, elapsed: float, kinematics, env: Any):
         """The action that follows ``result``'s executed plan ``elapsed`` [s] after it was made."""
+        if self.spec.executes_infeasible and result.status != PlanStatus.NUMERICAL_ERROR:  # P1: the chosen plan, feasible or not
+            return track(result.trajectory, elapsed, kinematics, self.model).action
         command = track(result.safe_trajectory, elapsed, kinematics, self.model)
         if result.status != PlanStatus.SUCCESS:  # executing the fallback: brake now, not after a ramp
             command = brake_at_least(command, result.fallback_deceleration, self.model, float(env.unwrapped.vehicle.speed))
