@@ -112,7 +112,7 @@ def test_the_previous_plan_keeps_winning_between_equal_manoeuvres(small_config, 
         result = plan(problem, cfg, key=jax.random.PRNGKey(seed), previous=previous)
         assert result.status == PlanStatus.SUCCESS
         assert abs(float(result.trajectory.y[-1]) - target) < 2.0
-        assert result.costs["consistency"] < 2.0  # [m^2] mean squared lateral deviation
+        assert result.costs["consistency"] < 4.0  # [m^2] mean squared lateral deviation (the other side: ~64)
 
 
 def test_previous_plan_is_the_executed_plan_shifted_by_the_replan_period(small_config):

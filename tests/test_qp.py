@@ -28,10 +28,11 @@ def reference_solution(qp: QPConfig, p: np.ndarray, init_x, init_y, goal=None) -
     Ay = np.vstack([ws * b.Wdd, wy * (b.Wdd + qp.k_p * b.W + qp.k_d * b.Wd)])
     ry = np.concatenate([np.zeros(len(b.t)), wy * qp.k_p * y_d])
     hard = qp.initial_acceleration
+    hard_y = hard and qp.initial_lateral_acceleration
     Ex = [b.W[0], b.Wd[0]] + ([b.Wdd[0]] if hard else [])
     ex = list(init_x[:3 if hard else 2])
-    Ey = [b.W[0], b.Wd[0]] + ([b.Wdd[0]] if hard else []) + [b.Wd[-1]]
-    ey = list(init_y[:3 if hard else 2]) + [0.0]
+    Ey = [b.W[0], b.Wd[0]] + ([b.Wdd[0]] if hard_y else []) + [b.Wd[-1]]
+    ey = list(init_y[:3 if hard_y else 2]) + [0.0]
     if not hard and qp.initial_acceleration_weight > 0:  # soft start: one more least-squares row per axis
         wa = np.sqrt(qp.initial_acceleration_weight)
         Ax, rx = np.vstack([Ax, wa * b.Wdd[:1]]), np.concatenate([rx, [wa * init_x[2]]])
@@ -51,9 +52,9 @@ def reference_solution(qp: QPConfig, p: np.ndarray, init_x, init_y, goal=None) -
     return np.concatenate([solve(Ax, rx, Ex, ex), solve(Ay, ry, Ey, ey)])
 
 
-@pytest.mark.parametrize("terminal", [False, True])
-def test_batch_qp_matches_float64_reference(terminal):
-    qp = QPConfig(terminal_position=terminal)
+@pytest.mark.parametrize("terminal, lateral", [(False, False), (True, False), (False, True)])
+def test_batch_qp_matches_float64_reference(terminal, lateral):
+    qp = QPConfig(terminal_position=terminal, initial_lateral_acceleration=lateral)
     model = make_model(BasisConfig(), qp)
     rng = np.random.default_rng(0)
     p = np.column_stack([rng.uniform(5, 30, (16, 4)), rng.uniform(-2, 14, (16, 4))])
@@ -77,6 +78,13 @@ def test_boundary_conditions_hold():
     p = jnp.array([[25.0] * 4 + [0.0] * 4])
     cx, cy = split(solve_setpoint_qp(model, p, b_x, b_y)[0])
     np.testing.assert_allclose([model.W[0] @ cx, model.Wd[0] @ cx, model.Wdd[0] @ cx], [0.0, 12.0, 1.0], atol=1e-4)
+    # by default the lateral acceleration starts free (the steering can jump); P1 imposes it too
+    np.testing.assert_allclose([model.W[0] @ cy, model.Wd[0] @ cy, model.Wd[-1] @ cy], [8.0, -0.5, 0.0], atol=1e-4)
+    assert abs(float(model.Wdd[0] @ cy) - 0.2) > 0.1
+    p1 = QPConfig(initial_lateral_acceleration=True)
+    model = make_model(BasisConfig(), p1)
+    b_x, b_y = boundary_values(jnp.array([0.0, 12.0, 1.0]), jnp.array([8.0, -0.5, 0.2]), p1)
+    cx, cy = split(solve_setpoint_qp(model, p, b_x, b_y)[0])
     np.testing.assert_allclose([model.W[0] @ cy, model.Wd[0] @ cy, model.Wdd[0] @ cy, model.Wd[-1] @ cy], [8.0, -0.5, 0.2, 0.0], atol=1e-4)
 
 

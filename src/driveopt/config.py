@@ -110,7 +110,7 @@ class QPConfig:
     k_p: float = 20.0  # [1/s^2] P gain of lateral tracking
     k_d: float = 2.0 * math.sqrt(20.0)  # [1/s] D gain of lateral tracking
     initial_acceleration: bool = True  # impose x''(0), y''(0); False when acceleration is a control input that can jump
-    initial_lateral_acceleration: bool = True  # with initial_acceleration: impose y''(0) too; False frees the lateral one only
+    initial_lateral_acceleration: bool = False  # with initial_acceleration, also impose y''(0) (P1); the steering can jump
     initial_acceleration_weight: float = 0.0  # [-] with initial_acceleration False: weight of (x''(0) - a_x0)^2 + (y''(0) - a_y0)^2
     terminal_lateral_acceleration: bool = False  # also impose y''(T) = 0
 

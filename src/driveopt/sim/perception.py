@@ -2,18 +2,20 @@
 
 :func:`perceive` reads ``env.unwrapped`` once: the ego in road coordinates (see
 :mod:`driveopt.sim.road_frame`), the driving lanes at the ego's position, and every other vehicle
-and collidable road object with its actual length and width. It returns the planning scene, in
-which the ego's velocity points along its body heading (upstream's course is heading + slip angle,
-and the slip angle follows the steering command of the moment: the plan starts from the state
-the next command acts on), and the ego's speed and heading for the controller
-(:func:`driveopt.sim.control.track`). :func:`scene_from_env` is the same scene with the ego's
-velocity along its course, as the simulator integrates it.
+and collidable road object with its actual length and width. It returns the planning scene and the
+ego's speed and body heading for the controller (:func:`driveopt.sim.control.track`).
+
+The ego's velocity in the scene points along its course (body heading + the slip angle of the
+steering applied now), as the simulator integrates it, so a plan starts with the lateral velocity
+the car has. Along the body heading instead, the lateral motion the last command produced is
+forgotten at every replan and the car follows only the slow start of each plan (issue 13: with
+P1's initial acceleration, a lane change at a sixth of the planned rate and a slow drift across
+lanes); the plan's lateral acceleration is then left free (``qp.initial_lateral_acceleration``),
+because the slip angle is a command that can jump every period.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from typing import Any, NamedTuple
 
 from driveopt.observation import ObservationError
@@ -26,12 +28,12 @@ from driveopt.sim.scenarios import Scenario
 class Perception(NamedTuple):
     """What one closed-loop step knows of the world."""
 
-    scene: Scene  # planning scene: the ego's velocity along its body heading
+    scene: Scene  # planning scene: the ego's velocity along its course
     kinematics: EgoKinematics  # the ego's speed [m/s] and body heading [rad], for the controller
 
 
 def _read(env: Any, scenario: Scenario) -> tuple[Scene, Motion]:
-    """(scene with the ego's velocity along its course, the ego's motion) of the current simulator state."""
+    """(scene, the ego's motion) of the current simulator state."""
     sim = env.unwrapped
     ego_vehicle = sim.vehicle
     if ego_vehicle is None or sim.road is None:
@@ -58,13 +60,11 @@ def _read(env: Any, scenario: Scenario) -> tuple[Scene, Motion]:
 
 
 def scene_from_env(env: Any, scenario: Scenario) -> Scene:
-    """Scene of the current simulator state, the ego's velocity along its course (``v_des``, name: the scenario's)."""
+    """Scene of the current simulator state (``v_des``, name: the scenario's)."""
     return _read(env, scenario)[0]
 
 
 def perceive(env: Any, scenario: Scenario) -> Perception:
-    """The planning scene (the ego's velocity along its body heading) and the ego's kinematics, read once."""
+    """The planning scene and the ego's kinematics, read once."""
     scene, me = _read(env, scenario)
-    c, s = math.cos(me.heading), math.sin(me.heading)
-    ego = dataclasses.replace(scene.ego, vx=me.speed * c, vy=me.speed * s)
-    return Perception(dataclasses.replace(scene, ego=ego), EgoKinematics(speed=me.speed, heading=me.heading))
+    return Perception(scene, EgoKinematics(speed=me.speed, heading=me.heading))

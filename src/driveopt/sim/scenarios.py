@@ -63,7 +63,7 @@ class Scenario:
     vehicles_count: int = 50  # [-] neighbours spawned (highway only)
     speed_limit: float = DEFAULT_SPEED_LIMIT  # [m/s] neighbours' road speed limit
     target_speed_fraction: tuple[float, float] = (0.7, 0.8)  # [-] neighbour target speed ~ U(lo, hi) * speed_limit
-    traffic_reverses: bool = True  # upstream IDM cars may roll backwards (to -40 m/s); False: they stop at 0 m/s
+    traffic_reverses: bool = False  # True: upstream's IDM cars, which may roll backwards (to -40 m/s); False: they stop at 0 m/s
     ego_speed: float = 10.0  # [m/s] ego speed at reset (a slow ego behind the traffic, as in P1)
     min_initial_gap: float = 10.0  # [m] highway: every neighbour spawns at least this far ahead of the ego centre
     min_spawn_gap: float = 5.0  # [m] highway: bumper gap between same-lane vehicles at reset (upstream overlaps cars)
