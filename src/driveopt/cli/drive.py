@@ -12,7 +12,7 @@ def register(sub) -> None:
     p = sub.add_parser("drive", help="drive one closed-loop episode in highway-env (progress, summary, MP4)")
     p.add_argument("--scenario", default="four-lane-d3.0", help="scenario name (see `driveopt scenarios`)")
     p.add_argument("--scenario-config", help="JSON file overriding scenario fields")
-    p.add_argument("--planner", default="cvae-mix", help="planner name (see `driveopt planners`)")
+    p.add_argument("--planner", default="bilevel", help="planner name (see `driveopt planners`; default bilevel)")
     p.add_argument("--weights", help="learned-prior checkpoint (default: the weights shipped for the road)")
     p.add_argument("--seed", type=seed, default=42, help="traffic and sampling seed")
     p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")

@@ -9,7 +9,7 @@ The ego's velocity in the scene points along its course (body heading + the slip
 steering applied now), as the simulator integrates it, so a plan starts with the lateral velocity
 the car has. Along the body heading instead, the lateral motion the last command produced is
 forgotten at every replan and the car follows only the slow start of each plan (issue 13: with
-P1's initial acceleration, a lane change at a sixth of the planned rate and a slow drift across
+P1's initial acceleration, sideways motion at about a quarter of the planned rate and a slow drift across
 lanes); the plan's lateral acceleration is then left free (``qp.initial_lateral_acceleration``),
 because the slip angle is a command that can jump every period.
 """
