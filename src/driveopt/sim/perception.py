@@ -7,11 +7,11 @@ ego's speed and body heading for the controller (:func:`driveopt.sim.control.tra
 
 The ego's velocity in the scene points along its course (body heading + the slip angle of the
 steering applied now), as the simulator integrates it, so a plan starts with the lateral velocity
-the car has. Along the body heading instead, the lateral motion the last command produced is
-forgotten at every replan and the car follows only the slow start of each plan (issue 13: with
-P1's initial acceleration, sideways motion at about a quarter of the planned rate and a slow drift across
-lanes); the plan's lateral acceleration is then left free (``qp.initial_lateral_acceleration``),
-because the slip angle is a command that can jump every period.
+the car has; the plans leave their lateral acceleration free (``qp.initial_lateral_acceleration``)
+because the slip angle is a command that can jump every period. With the velocity along the body
+heading instead, the lateral motion of the last command was forgotten at every replan and the car
+followed only the slow start of each plan (issue 13: sideways at about a quarter of the planned
+rate, and slow drifts across lanes).
 """
 
 from __future__ import annotations
