@@ -103,7 +103,8 @@ class RowKind(enum.IntEnum):
 
 
 class Snapshot(NamedTuple):
-    """The whole batch of one sampler iteration (for plots and videos); B rows, appended rows last."""
+    """The whole batch of one sampler iteration (for plots, videos, and the multi-modal demonstrations of
+    ``driveopt collect``: :mod:`driveopt.data.modes`); B rows, appended rows last."""
 
     setpoints: jnp.ndarray  # (B, 8)
     qp_coeffs: jnp.ndarray  # (B, 2n) set-point QP solutions
@@ -111,6 +112,7 @@ class Snapshot(NamedTuple):
     residual: jnp.ndarray  # (B,) total residual after projection
     elite_index: jnp.ndarray  # (q,) indices of the elite set
     kind: jnp.ndarray  # (B,) RowKind of each row
+    cost: jnp.ndarray  # (B,) weighted driving cost of each projected row (the ranking's cost, residual not added)
 
 
 class History(NamedTuple):
@@ -237,7 +239,7 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
         min_residual=jnp.min(residual), median_residual=jnp.median(residual), num_feasible=jnp.sum(feasible),
         projection_iterations=proj.iterations, projection_status=proj.status,
     )
-    snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked, kind)
+    snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked, kind, cost)
     return candidate(pick), snapshot, score, stats
 
 

@@ -1,7 +1,8 @@
 """Planner names -> driver specs: the bi-level optimiser, its baselines (P1 §V) and highway-env's IDM.
 
 Every optimiser is an :class:`~driveopt.drivers.optimiser.OptimiserSpec` (a ``PlannerConfig`` and a
-prior factory) run by the same ``plan()``; ``idm`` hands the ego to highway-env's IDM/MOBIL driver.
+prior factory) run by the same ``plan()``; ``idm`` hands the ego to highway-env's IDM/MOBIL driver;
+``dqn`` and ``ppo`` are P1's RL baselines (:mod:`driveopt.drivers.rl`: a learned policy, ``--weights``).
 A new planner is one entry of :data:`PLANNERS`; ``driveopt plan``, ``drive``, ``bench`` and
 ``collect`` all look names up here. ``random-p1``, ``grid-p1``, ``vanilla-p1`` and ``batch-p1`` are
 the MPC baselines as P1 §V-A3 ran them (:func:`_p1_faithful`): none of the machinery driveopt adds.
@@ -15,9 +16,11 @@ from driveopt.config import PlannerConfig
 from driveopt.drivers.base import DriverSpec
 from driveopt.drivers.idm import IDMSpec
 from driveopt.drivers.optimiser import OptimiserSpec
+from driveopt.drivers.rl import RLSpec
 from driveopt.errors import UnknownNameError
 from driveopt.priors.cvae import cvae_prior
 from driveopt.priors.grids import GoalGridPrior, GridPrior, VanillaPrior
+from driveopt.priors.vqvae import vqvae_prior
 
 
 class UnknownPlannerError(UnknownNameError):
@@ -63,9 +66,19 @@ PLANNERS: dict[str, DriverSpec] = {
                       _BASE, cvae_prior(0.0)),
         OptimiserSpec("cvae-mix", "bi-level optimiser: half the first batch from the CVAE, half from the bilevel Gaussian (warm start)",
                       _BASE, cvae_prior(0.5), warm_start=True),
+        OptimiserSpec("vqvae", "P2: 1000 PixelCNN/VQ-VAE samples, one pass of the barrier projection (100 iterations), "
+                               "least-cost feasible (shipped weights; Gaussian if none)",
+                      _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
+                                    projection={"max_iterations": 100, "barrier": True}), vqvae_prior()),
+        OptimiserSpec("vqvae-cem", "P1 bi-level optimiser started from PixelCNN/VQ-VAE samples (shipped weights; Gaussian if none)",
+                      _BASE, vqvae_prior()),
         *_MPC_BASELINES.values(),
         *(_p1_faithful(spec, p1_name) for p1_name, spec in _MPC_BASELINES.items()),
         IDMSpec("idm", "highway-env's IDM/MOBIL driver on the ego (rule-based reference)"),
+        RLSpec("dqn", "P1's DQN baseline: one of five behaviours every 1 s, tracked by upstream's set-point controller "
+                      "(shipped policy for the road's lane count, or --weights)", algo="dqn"),
+        RLSpec("ppo", "P1's PPO baseline: one of five behaviours every 1 s, tracked by upstream's set-point controller "
+                      "(shipped policy for the road's lane count, or --weights)", algo="ppo"),
     )
 }
 

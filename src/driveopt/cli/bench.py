@@ -20,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--episodes", type=positive_int, default=50, help="episodes per scenario, planner and seed")
     p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="override the optimisers' samples per iteration (not vanilla's single sample)")
-    p.add_argument("--weights", help="learned-prior checkpoint for the cvae planner (default: shipped weights)")
+    p.add_argument("--weights", help="learned-prior checkpoint for the cvae planner, or policy file for dqn/ppo (default: shipped weights)")
     p.add_argument("--config", help="planner config overrides applied to every optimiser, JSON (nested sections)")
     p.add_argument("--replan-every", type=positive_int, help="policy periods each plan is executed open-loop (P1: 5; default 1)")
     p.add_argument("--scenario-config", help="JSON file of scenario-field overrides applied to every scenario")

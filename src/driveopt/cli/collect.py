@@ -19,6 +19,8 @@ def register(sub) -> None:
     p.add_argument("--iterations", type=positive_int, default=5, help="expert sampler iterations")
     p.add_argument("--duration", type=float, default=50.0, help="episode length [s]")
     p.add_argument("--workers", type=positive_int, default=1, help="parallel episodes")
+    p.add_argument("--modes", type=positive_int, default=8,
+                   help="distinct feasible plans of the expert's final batch stored per step (VQ-VAE training)")
     p.add_argument("--out", default="out/demonstrations.h5", help="HDF5 file (rerun to resume)")
     p.add_argument("--json", help="write the collection summary as JSON here")
     p.set_defaults(func=run)
@@ -30,9 +32,12 @@ def run(args: argparse.Namespace) -> int:
     from driveopt.data.collect import collect, summary_json
 
     summary = collect(args.out, args.scenarios, seed=args.seed, episodes=args.episodes, samples=args.samples,
-                      iterations=args.iterations, duration=args.duration, workers=args.workers)
+                      iterations=args.iterations, duration=args.duration, workers=args.workers, modes=args.modes)
     print(f"collected {summary['episodes']} episodes ({summary['rows']} rows, {summary['collided']} collided) in "
           f"{summary['wall_seconds']:.0f} s; {summary['skipped']} already in {args.out}")
+    if summary["rows"]:
+        spread = ", ".join(f"{k}: {n}" for k, n in summary["modes_per_row"].items() if n)
+        print(f"modes per row (modes: rows) of the new rows: {spread}")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(summary_json(summary))

@@ -13,7 +13,7 @@ def register(sub) -> None:
     p.add_argument("--scenario", default="four-lane-d3.0", help="scenario name (see `driveopt scenarios`)")
     p.add_argument("--scenario-config", help="JSON file overriding scenario fields")
     p.add_argument("--planner", default="bilevel", help="planner name (see `driveopt planners`; default bilevel)")
-    p.add_argument("--weights", help="learned-prior checkpoint (default: the weights shipped for the road)")
+    p.add_argument("--weights", help="learned-prior checkpoint, or policy file of dqn/ppo (default: the weights shipped for the road)")
     p.add_argument("--seed", type=seed, default=42, help="traffic and sampling seed")
     p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="samples per sampler iteration")
@@ -41,6 +41,8 @@ def run(args: argparse.Namespace) -> int:
     spec = spec.with_overrides(**config_overrides(args.config)).with_replan_every(args.replan_every)
     if spec.is_optimiser:
         spec.prior(scenario.lanes)  # unusable or wrong-road weights: the error comes before the progress bar
+    elif hasattr(spec, "policy"):  # RL planners: a missing, unusable or wrong-road policy, before the progress bar too
+        spec.policy(scenario)
     steps = int(round(scenario.duration * scenario.policy_frequency))
     rollout = Rollout(scenario, spec.driver(), args.seed, render=bool(args.video))
     with contextlib.ExitStack() as stack:

@@ -1,2 +1,3 @@
-"""Expert demonstrations: ``demonstrations`` (the HDF5 format: schema, append, load, fingerprint) and
+"""Expert demonstrations: ``demonstrations`` (the HDF5 format: schema, append, load, fingerprint),
+``modes`` (the distinct feasible plans of the expert's final batch stored with every step) and
 ``collect`` (``driveopt collect``: the expert in closed loop, resumable)."""

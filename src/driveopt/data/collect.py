@@ -1,9 +1,10 @@
 """``driveopt collect``: expert demonstrations from the bi-level planner in closed loop (P1 §III-D).
 
 The expert is the ``bilevel`` planner with a large batch. Every planning step of every episode is
-stored (:mod:`driveopt.data.demonstrations`); episodes run in parallel worker processes and the
-parent appends each one as it finishes, so a rerun with the same file skips finished episodes and
-an interruption loses only the episodes in flight.
+stored (:mod:`driveopt.data.demonstrations`), with up to ``modes`` distinct feasible plans of the
+expert's final batch (:mod:`driveopt.data.modes`, schema version 2); episodes run in parallel worker
+processes and the parent appends each one as it finishes, so a rerun with the same file skips
+finished episodes and an interruption loses only the episodes in flight.
 """
 
 from __future__ import annotations
@@ -16,12 +17,17 @@ from typing import Any, Sequence
 import numpy as np
 from tqdm import tqdm
 
+from driveopt.basis import make_basis
 from driveopt.config import BasisConfig, ConfigError, check_count, check_number
 from driveopt.data.demonstrations import (
+    MAX_MODES,
+    MODE_FIELDS,
     ROW_FIELDS,
     DemonstrationWriter,
     EpisodeKey,
+    mode_distribution,
 )
+from driveopt.data.modes import select_modes
 from driveopt.drivers.optimiser import OptimiserSpec
 from driveopt.experiments.runner import execute
 from driveopt.experiments.store import JobKey
@@ -39,13 +45,18 @@ def expert_spec(samples: int, iterations: int) -> OptimiserSpec:
 
 
 def demonstration_episode(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
-    """Worker entry point: one expert episode as {"entry": episode fields, "rows": ROW_FIELDS arrays}."""
+    """Worker entry point: one expert episode as {"entry": episode fields, "rows": ROW_FIELDS and MODE_FIELDS arrays}."""
     scenario = get_scenario(job.scenario)
     spec = expert_spec(int(options["samples"]), int(options["iterations"]))
-    rows: dict[str, list] = {name: [] for name in ROW_FIELDS}
+    max_modes = int(options.get("modes", MAX_MODES))
+    basis, tolerance = make_basis(spec.config.basis), spec.config.sampler.residual_tolerance
+    rows: dict[str, list] = {name: [] for name in (*ROW_FIELDS, *MODE_FIELDS)}
     rollout = Rollout(scenario, spec.driver(), job.env_seed, duration=options.get("duration"))
     for step in rollout:
         problem, result = step.decision.problem, step.decision.result
+        modes = select_modes(result.last, problem, basis, tolerance, max_modes)
+        for name, values in zip(MODE_FIELDS, modes):
+            rows[name].append(values)
         executed = result.safe_trajectory
         rows["observation"].append(np.asarray(problem.observation))
         rows["init_x"].append(np.asarray(problem.init_x))
@@ -57,22 +68,24 @@ def demonstration_episode(job: JobKey, options: dict[str, Any]) -> dict[str, Any
         rows["status"].append(int(result.status))
         rows["time"].append(len(rows["time"]) / scenario.policy_frequency)
     episode = rollout.episode
-    arrays = {name: np.asarray(values, dtype=np.int8 if name == "status" else np.float32) for name, values in rows.items()}
+    dtypes = {"status": np.int8, "mode_mask": np.bool_}
+    arrays = {name: np.asarray(values, dtype=dtypes.get(name, np.float32)) for name, values in rows.items()}
     entry = {"scenario": job.scenario, "seed": job.seed, "episode": job.episode, "env_seed": job.env_seed,
              "collided": bool(episode.collided), "duration": float(episode.sim_duration)}
     return {"entry": entry, "rows": arrays, "plan_seconds": episode.plan_seconds, "sim_seconds": episode.sim_seconds}
 
 
 def check_options(scenarios: Sequence[str], *, seed: int, episodes: int, samples: int, iterations: int,
-                  duration: float, workers: int) -> None:
+                  duration: float, workers: int, modes: int = MAX_MODES) -> None:
     """ConfigError (ScenarioError for an unknown scenario) unless the scenarios are registered, seed >= 0,
-    episodes, samples, iterations and workers are integers >= 1 and duration is finite and > 0 [s]."""
+    episodes, samples, iterations, workers and modes are integers >= 1 and duration is finite and > 0 [s]."""
     if not scenarios:
         raise ConfigError("collect needs at least one scenario")
     for name in scenarios:
         get_scenario(name)
     check_count("seed", seed, 0)
-    for name, value in (("episodes", episodes), ("samples", samples), ("iterations", iterations), ("workers", workers)):
+    for name, value in (("episodes", episodes), ("samples", samples), ("iterations", iterations), ("workers", workers),
+                        ("modes", modes)):
         check_count(name, value)
     check_number("duration", duration, 0.0, low_open=True, unit="s")
 
@@ -87,23 +100,27 @@ def collect(
     iterations: int = 5,
     duration: float = 50.0,
     workers: int = 1,
+    modes: int = MAX_MODES,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Append the missing expert episodes (scenarios x episodes, traffic from ``seed``) to ``out``.
+    """Append the missing expert episodes (scenarios x episodes, traffic from ``seed``) to ``out``, each
+    row with up to ``modes`` modes of the expert's final batch.
 
-    Returns a summary: episodes and rows written now, skipped as already present, wall time.
+    Returns a summary: episodes and rows written now, skipped as already present, wall time, and
+    ``modes_per_row`` ({"k": rows written now with k modes}).
     Options are checked (:func:`check_options`) before the file is created or opened.
     """
     check_options(scenarios, seed=seed, episodes=episodes, samples=samples, iterations=iterations,
-                  duration=duration, workers=workers)
+                  duration=duration, workers=workers, modes=modes)
     basis = BasisConfig()
     settings = {"expert": "bilevel", "samples": samples, "iterations": iterations, "duration": float(duration),
-                "num_nodes": basis.num_nodes, "horizon": basis.horizon}
+                "num_nodes": basis.num_nodes, "horizon": basis.horizon, "modes": modes}
     # Episode-major: a collection stopped part-way covers every scenario evenly.
     jobs = [JobKey(s, EXPERT, seed, e) for e in range(episodes) for s in scenarios]
     summary = {"episodes": 0, "rows": 0, "collided": 0, "skipped": 0, "plan_seconds": 0.0, "sim_seconds": 0.0}
+    mode_counts: list[np.ndarray] = []
     start = time.perf_counter()
-    writer = DemonstrationWriter(out, settings, basis.num_nodes, 2 * (basis.order + 1), OBSERVATION_DIM)
+    writer = DemonstrationWriter(out, settings, basis.num_nodes, 2 * (basis.order + 1), OBSERVATION_DIM, modes)
     done = writer.done()
     todo = [j for j in jobs if EpisodeKey(j.scenario, j.seed, j.episode) not in done]
     summary["skipped"] = len(jobs) - len(todo)
@@ -113,6 +130,7 @@ def collect(
         writer.append_episode(record["entry"], record["rows"])
         summary["episodes"] += 1
         summary["rows"] += len(record["rows"]["status"])
+        mode_counts.append(np.sum(record["rows"]["mode_mask"], axis=1))
         summary["collided"] += int(record["entry"]["collided"])
         summary["plan_seconds"] += record["plan_seconds"]
         summary["sim_seconds"] += record["sim_seconds"]
@@ -120,10 +138,11 @@ def collect(
         bar.set_postfix_str(f"{record['entry']['scenario']} rows={summary['rows']} crashed={summary['collided']}")
 
     try:
-        execute(todo, {"samples": samples, "iterations": iterations, "duration": duration},
+        execute(todo, {"samples": samples, "iterations": iterations, "duration": duration, "modes": modes},
                 demonstration_episode, finished, workers=workers)
     finally:
         bar.close()
+    summary["modes_per_row"] = mode_distribution(np.concatenate(mode_counts) if mode_counts else [])
     summary["wall_seconds"] = time.perf_counter() - start
     summary["settings"] = settings
     return summary

@@ -16,6 +16,24 @@ datasets (n = rows, K = nodes)::
 
     episodes/scenario (str), seed, episode, env_seed, collided, duration [s], first_row, num_rows
 
+Schema version 2 adds the expert's **modes** per row (M = ``max_modes``, 8 by default; the distinct
+feasible plans of the expert's final batch, lowest cost first; the selection rule is in
+:mod:`driveopt.data.modes`)::
+
+    mode_setpoints (n, M, 8)   f4  their set-points
+    mode_coeffs    (n, M, 2n_c) f4 their projected coefficients (planning frame, like ``coeffs``)
+    mode_cost      (n, M)      f4  weighted driving cost
+    mode_residual  (n, M)      f4  total constraint residual
+    mode_mask      (n, M)      b1  True for a real mode; padding (zeros) after the real ones
+
+A mode's trajectory is ``W @ c`` with the basis of the file's ``num_nodes`` and ``horizon``.
+
+Versions: this driveopt writes version 2 and reads versions 1 and 2. A version-1 file (no modes)
+reads as rows without modes (``Demonstrations.modes`` is None, or all masked where files of both
+versions are read together), and an episode without modes has the same identity (and fingerprint)
+as before, so CVAE checkpoints of version-1 data still resume. Appending to a version-1 file is
+refused: collect into a new file.
+
 Episodes are the unit of writing: an episode's rows and its entry are appended together, with the
 file opened for that write only, so an interrupted collection loses at most the episodes in flight
 and the file can be read between writes. The rows go first, then the entry field by field. An entry
@@ -43,11 +61,14 @@ import numpy as np
 from driveopt.errors import DriveoptError
 
 FORMAT = "driveopt-demonstrations"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # written
+READABLE_VERSIONS = (1, 2)
+MAX_MODES = 8  # [-] default M: modes stored per row (``driveopt collect --modes``)
 ROW_FIELDS = ("observation", "init_x", "init_y", "lane_bounds", "setpoints", "coeffs", "trajectory", "status", "time")
+MODE_FIELDS = ("mode_setpoints", "mode_coeffs", "mode_cost", "mode_residual", "mode_mask")  # version 2
 EPISODE_FIELDS = ("scenario", "seed", "episode", "env_seed", "collided", "duration", "first_row", "num_rows")
 _POSITION_FIELDS = ("first_row", "num_rows")  # of EPISODE_FIELDS: set by the writer, last
-_ROW_DTYPES = {"status": np.int8}
+_ROW_DTYPES = {"status": np.int8, "mode_mask": np.bool_}
 _EPISODE_DTYPES = {"seed": np.int64, "episode": np.int32, "env_seed": np.int64, "collided": np.bool_,
                    "duration": np.float32, "first_row": np.int64, "num_rows": np.int64}
 
@@ -68,6 +89,20 @@ class EpisodeKey(NamedTuple):
     episode: int
 
 
+class ModeRows(NamedTuple):
+    """The modes of n rows (schema version 2; see the module docstring)."""
+
+    setpoints: np.ndarray  # (n, M, 8)
+    coeffs: np.ndarray  # (n, M, 2n_c)
+    cost: np.ndarray  # (n, M)
+    residual: np.ndarray  # (n, M)
+    mask: np.ndarray  # (n, M) bool
+
+    def counts(self) -> np.ndarray:
+        """(n,) modes per row."""
+        return np.sum(self.mask, axis=1)
+
+
 class Demonstrations(NamedTuple):
     """All rows of one or more files, as numpy arrays (see the module docstring), plus episode tables."""
 
@@ -83,6 +118,7 @@ class Demonstrations(NamedTuple):
     episode: np.ndarray  # (n,) global episode index into ``episodes``
     episodes: dict[str, np.ndarray]  # EPISODE_FIELDS -> (E,)
     attrs: dict[str, Any]
+    modes: ModeRows | None = None  # None when no file has modes (schema version 1)
 
     def __len__(self) -> int:
         return int(self.observation.shape[0])
@@ -94,7 +130,10 @@ class Demonstrations(NamedTuple):
         return np.where(collided, end - self.time, np.inf)
 
     def episode_ids(self) -> list[tuple[str, int, int, str]]:
-        """(E,) per episode: (scenario, seed, episode, sha256 of its rows), whatever file or position it has."""
+        """(E,) per episode: (scenario, seed, episode, sha256 of its rows), whatever file or position it has.
+
+        The digest covers the version-1 fields, then the real modes (not the padding), so an episode
+        without modes has the same identity as in a version-1 file, whatever M is."""
         order = np.argsort(self.episode, kind="stable")
         bounds = np.searchsorted(self.episode[order], np.arange(len(self.episodes["num_rows"]) + 1))
         ids = []
@@ -102,6 +141,10 @@ class Demonstrations(NamedTuple):
             digest = hashlib.sha256()
             for name in ROW_FIELDS:
                 digest.update(np.ascontiguousarray(getattr(self, name)[order[lo:hi]]).tobytes())
+            if self.modes is not None:
+                mask = self.modes.mask[order[lo:hi]]
+                for values in self.modes[:4]:
+                    digest.update(np.ascontiguousarray(values[order[lo:hi]][mask]).tobytes())
             ids.append((str(self.episodes["scenario"][index]), int(self.episodes["seed"][index]),
                         int(self.episodes["episode"][index]), digest.hexdigest()))
         return ids
@@ -123,14 +166,17 @@ class Demonstrations(NamedTuple):
 
 
 class DemonstrationWriter:
-    """Appends episodes to an HDF5 file (created with ``attrs`` if new).
+    """Appends episodes to an HDF5 file (created with ``attrs`` if new; schema version 2 with
+    ``max_modes`` mode slots per row).
 
     The file is opened only for each write and closed after it, so between episodes it is complete
     on disk and other processes (``train``, ``load_demonstrations``) can read it.
     """
 
-    def __init__(self, path: str | Path, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, observation_dim: int):
+    def __init__(self, path: str | Path, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, observation_dim: int,
+                 max_modes: int = MAX_MODES):
         self.path = Path(path)
+        self.max_modes = int(max_modes)
         if self.path.is_dir():
             raise DatasetError(f"{self.path} is a directory; give the demonstrations file's path (e.g. {self.path / 'demonstrations.h5'})")
         try:
@@ -139,9 +185,11 @@ class DemonstrationWriter:
             raise DatasetError(f"cannot create the folder of {self.path}: {exc.strerror or exc}") from None
         with self._open() as f:
             if "episodes" not in f:
-                _create(f, attrs, num_nodes, num_coeffs, observation_dim)
+                _create(f, attrs, num_nodes, num_coeffs, observation_dim, self.max_modes)
                 return
-            _check_attrs(f, self.path)
+            _check_attrs(f, self.path, writing=True)
+            if f["mode_mask"].shape[1] != self.max_modes:
+                raise DatasetError(f"{self.path} stores {f['mode_mask'].shape[1]} modes per row, not {self.max_modes}; use another file")
             mismatch = {k: (f.attrs.get(k), v) for k, v in attrs.items() if _attr(f.attrs.get(k)) != v}
             if mismatch:
                 raise DatasetError(f"{self.path} was collected with other settings {mismatch} (stored, requested); use another file")
@@ -165,7 +213,8 @@ class DemonstrationWriter:
             return {EpisodeKey(s, int(a), int(b)) for s, a, b in zip(scen, eps["seed"][:], eps["episode"][:])}
 
     def append_episode(self, episode: dict[str, Any], rows: dict[str, np.ndarray]) -> None:
-        """Append one episode: ``episode`` has EPISODE_FIELDS but first_row/num_rows; ``rows`` ROW_FIELDS.
+        """Append one episode: ``episode`` has EPISODE_FIELDS but first_row/num_rows; ``rows`` ROW_FIELDS and
+        optionally MODE_FIELDS (all or none: without them the rows have no modes).
 
         Everything is checked before the first byte is written; a write cut short before is removed first."""
         with self._open() as f:
@@ -174,7 +223,7 @@ class DemonstrationWriter:
             n = int(data["observation"].shape[0])
             entry = {**{name: episode[name] for name in EPISODE_FIELDS if name not in _POSITION_FIELDS},
                      "first_row": start, "num_rows": n}
-            for name in ROW_FIELDS:
+            for name in (*ROW_FIELDS, *MODE_FIELDS):
                 _write_from(f[name], start, data[name])
             _write_from(f["episode"], start, np.full(n, index, np.int32))
             for name in EPISODE_FIELDS:  # the entry goes last: it marks the rows complete
@@ -183,14 +232,16 @@ class DemonstrationWriter:
                 ds[index] = entry[name]
 
 
-def _create(f: Any, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, observation_dim: int) -> None:
+def _create(f: Any, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, observation_dim: int, max_modes: int) -> None:
     f.attrs["format"] = FORMAT
     f.attrs["schema_version"] = SCHEMA_VERSION
     for k, v in attrs.items():
         f.attrs[k] = v
     shapes = {"observation": (observation_dim,), "init_x": (3,), "init_y": (3,), "lane_bounds": (2,),
-              "setpoints": (8,), "coeffs": (num_coeffs,), "trajectory": (num_nodes, 2), "status": (), "time": ()}
-    for name in ROW_FIELDS:
+              "setpoints": (8,), "coeffs": (num_coeffs,), "trajectory": (num_nodes, 2), "status": (), "time": (),
+              "mode_setpoints": (max_modes, 8), "mode_coeffs": (max_modes, num_coeffs), "mode_cost": (max_modes,),
+              "mode_residual": (max_modes,), "mode_mask": (max_modes,)}
+    for name in (*ROW_FIELDS, *MODE_FIELDS):
         f.create_dataset(name, shape=(0, *shapes[name]), maxshape=(None, *shapes[name]),
                          dtype=_ROW_DTYPES.get(name, np.float32), chunks=(256, *shapes[name]))
     f.create_dataset("episode", shape=(0,), maxshape=(None,), dtype=np.int32, chunks=(256,))
@@ -201,13 +252,26 @@ def _create(f: Any, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, obse
 
 
 def _checked_rows(f: Any, rows: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """``rows`` as arrays after checking that every field has the same row count and the file's row shape."""
+    """``rows`` as arrays (no modes: padding) after checking that every field has the same row count and the
+    file's row shape."""
     data = {name: np.asarray(rows[name]) for name in ROW_FIELDS}
     n = data["observation"].shape[0]
+    given = [name for name in MODE_FIELDS if name in rows]
+    if given and len(given) != len(MODE_FIELDS):
+        raise DatasetError(f"episode rows give only some mode fields {given}; give all of {list(MODE_FIELDS)} or none")
+    for name in MODE_FIELDS:
+        data[name] = np.asarray(rows[name]) if given else np.zeros((n, *f[name].shape[1:]), f[name].dtype)
     for name, values in data.items():
         if values.shape[:1] != (n,) or values.shape[1:] != f[name].shape[1:]:
             raise DatasetError(f"episode rows '{name}' have shape {values.shape}, expected ({n}, {f[name].shape[1:]})")
+    if given and not np.all(np.isfinite(data["mode_cost"][data["mode_mask"].astype(bool)])):
+        raise DatasetError("episode rows have a mode with a non-finite cost")
     return data
+
+
+def _row_datasets(f: Any) -> tuple[str, ...]:
+    """Names of the per-row datasets of an open file (the mode fields only in version 2)."""
+    return (*ROW_FIELDS, "episode", *(name for name in MODE_FIELDS if name in f))
 
 
 def _write_from(dataset: Any, start: int, values: np.ndarray) -> None:
@@ -231,7 +295,7 @@ def _entry_matches_rows(f: Any, index: int) -> bool:
     eps = f["episodes"]
     first, num = int(eps["first_row"][index]), int(eps["num_rows"][index])
     expected = int(eps["first_row"][index - 1] + eps["num_rows"][index - 1]) if index else 0
-    available = min(f[name].shape[0] for name in (*ROW_FIELDS, "episode"))
+    available = min(f[name].shape[0] for name in _row_datasets(f))
     if first != expected or num < 0 or first + num > available:
         return False
     labels = f["episode"][first:min(first + num + 1, available)]
@@ -245,7 +309,7 @@ def _truncate_partial(f: Any) -> tuple[int, int]:
     for name in EPISODE_FIELDS:
         if f["episodes"][name].shape[0] != count:
             f["episodes"][name].resize(count, axis=0)
-    for name in (*ROW_FIELDS, "episode"):
+    for name in _row_datasets(f):
         if f[name].shape[0] != end:
             f[name].resize(end, axis=0)
     return count, end
@@ -259,12 +323,19 @@ def _attr(value: Any) -> Any:
     return value.item() if isinstance(value, np.generic) else value
 
 
-def _check_attrs(f: Any, path: Path) -> None:
+def _check_attrs(f: Any, path: Path, writing: bool = False) -> int:
+    """The file's schema version; DatasetError unless it is a demonstrations file this driveopt reads
+    (or, ``writing``, appends to)."""
     if f.attrs.get("format") != FORMAT:
         raise DatasetError(f"{path} is not a driveopt demonstrations file (format attribute {f.attrs.get('format')!r})")
     version = int(f.attrs.get("schema_version", -1))
-    if version != SCHEMA_VERSION:
-        raise DatasetError(f"{path} has schema version {version}; this driveopt reads version {SCHEMA_VERSION}")
+    if version not in READABLE_VERSIONS:
+        raise DatasetError(f"{path} has schema version {version}; this driveopt reads versions "
+                           f"{', '.join(map(str, READABLE_VERSIONS))}")
+    if writing and version != SCHEMA_VERSION:
+        raise DatasetError(f"{path} has schema version {version} (no modes); this driveopt appends version "
+                           f"{SCHEMA_VERSION} only: collect into a new file (version {version} stays readable)")
+    return version
 
 
 def load_demonstrations(paths: str | Path | Iterable[str | Path]) -> Demonstrations:
@@ -282,7 +353,25 @@ def load_demonstrations(paths: str | Path | Iterable[str | Path]) -> Demonstrati
     rows = {name: np.concatenate([getattr(p, name) for p in parts]) for name in ROW_FIELDS}
     episode = np.concatenate([p.episode + off for p, off in zip(parts, offsets)])
     episodes = {name: np.concatenate([p.episodes[name] for p in parts]) for name in EPISODE_FIELDS}
-    return Demonstrations(**rows, episode=episode, episodes=episodes, attrs=first.attrs)
+    return Demonstrations(**rows, episode=episode, episodes=episodes, attrs=first.attrs, modes=_joined_modes(parts))
+
+
+def _joined_modes(parts: list[Demonstrations]) -> ModeRows | None:
+    """The modes of all parts, padded to the largest M; rows of a part without modes have none (all masked)."""
+    with_modes = [p.modes for p in parts if p.modes is not None]
+    if not with_modes:
+        return None
+    width = max(m.mask.shape[1] for m in with_modes)
+
+    def padded(part: Demonstrations) -> ModeRows:
+        n = len(part)
+        modes = part.modes
+        if modes is None:
+            modes = ModeRows(np.zeros((n, 0, 8), np.float32), np.zeros((n, 0, part.coeffs.shape[1]), np.float32),
+                             np.zeros((n, 0), np.float32), np.zeros((n, 0), np.float32), np.zeros((n, 0), bool))
+        return ModeRows(*(np.pad(a, [(0, 0), (0, width - a.shape[1])] + [(0, 0)] * (a.ndim - 2)) for a in modes))
+
+    return ModeRows(*(np.concatenate(arrays) for arrays in zip(*(padded(p) for p in parts))))
 
 
 def _load_one(path: Path) -> Demonstrations:
@@ -291,11 +380,11 @@ def _load_one(path: Path) -> Demonstrations:
     h5py = _h5py()
     try:
         with h5py.File(path, "r") as f:
-            _check_attrs(f, path)
+            version = _check_attrs(f, path)
             count, end = _complete_extent(f)
             eps = {name: f["episodes"][name][:count] for name in EPISODE_FIELDS}
             eps["scenario"] = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in eps["scenario"]])
-            rows = {name: f[name][:end] for name in (*ROW_FIELDS, "episode")}
+            rows = {name: f[name][:end] for name in (*ROW_FIELDS, "episode", *(MODE_FIELDS if version >= 2 else ()))}
             attrs = {k: _attr(v) for k, v in f.attrs.items()}
     except DatasetError:
         raise
@@ -307,11 +396,23 @@ def _load_one(path: Path) -> Demonstrations:
             raise DatasetError(f"{path}: dataset '{name}' contains NaN or inf")
     if np.any(rows["episode"] >= max(len(eps["num_rows"]), 1)) or np.any(rows["episode"] < 0):
         raise DatasetError(f"{path}: row episode indices out of range")
-    return Demonstrations(**{n: rows[n] for n in ROW_FIELDS}, episode=rows["episode"].astype(np.int64), episodes=eps, attrs=attrs)
+    modes = None
+    if "mode_mask" in rows:
+        modes = ModeRows(*(rows[name] for name in MODE_FIELDS[:4]), rows["mode_mask"].astype(bool))
+    return Demonstrations(**{n: rows[n] for n in ROW_FIELDS}, episode=rows["episode"].astype(np.int64), episodes=eps,
+                          attrs=attrs, modes=modes)
+
+
+def mode_distribution(counts: Iterable[int]) -> dict[str, int]:
+    """{"k": rows with k modes} for every k from 0 to the largest count (JSON-ready keys)."""
+    counts = np.asarray(list(counts) if not isinstance(counts, np.ndarray) else counts, np.int64)
+    histogram = np.bincount(counts) if counts.size else np.zeros(1, np.int64)
+    return {str(k): int(c) for k, c in enumerate(histogram)}
 
 
 def describe(data: Demonstrations) -> dict[str, Any]:
-    """JSON-ready summary: rows, episodes per scenario, collisions, collection settings."""
+    """JSON-ready summary: rows, episodes per scenario, collisions, modes per row (None without modes),
+    collection settings."""
     scen, counts = np.unique(data.episodes["scenario"], return_counts=True)
     return {
         "rows": len(data),
@@ -319,5 +420,6 @@ def describe(data: Demonstrations) -> dict[str, Any]:
         "per_scenario": {str(s): int(c) for s, c in zip(scen, counts)},
         "collided_episodes": int(np.sum(data.episodes["collided"])),
         "success_rows": int(np.sum(data.status == 0)),
+        "modes_per_row": None if data.modes is None else mode_distribution(data.modes.counts()),
         "attrs": {k: (json.loads(v) if isinstance(v, str) and v.startswith("{") else v) for k, v in data.attrs.items()},
     }

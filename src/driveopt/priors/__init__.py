@@ -2,8 +2,9 @@
 
 One module per family: :mod:`~driveopt.priors.base` (the ``Prior`` protocol, ``Proposal``,
 ``moments``), :mod:`~driveopt.priors.gaussian` (P1's Gaussian and driveopt's coherent behaviours),
-:mod:`~driveopt.priors.grids` (the MPC baselines' grids) and :mod:`~driveopt.priors.cvae` (the
-learned CVAE; imported on demand, it needs Flax).
+:mod:`~driveopt.priors.grids` (the MPC baselines' grids), :mod:`~driveopt.priors.cvae` (the
+learned CVAE) and :mod:`~driveopt.priors.vqvae` (P2's VQ-VAE + PixelCNN); the learned ones are
+imported on demand (they need Flax).
 """
 
 from driveopt.priors.base import Prior, Proposal, clip_setpoints, default_mean, moments

@@ -1,0 +1,194 @@
+"""Conditional PixelCNN over the VQ-VAE's code indices (P2 §III-B, Fig. 4; van den Oord et al. 2016).
+
+    observation o -> standardised features (the VQ-VAE's) -> MLP -> condition c
+    codes h (L,) -> one-hot -> gated masked 1-D convolution, mask A (position i sees codes < i)
+                 -> ``layers`` gated masked convolutions, mask B (sees <= i, residual)
+                 -> 1 x 1 layers -> logits (L, K_c)
+
+A gated layer is ``tanh(W_f * x + V_f c) * sigmoid(W_g * x + V_g c)`` followed by a 1 x 1
+projection. Only the first layer sees the codes themselves and it sees strictly earlier positions,
+so the logits at position i depend on codes 0..i-1 and on the observation only (tested with
+gradients). A learned position embedding is added after the first layer. Training: cross-entropy
+against the codes the frozen VQ-VAE encoder assigns to the expert's modes. Sampling
+(:func:`sample_codes`): h starts at zeros and is filled position by position inside one
+``lax.fori_loop``, any number of sequences at once for one observation.
+
+P2: 1 mask-A + 5 mask-B layers, 64 channels, kernel 7 (the defaults).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from pathlib import Path
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+
+from driveopt.config import ConfigError, check_count
+from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore
+from driveopt.learned.cvae import FEATURE_DIM, MLP, check_lanes
+from driveopt.learned.vqvae import Normaliser, VQVAEConfig, config_from_meta, empty_state
+
+CHECKPOINT_KIND = "pixelcnn"
+
+
+@dataclasses.dataclass(frozen=True)
+class PixelCNNConfig:
+    num_latents: int = 10  # [-] L: sequence length (the VQ-VAE's)
+    codebook_size: int = 16  # [-] K_c: classes per position (the VQ-VAE's)
+    channels: int = 64  # [-] (P2: 64)
+    layers: int = 5  # [-] mask-B layers after the mask-A one (P2: 5)
+    kernel_size: int = 7  # [-] odd (P2: 7)
+    condition_hidden: tuple[int, ...] = (256,)  # [-] widths of the observation encoder MLP
+
+    def __post_init__(self):
+        for name in ("num_latents", "channels", "kernel_size"):
+            check_count(f"PixelCNNConfig.{name}", getattr(self, name))
+        check_count("PixelCNNConfig.codebook_size", self.codebook_size, 2)
+        check_count("PixelCNNConfig.layers", self.layers, 0)
+        if self.kernel_size % 2 != 1:
+            raise ConfigError(f"PixelCNNConfig.kernel_size must be odd, got {self.kernel_size}")
+        for width in self.condition_hidden:
+            check_count("PixelCNNConfig.condition_hidden widths", width)
+
+    @classmethod
+    def for_vqvae(cls, vq: VQVAEConfig, **fields: Any) -> "PixelCNNConfig":
+        return cls(num_latents=vq.num_latents, codebook_size=vq.codebook_size, **fields)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "PixelCNNConfig":
+        data = dict(data)
+        if "condition_hidden" in data:
+            data["condition_hidden"] = tuple(int(w) for w in data["condition_hidden"])
+        return cls(**data)
+
+
+def causal_mask(kernel_size: int, mask_type: str) -> jnp.ndarray:
+    """(kernel_size,) 1 where a tap may be used: offsets < 0 (mask A) or <= 0 (mask B) from the centre."""
+    offsets = jnp.arange(kernel_size) - kernel_size // 2
+    return (offsets < 0 if mask_type == "A" else offsets <= 0).astype(jnp.float32)
+
+
+class MaskedConv1D(nn.Module):
+    """1-D convolution (same length) whose taps at and after the output position (A) or after it (B) are zero."""
+
+    features: int
+    kernel_size: int
+    mask_type: str  # "A" or "B"
+
+    @nn.compact
+    def __call__(self, x):  # (B, L, C_in) -> (B, L, features)
+        k = self.kernel_size
+        kernel = self.param("kernel", nn.initializers.lecun_normal(), (k, x.shape[-1], self.features))
+        bias = self.param("bias", nn.initializers.zeros, (self.features,))
+        kernel = kernel * causal_mask(k, self.mask_type)[:, None, None]
+        y = jax.lax.conv_general_dilated(x, kernel, window_strides=(1,), padding=[(k // 2, k // 2)],
+                                         dimension_numbers=("NWC", "WIO", "NWC"))
+        return y + bias
+
+
+class GatedLayer(nn.Module):
+    channels: int
+    kernel_size: int
+    mask_type: str
+    residual: bool
+
+    @nn.compact
+    def __call__(self, x, cond):  # x (B, L, C), cond (B or 1, H)
+        h = MaskedConv1D(2 * self.channels, self.kernel_size, self.mask_type)(x)
+        h = h + nn.Dense(2 * self.channels)(cond)[:, None, :]
+        a, b = jnp.split(h, 2, axis=-1)
+        out = nn.Dense(self.channels)(jnp.tanh(a) * jax.nn.sigmoid(b))
+        return x + out if self.residual else out
+
+
+class PixelCNN(nn.Module):
+    cfg: PixelCNNConfig
+
+    def setup(self):
+        cfg = self.cfg
+        self.condition_net = MLP(cfg.condition_hidden, cfg.channels)
+        self.first = GatedLayer(cfg.channels, cfg.kernel_size, "A", residual=False)  # never sees code i itself
+        self.rest = [GatedLayer(cfg.channels, cfg.kernel_size, "B", residual=True) for _ in range(cfg.layers)]
+        self.position = self.param("position", nn.initializers.normal(0.02), (cfg.num_latents, cfg.channels))
+        self.head = nn.Dense(cfg.channels)
+        self.out = nn.Dense(cfg.codebook_size)
+
+    def condition(self, feats):  # (B, FEATURE_DIM) -> (B, channels)
+        return self.condition_net(feats)
+
+    def logits(self, onehot, cond):  # (B, L, K_c) float, (B or 1, channels) -> (B, L, K_c)
+        x = self.first(onehot, cond) + self.position
+        for layer in self.rest:
+            x = layer(x, cond)
+        return self.out(nn.relu(self.head(nn.relu(x))))
+
+    def __call__(self, onehot, feats):
+        return self.logits(onehot, self.condition(feats))
+
+
+@functools.partial(jax.jit, static_argnums=0)  # one compilation per configuration, not one per operation
+def init_params(cfg: PixelCNNConfig, key: jax.Array) -> dict[str, Any]:
+    onehot = jnp.zeros((1, cfg.num_latents, cfg.codebook_size))
+    return PixelCNN(cfg).init(key, onehot, jnp.zeros((1, FEATURE_DIM)))["params"]
+
+
+def logits_from_onehot(params, cfg: PixelCNNConfig, onehot: jnp.ndarray, feats: jnp.ndarray) -> jnp.ndarray:
+    """(B, L, K_c) logits from one-hot codes (B, L, K_c) (any real values: differentiable) and features (B, F)."""
+    return PixelCNN(cfg).apply({"params": params}, onehot, feats)
+
+
+def code_logits(params, cfg: PixelCNNConfig, codes: jnp.ndarray, feats: jnp.ndarray) -> jnp.ndarray:
+    """(B, L, K_c) logits of p(h_i | h_<i, o) for code indices (B, L) and standardised features (B, F)."""
+    return logits_from_onehot(params, cfg, jax.nn.one_hot(codes, cfg.codebook_size), feats)
+
+
+def loss(params, cfg: PixelCNNConfig, codes: jnp.ndarray, feats: jnp.ndarray):
+    """(mean cross-entropy [nats per code], {"cross_entropy", "accuracy"}) of the codes (B, L) given the features."""
+    logits = code_logits(params, cfg, codes, feats)
+    ce = jnp.mean(optax.softmax_cross_entropy_with_integer_labels(logits, codes))
+    accuracy = jnp.mean(jnp.argmax(logits, -1) == codes)
+    return ce, {"cross_entropy": ce, "accuracy": accuracy}
+
+
+def sample_codes(params, cfg: PixelCNNConfig, feats: jnp.ndarray, key: jax.Array, num: int) -> jnp.ndarray:
+    """(num, L) int32 code indices drawn autoregressively for one observation's features (F,) or (1, F).
+
+    One ``lax.fori_loop`` over the L positions; the condition is computed once."""
+    model = PixelCNN(cfg)
+    cond = model.apply({"params": params}, jnp.reshape(feats, (1, -1)), method=PixelCNN.condition)
+
+    def body(i, codes):
+        logits = model.apply({"params": params}, jax.nn.one_hot(codes, cfg.codebook_size), cond, method=PixelCNN.logits)
+        drawn = jax.random.categorical(jax.random.fold_in(key, i), jnp.take(logits, i, axis=1))
+        return codes.at[:, i].set(drawn.astype(jnp.int32))
+
+    return jax.lax.fori_loop(0, cfg.num_latents, body, jnp.zeros((num, cfg.num_latents), jnp.int32))
+
+
+def load_vqvae_prior(path: str | Path, lanes: int | None = None) -> dict[str, Any]:
+    """Everything the VQ-VAE prior plans with, from a PixelCNN checkpoint (it embeds its VQ-VAE's decoder,
+    codebook and normaliser): {"vqvae_config", "vqvae_params", "normaliser", "config", "params", "meta"}.
+    CheckpointError when unusable, or when ``lanes`` is given and it was trained for other lane counts."""
+    meta, state = load_checkpoint(path, CHECKPOINT_KIND)
+    if lanes is not None:
+        check_lanes(meta, lanes, path)
+    vq_cfg = config_from_meta(meta, path, "vqvae_config")
+    try:
+        cfg = PixelCNNConfig.from_dict(meta["config"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{path}: invalid PixelCNN config in the header: {exc}") from None
+    if (cfg.num_latents, cfg.codebook_size) != (vq_cfg.num_latents, vq_cfg.codebook_size):
+        raise CheckpointError(f"{path}: the PixelCNN ({cfg.num_latents} x {cfg.codebook_size} codes) does not match its "
+                              f"VQ-VAE ({vq_cfg.num_latents} x {vq_cfg.codebook_size})")
+    target = {"params": jax.eval_shape(lambda key: init_params(cfg, key), jax.random.PRNGKey(0)), "vqvae": empty_state(vq_cfg)}
+    restored = restore(target, {k: state.get(k) for k in target}, path, "the PixelCNN state")
+    return {"vqvae_config": vq_cfg, "vqvae_params": restored["vqvae"]["params"],
+            "normaliser": Normaliser(*restored["vqvae"]["normaliser"]), "config": cfg, "params": restored["params"], "meta": meta}
