@@ -140,7 +140,8 @@ def test_lane_barrier_limits_the_approach_rate():
     """With gamma < 1 the distance to the lane bound shrinks at most by (1 - gamma) per node."""
     problem, target, b_x, b_y = setup(empty_scene(y=4.0), [[15.0] * 4 + [16.0] * 4])
     gamma = 0.1
-    cfg = dataclasses.replace(LOOSE, barrier=True, rho_lane=30.0)
+    # with the lateral start acceleration free the sample turns harder at first: more iterations to converge
+    cfg = dataclasses.replace(LOOSE, barrier=True, rho_lane=30.0, max_iterations=1000)
     out = project(MODEL, problem, target, b_x, b_y, cfg, gamma_lane=gamma)
     gap = float(problem.y_ub) - np.asarray(evaluate(MODEL, out.coeffs).y[0])
     assert np.all(gap[1:] >= (1 - gamma) * gap[:-1] - 0.05)
