@@ -41,11 +41,17 @@ def save_checkpoint(path: str | Path, kind: str, state: Any, meta: dict[str, Any
     body = serialization.msgpack_serialize(serialization.to_state_dict(state))
     header = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "kind": kind,
               "sha256": hashlib.sha256(body).hexdigest(), "meta": meta}
+    return atomic_write(path, json.dumps(header).encode() + b"\n" + body)
+
+
+def atomic_write(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (temporary file in the same folder, fsynced, renamed)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(json.dumps(header).encode() + b"\n")
-            f.write(body)
+            f.write(data)
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, 0o644)  # mkstemp makes it owner-only

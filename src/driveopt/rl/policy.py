@@ -19,8 +19,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
-import tempfile
 import zipfile
 from importlib import resources
 from pathlib import Path
@@ -75,24 +73,6 @@ def shipped_policy(algo: str, lanes: int) -> Path | None:
     """The policy shipped for ``algo`` on roads with ``lanes`` lanes (``weights/{algo}-{two|four|...}-lane.zip``), or None."""
     path = Path(str(resources.files("driveopt") / "weights" / f"{algo}-{lane_word(lanes)}-lane.zip"))
     return path if path.is_file() else None
-
-
-def atomic_write(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (temporary file in the same folder, fsynced, renamed)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp makes it owner-only
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def policy_bytes(model: Any, record: dict[str, Any]) -> bytes:

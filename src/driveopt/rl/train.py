@@ -48,12 +48,12 @@ from typing import Any
 import numpy as np
 
 from driveopt.errors import DriveoptError
+from driveopt.learned.checkpoint import atomic_write
 from driveopt.rl.env import DrivingEnv, RewardWeights, policy_scenario
 from driveopt.rl.policy import (
     ALGORITHMS,
     PolicyError,
     algorithm_class,
-    atomic_write,
     buffer_sha256,
     check_algo,
     load_model,
