@@ -8,7 +8,7 @@ import pytest
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, build_problem, plan
 from driveopt.config import ProjectionConfig, QPConfig
 from driveopt.planner import PreviousPlan, braking_coeffs, previous_plan
-from driveopt.prediction import is_follower, predict_neighbour
+from driveopt.prediction import is_follower, predict_neighbour, relevant_neighbours
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.projection import constraint_residuals
 from driveopt.qp import boundary_values, make_model
@@ -23,6 +23,40 @@ def test_same_lane_followers_can_be_left_out():
     kept = build_problem(scene, ignore_followers=True)
     assert float(kept.obstacle_mask.sum()) == 2
     assert float(build_problem(scene).obstacle_mask.sum()) == 3
+
+
+def _fast_ego_behind_a_crawling_car(gap: float) -> tuple[Scene, Neighbour]:
+    """Ego at 20 m/s in lane 4 m; a car crawling at 1.3 m/s ``gap`` m ahead; ten cars nearer now, beside and
+    behind the ego in the other lanes, all moving with it (the traffic of a four-lane crash, issue 13)."""
+    crawler = Neighbour(x=gap, y=4.0, vx=1.3)
+    beside = tuple(Neighbour(x=x, y=y, vx=20.0) for y in (0.0, 8.0) for x in (-30.0, -20.0, -10.0, 0.0, 10.0))
+    ego = EgoState(x=0.0, y=4.0, vx=20.0)
+    return Scene(ego=ego, road=Road(num_lanes=4), neighbours=(crawler, *beside)), crawler
+
+
+def test_the_obstacles_planned_against_include_a_slow_car_the_ego_closes_on():
+    scene, crawler = _fast_ego_behind_a_crawling_car(45.0)
+    assert crawler in relevant_neighbours(scene, 10)  # reached in 2.4 s, inside the 4 s look-ahead
+    assert crawler not in relevant_neighbours(scene, 10, lookahead=0.0)  # P1: ten cars are nearer now
+    planned = build_problem(scene)
+    assert np.any(np.isclose(np.asarray(planned.obstacle_x)[:, 0], 45.0))
+    assert not np.any(np.isclose(np.asarray(build_problem(scene, selection_time=0.0).obstacle_x)[:, 0], 45.0))
+
+
+def test_the_fallback_is_the_stop_that_reaches_an_obstacle_later(small_config):
+    """35 m behind the crawling car at 20 m/s, braking at most 4.5 m/s^2 (the simulated car's bound), both stops
+    enter its ellipse; the emergency stop does so later and slower, so it is offered, although the comfortable
+    stop, which drives through the ellipse, has the lower L2 residual (12.9 against 45.6). With the road
+    ahead clear the comfortable stop is offered."""
+    config = small_config.replace(projection={"a_max": 4.5})
+    scene, _ = _fast_ego_behind_a_crawling_car(35.0)
+    result = plan(build_problem(scene, config.basis), config, key=jax.random.PRNGKey(0))
+    assert result.status == PlanStatus.INFEASIBLE
+    assert result.fallback_deceleration == 4.5
+    assert np.interp(1.5, result.fallback.t, result.fallback.speed) < 20.0 - 6.0
+    clear = Scene(ego=scene.ego, road=scene.road, neighbours=scene.neighbours[1:])
+    result = plan(build_problem(clear, config.basis), config, key=jax.random.PRNGKey(0))
+    assert result.fallback_deceleration == config.fallback_deceleration
 
 
 def test_structured_prior_draws_whole_horizon_behaviours():

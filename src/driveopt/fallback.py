@@ -9,7 +9,11 @@ current lateral position and heading to a target inside the road: the nearest la
 starts on the road the path stays between the road bounds; an ego off the road never moves
 further away from it. Its residual (how far it is from meeting the constraints) is that of the
 polynomial closest to it; when that is not zero the planner still offers the stop and says so
-in its status.
+in its status. Of the two stops it offers the one that enters an obstacle's ellipse later
+(:func:`first_contact`; ties, e.g. no contact, by the lower residual): an L2 residual rates a
+stop that drives through a slow car ahead in half a second better than one that ends just
+inside its ellipse, so ranking by residual alone chose the comfortable stop into a car 24 m
+ahead at 20 m/s closing speed (issue 13).
 
 The stop rows of the batches (:func:`stop_setpoints`, :func:`braking_coeffs`) are ordinary
 candidates: projected and ranked like every sample, so a feasible stop can be the chosen plan.
@@ -106,3 +110,12 @@ def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, to_l
     heading = jnp.arctan2(dy, dx)
     curvature = (dx * d2y - dy * d2x)
     return Trajectory(t, x, y, vx, vy, ax, ay, v, heading, curvature, a)
+
+
+def first_contact(problem: PlanningProblem, trajectory: Trajectory) -> jnp.ndarray:
+    """() index of the first node at which ``trajectory`` (planning frame, (K,) fields) is inside a
+    real obstacle's collision ellipse; K when it never is."""
+    dx = (trajectory.x - problem.obstacle_x) / problem.obstacle_a[:, None]
+    dy = (trajectory.y - problem.obstacle_y) / problem.obstacle_b[:, None]
+    inside = jnp.any((dx * dx + dy * dy < 1.0) & (problem.obstacle_mask[:, None] > 0), axis=0)  # (K,)
+    return jnp.where(jnp.any(inside), jnp.argmax(inside), inside.shape[0])

@@ -27,8 +27,8 @@ stop at ``projection.a_max`` holding the current lateral position. The chosen tr
 best candidate over all iterations by the same key (cost + residual, infeasible ones last when
 feasibility comes first). The status is SUCCESS only when it is feasible; otherwise it is
 INFEASIBLE, the chosen candidate (with feasibility first: the lowest-residual one) is reported, and
-``result.fallback`` offers the comfortable stop, or the emergency stop when its residual is lower
-(computed whether or not the stops ride in the batch).
+``result.fallback`` offers the stop that enters an obstacle's ellipse later, by the lower residual
+when that ties (computed whether or not the stops ride in the batch; :mod:`driveopt.fallback`).
 
 Given the previous replan's plan (``previous``), the ``consistency`` cost term measures each
 sample's lateral deviation from that plan: between two near-equal manoeuvres (pass left or right)
@@ -57,7 +57,7 @@ from driveopt.costs import (
     evaluate,
     weighted_cost,
 )
-from driveopt.fallback import braking_coeffs, stop_setpoints, stop_trajectory
+from driveopt.fallback import braking_coeffs, first_contact, stop_setpoints, stop_trajectory
 from driveopt.priors.base import Prior, clip_setpoints
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import PlanningProblem, check_problem
@@ -255,9 +255,10 @@ def _ranking_key(score: jnp.ndarray, residual: jnp.ndarray, feasible: jnp.ndarra
 
 
 def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Candidate, jnp.ndarray, Trajectory]:
-    """(candidate, emergency, trajectory) of the stop offered as fallback (:mod:`driveopt.fallback`): the
-    comfortable stop, unless the emergency stop is closer to meeting the constraints. Both are measured
-    in one batch: their closest polynomials' residuals and their own cost terms."""
+    """(candidate, emergency, trajectory) of the stop offered as fallback (:mod:`driveopt.fallback`): the one
+    that enters an obstacle's ellipse later; on a tie (neither does, or both at once) the comfortable stop
+    unless the emergency stop is closer to meeting the constraints. Residuals and cost terms of both are
+    measured in one batch, on their closest polynomials and their own paths."""
     stops = _stops(cfg)
     paths = [stop_trajectory(problem, jnp.asarray(model.t), decel, to_centre) for decel, to_centre in stops]
     both = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths)  # (2, K) fields
@@ -271,7 +272,8 @@ def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Cand
     feasible = total <= cfg.sampler.residual_tolerance
     score = _ranking_key(cost + total, total, feasible, cfg.sampler)
     setpoints = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
-    emergency = total[1] < total[0]
+    contact = jnp.stack([first_contact(problem, path) for path in paths])
+    emergency = jnp.where(contact[0] == contact[1], total[1] < total[0], contact[1] > contact[0])
     pick = jnp.where(emergency, 1, 0)
     term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, 2)
     candidate = Candidate(score[pick], feasible[pick], setpoints[pick], coeffs[pick], families[:, pick], term_values[:, pick], cost[pick])
@@ -364,7 +366,7 @@ class PlanResult(NamedTuple):
     setpoints: np.ndarray  # (8,) chosen (v_1..v_4 [m/s], y_1..y_4 [m])
     coeffs: np.ndarray  # (2n,) chosen Bernstein coefficients (x in the planning frame, ego at x = 0)
     trajectory: Trajectory  # chosen trajectory in the road frame
-    fallback: Trajectory  # stopping plan (comfortable, or emergency when less violating), always finite
+    fallback: Trajectory  # stopping plan (comfortable, or emergency when it hits later), always finite
     costs: dict[str, float]  # weighted total under "total", plus every unweighted term
     residuals: dict[str, float]  # per family and "total"
     iterations: int  # sampler iterations run

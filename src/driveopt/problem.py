@@ -1,7 +1,7 @@
 """The array form of a scene that the planner consumes: :class:`PlanningProblem`, built and checked.
 
-:func:`build_problem` puts the ego at x = 0 (the planning frame), predicts the nearest
-``max_obstacles`` neighbours over the horizon (:mod:`driveopt.prediction`; masked padding when
+:func:`build_problem` puts the ego at x = 0 (the planning frame), predicts the
+``max_obstacles`` most relevant neighbours over the horizon (:mod:`driveopt.prediction`; masked padding when
 fewer), sizes their collision ellipses, and stores the 55-dim observation
 (:mod:`driveopt.observation`) for learned priors. :func:`check_problem` refuses wrong shapes and
 non-finite values.
@@ -16,7 +16,7 @@ import numpy as np
 
 from driveopt.config import BasisConfig
 from driveopt.observation import OBSERVATION_DIM, observation_vector
-from driveopt.prediction import BRAKING_TIME, ellipse_semi_axes, nearest_neighbours, predict_neighbour
+from driveopt.prediction import BRAKING_TIME, SELECTION_TIME, ellipse_semi_axes, predict_neighbour, relevant_neighbours
 from driveopt.scene import ProblemError, Scene
 
 
@@ -45,7 +45,7 @@ class PlanningProblem(NamedTuple):
 
 def build_problem(
     scene: Scene, basis: BasisConfig = BasisConfig(), max_obstacles: int = 10, ignore_followers: bool = False,
-    braking_time: float = BRAKING_TIME,
+    braking_time: float = BRAKING_TIME, selection_time: float = SELECTION_TIME,
 ) -> PlanningProblem:
     """Turn a scene into the planner's arrays, in the frame where the ego starts at x = 0.
 
@@ -53,6 +53,8 @@ def build_problem(
     drives a faster follower straight through a slow ego, which no plan can avoid, whereas
     car-following traffic (IDM) brakes for the vehicle ahead of it.
     braking_time: [s] how long a braking neighbour is predicted to keep braking (0: constant velocity, P1).
+    selection_time: [s] the ``max_obstacles`` planned against are those that come closest to the ego
+    within this time (0: the nearest now, P1); see :func:`driveopt.prediction.relevant_neighbours`.
     """
     if not isinstance(scene, Scene):
         raise ProblemError(f"build_problem needs a Scene, got {type(scene).__name__}")
@@ -68,7 +70,7 @@ def build_problem(
     oa = np.ones(N)
     ob = np.ones(N)
     mask = np.zeros(N)
-    for i, n in enumerate(nearest_neighbours(scene, N, ignore_followers)):
+    for i, n in enumerate(relevant_neighbours(scene, N, ignore_followers, selection_time, braking_time)):
         px, py = predict_neighbour(n, t, scene.road.edges, braking_time)
         ox[i], oy[i] = px - ego.x, py
         oa[i], ob[i] = ellipse_semi_axes(ego, n, scene.ellipse_margin)

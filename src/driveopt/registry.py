@@ -34,13 +34,15 @@ def _single_iteration(config: PlannerConfig, samples: int) -> PlannerConfig:
 def _p1_faithful(spec: OptimiserSpec, p1_name: str) -> OptimiserSpec:
     """``spec`` (same prior, samples and iterations) as P1 ran its ``p1_name``: cost + residual ranking, no stop
     rows, independent set-points, both initial accelerations imposed, its plan executed feasible or not for five
-    periods, constant-velocity prediction."""
+    periods, constant-velocity prediction of the nearest neighbours now."""
     config = spec.config.replace(stop_rows=False, sampler={"feasibility_first": False, "structured_fraction": 0.0},
                                  qp={"initial_lateral_acceleration": True})
     description = (f"P1-faithful {p1_name}: {spec.name} without feasibility-first ranking, stop rows, structured first "
-                   "batch, free lateral start, brake-now fallback or braking prediction; 5 periods per plan")
+                   "batch, free lateral start, brake-now fallback, braking prediction or approach-ranked "
+                   "neighbours; 5 periods per plan")
     return dataclasses.replace(spec, name=f"{spec.name}-p1", description=description, config=config,
-                               executes_infeasible=True, braking_prediction=False, replan_every=5)
+                               executes_infeasible=True, braking_prediction=False, approach_selection=False,
+                               replan_every=5)
 
 
 _BASE = PlannerConfig()

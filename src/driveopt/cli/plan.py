@@ -58,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
     spec = _spec(args)
     config = spec.config
     prior = spec.prior(scene.road.num_lanes)
-    problem = build_problem(scene, config.basis, args.max_obstacles, braking_time=spec.braking_time)
+    problem = build_problem(scene, config.basis, args.max_obstacles, braking_time=spec.braking_time,
+                            selection_time=spec.selection_time)
     key = jax.random.PRNGKey(args.seed)
     start = time.perf_counter()
     result = plan(problem, config, key=key, prior=prior, x_offset=scene.ego.x)

@@ -9,7 +9,9 @@ planner reports anything but SUCCESS it follows the fallback and brakes at once 
 deceleration; a spec with ``executes_infeasible`` (P1) tracks the chosen plan whatever its residual,
 and follows the fallback only on NUMERICAL_ERROR. Neighbours are predicted braking-aware
 (:data:`driveopt.prediction.BRAKING_TIME`) unless the spec's ``braking_prediction`` is False (P1:
-constant velocity). With ``replan_every`` N > 1 (P1 §V executes five control periods per plan) it
+constant velocity), and the neighbours planned against are those that come closest within
+:data:`driveopt.prediction.SELECTION_TIME` unless ``approach_selection`` is False (P1: the nearest
+now). With ``replan_every`` N > 1 (P1 §V executes five control periods per plan) it
 plans every N-th step and tracks the same plan open-loop in between. Its PRNG key derives from the
 episode seed: same seed, same episode.
 """
@@ -26,7 +28,7 @@ import jax
 from driveopt.config import PlannerConfig, _check_types, check_count
 from driveopt.drivers.base import Decision, DriverSpec
 from driveopt.planner import PlanResult, PlanStatus, plan, previous_plan
-from driveopt.prediction import BRAKING_TIME
+from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
 from driveopt.sim.control import BicycleModel, brake_at_least, ego_kinematics, track
 from driveopt.sim.perception import Perception, perceive
@@ -66,6 +68,7 @@ class OptimiserSpec(DriverSpec):
     replan_every: int = 1  # [policy periods] each plan is executed for this many periods (P1 §V: 5)
     executes_infeasible: bool = False  # track the chosen plan even when INFEASIBLE, no brake-now fallback (P1)
     braking_prediction: bool = True  # braking neighbours keep braking for BRAKING_TIME (False: constant velocity, P1)
+    approach_selection: bool = True  # plan against the neighbours closest within SELECTION_TIME (False: nearest now, P1)
 
     def __post_init__(self) -> None:
         _check_types(self, "")
@@ -75,6 +78,11 @@ class OptimiserSpec(DriverSpec):
     def braking_time(self) -> float:
         """[s] how long the planning problem predicts a braking neighbour to keep braking (0: constant velocity)."""
         return BRAKING_TIME if self.braking_prediction else 0.0
+
+    @property
+    def selection_time(self) -> float:
+        """[s] look-ahead of the obstacle selection (0: the nearest neighbours now)."""
+        return SELECTION_TIME if self.approach_selection else 0.0
 
     @property
     def is_optimiser(self) -> bool:
@@ -141,7 +149,8 @@ class OptimiserDriver:
         self.executed_periods = 0
 
     def _problem(self, perception: Perception):
-        return build_problem(perception.scene, self.config.basis, ignore_followers=True, braking_time=self.spec.braking_time)
+        return build_problem(perception.scene, self.config.basis, ignore_followers=True, braking_time=self.spec.braking_time,
+                             selection_time=self.spec.selection_time)
 
     def _carried(self, result: PlanResult):
         """(warm start, previous plan) handed to the next call."""
