@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from driveopt.errors import DriveoptError
@@ -94,7 +95,23 @@ def test_summary_statistics():
     low, high = wilson_interval(2, 10)
     assert row["collision_ci_low"] == low and 0.05 < low < 0.2 < high < 0.52
     assert wilson_interval(0, 50)[0] == 0.0 and wilson_interval(0, 50)[1] < 0.08
-    assert markdown_table([row]).splitlines()[-1].endswith("| 1.0 + 2.0 |")  # episode wall time: sim + plan
+    assert row["speed_std_collision_free"] == pytest.approx(float(np.std(np.arange(2, 10))))
+    assert row["reference"] == "" and markdown_table([row]).splitlines()[-1].endswith("| 1.0 + 2.0 |")  # sim + plan
+
+
+def test_planners_are_compared_with_the_reference_on_the_same_episodes():
+    """Only episodes the reference also ran (same scenario, seed, episode) and neither collided in count."""
+    def record(planner, episode, speed, collided=False, scenario="s"):
+        return {"scenario": scenario, "planner": planner, "seed": 42, "episode": episode, "collided": collided,
+                "off_road": False, "mean_speed": speed, "plan_ms": [], "sim_seconds": 1.0, "plan_seconds": 0.0}
+    records = [record("idm", 0, 8.0), record("idm", 1, 8.0), record("idm", 2, 8.0, collided=True), record("idm", 3, 8.0),
+               record("p", 0, 9.0), record("p", 1, 7.0), record("p", 2, 9.0), record("p", 3, 9.0, collided=True),
+               record("p", 4, 9.0), record("p", 0, 1.0, scenario="other")]
+    rows = {(r["scenario"], r["planner"]): r for r in summarise(records)}
+    p = rows[("s", "p")]
+    assert (p["faster_than_reference"], p["compared_with_reference"], p["reference"]) == (1, 2, "idm")
+    assert "| 1/2 (idm) |" in markdown_table([p])
+    assert rows[("other", "p")]["reference"] == "" and rows[("s", "idm")]["compared_with_reference"] == 0
 
 
 def test_ray_backend_runs_real_episodes_and_resumes(tmp_path):
@@ -206,3 +223,19 @@ def test_scenario_overrides_and_replan_period_are_bench_options(tmp_path):
     options = {"duration": 0.5, "replan_every": 5, "scenario": {"traffic_reverses": False}}
     record = episode_record(JobKey("two-lane-d1.0", "grid", 42, 0), options)
     assert record["steps"] == 5 and len(record["plan_ms"]) == 1  # one plan executed for five periods
+
+
+def test_summarise_merges_bench_folders_and_refuses_duplicates(tmp_path, capsys):
+    from driveopt.cli import main
+
+    for planner in ("idm", "bilevel"):
+        spec = BenchSpec(scenarios=("four-lane-d3.0",), planners=(planner,), seeds=(42,), episodes=4)
+        run_bench(spec, tmp_path / planner, workers=1, episode_fn=fake_episode, progress=False)
+    out = tmp_path / "merged"
+    assert main(["summarise", str(tmp_path / "idm"), str(tmp_path / "bilevel" / "episodes.jsonl"), "--out", str(out)]) == 0
+    table = (out / "summary.md").read_text()
+    assert "| four-lane-d3.0 | bilevel | 4 |" in table and "(idm) |" in table and (out / "summary.png").stat().st_size > 0
+    capsys.readouterr()
+    assert main(["summarise", str(tmp_path / "idm"), str(tmp_path / "idm"), "--out", str(out)]) == 2
+    assert "pass each run once" in capsys.readouterr().err
+    assert main(["summarise", str(tmp_path / "missing"), "--out", str(out)]) == 2

@@ -152,11 +152,16 @@ def run_bench(
     order = {job: i for i, job in enumerate(jobs)}  # summaries follow the spec, not completion order
     records = sorted((r for r in load_records(store) if key_of(r) in order), key=lambda r: order[key_of(r)])
     rows = summarise(records)
+    write_summaries(rows, out)
+    return rows
+
+
+def write_summaries(rows: list[dict[str, Any]], out: Path) -> None:
+    """summary.csv, summary.md and (for any rows) summary.png of ``rows`` in the folder ``out``, each replaced whole."""
     _replace(out / "summary.csv", lambda path: write_csv(rows, path))
     _replace(out / "summary.md", lambda path: path.write_text(markdown_table(rows)))
     if rows:
         _replace(out / "summary.png", lambda path: plot_summary(rows, path))
-    return rows
 
 
 def _make_folder(out: Path) -> None:

@@ -13,9 +13,10 @@ import numpy as np
 
 COLUMNS = (
     "scenario", "planner", "episodes", "collision_rate", "collision_ci_low", "collision_ci_high",
-    "mean_speed_collision_free", "mean_speed_all", "off_road_rate", "plan_ms_median", "plan_ms_p95",
-    "sim_s_per_episode", "plan_s_per_episode",
+    "mean_speed_collision_free", "speed_std_collision_free", "mean_speed_all", "off_road_rate", "plan_ms_median",
+    "plan_ms_p95", "sim_s_per_episode", "plan_s_per_episode", "reference", "faster_than_reference", "compared_with_reference",
 )
+REFERENCE = "idm"  # the planner every other one is compared with, episode by episode, when the records hold it
 
 
 def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
@@ -29,17 +30,31 @@ def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[f
     return (max(0.0, centre - half), min(1.0, centre + half))
 
 
-def summarise(records: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per (scenario, planner), in first-seen order."""
+def _faster(rs: list[dict[str, Any]], reference: dict[tuple[Any, ...], dict[str, Any]]) -> tuple[int, int]:
+    """(episodes faster than the reference, episodes compared): those of ``rs`` that the reference also ran
+    (same scenario, seed and episode, so the same traffic) and that neither collided in."""
+    pairs = [(r, reference.get((r["scenario"], r["seed"], r["episode"]))) for r in rs]
+    both = [(r, ref) for r, ref in pairs if ref is not None and not r["collided"] and not ref["collided"]]
+    return sum(r["mean_speed"] > ref["mean_speed"] for r, ref in both), len(both)
+
+
+def summarise(records: Iterable[dict[str, Any]], reference: str = REFERENCE) -> list[dict[str, Any]]:
+    """One row per (scenario, planner), in first-seen order. Speeds [m/s]: mean episode speed, averaged
+    over episodes; its standard deviation over the collision-free ones. Every planner but ``reference``
+    is compared with it episode by episode where the records hold it (``faster_than_reference`` of
+    ``compared_with_reference`` episodes, both collision-free)."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
     for r in records:
         groups[(r["scenario"], r["planner"])].append(r)
+    by_episode = {(r["scenario"], r["seed"], r["episode"]): r for (_, planner), rs in groups.items() if planner == reference
+                  for r in rs}
     rows = []
     for (scenario, planner), rs in groups.items():
         n = len(rs)
         crashed = sum(bool(r["collided"]) for r in rs)
         low, high = wilson_interval(crashed, n)
         free = [r["mean_speed"] for r in rs if not r["collided"]]
+        faster, compared = _faster(rs, by_episode) if by_episode and planner != reference else (0, 0)
         plan_ms = np.concatenate([np.asarray(r.get("plan_ms", []), float) for r in rs]) if rs else np.zeros(0)
         rows.append({
             "scenario": scenario,
@@ -49,12 +64,16 @@ def summarise(records: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
             "collision_ci_low": low,
             "collision_ci_high": high,
             "mean_speed_collision_free": float(np.mean(free)) if free else math.nan,
+            "speed_std_collision_free": float(np.std(free)) if free else math.nan,
             "mean_speed_all": float(np.mean([r["mean_speed"] for r in rs])),
             "off_road_rate": sum(bool(r["off_road"]) for r in rs) / n,
             "plan_ms_median": float(np.median(plan_ms)) if plan_ms.size else math.nan,
             "plan_ms_p95": float(np.percentile(plan_ms, 95)) if plan_ms.size else math.nan,
             "sim_s_per_episode": float(np.mean([r["sim_seconds"] for r in rs])),
             "plan_s_per_episode": float(np.mean([r["plan_seconds"] for r in rs])),
+            "reference": reference if compared else "",
+            "faster_than_reference": faster,
+            "compared_with_reference": compared,
         })
     return rows
 
@@ -69,17 +88,22 @@ def write_csv(rows: list[dict[str, Any]], path: str | Path) -> Path:
 
 
 def markdown_table(rows: list[dict[str, Any]]) -> str:
-    head = "| scenario | planner | episodes | collision rate (95% CI) | speed, collision-free [m/s] | speed, all [m/s] | off-road | plan ms median / p95 | wall s/episode: sim + plan |"
-    lines = [head, "|" + "---|" * 9]
+    head = ("| scenario | planner | episodes | collision rate (95% CI) | speed, collision-free [m/s] (std) | speed, all [m/s] "
+            "| faster than reference | off-road | plan ms median / p95 | wall s/episode: sim + plan |")
+    lines = [head, "|" + "---|" * 10]
 
     def ms(value: float) -> str:
         return "-" if math.isnan(value) else f"{value:.0f}"
 
+    def faster(r: dict[str, Any]) -> str:
+        return f"{r['faster_than_reference']}/{r['compared_with_reference']} ({r['reference']})" if r["reference"] else "-"
+
     for r in rows:
         lines.append(
             f"| {r['scenario']} | {r['planner']} | {r['episodes']} | {r['collision_rate']:.2f} "
-            f"({r['collision_ci_low']:.2f}-{r['collision_ci_high']:.2f}) | {r['mean_speed_collision_free']:.1f} | "
-            f"{r['mean_speed_all']:.1f} | {r['off_road_rate']:.2f} | {ms(r['plan_ms_median'])} / {ms(r['plan_ms_p95'])} | "
+            f"({r['collision_ci_low']:.2f}-{r['collision_ci_high']:.2f}) | {r['mean_speed_collision_free']:.2f} "
+            f"({r['speed_std_collision_free']:.2f}) | {r['mean_speed_all']:.2f} | {faster(r)} | {r['off_road_rate']:.2f} | "
+            f"{ms(r['plan_ms_median'])} / {ms(r['plan_ms_p95'])} | "
             f"{r['sim_s_per_episode']:.1f} + {r['plan_s_per_episode']:.1f} |"
         )
     return "\n".join(lines) + "\n"
