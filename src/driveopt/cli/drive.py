@@ -39,10 +39,7 @@ def run(args: argparse.Namespace) -> int:
         scenario = scenario.replace(duration=args.duration)
     spec = get_planner(args.planner).with_samples(args.samples).with_weights(args.weights)
     spec = spec.with_overrides(**config_overrides(args.config)).with_replan_every(args.replan_every)
-    if spec.is_optimiser:
-        spec.prior(scenario.lanes)  # unusable or wrong-road weights: the error comes before the progress bar
-    elif hasattr(spec, "policy"):  # RL planners: a missing, unusable or wrong-road policy, before the progress bar too
-        spec.policy(scenario)
+    spec.check(scenario)  # missing, unusable or wrong-road weights: the error comes before the progress bar
     steps = int(round(scenario.duration * scenario.policy_frequency))
     rollout = Rollout(scenario, spec.driver(), args.seed, render=bool(args.video))
     with contextlib.ExitStack() as stack:

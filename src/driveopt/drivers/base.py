@@ -58,6 +58,10 @@ class DriverSpec:
     def driver(self) -> Driver:
         raise NotImplementedError
 
+    def check(self, scenario: Any) -> None:
+        """Raise the user-facing error that a driver would raise in ``reset`` on ``scenario`` (missing,
+        unusable or wrong-road weights), before any episode starts; nothing to check by default."""
+
     def with_samples(self, samples: int | None) -> "DriverSpec":
         return self
 

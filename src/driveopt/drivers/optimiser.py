@@ -99,6 +99,9 @@ class OptimiserSpec(DriverSpec):
     def driver(self) -> "OptimiserDriver":
         return OptimiserDriver(self)
 
+    def check(self, scenario: Scenario) -> None:
+        self.prior(scenario.lanes)
+
     def with_overrides(self, **sections: Any) -> "OptimiserSpec":
         """Copy with config sections updated, e.g. ``sampler={"num_samples": 250}``."""
         return dataclasses.replace(self, config=self.config.replace(**sections))

@@ -48,6 +48,9 @@ class RLSpec(DriverSpec):
     def __post_init__(self) -> None:
         check_algo(self.algo)
 
+    def check(self, scenario: Scenario) -> None:
+        self.policy(scenario)
+
     def driver(self) -> "RLDriver":
         return RLDriver(self)
 

@@ -93,13 +93,15 @@ class BenchSpec:
     def check(self) -> None:
         """Refuse, as a DriveoptError, what an episode would refuse: an unknown scenario or planner, a
         duration that is not a finite number > 0, samples that are not an integer >= 1, a weights file
-        that does not exist, config overrides the planner config rejects. Other options (those of a
+        that does not exist, config overrides the planner config rejects, weights a planner cannot use on a
+        scenario's road (``DriverSpec.check``). Other options (those of a
         custom episode function) pass unchecked."""
-        for name in self.scenarios:
-            resolve_scenario(name, overrides=self.options.get("scenario"))
+        scenarios = [resolve_scenario(name, overrides=self.options.get("scenario")) for name in self.scenarios]
         _check_options(self.options)
         for name in self.planners:
-            planner_spec(name, self.options)
+            spec = planner_spec(name, self.options)
+            for scenario in scenarios:
+                spec.check(scenario)
 
 
 def _check_options(options: dict[str, Any]) -> None:
