@@ -160,6 +160,19 @@ def _optimiser(tcfg: TrainConfig, steps_per_epoch: int) -> optax.GradientTransfo
     return optax.adamw(schedule, weight_decay=tcfg.weight_decay)
 
 
+def epoch_bar(done: int, tcfg: TrainConfig, stop_after: int | None, desc: str, progress: bool) -> tqdm:
+    """Progress bar over the epochs still to run: from ``done`` (those in the history, on resume) to
+    ``tcfg.epochs``, at most ``stop_after`` of them in this call."""
+    last = tcfg.epochs if stop_after is None else min(tcfg.epochs, done + stop_after)
+    return tqdm(range(done, last), initial=done, total=tcfg.epochs, desc=desc, unit="epoch", disable=not progress)
+
+
+def minibatches(epoch_key: jax.Array, examples: int, batch_size: int, steps: int) -> list[np.ndarray]:
+    """Row indices of one epoch's ``steps`` minibatches: a permutation of ``examples`` drawn from ``epoch_key``."""
+    order = np.asarray(jax.random.permutation(jax.random.fold_in(epoch_key, 0), examples))
+    return [order[i * batch_size:(i + 1) * batch_size] for i in range(steps)]
+
+
 def train_cvae(
     data_paths: str | Path | Sequence[str | Path],
     out_dir: str | Path,
@@ -210,17 +223,13 @@ def train_cvae(
         coverage = prior_coverage(params, cfg, normaliser, batch, k_prior)
         return {**loss_terms(params, cfg, normaliser, batch, k_loss), "prior_best_of_16": jnp.median(coverage)}
 
-    first_epoch = len(history)
-    last_epoch = tcfg.epochs if stop_after is None else min(tcfg.epochs, first_epoch + stop_after)
-    bar = tqdm(range(first_epoch, last_epoch), initial=first_epoch, total=tcfg.epochs, desc="train cvae", unit="epoch", disable=not progress)
+    bar = epoch_bar(len(history), tcfg, stop_after, "train cvae", progress)
     start = time.perf_counter()
     for epoch in bar:
         epoch_key = jax.random.fold_in(key, epoch + 1)
-        order = np.asarray(jax.random.permutation(jax.random.fold_in(epoch_key, 0), len(train_rows)))
         beta = jnp.float32(tcfg.beta_at(epoch))
         sums = {"loss": 0.0, "reconstruction": 0.0, "kl": 0.0}
-        for i in range(steps_per_epoch):
-            idx = order[i * batch_size:(i + 1) * batch_size]
+        for i, idx in enumerate(minibatches(epoch_key, len(train_rows), batch_size, steps_per_epoch)):
             batch = Batch(*(jnp.asarray(a[idx]) for a in train))
             params, opt_state, value, terms = step(params, opt_state, batch, jax.random.fold_in(epoch_key, i + 1), beta)
             sums["loss"] += float(value)

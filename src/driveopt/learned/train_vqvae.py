@@ -47,7 +47,6 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 from flax import serialization
-from tqdm import tqdm
 
 from driveopt.basis import make_basis
 from driveopt.config import BasisConfig, ConfigError, check_count, check_number
@@ -62,6 +61,8 @@ from driveopt.learned.train_cvae import (
     _make_folder,
     _rows,
     data_record,
+    epoch_bar,
+    minibatches,
     road_lanes,
 )
 
@@ -304,18 +305,13 @@ def train_vqvae(
     if not history:  # the codebook starts on the encoder's outputs: every code is "dead" before the first epoch
         params = reseed(params, jnp.zeros(cfg.codebook_size, jnp.int32), jax.random.fold_in(key, 10**6))
 
-    first_epoch = len(history)
-    last_epoch = tcfg.epochs if stop_after is None else min(tcfg.epochs, first_epoch + stop_after)
-    bar = tqdm(range(first_epoch, last_epoch), initial=first_epoch, total=tcfg.epochs, desc="train vqvae", unit="epoch",
-               disable=not progress)
+    bar = epoch_bar(len(history), tcfg, stop_after, "train vqvae", progress)
     start = time.perf_counter()
     for epoch in bar:
         epoch_key = jax.random.fold_in(key, epoch + 1)
-        order = np.asarray(jax.random.permutation(jax.random.fold_in(epoch_key, 0), n_train))
         sums = {"loss": 0.0, "reconstruction": 0.0, "codebook": 0.0, "commitment": 0.0}
         counts = np.zeros(cfg.codebook_size, np.int64)
-        for i in range(steps_per_epoch):
-            idx = order[i * batch_size:(i + 1) * batch_size]
+        for idx in minibatches(epoch_key, n_train, batch_size, steps_per_epoch):
             batch = Batch(*(jnp.asarray(a[idx]) for a in train))
             params, opt_state, value, terms = _vq_step(params, opt_state, batch, normaliser, cfg, optimiser)
             sums["loss"] += float(value)
@@ -426,17 +422,12 @@ def train_pixelcnn(
         history, best = list(meta.get("history", [])), float(meta.get("best", float("inf")))
     _make_folder(out)
 
-    first_epoch = len(history)
-    last_epoch = tcfg.epochs if stop_after is None else min(tcfg.epochs, first_epoch + stop_after)
-    bar = tqdm(range(first_epoch, last_epoch), initial=first_epoch, total=tcfg.epochs, desc="train pixelcnn", unit="epoch",
-               disable=not progress)
+    bar = epoch_bar(len(history), tcfg, stop_after, "train pixelcnn", progress)
     start = time.perf_counter()
     for epoch in bar:
         epoch_key = jax.random.fold_in(key, epoch + 1)
-        order = np.asarray(jax.random.permutation(jax.random.fold_in(epoch_key, 0), n_train))
         sums = {"loss": 0.0, "accuracy": 0.0}
-        for i in range(steps_per_epoch):
-            idx = order[i * batch_size:(i + 1) * batch_size]
+        for idx in minibatches(epoch_key, n_train, batch_size, steps_per_epoch):
             params, opt_state, value, terms = _px_step(params, opt_state, jnp.asarray(train_codes[idx]), jnp.asarray(train_feats[idx]),
                                                        cfg, optimiser)
             sums["loss"] += float(value)
