@@ -74,6 +74,10 @@ PLANNERS: dict[str, DriverSpec] = {
                                     projection={"max_iterations": 100, "barrier": True}), vqvae_prior()),
         OptimiserSpec("vqvae-cem", "P1 bi-level optimiser started from PixelCNN/VQ-VAE samples (shipped weights; Gaussian if none)",
                       _BASE, vqvae_prior()),
+        OptimiserSpec("cvae-filter", "P2's baseline: 1000 CVAE samples through vqvae's one pass (barrier projection, 100 iterations), "
+                                     "least-cost feasible; differs from vqvae only in the prior (shipped weights; Gaussian if none)",
+                      _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
+                                    projection={"max_iterations": 100, "barrier": True}), cvae_prior(0.0)),
         *_MPC_BASELINES.values(),
         *(_p1_faithful(spec, p1_name) for p1_name, spec in _MPC_BASELINES.items()),
         IDMSpec("idm", "highway-env's IDM/MOBIL driver on the ego (rule-based reference)"),

@@ -40,7 +40,7 @@ def _runs(planner, scenario):
         assert episode.compile_seconds > 0
 
 
-VARIANTS = ("-p1", "vqvae-cem")  # the same code as a base planner with other settings: one road is enough
+VARIANTS = ("-p1", "vqvae-cem", "cvae-filter")  # the same code as a base planner with other settings: one road is enough
 
 
 @pytest.mark.parametrize("planner", list_planners())

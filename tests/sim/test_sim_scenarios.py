@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -24,8 +25,9 @@ def test_registry_names_follow_the_scheme():
     expected = {
         f"{word}-lane-d{d:.1f}{suffix}" for word in ("two", "four") for d in DENSITIES for suffix in ("", "-slow")
     } | {f"{word}-lane-d{d:.1f}" for word in ("three", "five") for d in DENSITIES} | {"two-way", "merge"}
+    expected |= {f"p2-four-lane-d{d:.1f}{suffix}" for d in DENSITIES for suffix in ("", "-slow")}
     assert set(names) == expected
-    assert len(names) == len(expected) == 32
+    assert len(names) == len(expected) == 42
 
 
 @pytest.mark.parametrize("name", ["four-lane-d3.0", "two-lane-d2.5", "two-lane-d1.0-slow", "four-lane-d1.5-slow",
@@ -39,6 +41,17 @@ def test_highway_scenarios_carry_their_name(name):
     assert s.target_speed_fraction == (0.7, 0.8)
     assert s.duration == 50.0 and s.v_des == 20.0 and s.policy_frequency == 10
     assert s.simulation_frequency % s.policy_frequency == 0
+
+
+@pytest.mark.parametrize("name, density, limit", [("p2-four-lane-d3.0", 3.0, 15.0), ("p2-four-lane-d1.5-slow", 1.5, 7.0)])
+def test_p2_traffic_variants_draw_target_speeds_between_zero_and_the_limit(name, density, limit):
+    s = get_scenario(name)
+    assert (s.road, s.lanes, s.density, s.speed_limit) == ("highway", 4, density, limit)
+    assert s.target_speed_fraction == (0.0, 1.0) and s.target_speed_range == (0.0, limit)
+    # the same road and traffic density as driveopt's P1 scenario of that name: only the target speeds differ
+    p1 = get_scenario(name.removeprefix("p2-"))
+    assert dataclasses.replace(s, name=p1.name, target_speed_fraction=p1.target_speed_fraction, description=p1.description) == p1
+    assert resolve_scenario(p1.name, overrides={"target_speed_fraction": [0, 1]}).target_speed_range == (0.0, limit)
 
 
 def test_two_way_and_merge_use_their_upstream_roads():
@@ -82,7 +95,9 @@ def test_overrides_are_coerced_and_validated():
         ({"lanes": 2.5}, "lanes must be an integer"),
         ({"lanes": True}, "lanes must be an integer"),
         ({"target_speed_fraction": [0.7]}, "target_speed_fraction must be a list of 2 finite numbers"),
-        ({"target_speed_fraction": [0.9, 0.7]}, "0 < lo <= hi"),
+        ({"target_speed_fraction": [0.9, 0.7]}, "0 <= lo <= hi <= 1"),
+        ({"target_speed_fraction": [-0.1, 1.0]}, "0 <= lo <= hi <= 1"),
+        ({"target_speed_fraction": [0.0, 1.5]}, "0 <= lo <= hi <= 1"),
         ({"policy_frequency": 10, "simulation_frequency": 15}, "must be a multiple of policy_frequency"),
         ({"road": "roundabout"}, "road must be one of"),
         ({"duration": -1.0}, "duration must be > 0"),

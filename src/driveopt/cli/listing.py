@@ -13,9 +13,12 @@ def register(sub) -> None:
 def run_scenarios(args: argparse.Namespace) -> int:
     from driveopt.sim.scenarios import get_scenario, list_scenarios
 
+    width = max(len(name) for name in list_scenarios())
     for name in list_scenarios():
         s = get_scenario(name)
-        print(f"{name:22s} {s.road:8s} lanes {s.lanes}  density {s.density:.1f}  limit {s.speed_limit:.0f} m/s  {s.duration:.0f} s")
+        lo, hi = s.target_speed_range
+        print(f"{name:{width}s} {s.road:8s} lanes {s.lanes}  density {s.density:.1f}  limit {s.speed_limit:.0f} m/s  "
+              f"targets {lo:g}-{hi:g} m/s  {s.duration:.0f} s")
     return 0
 
 

@@ -1,20 +1,37 @@
-"""``driveopt plot-prior``: samples of the Gaussian and learned priors for one observation (P1 Fig. 4)."""
+"""``driveopt plot-prior``: Gaussian, CVAE and VQ-VAE samples for one observation, with set-point densities
+(P1 Fig. 4, P2 Fig. 1).
+
+Columns: P1's Gaussian, the ``bilevel`` planner's Gaussian (half coherent behaviours), the CVAE and the
+VQ-VAE (PixelCNN codes -> VQ-VAE decoder). A learned prior's weights come from ``--cvae-weights`` /
+``--vqvae-weights`` or are the ones shipped for the road's lane count; with neither, its column is left
+out with a notice (on stderr and under the figure's title). A checkpoint that is given but missing,
+corrupted or trained for another lane count is an error (exit 2), checked before any sampling.
+The default observation, ``slow-leader-four-lane``, has three homotopy classes (follow, change left,
+change right), the situation of P2 Fig. 1.
+"""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from pathlib import Path
+from typing import Any, Callable
 
-from driveopt.cli.common import UsageError, positive_int
+from driveopt.cli.common import UsageError, positive_int, seed, writable_file
+
+DEFAULT_PROBLEM = "slow-leader-four-lane"
 
 
 def register(sub) -> None:
-    p = sub.add_parser("plot-prior", help="Gaussian vs CVAE samples for one observation (P1 Fig. 4)")
-    p.add_argument("--problem", default="dense-snapshot", help="built-in problem or JSON file")
+    p = sub.add_parser("plot-prior", help="Gaussian vs CVAE vs VQ-VAE samples and set-point densities for one observation "
+                                          "(P1 Fig. 4, P2 Fig. 1)")
+    p.add_argument("--problem", default=DEFAULT_PROBLEM, help="built-in problem or JSON file")
     p.add_argument("--scenario", help="take the observation from this scenario's first state instead")
-    p.add_argument("--seed", type=int, default=0, help="traffic seed (with --scenario) and sampling seed")
-    p.add_argument("--weights", help="CVAE checkpoint (default: the weights shipped for the road)")
+    p.add_argument("--seed", type=seed, default=0, help="traffic seed (with --scenario) and sampling seed")
+    p.add_argument("--cvae-weights", "--weights", dest="weights",
+                   help="CVAE checkpoint (default: the weights shipped for the road)")
+    p.add_argument("--vqvae-weights", help="PixelCNN checkpoint, which embeds its VQ-VAE (default: the weights shipped for the road)")
     p.add_argument("--samples", type=positive_int, default=200)
     p.add_argument("--out", default="out/prior.png")
     p.set_defaults(func=run)
@@ -38,20 +55,45 @@ def _scene_for(args: argparse.Namespace):
         env.close()
 
 
+def _learned(label: str, option: str, given: str | None, shipped: Path | None, lanes: int,
+             load: Callable[[Path], Any], notes: list[str]) -> tuple[str, Any] | None:
+    """(column title, prior) from the given checkpoint or the shipped one; None with a notice when there is neither."""
+    path = Path(given) if given else shipped
+    if path is None:
+        notice = f"{label}: no weights shipped for {lanes}-lane roads (pass {option} FILE): column left out"
+        print(f"plot-prior: {notice}", file=sys.stderr)
+        notes.append(notice)
+        return None
+    return f"{label} ({path.name})", load(path)
+
+
 def run(args: argparse.Namespace) -> int:
     from driveopt.config import PlannerConfig
-    from driveopt.priors.cvae import load_prior, shipped_weights
+    from driveopt.priors import cvae, vqvae
     from driveopt.priors.gaussian import GaussianPrior
-    from driveopt.viz.prior_plot import plot_priors
+    from driveopt.viz.prior_plot import ROWS, plot_priors
 
+    writable_file(args.out, "--out")
+    for option, given in (("--cvae-weights", args.weights), ("--vqvae-weights", args.vqvae_weights)):
+        if given and not Path(given).is_file():
+            raise UsageError(f"{option} {given}: no such file")
     scene = _scene_for(args)
+    lanes = scene.road.num_lanes
     config = PlannerConfig()
-    weights = args.weights or shipped_weights(scene.road.num_lanes)
-    if weights is None:
-        raise UsageError(f"no CVAE weights shipped for {scene.road.num_lanes}-lane roads: pass --weights")
-    gaussian = GaussianPrior.from_config(config.sampler, config.projection.v_max)
-    priors = {"Gaussian (P1's initial distribution)": dataclasses.replace(gaussian, structured_fraction=0.0),
-              "Gaussian + coherent behaviours (bilevel planner)": gaussian,
-              f"CVAE ({Path(weights).name})": load_prior(weights, config.projection.v_max, lanes=scene.road.num_lanes)}
-    print(f"wrote {plot_priors(priors, scene, config, args.out, num=args.samples, seed=args.seed)}")
+    v_max = config.projection.v_max
+    gaussian = GaussianPrior.from_config(config.sampler, v_max)
+    priors: dict[str, Any] = {"Gaussian (P1's initial distribution)": dataclasses.replace(gaussian, structured_fraction=0.0),
+                              "Gaussian + coherent behaviours (bilevel planner)": gaussian}
+    notes: list[str] = []
+    for column in (
+        _learned("CVAE", "--cvae-weights", args.weights, cvae.shipped_weights(lanes), lanes,
+                 lambda path: cvae.load_prior(path, v_max, lanes=lanes), notes),
+        _learned("VQ-VAE + PixelCNN", "--vqvae-weights", args.vqvae_weights, vqvae.shipped_weights(lanes), lanes,
+                 lambda path: vqvae.load_prior(path, v_max, lanes=lanes), notes),
+    ):
+        if column is not None:
+            priors[column[0]] = column[1]
+    figure = plot_priors(priors, scene, config, args.out, num=args.samples, seed=args.seed, notes=notes)
+    print(f"wrote {figure.path}: {len(figure.columns)} priors ({', '.join(figure.columns)}) x {len(ROWS)} panels "
+          f"({', '.join(ROWS)})")
     return 0

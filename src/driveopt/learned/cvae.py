@@ -219,10 +219,11 @@ def sample_setpoints(params, cfg: CVAEConfig, norm: Normaliser, obs: jnp.ndarray
 
 
 def empty_state(cfg: CVAEConfig) -> dict[str, Any]:
-    """The structure of a CVAE checkpoint's state (parameters and normaliser), for restoring."""
-    zeros = lambda n: jnp.zeros(n, jnp.float32)  # noqa: E731
-    return {"params": init_params(cfg, jax.random.PRNGKey(0)),
-            "normaliser": Normaliser(zeros(FEATURE_DIM), zeros(FEATURE_DIM), zeros(cfg.trajectory_features), zeros(cfg.trajectory_features))}
+    """The structure of a CVAE checkpoint's state (parameters and normaliser; shapes only, traced, not computed), for restoring."""
+    zeros = lambda n: jax.ShapeDtypeStruct((n,), jnp.float32)  # noqa: E731
+    return {"params": jax.eval_shape(lambda key: init_params(cfg, key), jax.random.PRNGKey(0)),
+            "normaliser": Normaliser(zeros(FEATURE_DIM), zeros(FEATURE_DIM), zeros(cfg.trajectory_features),
+                                     zeros(cfg.trajectory_features))}
 
 
 def load_cvae(path: str | Path, lanes: int | None = None) -> tuple[CVAEConfig, Any, Normaliser, dict[str, Any]]:

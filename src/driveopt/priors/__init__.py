@@ -4,7 +4,8 @@ One module per family: :mod:`~driveopt.priors.base` (the ``Prior`` protocol, ``P
 ``moments``), :mod:`~driveopt.priors.gaussian` (P1's Gaussian and driveopt's coherent behaviours),
 :mod:`~driveopt.priors.grids` (the MPC baselines' grids), :mod:`~driveopt.priors.cvae` (the
 learned CVAE) and :mod:`~driveopt.priors.vqvae` (P2's VQ-VAE + PixelCNN); the learned ones are
-imported on demand (they need Flax).
+imported on demand (they need Flax). :mod:`~driveopt.priors.metrics` measures any prior's first batch
+offline (coverage of the expert, feasible samples, distinct lanes).
 """
 
 from driveopt.priors.base import Prior, Proposal, clip_setpoints, default_mean, moments

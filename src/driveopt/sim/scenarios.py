@@ -6,11 +6,20 @@ Naming scheme (``list_scenarios()`` prints them all)::
     four-lane-d1.0 ... four-lane-d3.0    straight 4-lane highway
     three-lane-d*, five-lane-d*          the same with 3 and 5 lanes (the papers use 2 and 4)
     <any of the above>-slow              the same with a 7 m/s neighbour speed limit (P2) instead of 15 m/s
+    p2-four-lane-d1.0 ... -d3.0[-slow]   P2's traffic (Fig. 7): 4 lanes, neighbour target speeds ~ U(0, limit)
     two-way                              ``two-way-v0``: overtaking on a lane shared with oncoming traffic (P1)
     merge                                ``merge-v0``: 2-lane highway with vehicles merging from an on-ramp
 
 ``d<density>`` is highway-env's ``vehicles_density`` in {1.0, 1.5, 2.0, 2.5, 3.0}: neighbours spawn
 ahead of the ego with gaps proportional to ``1 / density``.
+
+Neighbours' IDM target speeds are drawn uniformly in ``target_speed_fraction * speed_limit``: P1's
+traffic (and driveopt's defaults) use (0.7, 0.8); P2 lets every neighbour choose its speed between zero
+and the limit (P2 Fig. 7 caption), the ``p2-*`` scenarios: ``p2-four-lane-d3.0`` (density 3, 15 m/s,
+P2 Fig. 8's setting) and ``p2-four-lane-d1.5-slow`` (density 1.5, 7 m/s) among them. P2's text does not
+name its lane count; driveopt's P2 variants use four lanes, the road of P1's dense benchmark and of the
+shipped four-lane weights. Any scenario takes P2's traffic with ``--scenario-config`` and
+``{"target_speed_fraction": [0.0, 1.0]}``.
 
 Every field can be overridden from a mapping or a JSON object file::
 
@@ -40,6 +49,9 @@ DENSITIES = (1.0, 1.5, 2.0, 2.5, 3.0)
 
 DEFAULT_SPEED_LIMIT = 15.0  # [m/s] neighbour speed limit of P1
 SLOW_SPEED_LIMIT = 7.0  # [m/s] P2's slow-traffic variant
+P1_TARGET_SPEEDS = (0.7, 0.8)  # [-] neighbour target speed ~ U(lo, hi) * speed_limit (P1's modified highway-env)
+P2_TARGET_SPEEDS = (0.0, 1.0)  # [-] P2 Fig. 7: each neighbour chooses its speed uniformly between zero and the limit
+P2_LANES = 4  # [-] lanes of the p2-* scenarios (P2's text does not say; P1's dense road)
 
 
 class ScenarioError(DriveoptError):
@@ -53,7 +65,9 @@ class Scenario:
     ``density`` and ``vehicles_count`` are used by the ``highway`` road only; ``two-way`` and
     ``merge`` place their few neighbours where upstream highway-env does. On every road the
     neighbours' IDM target speed is drawn uniformly in ``target_speed_fraction * speed_limit``
-    at reset (their initial speed is set to it), and the limit is written on every lane.
+    at reset from the env's generator (seeded by ``env.reset(seed=...)``; their initial speed is set
+    to it), and the limit is written on every lane. Fractions lie in [0, 1]: upstream's IDM clips a
+    target speed to the lane's limit, so a fraction above 1 would only start a car over the limit.
     """
 
     name: str
@@ -62,7 +76,7 @@ class Scenario:
     density: float = 1.0  # [-] highway-env vehicles_density (highway only): spawn gaps scale with 1 / density
     vehicles_count: int = 50  # [-] neighbours spawned (highway only)
     speed_limit: float = DEFAULT_SPEED_LIMIT  # [m/s] neighbours' road speed limit
-    target_speed_fraction: tuple[float, float] = (0.7, 0.8)  # [-] neighbour target speed ~ U(lo, hi) * speed_limit
+    target_speed_fraction: tuple[float, float] = P1_TARGET_SPEEDS  # [-] neighbour target speed [m/s] ~ U(lo, hi) * speed_limit
     traffic_reverses: bool = False  # True: upstream's IDM cars, which may roll backwards (to -40 m/s); False: they stop at 0 m/s
     ego_speed: float = 10.0  # [m/s] ego speed at reset (a slow ego behind the traffic, as in P1)
     min_initial_gap: float = 10.0  # [m] highway: every neighbour spawns at least this far ahead of the ego centre
@@ -86,7 +100,8 @@ class Scenario:
         _check(self.vehicles_count >= 0, "vehicles_count must be >= 0")
         _check(self.speed_limit > 0, "speed_limit must be > 0 [m/s]")
         lo, hi = self.target_speed_fraction
-        _check(0 < lo <= hi, "target_speed_fraction must be (lo, hi) with 0 < lo <= hi")
+        _check(0 <= lo <= hi <= 1, "target_speed_fraction must be (lo, hi) with 0 <= lo <= hi <= 1 [-] (fractions of "
+               f"speed_limit: neighbour target speeds ~ U(lo, hi) * speed_limit), got {self.target_speed_fraction}")
         _check(self.ego_speed >= 0, "ego_speed must be >= 0 [m/s]")
         _check(self.min_initial_gap >= 0, "min_initial_gap must be >= 0 [m]")
         _check(self.min_spawn_gap >= 0, "min_spawn_gap must be >= 0 [m]")
@@ -206,10 +221,23 @@ def _highway(lanes: int, density: float, slow: bool) -> Scenario:
     )
 
 
+def _p2_highway(density: float, slow: bool) -> Scenario:
+    """P2's traffic (Fig. 7): neighbours choose their target speed uniformly between zero and the limit."""
+    base = _highway(P2_LANES, density, slow)
+    return dataclasses.replace(
+        base,
+        name=f"p2-{base.name}",
+        target_speed_fraction=P2_TARGET_SPEEDS,
+        description=f"{P2_LANES}-lane straight highway, density {density:.1f}, neighbour target speeds uniform in "
+                    f"[0, {base.speed_limit:g}] m/s (P2 Fig. 7)",
+    )
+
+
 def _registry() -> dict[str, Scenario]:
     scenarios = [_highway(lanes, d, slow) for slow in (False, True) for lanes in (2, 4) for d in DENSITIES]
     # other lane counts (P1 and P2 use 2 and 4): the planner must not depend on them
     scenarios += [_highway(lanes, d, False) for lanes in (3, 5) for d in DENSITIES]
+    scenarios += [_p2_highway(d, slow) for slow in (False, True) for d in DENSITIES]
     scenarios.append(
         Scenario(
             name="two-way",

@@ -1,2 +1,3 @@
-"""Pictures: ``plan_plot`` (one planning call, P1 Fig. 2/6 style), ``prior_plot`` (samples of several
-priors for one observation) and ``video`` (MP4 of the closed loop with the plans drawn over it)."""
+"""Pictures: ``plan_plot`` (one planning call, P1 Fig. 2/6 style), ``prior_plot`` (samples and set-point
+densities of several priors for one observation, P2 Fig. 1; ``kde``: the densities) and ``video`` (MP4 of
+the closed loop with the plans drawn over it)."""

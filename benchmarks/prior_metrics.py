@@ -1,0 +1,207 @@
+"""Offline metrics of the priors on held-out demonstrations: Gaussian, CVAE and VQ-VAE (issue 14, P2 Fig. 1 in numbers).
+
+    python benchmarks/prior_metrics.py --data HELD.h5 [HELD2.h5 ...] --json out/prior_metrics.json \
+        [--cvae-weights FILE] [--vqvae-weights FILE] [--priors gaussian-p1 gaussian cvae vqvae] \
+        [--validation 0.1 --seed 0] [--max-rows N] [--samples 250] [--best-of 16] [--planner vqvae]
+
+For every usable row (the rows ``driveopt train`` learns from: feasible plan, more than 3 s before a
+collision; with ``--validation F`` only the episodes that ``train`` with the same ``--validation`` and
+``--seed`` holds out, otherwise all rows of ``--data``, a held-out file) and every prior, the metrics of
+:mod:`driveopt.priors.metrics`: best of ``--best-of`` (16) [m^2] against the executed expert plan,
+how many of ``--samples`` (250) samples project feasibly through ``--planner``'s projection (default
+``vqvae``: P2's barrier projection, 100 iterations; the configuration capped at the simulated car's
+acceleration and curvature as in closed loop), and how many distinct target lanes they reach. The
+problem of a row is rebuilt from its observation (:mod:`driveopt.data.replay`: the 10 neighbours it
+records, predicted at constant velocity). Every prior sees the same key per row.
+
+Priors: ``gaussian-p1`` (P1's independent set-points), ``gaussian`` (the ``bilevel`` planner's, half
+coherent behaviours), ``cvae`` and ``vqvae`` (a PixelCNN checkpoint); a learned prior without
+weights (given, or shipped for the data's lane count) is left out with a notice.
+
+Output: one JSON line per (row, prior) in ``<json>.rows.jsonl``, appended as it goes, and the summary
+(:func:`driveopt.priors.metrics.summarise` per prior) in ``--json``, rewritten after every row. A rerun
+of the same command skips what is done; a rerun with other settings or data is refused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+from tqdm import tqdm
+
+from driveopt.data.demonstrations import load_demonstrations
+from driveopt.data.replay import problem_from_row
+from driveopt.drivers.optimiser import adapt_to_vehicle
+from driveopt.errors import DriveoptError
+from driveopt.learned.train_cvae import TrainConfig, canonical_order, road_lanes, split_episodes, training_rows
+from driveopt.priors import cvae, vqvae
+from driveopt.priors.gaussian import GaussianPrior
+from driveopt.priors.metrics import BEST_OF, FEASIBILITY_SAMPLES, RowMetrics, evaluation_config, row_metrics, summarise
+from driveopt.registry import get_optimiser
+from driveopt.sim.control import BicycleModel
+from driveopt.sim.scenarios import get_scenario
+
+PRIORS = ("gaussian-p1", "gaussian", "cvae", "vqvae")
+
+
+class MetricsRunError(DriveoptError):
+    """Options, data or an existing results file that this run cannot use."""
+
+
+def held_out_rows(data, validation: float, seed: int, max_rows: int) -> np.ndarray:
+    """Rows to evaluate, in the trainer's canonical order; at most ``max_rows`` evenly spaced ones (0: all)."""
+    rows = canonical_order(data, training_rows(data, TrainConfig().crash_margin))
+    if validation > 0:
+        rows = split_episodes(data, rows, validation, seed)[1]
+    if max_rows and len(rows) > max_rows:
+        rows = rows[np.linspace(0, len(rows) - 1, max_rows).round().astype(int)]
+    return rows
+
+
+def file_digest(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
+def make_priors(names: list[str], config, lanes: int, cvae_weights: str | None,
+                vqvae_weights: str | None) -> tuple[dict[str, Any], dict[str, str]]:
+    """(name -> prior, name -> digest of its weights file): learned priors from the given or shipped weights, left out
+    with a notice without."""
+    v_max = config.projection.v_max
+    gaussian = GaussianPrior.from_config(config.sampler, v_max)
+    priors: dict[str, Any] = {}
+    digests: dict[str, str] = {}
+    for name in names:
+        if name == "gaussian-p1":
+            priors[name] = GaussianPrior(gaussian.speed_std, gaussian.lateral_std, v_max, 0.0)
+        elif name == "gaussian":
+            priors[name] = gaussian
+        else:
+            module, given = (cvae, cvae_weights) if name == "cvae" else (vqvae, vqvae_weights)
+            path = Path(given) if given else module.shipped_weights(lanes)
+            if path is None:
+                print(f"prior_metrics: no {name} weights shipped for {lanes}-lane roads (pass --{name}-weights): left out",
+                      file=sys.stderr)
+                continue
+            priors[name] = module.load_prior(path, v_max, lanes=lanes)
+            digests[name] = file_digest(path)
+    return priors, digests
+
+
+def read_rows(path: Path, settings: dict[str, Any]) -> dict[tuple[str, int], RowMetrics]:
+    """Finished (prior, row) results of an earlier run with the same settings (a torn last line is dropped); a new
+    file starts with the settings."""
+    header = json.dumps({"settings": settings})
+    lines = path.read_text().splitlines() if path.exists() else []
+    if not lines:
+        path.write_text(header + "\n")
+        return {}
+    try:
+        earlier = json.loads(lines[0])["settings"]
+        changed = sorted(k for k in set(earlier) | set(settings) if earlier.get(k) != settings.get(k))
+    except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
+        raise MetricsRunError(f"{path} is not a prior_metrics results file: remove it or choose another --json") from None
+    if changed:
+        raise MetricsRunError(f"{path} holds results of other settings ({', '.join(changed)}): remove it or choose another --json")
+    done: dict[tuple[str, int], RowMetrics] = {}
+    kept = lines[:1]
+    for line in lines[1:]:
+        try:
+            record = json.loads(line)
+            done[(record["prior"], record["row"])] = RowMetrics(*(record[f] for f in RowMetrics._fields))
+            kept.append(line)
+        except (json.JSONDecodeError, KeyError, TypeError):
+            break  # an interrupted write: redo from here
+    path.write_text("".join(f"{line}\n" for line in kept))
+    return done
+
+
+def report(settings: dict[str, Any], priors: list[str], done: dict[tuple[str, int], RowMetrics]) -> dict[str, Any]:
+    results = {}
+    for name in priors:
+        rows = [m for (prior, _), m in done.items() if prior == name]
+        if rows:
+            results[name] = summarise(rows)
+    return {"settings": settings, "results": results}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", nargs="+", required=True, help="demonstrations (HDF5) of one road, from driveopt collect")
+    parser.add_argument("--json", default="out/prior_metrics.json", help="summary; per-row results go to <json>.rows.jsonl")
+    parser.add_argument("--cvae-weights", help="CVAE checkpoint (default: the shipped weights for the data's road)")
+    parser.add_argument("--vqvae-weights", help="PixelCNN checkpoint (default: the shipped weights for the data's road)")
+    parser.add_argument("--priors", nargs="+", choices=PRIORS, default=list(PRIORS))
+    parser.add_argument("--planner", default="vqvae", help="optimiser whose projection and tolerance decide feasibility")
+    parser.add_argument("--validation", type=float, default=0.0, help="evaluate the episodes train holds out with this fraction")
+    parser.add_argument("--seed", type=int, default=0, help="the split's seed (as train's) and the sampling seed")
+    parser.add_argument("--max-rows", type=int, default=0, help="evaluate at most this many evenly spaced rows (0: all)")
+    parser.add_argument("--samples", type=int, default=FEASIBILITY_SAMPLES)
+    parser.add_argument("--best-of", type=int, default=BEST_OF)
+    args = parser.parse_args(argv)
+    if not 0.0 <= args.validation < 1.0 or args.seed < 0 or args.max_rows < 0 or args.samples < 1 or args.best_of < 1:
+        parser.error("--validation must be in [0, 1), --seed and --max-rows >= 0, --samples and --best-of >= 1")
+    try:
+        return run(args)
+    except DriveoptError as exc:
+        print(f"prior_metrics: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    data = load_demonstrations(args.data)
+    rows = held_out_rows(data, args.validation, args.seed, args.max_rows)
+    if len(rows) == 0:
+        raise MetricsRunError("no usable rows to evaluate (feasible plans more than 3 s before a collision)")
+    lanes = road_lanes(data, rows)
+    if len(lanes) != 1:
+        raise MetricsRunError(f"demonstrations of roads with {lanes} lanes: the learned priors are per lane count, give one road")
+    spec = get_optimiser(args.planner)
+    scenarios = {str(name): get_scenario(str(name)) for name in np.unique(data.episodes["scenario"][data.episode[rows]])}
+    configs = {name: evaluation_config(adapt_to_vehicle(spec.config, s, BicycleModel()), args.samples) for name, s in scenarios.items()}
+    priors, weights = make_priors(args.priors, spec.config, lanes[0], args.cvae_weights, args.vqvae_weights)
+    settings = {"data": data.fingerprint(), "rows": len(rows), "validation": args.validation, "seed": args.seed,
+                "max_rows": args.max_rows, "samples": args.samples, "best_of": args.best_of, "planner": args.planner,
+                "priors": list(priors), "weights": weights}
+    summary_path = Path(args.json)
+    rows_path = summary_path.with_name(summary_path.stem + ".rows.jsonl")
+    summary_path.parent.mkdir(parents=True, exist_ok=True)
+    done = read_rows(rows_path, settings)
+    base_key = jax.random.PRNGKey(args.seed)
+    names = list(priors)
+    todo = [int(r) for r in rows if any((name, int(r)) not in done for name in names)]
+    bar = tqdm(todo, desc="prior metrics", unit="row", initial=len(rows) - len(todo), total=len(rows))
+    with rows_path.open("a") as out:
+        for row in bar:
+            scenario_name = str(data.episodes["scenario"][data.episode[row]])
+            config = configs[scenario_name]
+            problem = problem_from_row(data, row, scenarios[scenario_name].v_des, config.basis)
+            key = jax.random.fold_in(base_key, row)  # the same draws for every prior of a row
+            for name in names:
+                if (name, row) in done:
+                    continue
+                metrics = row_metrics(priors[name], problem, data.trajectory[row], config, key, args.best_of)
+                done[(name, row)] = metrics
+                out.write(json.dumps({"prior": name, "row": row, **metrics._asdict()}) + "\n")
+                out.flush()
+            summary_path.write_text(json.dumps(report(settings, names, done), indent=1))
+            bar.set_postfix_str(" ".join(f"{n}: {100 * s['feasible_share']:.0f}%"
+                                         for n, s in report(settings, names, done)["results"].items()))
+    final = report(settings, names, done)
+    summary_path.write_text(json.dumps(final, indent=1))
+    for name, stats in final["results"].items():
+        print(f"{name:>12}: {stats['rows']} rows, best of {args.best_of} {stats['best_of_n_median']:.1f} m^2 (median), "
+              f"a feasible sample in {100 * stats['feasible_share']:.0f}% of rows, "
+              f"{stats['lanes_median']:.0f} lanes (median; {stats['feasible_lanes_median']:.0f} among feasible plans)")
+    print(f"wrote {summary_path} and {rows_path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
