@@ -1,17 +1,20 @@
 """Time of P2's learned proposal: PixelCNN sampling, VQ-VAE decoder and set-point QP (issue 14).
 
-    python benchmarks/vqvae_sampling.py --json out/vqvae_sampling.json [--samples 1000] [--calls 30] [--resume]
+    python benchmarks/vqvae_sampling.py --json out/vqvae_sampling.json [--samples 1000] [--calls 30] [--resume] [--reference]
 
 For each batch size, on the built-in problem ``dense-snapshot`` (one observation), four jitted
 functions are timed separately:
 
-- ``pixelcnn``: L = 10 code indices per sample drawn autoregressively (one ``fori_loop``);
+- ``pixelcnn``: L = 10 code indices per sample drawn autoregressively, incrementally
+  (``px.sample_codes``: at step i only each layer's output at position i, from cached earlier columns);
 - ``decoder``: codes -> codebook -> decoder MLP -> bounded set-points (codes drawn once, shifted by a
   random offset per call);
 - ``setpoint_qp``: set-points -> Bernstein coefficients and the 100 positions (closed-form batch QP;
   set-points drawn once, perturbed per call);
 - ``pipeline``: all three in one compiled function, exactly what the ``vqvae`` planner's proposal runs
-  (``VQVAEPrior.propose``: sample, decode, clip, moments) followed by the set-point QP.
+  (``VQVAEPrior.propose``: sample, decode, clip, moments) followed by the set-point QP;
+- ``pixelcnn_reference`` (only with ``--reference``): the same draws by re-running the whole network
+  over all L positions for each position (``px.sample_codes_reference``, one ``fori_loop``; L times the work).
 
 Compile time is the first call minus the steady-state median; steady state is the median and p90 of
 ``--calls`` calls with fresh PRNG keys (``block_until_ready`` on the outputs). The networks have the
@@ -48,6 +51,8 @@ from driveopt.qp import make_model, qp_layer
 from driveopt.scene import load_scene
 
 STAGES = ("pixelcnn", "decoder", "setpoint_qp", "pipeline")
+SAMPLER = ("incremental: step i computes each layer's output at position i only, from the cached outputs at positions "
+           "i - k//2 .. i of the layer below (px.sample_codes); pixelcnn_reference re-runs the network over all positions per step")
 
 
 def untrained_prior(seed: int = 0) -> VQVAEPrior:
@@ -101,6 +106,8 @@ def stage_functions(prior: VQVAEPrior, samples: int) -> dict[str, Callable[[jax.
                                                        (codes + jax.random.randint(key, (), 0, K)) % K, obs, lanes)),
         "setpoint_qp": jax.jit(lambda key: qp(setpoints + jax.random.normal(key, setpoints.shape))),
         "pipeline": jax.jit(lambda key: qp(prior.propose(problem, key, samples).samples)),
+        "pixelcnn_reference": jax.jit(lambda key: px.sample_codes_reference(prior.pixelcnn_params, prior.pixelcnn_config, feats,
+                                                                            key, samples)),
     }
 
 
@@ -110,6 +117,7 @@ def main(argv=None) -> int:
     parser.add_argument("--samples", type=int, nargs="+", default=[1000], help="batch sizes (P2: 1000)")
     parser.add_argument("--calls", type=int, default=30, help="steady-state calls per case")
     parser.add_argument("--resume", action="store_true", help="keep finished cases of an existing results file")
+    parser.add_argument("--reference", action="store_true", help="also time the full-recompute PixelCNN sampler (slow)")
     args = parser.parse_args(argv)
     if args.calls < 1 or min(args.samples) < 1:
         parser.error("--calls and --samples must be >= 1")
@@ -120,7 +128,7 @@ def main(argv=None) -> int:
     machine = {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__, "device": str(jax.devices()[0])}
     models = {"vqvae_config": prior.vqvae_config.to_dict(), "pixelcnn_config": prior.pixelcnn_config.to_dict(),
               "vqvae_parameters": parameter_count(prior.vqvae_params), "pixelcnn_parameters": parameter_count(prior.pixelcnn_params),
-              "parameters": "untrained",
+              "parameters": "untrained", "pixelcnn_sampler": SAMPLER,
               "note": "shipped configuration's sizes, freshly initialised parameters: the work per call does not depend on "
                       "the weights' values (no VQ-VAE weights ship yet)"}
     report = {"machine": machine, "models": models, "problem": "dense-snapshot", "results": []}
@@ -131,7 +139,8 @@ def main(argv=None) -> int:
             print(f"vqvae_sampling: error: cannot resume from {path}: {exc}", file=sys.stderr)
             return 2
     done = {r["case"] for r in report["results"]}
-    cases = [(n, stage) for n in args.samples for stage in STAGES if f"{stage}-{n}" not in done]
+    stages = STAGES + ("pixelcnn_reference",) * args.reference
+    cases = [(n, stage) for n in args.samples for stage in stages if f"{stage}-{n}" not in done]
     functions: dict[int, dict] = {}
     for samples, stage in tqdm(cases, desc="vqvae_sampling", unit="case"):
         if samples not in functions:

@@ -10,8 +10,9 @@ projection. Only the first layer sees the codes themselves and it sees strictly 
 so the logits at position i depend on codes 0..i-1 and on the observation only (tested with
 gradients). A learned position embedding is added after the first layer. Training: cross-entropy
 against the codes the frozen VQ-VAE encoder assigns to the expert's modes. Sampling
-(:func:`sample_codes`): h starts at zeros and is filled position by position inside one
-``lax.fori_loop``, any number of sequences at once for one observation.
+(:func:`sample_codes`): position by position, any number of sequences at once for one observation,
+computing at step i only each layer's output at position i from the cached outputs at earlier
+positions (the network's logits up to float rounding: :func:`sample_codes_reference` re-runs it whole per position).
 
 P2: 1 mask-A + 5 mask-B layers, 64 channels, kernel 7 (the defaults).
 """
@@ -158,10 +159,69 @@ def loss(params, cfg: PixelCNNConfig, codes: jnp.ndarray, feats: jnp.ndarray):
     return ce, {"cross_entropy": ce, "accuracy": accuracy}
 
 
-def sample_codes(params, cfg: PixelCNNConfig, feats: jnp.ndarray, key: jax.Array, num: int) -> jnp.ndarray:
-    """(num, L) int32 code indices drawn autoregressively for one observation's features (F,) or (1, F).
+def _dense(p, x):  # nn.Dense's parameters {"kernel" (in, out), "bias" (out,)} applied to x (..., in)
+    return x @ p["kernel"] + p["bias"]
 
-    One ``lax.fori_loop`` over the L positions; the condition is computed once."""
+
+def _gated_column(p, pre, bias):
+    """A GatedLayer's output at one position, (B, C) (1 x 1 projection ``p["Dense_1"]``, no residual), from its
+    masked convolution's sum over taps ``pre`` (B, 2C) and the rest of the pre-activation ``bias`` (1, 2C):
+    convolution bias plus condition projection, the same at every position."""
+    a, b = jnp.split(pre + bias, 2, axis=-1)
+    return _dense(p["Dense_1"], jnp.tanh(a) * jax.nn.sigmoid(b))
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "num"))  # one compilation per (configuration, count)
+def sample_codes_and_logits(params, cfg: PixelCNNConfig, feats: jnp.ndarray, key: jax.Array, num: int):
+    """(codes (num, L) int32, logits (num, L, K_c) float32) drawn autoregressively for one observation's
+    features (F,) or (1, F); logits[:, i] are those code i was drawn from (= :func:`code_logits` of the codes).
+
+    Incremental: with kernel k, the logits at position i need each mask-B layer's input only at positions
+    i - k//2 .. i, and the mask-A layer the codes at i - k//2 .. i - 1; none of them changes once computed.
+    So step i (one ``lax.scan`` over the L positions) computes one column (num, C) per layer from a window
+    of the last k//2 columns of the layer below (zeros before position 0, as the convolution's padding):
+    about 1/L of the work of re-running the network over all positions per step
+    (:func:`sample_codes_reference`). The one-hot mask-A convolution is a row gather from its kernel; the
+    condition MLP and its projections into each layer run once, outside the loop. The draws are the
+    reference's for the same key (``categorical(fold_in(key, i), logits_i)``).
+    """
+    cond = PixelCNN(cfg).apply({"params": params}, jnp.reshape(feats, (1, -1)), method=PixelCNN.condition)  # (1, C)
+    half, C, K = cfg.kernel_size // 2, cfg.channels, cfg.codebook_size  # taps at offsets -half..0: kernel index offset + half
+    # Parameter names are flax's for PixelCNN's submodules; in a GatedLayer, MaskedConv1D_0 is the masked convolution,
+    # Dense_0 the condition projection, Dense_1 the 1 x 1 output projection.
+    first, rest = params["first"], [params[f"rest_{n}"] for n in range(cfg.layers)]
+    first_bias, *biases = [p["MaskedConv1D_0"]["bias"] + _dense(p["Dense_0"], cond) for p in (first, *rest)]  # (1, 2C)
+    # Mask-A taps (offsets -half..-1) as tables (half, K_c + 1, 2C), with a zero row for code K_c: "before position 0".
+    table = jnp.pad(first["MaskedConv1D_0"]["kernel"][:half], ((0, 0), (0, 1), (0, 0)))
+    kernels = [p["MaskedConv1D_0"]["kernel"][:half + 1].reshape(-1, 2 * C) for p in rest]  # ((half + 1) C, 2C) per layer
+
+    def step(carry, i):  # the codes (num, half) and each mask-B layer's input (num, half, C) at positions i - half .. i - 1
+        recent, windows = carry
+        x = _gated_column(first, table[jnp.arange(half), recent].sum(axis=1), first_bias) + params["position"][i]
+        shifted = []
+        for p, kernel, bias, window in zip(rest, kernels, biases, windows):
+            window = jnp.concatenate([window, x[:, None]], axis=1)  # (num, half + 1, C): positions i - half .. i
+            x = x + _gated_column(p, window.reshape(num, -1) @ kernel, bias)
+            shifted.append(window[:, 1:])
+        logits = _dense(params["out"], nn.relu(_dense(params["head"], nn.relu(x))))  # (num, K_c)
+        code = jax.random.categorical(jax.random.fold_in(key, i), logits).astype(jnp.int32)
+        return (jnp.concatenate([recent, code[:, None]], axis=1)[:, 1:], shifted), (code, logits)
+
+    init = (jnp.full((num, half), K, jnp.int32), [jnp.zeros((num, half, C), cond.dtype)] * cfg.layers)
+    _, (codes, logits) = jax.lax.scan(step, init, jnp.arange(cfg.num_latents))  # (L, num), (L, num, K_c)
+    return codes.T, jnp.swapaxes(logits, 0, 1)
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "num"))
+def sample_codes(params, cfg: PixelCNNConfig, feats: jnp.ndarray, key: jax.Array, num: int) -> jnp.ndarray:
+    """(num, L) int32 code indices drawn autoregressively for one observation's features (F,) or (1, F),
+    incrementally (:func:`sample_codes_and_logits` without the logits; one compilation per configuration and count)."""
+    return sample_codes_and_logits(params, cfg, feats, key, num)[0]
+
+
+def sample_codes_reference(params, cfg: PixelCNNConfig, feats: jnp.ndarray, key: jax.Array, num: int) -> jnp.ndarray:
+    """:func:`sample_codes` by re-running the whole network over all L positions for each position (one
+    ``lax.fori_loop``; L times the work): the definition the incremental sampler is tested against."""
     model = PixelCNN(cfg)
     cond = model.apply({"params": params}, jnp.reshape(feats, (1, -1)), method=PixelCNN.condition)
 
