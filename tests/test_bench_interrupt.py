@@ -83,7 +83,9 @@ def reap(proc: subprocess.Popen, pids: list[int]) -> None:
 
 
 def test_workers_die_with_a_killed_parent(tmp_path):
-    proc = start_bench(tmp_path / "out", tmp_path / "marks", slow=120, episodes=2)
+    # episodes beyond FAST take two minutes: both workers end up in one (with episodes <= FAST the bench could
+    # finish before the test saw them busy)
+    proc = start_bench(tmp_path / "out", tmp_path / "marks", slow=120, episodes=FAST + 1)
     pids: list[int] = []
     try:
         wait_for(lambda: len(busy_workers(tmp_path / "marks", proc.pid)) == 2, STARTUP_S, proc)
