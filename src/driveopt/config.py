@@ -128,7 +128,8 @@ class QPConfig:
 class ProjectionConfig:
     """Batch projection onto the constraint set (DESIGN §2.3)."""
 
-    max_iterations: int = 20  # [-] alternating-minimisation iterations
+    max_iterations: int = 20  # [-] alternating-minimisation iterations; 0: no projection, every sample is ranked as drawn
+    # (P2 Fig. 9's "no filter" ablation)
     tolerance: float = 1e-3  # [-] early stop when every sample is feasible or has stopped moving
     rho_obstacle: float = 1.0  # [-] penalty weight of the obstacle rows
     rho_velocity: float = 10.0  # [-] penalty weight of the velocity rows
@@ -140,11 +141,14 @@ class ProjectionConfig:
     kappa_max: float = 0.23  # [1/m] path-curvature bound (0 disables it)
     centripetal_max: float = 4.0  # [m/s^2] bound on v^2 * |road curvature|
     barrier: bool = False  # P2's discrete-time barrier forms for obstacles and lanes
+    gamma_obs: float = 1.0  # [-] in (0, 1]: obstacle barrier parameter with ``barrier`` (1: the plain bound d >= 1; P2 trains
+    # with 0.98); a safety filter's per-sample values replace it
+    gamma_lane: float = 1.0  # [-] in (0, 1]: lane barrier parameter with ``barrier`` (1: the plain bound; P2: 0.9); likewise
     recovery_time: float = 3.0  # [s] a car off the lane bounds (or drifting past them) must be back by then (0: never relaxed)
 
     def __post_init__(self) -> None:
         _check_types(self, "projection")
-        _require(1 <= self.max_iterations <= 10_000, f"projection.max_iterations must be in [1, 10000], got {self.max_iterations}")
+        _require(0 <= self.max_iterations <= 10_000, f"projection.max_iterations must be in [0, 10000], got {self.max_iterations}")
         _require(self.tolerance >= 0, "projection.tolerance must be >= 0")
         for name in ("rho_obstacle", "rho_velocity", "rho_acceleration", "rho_lane"):
             value = getattr(self, name)
@@ -154,6 +158,11 @@ class ProjectionConfig:
         _require(0 <= self.kappa_max <= 10, "projection.kappa_max must be in [0, 10] 1/m")
         _require(0 < self.centripetal_max <= MAX_ACCELERATION, f"projection.centripetal_max must be in (0, {MAX_ACCELERATION:g}] m/s^2")
         _require(0 <= self.recovery_time <= MAX_HORIZON, f"projection.recovery_time must be in [0, {MAX_HORIZON:g}] s")
+        for name in ("gamma_obs", "gamma_lane"):
+            value = getattr(self, name)
+            _require(0 < value <= 1, f"projection.{name} must be in (0, 1], got {value:g}")
+            _require(self.barrier or value == 1, f"projection.{name} = {value:g} needs projection.barrier = true "
+                                                 "(the plain constraints have no barrier parameter)")
 
 
 @dataclass(frozen=True)

@@ -35,8 +35,11 @@ sample's lateral deviation from that plan: between two near-equal manoeuvres (pa
 the one already begun keeps winning.
 
 A safety filter (``safety_filter``; P2's learned one) is any pytree with
-``initialise(problem, coeffs) -> FilterInit``: it sets the barrier parameters and the projection's
-first iterate and multipliers for every batch (:mod:`driveopt.safety`).
+``initialise(problem, coeffs) -> FilterInit``: it sets the barrier parameters (per sample or per
+batch; they replace ``projection.gamma_obs`` / ``gamma_lane``) and the projection's first iterate
+and multipliers for every batch, appended rows included (:mod:`driveopt.safety`). With
+``projection.max_iterations = 0`` nothing is projected and no filter is consulted: every row is
+ranked as the set-point QP made it (P2 Fig. 9's "no filter").
 """
 
 from __future__ import annotations
@@ -61,7 +64,14 @@ from driveopt.fallback import braking_coeffs, first_contact, stop_setpoints, sto
 from driveopt.priors.base import Prior, clip_setpoints
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import PlanningProblem, check_problem
-from driveopt.projection import FAMILIES, XLA_CPU_COMPILER_OPTIONS, constraint_residuals, project, supported_compiler_options
+from driveopt.projection import (
+    FAMILIES,
+    XLA_CPU_COMPILER_OPTIONS,
+    ProjectionResult,
+    constraint_residuals,
+    project,
+    supported_compiler_options,
+)
 from driveopt.qp import (
     NUM_SEGMENTS,
     SETPOINT_DIM,
@@ -71,7 +81,7 @@ from driveopt.qp import (
     make_model,
     solve_setpoint_qp,
 )
-from driveopt.safety.base import SafetyFilter
+from driveopt.safety.base import SafetyFilter, check_filter_init
 from driveopt.sampler import cem_update, sample_gaussian, select_lowest
 from driveopt.scene import ProblemError
 
@@ -185,6 +195,25 @@ def _boundary(problem: PlanningProblem, cfg: PlannerConfig, setpoints: jnp.ndarr
     return boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
 
 
+def setpoint_batch(model, problem: PlanningProblem, cfg: PlannerConfig, setpoints: jnp.ndarray):
+    """(coefficients (B, 2n), b_x, b_y) of the set-point QP for ``setpoints`` (B, 8), as every sampler batch solves it
+    (the current state imposed; per-sample boundary rows only when the QP imposes a terminal position)."""
+    b_x, b_y = _boundary(problem, cfg, setpoints)
+    return solve_setpoint_qp(model, setpoints, b_x, b_y, initial_acceleration(problem.init_x, problem.init_y)), b_x, b_y
+
+
+def project_batch(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs: jnp.ndarray, b_x, b_y,
+                  safety_filter: SafetyFilter | None = None, unroll: bool = False) -> ProjectionResult:
+    """The projection of a batch of set-point-QP solutions (B, 2n) as the planner runs it: set up by
+    ``safety_filter`` when given (FilterError for outputs of the wrong shape), as configured otherwise; with
+    ``projection.max_iterations = 0`` the batch comes back unprojected and the filter is not consulted."""
+    if safety_filter is None or cfg.projection.max_iterations == 0:
+        return project(model, problem, qp_coeffs, b_x, b_y, cfg.projection, unroll=unroll)
+    init = check_filter_init(safety_filter.initialise(problem, qp_coeffs), qp_coeffs.shape)
+    return project(model, problem, qp_coeffs, b_x, b_y, cfg.projection, gamma_obs=init.gamma_obs, gamma_lane=init.gamma_lane,
+                   init_coeffs=init.coeffs, init_multipliers=init.multipliers, unroll=unroll)
+
+
 def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: PreviousPlan | None, safety_filter, unroll: bool):
     """QP + projection + ranking for one batch of set-points (the appended rows: see the module docstring).
 
@@ -198,18 +227,11 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     kinds = [RowKind.SAMPLE] * setpoints.shape[0] + [RowKind.PREVIOUS_PLAN] * (previous is not None)
     kind = jnp.asarray(kinds + [RowKind.COMFORTABLE_STOP, RowKind.EMERGENCY_STOP][:len(stops)], jnp.int32)
     setpoints = jnp.concatenate([setpoints, *appended])
-    b_x, b_y = _boundary(problem, cfg, setpoints)
-    qp_coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y, initial_acceleration(problem.init_x, problem.init_y))
+    qp_coeffs, b_x, b_y = setpoint_batch(model, problem, cfg, setpoints)
     row = (lambda b, i: b if b.ndim == 1 else b[i])  # noqa: E731  (boundary rows are per sample only for goals)
     for i, (decel, to_centre) in zip(range(-len(stops), 0), stops):
         qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), to_centre))
-    if safety_filter is None:
-        proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection, unroll=unroll)
-    else:
-        init = safety_filter.initialise(problem, qp_coeffs)
-        proj = project(model, problem, qp_coeffs, b_x, b_y, cfg.projection, gamma_obs=init.gamma_obs,
-                       gamma_lane=init.gamma_lane, init_coeffs=init.coeffs, init_multipliers=init.multipliers,
-                       unroll=unroll)
+    proj = project_batch(model, problem, cfg, qp_coeffs, b_x, b_y, safety_filter, unroll)
     terms = cost_terms(evaluate(model, proj.coeffs), problem, None if previous is None else previous.lateral)
     cost = weighted_cost(terms, cfg.cost)
     residual = proj.residuals.total
@@ -303,7 +325,7 @@ def solve(
     problem: a checked PlanningProblem (planning frame, ego at x = 0). key: PRNG key.
     prior: first-iteration proposal (any pytree with ``propose``, :mod:`driveopt.priors`).
     warm_start: (8,) centre of the first proposal, or None. previous: the previous replan's plan, or None.
-    safety_filter: pytree with ``initialise(problem, coeffs) -> FilterInit``, or None (plain projection).
+    safety_filter: pytree with ``initialise(problem, coeffs) -> FilterInit``, or None (the projection as configured).
     unroll: project with exactly ``projection.max_iterations`` steps (differentiable in reverse mode).
     No validation happens here: :func:`plan` checks its input first.
     """

@@ -18,6 +18,14 @@ Two loop modes share one step function: ``unroll=False`` stops early
 (``lax.while_loop``) for planning; ``unroll=True`` runs exactly
 ``max_iterations`` steps with ``lax.scan`` and is reverse-mode differentiable
 (for learning initialisations and barrier parameters, P2 §III-C).
+``max_iterations = 0`` projects nothing: the targets come back as they are, with their residuals.
+
+Barrier parameters (``cfg.barrier``): ``gamma_obs`` and ``gamma_lane`` come from the configuration, or
+per call (a safety filter, :mod:`driveopt.safety`), either one value for the batch or one per sample.
+``gamma_obs`` only moves the lower bound of each obstacle distance ratio; ``gamma_lane`` enters the
+lane rows and so the KKT matrix of the y axis: one value shares one inverse for the batch, values
+per sample give each sample its own y-axis inverse (B small matrices inverted once per call; each
+iteration is then a batched matrix-vector product on that axis).
 """
 
 from __future__ import annotations
@@ -96,6 +104,16 @@ class ProjectionResult(NamedTuple):
     error: jnp.ndarray  # () max over samples of the coefficient change in the last iteration
 
 
+class _SampleY(NamedTuple):
+    """When every sample has its own ``gamma_lane`` (B samples): each sample's y-axis blocks minus the shared ones
+    (built for the configuration's ``gamma_lane``), so a sample whose gamma is the configuration's gets exactly the
+    shared numbers."""
+
+    solve: jnp.ndarray  # (B, n, n) coefficient block of each sample's inverse KKT matrix, minus the shared one
+    boundary: jnp.ndarray  # (B, n, my) its boundary block, minus the shared one
+    penalty: jnp.ndarray  # (B, n, n) its rho F'F, minus the shared one
+
+
 class _Operators(NamedTuple):
     """Per-call constants of the alternating minimisation; axis 0 of stacked arrays is (x, y)."""
 
@@ -105,9 +123,10 @@ class _Operators(NamedTuple):
     back: jnp.ndarray  # (3K, n): transpose of ``forward`` without node 0 (the current state is not a constraint)
     free_nodes: jnp.ndarray  # (3, K) 0 where position / velocity / acceleration is fixed by A_eq
     penalty: jnp.ndarray  # (2, n, n): rho F'F of each axis
-    lane_gamma: jnp.ndarray  # () gamma of the lane rows (1 in plain mode)
+    lane_gamma: jnp.ndarray  # () gamma of the lane rows (1 in plain mode), or (B, 1) one per sample
     lane_rows: jnp.ndarray  # (K,) 1 at the nodes that carry a lane row (all but node 0)
-    lane_bounds: jnp.ndarray  # (2, K) upper-row and lower-row bounds e of the row at each node (node 0: unused)
+    lane_bounds: jnp.ndarray  # (2, K) upper-row and lower-row bounds e of the row at each node (node 0: unused); (2, B, K) per sample
+    per_sample: _SampleY | None  # the y axis's per-sample changes when gamma_lane is per sample, else None
 
 
 class _State(NamedTuple):
@@ -154,11 +173,17 @@ def lane_constraint(model: TrajectoryModel, lower, upper, gamma_lane, barrier: b
     lower, upper: [m] bounds of y per node (K,) (:func:`lane_bounds`), or scalars.
     Plain: y[k] <= upper[k], -y[k] <= -lower[k]. Barrier (P2 eq. 16-19):
     y[k+1] - upper[k+1] <= (1 - g)(y[k] - upper[k]) and its mirror; g = 1 recovers the plain rows.
+    gamma_lane: a number, or (B, 1) one per sample: then G is (B, 2(K-1), n) and e (B, 2(K-1)).
     """
     g = gamma_lane if barrier else 1.0
     W = jnp.asarray(model.W)
     K = W.shape[0]
     upper, lower = (jnp.broadcast_to(b, (K,)) for b in (upper, lower))
+    if jnp.ndim(g) == 2:  # (B, 1): one set of rows per sample
+        c = 1.0 - g
+        rows = W[1:] - c[:, :, None] * W[:-1]
+        return (jnp.concatenate([rows, -rows], axis=1),
+                jnp.concatenate([upper[1:] - c * upper[:-1], -(lower[1:] - c * lower[:-1])], axis=1))
     rows = W[1:] - (1.0 - g) * W[:-1]
     return (
         jnp.concatenate([rows, -rows]),
@@ -177,9 +202,12 @@ def _shift_left(a):
 
 
 def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig, gamma_lane) -> _Operators:
+    """gamma_lane: a number, or (B, 1) one per sample (barrier mode only; see the module docstring and :class:`_SampleY`)."""
     n_active = jnp.sum(problem.obstacle_mask)
     W, Wd, Wdd = (jnp.asarray(a) for a in (model.W, model.Wd, model.Wdd))
-    G, e = lane_constraint(model, *lane_bounds(model, problem, cfg), gamma_lane, cfg.barrier)
+    per_sample = cfg.barrier and jnp.ndim(gamma_lane) == 2
+    shared_gamma = cfg.gamma_lane if per_sample else gamma_lane
+    G, e = lane_constraint(model, *lane_bounds(model, problem, cfg), shared_gamma, cfg.barrier)
     # Values fixed by A_eq (the current state at node 0) are not constraint rows: no plan can change them.
     free = jnp.asarray(model.free_nodes)
     Wm, Wdm, Wddm = (a * f[:, None] for a, f in zip((W, Wd, Wdd), free))
@@ -198,6 +226,18 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
 
     inv_x = kkt_inverse(penalty_x, model.A_x)
     inv_y = kkt_inverse(penalty_y, model.A_y)
+    bounds = jnp.pad(e.reshape(2, -1), ((0, 0), (1, 0)))  # per node; node 0 has no row
+    sample_y = None
+    if per_sample:
+        # G'G of the rows W[1:] - c W[:-1] (upper and lower: twice) is quadratic in c = 1 - gamma; its change from the
+        # shared gamma is exactly zero for a sample with that gamma.
+        c, c_shared = (1.0 - gamma_lane)[:, :, None], 1.0 - cfg.gamma_lane  # (B, 1, 1), ()
+        cross = W[1:].T @ W[:-1]
+        change = 2.0 * cfg.rho_lane * ((c * c - c_shared * c_shared) * (W[:-1].T @ W[:-1]) - (c - c_shared) * (cross + cross.T))
+        inverses = jax.vmap(kkt_inverse, in_axes=(0, None))(penalty_y + change, model.A_y)  # (B, n + my, n + my)
+        sample_y = _SampleY(inverses[:, :n, :n] - inv_y[:n, :n], inverses[:, :n, n:] - inv_y[:n, n:], change)
+        e_samples = lane_constraint(model, *lane_bounds(model, problem, cfg), gamma_lane, cfg.barrier)[1]  # (B, 2(K-1))
+        bounds = jnp.pad(jnp.swapaxes(e_samples.reshape(e_samples.shape[0], 2, -1), 0, 1), ((0, 0), (0, 0), (1, 0)))
     return _Operators(
         solve=jnp.stack([inv_x[:n, :n], inv_y[:n, :n]]),
         boundary=(inv_x[:n, n:], inv_y[:n, n:]),
@@ -207,7 +247,8 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
         penalty=jnp.stack([penalty_x, penalty_y]),
         lane_gamma=jnp.asarray(gamma_lane if cfg.barrier else 1.0, W.dtype),
         lane_rows=(jnp.arange(W.shape[0]) > 0).astype(W.dtype),
-        lane_bounds=jnp.pad(e.reshape(2, -1), ((0, 0), (1, 0))),  # per node; node 0 has no row
+        lane_bounds=bounds,  # (2, K), or (2, B, K) per sample
+        per_sample=sample_y,
     )
 
 
@@ -351,8 +392,8 @@ def project(
     b_y: jnp.ndarray,
     cfg: ProjectionConfig = ProjectionConfig(),
     *,
-    gamma_obs=1.0,
-    gamma_lane=1.0,
+    gamma_obs=None,
+    gamma_lane=None,
     init_coeffs: jnp.ndarray | None = None,
     init_multipliers: jnp.ndarray | None = None,
     unroll: bool = False,
@@ -360,33 +401,50 @@ def project(
     """Project the batch ``target`` (B, 2n) onto the constraint set.
 
     b_x (B, mx) or (mx,), b_y likewise: equality right-hand sides (see qp.boundary_values).
-    gamma_obs, gamma_lane: barrier parameters in (0, 1], used when ``cfg.barrier``.
+    gamma_obs, gamma_lane: barrier parameters in (0, 1], used when ``cfg.barrier``: a number, or (B,) /
+    (B, 1) one per sample; None: ``cfg.gamma_obs`` / ``cfg.gamma_lane``.
     init_coeffs, init_multipliers: optional (B, 2n) warm start (P2 learns them); default target, 0.
     unroll: run exactly ``cfg.max_iterations`` steps with lax.scan (differentiable) instead of
     stopping early.
+    With ``cfg.max_iterations = 0`` the result is ``target`` itself (the initialisation is not used).
     """
     B = target.shape[0]
     N, K = problem.obstacle_x.shape
+    gamma_obs = _per_sample(cfg.gamma_obs if gamma_obs is None else gamma_obs, B, "gamma_obs")
+    gamma_lane = _per_sample(cfg.gamma_lane if gamma_lane is None else gamma_lane, B, "gamma_lane")
     ops = _operators(model, problem, cfg, gamma_lane)
     # The boundary part of the linear solve never changes: compute it once.
-    fixed = jnp.stack([
-        jnp.broadcast_to(b_x, (B, b_x.shape[-1])) @ ops.boundary[0].T,
-        jnp.broadcast_to(b_y, (B, b_y.shape[-1])) @ ops.boundary[1].T,
-    ])
+    b_x, b_y = jnp.broadcast_to(b_x, (B, b_x.shape[-1])), jnp.broadcast_to(b_y, (B, b_y.shape[-1]))
+    fixed = jnp.stack([b_x @ ops.boundary[0].T, b_y @ ops.boundary[1].T])
     target_s = _stacked(target)
     solve_t = jnp.swapaxes(ops.solve, 1, 2)
+    sample_y = ops.per_sample
+    if sample_y is not None:
+        fixed = fixed.at[1].add(jnp.einsum("bnm,bm->bn", sample_y.boundary, b_y))
 
     def analyse(coeffs, d_obs, d_acc, with_residuals=False):
         return _analysis_step(coeffs, d_obs, d_acc, ops, problem, cfg, gamma_obs, with_residuals)
 
+    def solve(rhs):
+        """(2, B, n) linear term -> the coefficients minimising the augmented Lagrangian with it."""
+        coeffs = rhs @ solve_t + fixed
+        return coeffs if sample_y is None else coeffs.at[1].add(jnp.einsum("bnm,bm->bn", sample_y.solve, rhs[1]))
+
+    def penalise(coeffs):
+        """rho F'F applied to (2, B, n)."""
+        out = coeffs @ ops.penalty
+        return out if sample_y is None else out.at[1].add(jnp.einsum("bnm,bm->bn", sample_y.penalty, coeffs[1]))
+
     def step(state: _State) -> _State:
-        coeffs = (target_s + state.lam + state.pull) @ solve_t + fixed
+        coeffs = solve(target_s + state.lam + state.pull)
         pull, d_obs, d_acc, _ = analyse(coeffs, state.d_obs, state.d_acc)
         # lambda <- lambda - rho F'(F xi - h) = lambda - rho F'F xi + rho F'h
-        lam = state.lam - coeffs @ ops.penalty + pull
+        lam = state.lam - penalise(coeffs) + pull
         error = jnp.sqrt(jnp.max(jnp.sum((coeffs - state.coeffs) ** 2, axis=(0, 2))))
         return _State(coeffs, lam, pull, d_obs, d_acc, state.iteration + 1, error)
 
+    if cfg.max_iterations == 0:  # nothing projected: the targets are the result
+        init_coeffs = init_multipliers = None
     coeffs0 = target_s if init_coeffs is None else _stacked(init_coeffs)
     lam0 = jnp.zeros_like(target_s) if init_multipliers is None else _stacked(init_multipliers)
     d_obs0 = jnp.ones((N, B, K) if cfg.barrier else (0, B, K), target.dtype)
@@ -405,11 +463,20 @@ def project(
     return ProjectionResult(_flat(state.coeffs), _flat(state.lam), residuals, state.iteration, status, state.error)
 
 
+def _per_sample(gamma, B: int, name: str):
+    """A barrier parameter as given (a number) or, given per sample ((B,) or (B, 1)), as (B, 1)."""
+    if jnp.ndim(gamma) == 0:
+        return gamma
+    if jnp.shape(gamma) not in ((B,), (B, 1)):
+        raise ValueError(f"{name} must be a number or one per sample ({B},) or ({B}, 1), got shape {jnp.shape(gamma)}")
+    return jnp.reshape(gamma, (B, 1))
+
 
 def constraint_residuals(
     model: TrajectoryModel, problem: PlanningProblem, coeffs: jnp.ndarray, cfg: ProjectionConfig = ProjectionConfig()
 ) -> Residuals:
-    """Distances of trajectories (B, 2n) to the feasible set, per family, without projecting them."""
+    """Distances of trajectories (B, 2n) to the feasible set, per family, without projecting them: the plain
+    constraints (gamma = 1 whatever ``cfg.gamma_obs`` / ``cfg.gamma_lane``), i.e. the safety bounds themselves."""
     ops = _operators(model, problem, cfg, 1.0)
     B, K = coeffs.shape[0], model.W.shape[0]
     d_obs = jnp.ones((problem.obstacle_x.shape[0] if cfg.barrier else 0, B, K), coeffs.dtype)

@@ -72,6 +72,10 @@ PLANNERS: dict[str, DriverSpec] = {
                                "least-cost feasible (shipped weights; Gaussian if none)",
                       _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
                                     projection={"max_iterations": 100, "barrier": True}), vqvae_prior()),
+        OptimiserSpec("vqvae-filter", "P2's full pipeline: vqvae with the learned safety filter setting up the barrier projection "
+                                      "(shipped weights; without filter weights the plain filter, without VQ-VAE weights the Gaussian)",
+                      _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
+                                    projection={"max_iterations": 100, "barrier": True}), vqvae_prior(), learned_filter=True),
         OptimiserSpec("vqvae-cem", "P1 bi-level optimiser started from PixelCNN/VQ-VAE samples (shipped weights; Gaussian if none)",
                       _BASE, vqvae_prior()),
         OptimiserSpec("cvae-filter", "P2's baseline: 1000 CVAE samples through vqvae's one pass (barrier projection, 100 iterations), "

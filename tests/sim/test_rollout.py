@@ -15,7 +15,7 @@ from driveopt.sim.scenarios import get_scenario, list_scenarios
 
 def small(name):
     spec = get_planner(name)
-    if name in ("bilevel", "random", "cvae", "cvae-mix", "vqvae", "vqvae-cem"):
+    if name in ("bilevel", "random", "cvae", "cvae-mix", "vqvae", "vqvae-cem", "vqvae-filter"):
         spec = spec.with_overrides(sampler={"num_samples": 40, "num_constraint_elites": 20, "num_elites": 10},
                                    projection={"max_iterations": 5})
     return spec
@@ -40,7 +40,7 @@ def _runs(planner, scenario):
         assert episode.compile_seconds > 0
 
 
-VARIANTS = ("-p1", "vqvae-cem", "cvae-filter")  # the same code as a base planner with other settings: one road is enough
+VARIANTS = ("-p1", "vqvae-cem", "cvae-filter", "vqvae-filter")  # the same code as a base planner with other settings: one road is enough
 
 
 @pytest.mark.parametrize("planner", list_planners())

@@ -21,6 +21,7 @@ def register(sub) -> None:
     p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="override the optimisers' samples per iteration (not vanilla's single sample)")
     p.add_argument("--weights", help="learned-prior checkpoint for the cvae planner, or policy file for dqn/ppo (default: shipped weights)")
+    p.add_argument("--filter-weights", help="learned safety-filter checkpoint for every optimiser (recorded with --config)")
     p.add_argument("--config", help="planner config overrides applied to every optimiser, JSON (nested sections)")
     p.add_argument("--replan-every", type=positive_int, help="policy periods each plan is executed open-loop (P1: 5; default 1)")
     p.add_argument("--scenario-config", help="JSON file of scenario-field overrides applied to every scenario")
@@ -40,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
 
     scenario = load_overrides(args.scenario_config) if args.scenario_config else None
     given = (("duration", args.duration), ("samples", args.samples), ("weights", args.weights),
-             ("config", config_overrides(args.config) or None), ("replan_every", args.replan_every), ("scenario", scenario))
+             ("config", config_overrides(args.config, args.filter_weights) or None), ("replan_every", args.replan_every),
+             ("scenario", scenario))
     options = {k: v for k, v in given if v is not None}
     spec = BenchSpec(tuple(args.scenarios), tuple(args.planners), tuple(args.seeds), args.episodes, options)
     try:

@@ -63,15 +63,24 @@ def writable_file(path: str | None, what: str) -> None:
         raise UsageError(f"{what} {path} cannot be written (permission denied)")
 
 
-def config_overrides(path: str | None) -> dict[str, Any]:
-    """Planner-config overrides from a JSON file (nested sections), checked against the config schema."""
-    if not path:
-        return {}
-    try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"cannot read config {path}: {exc}") from None
-    from_dict(data)  # unknown sections, keys or bad values: ConfigError
+def config_overrides(path: str | None, filter_weights: str | None = None) -> dict[str, Any]:
+    """Planner-config overrides from a JSON file (nested sections), checked against the config schema; an optional
+    ``safety_filter`` section ``{"weights": FILE}`` names a learned safety filter checkpoint, and so does
+    ``filter_weights`` (``--filter-weights``, which wins)."""
+    data: Any = {}
+    if path:
+        try:
+            data = json.loads(Path(path).read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise UsageError(f"cannot read config {path}: {exc}") from None
+    if isinstance(data, dict):
+        from driveopt.safety.learned import FILTER_SECTION, split_filter_section
+
+        from_dict(split_filter_section(data)[0])  # unknown sections, keys or bad values: ConfigError
+        if filter_weights:
+            data = {**data, FILTER_SECTION: {"weights": filter_weights}}
+    else:
+        from_dict(data)  # not a mapping: ConfigError
     return data
 
 

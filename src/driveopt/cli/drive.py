@@ -14,6 +14,7 @@ def register(sub) -> None:
     p.add_argument("--scenario-config", help="JSON file overriding scenario fields")
     p.add_argument("--planner", default="bilevel", help="planner name (see `driveopt planners`; default bilevel)")
     p.add_argument("--weights", help="learned-prior checkpoint, or policy file of dqn/ppo (default: the weights shipped for the road)")
+    p.add_argument("--filter-weights", help="learned safety-filter checkpoint for any optimiser (vqvae-filter: default the shipped one)")
     p.add_argument("--seed", type=seed, default=42, help="traffic and sampling seed")
     p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="samples per sampler iteration")
@@ -38,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None:
         scenario = scenario.replace(duration=args.duration)
     spec = get_planner(args.planner).with_samples(args.samples).with_weights(args.weights)
-    spec = spec.with_overrides(**config_overrides(args.config)).with_replan_every(args.replan_every)
+    spec = spec.with_overrides(**config_overrides(args.config, args.filter_weights)).with_replan_every(args.replan_every)
     spec.check(scenario)  # missing, unusable or wrong-road weights: the error comes before the progress bar
     steps = int(round(scenario.duration * scenario.policy_frequency))
     rollout = Rollout(scenario, spec.driver(), args.seed, render=bool(args.video))

@@ -18,9 +18,11 @@ def register(sub) -> None:
     p.add_argument("--problem", default="static-blockage", help="built-in name (see `driveopt problems`) or JSON file")
     p.add_argument("--planner", default="bilevel", help="optimiser whose prior and config to plan with (see `driveopt planners`)")
     p.add_argument("--weights", help="learned-prior checkpoint (default: the weights shipped for the road)")
+    p.add_argument("--filter-weights", help="learned safety-filter checkpoint (vqvae-filter: default the shipped one)")
     p.add_argument("--samples", type=positive_int, help="samples per sampler iteration (default: the planner's)")
     p.add_argument("--iterations", type=positive_int, help="sampler iterations (default: the planner's)")
-    p.add_argument("--projection-iterations", type=positive_int, help="projection iterations (default: the planner's)")
+    p.add_argument("--projection-iterations", type=non_negative_int,
+                   help="projection iterations (default: the planner's; 0: samples ranked unprojected)")
     p.add_argument("--seed", type=seed, default=0, help="PRNG seed")
     p.add_argument("--config", help="planner config JSON (nested sections: basis, qp, projection, sampler, cost)")
     p.add_argument("--max-obstacles", type=positive_int, default=10, help="nearest neighbours considered")
@@ -38,7 +40,7 @@ def _spec(args: argparse.Namespace):
     from driveopt.registry import get_optimiser
 
     spec = get_optimiser(args.planner).with_weights(args.weights)
-    spec = spec.with_overrides(**config_overrides(args.config))
+    spec = spec.with_overrides(**config_overrides(args.config, args.filter_weights))
     spec = spec.with_samples(args.samples)
     if args.iterations is not None:
         spec = spec.with_overrides(sampler={"num_iterations": args.iterations})
@@ -58,16 +60,17 @@ def run(args: argparse.Namespace) -> int:
     spec = _spec(args)
     config = spec.config
     prior = spec.prior(scene.road.num_lanes)
+    safety_filter = spec.safety_filter(scene.road.num_lanes)
     problem = build_problem(scene, config.basis, args.max_obstacles, braking_time=spec.braking_time,
                             selection_time=spec.selection_time)
     key = jax.random.PRNGKey(args.seed)
     start = time.perf_counter()
-    result = plan(problem, config, key=key, prior=prior, x_offset=scene.ego.x)
+    result = plan(problem, config, key=key, prior=prior, safety_filter=safety_filter, x_offset=scene.ego.x)
     first = time.perf_counter() - start
     solves = []
     for _ in range(args.repeats):
         start = time.perf_counter()
-        plan(problem, config, key=key, prior=prior, x_offset=scene.ego.x)
+        plan(problem, config, key=key, prior=prior, safety_filter=safety_filter, x_offset=scene.ego.x)
         solves.append(time.perf_counter() - start)
     solve = float(np.median(solves)) if solves else None
     timing = {"compile_s": None if solve is None else max(first - solve, 0.0), "solve_s": solve, "first_call_s": first}

@@ -1,4 +1,4 @@
-"""``driveopt train MODEL``: fit a learned component to demonstrations, resumable (cvae, vqvae, pixelcnn, dqn, ppo).
+"""``driveopt train MODEL``: fit a learned component to demonstrations, resumable (cvae, vqvae, pixelcnn, filter, dqn, ppo).
 
 The settings are checked (:class:`~driveopt.learned.train_cvae.TrainConfig`,
 :class:`~driveopt.learned.cvae.CVAEConfig`: NaN, infinite and out-of-range values are refused) before
@@ -10,12 +10,13 @@ from __future__ import annotations
 import argparse
 
 from driveopt.cli.common import positive_int
+from driveopt.cli.train_filter import register_models as register_filter
 from driveopt.cli.train_rl import register_models as register_rl
 from driveopt.cli.train_vqvae import register_models
 
 
 def register(sub) -> None:
-    p = sub.add_parser("train", help="train a learned component (cvae, vqvae, pixelcnn, dqn, ppo); resumable")
+    p = sub.add_parser("train", help="train a learned component (cvae, vqvae, pixelcnn, filter, dqn, ppo); resumable")
     models = p.add_subparsers(dest="model", required=True)
     p = models.add_parser("cvae", help="CVAE warm start (P1 §III-D) from demonstrations of `driveopt collect`")
     p.add_argument("--data", nargs="+", required=True, help="demonstration HDF5 files")
@@ -33,6 +34,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=run_cvae)
     register_models(models)  # vqvae, pixelcnn
+    register_filter(models)  # P2's learned safety filter
     register_rl(models)  # dqn, ppo: P1's RL baselines
 
 

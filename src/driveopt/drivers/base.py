@@ -71,5 +71,8 @@ class DriverSpec:
     def with_weights(self, weights: str | None) -> "DriverSpec":
         return self
 
+    def with_filter_weights(self, weights: str | None) -> "DriverSpec":
+        return self
+
     def with_replan_every(self, periods: int | None) -> "DriverSpec":
         return self

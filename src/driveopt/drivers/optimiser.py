@@ -13,7 +13,9 @@ constant velocity), and the neighbours planned against are those that come close
 :data:`driveopt.prediction.SELECTION_TIME` unless ``approach_selection`` is False (P1: the nearest
 now). With ``replan_every`` N > 1 (P1 §V executes five control periods per plan) it
 plans every N-th step and tracks the same plan open-loop in between. Its PRNG key derives from the
-episode seed: same seed, same episode.
+episode seed: same seed, same episode. A learned safety filter (P2 §III-C; ``filter_weights``, or the
+shipped weights for a spec with ``learned_filter``) sets up every batch's projection
+(:mod:`driveopt.safety.learned`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+import warnings
 from typing import Any, Callable
 
 import jax
@@ -69,6 +72,8 @@ class OptimiserSpec(DriverSpec):
     executes_infeasible: bool = False  # track the chosen plan even when INFEASIBLE, no brake-now fallback (P1)
     braking_prediction: bool = True  # braking neighbours keep braking for BRAKING_TIME (False: constant velocity, P1)
     approach_selection: bool = True  # plan against the neighbours closest within SELECTION_TIME (False: nearest now, P1)
+    learned_filter: bool = False  # project with the learned safety filter shipped for the road (none: the plain filter, warned)
+    filter_weights: str | None = None  # learned safety filter checkpoint for any optimiser (default: none, or the shipped one)
 
     def __post_init__(self) -> None:
         _check_types(self, "")
@@ -96,15 +101,38 @@ class OptimiserSpec(DriverSpec):
             return GaussianPrior.from_config(self.config.sampler, self.config.projection.v_max)
         return self.make_prior(self.config, lanes, self.weights)
 
+    def safety_filter(self, lanes: int = 4) -> Any:
+        """The learned safety filter for a road with ``lanes`` lanes (``filter_weights``, or the shipped weights when
+        ``learned_filter``), or None: the projection as configured. CheckpointError for unusable or wrong-road weights."""
+        if self.filter_weights is None and not self.learned_filter:
+            return None
+        from driveopt.safety.learned import filter_for
+
+        learned = filter_for(lanes, self.filter_weights)
+        if learned is not None and not self.config.projection.barrier:
+            warnings.warn(f"{self.name}: the learned safety filter's gammas act only in barrier mode; this projection is plain "
+                          "(add {\"projection\": {\"barrier\": true}} to --config to use them)", stacklevel=2)
+        return learned
+
     def driver(self) -> "OptimiserDriver":
         return OptimiserDriver(self)
 
     def check(self, scenario: Scenario) -> None:
         self.prior(scenario.lanes)
+        self.safety_filter(scenario.lanes)
 
     def with_overrides(self, **sections: Any) -> "OptimiserSpec":
-        """Copy with config sections updated, e.g. ``sampler={"num_samples": 250}``."""
-        return dataclasses.replace(self, config=self.config.replace(**sections))
+        """Copy with config sections updated, e.g. ``sampler={"num_samples": 250}``; a ``safety_filter`` section
+        ``{"weights": FILE}`` names a learned filter checkpoint (:meth:`with_filter_weights`)."""
+        from driveopt.safety.learned import split_filter_section
+
+        sections, weights = split_filter_section(sections)
+        spec = dataclasses.replace(self, config=self.config.replace(**sections))
+        return spec.with_filter_weights(weights) if weights is not None else spec
+
+    def with_filter_weights(self, weights: str | None) -> "OptimiserSpec":
+        """Copy that projects with the learned safety filter of the checkpoint ``weights`` (unchanged for ``None``)."""
+        return self if weights is None else dataclasses.replace(self, filter_weights=weights)
 
     def with_samples(self, samples: int | None) -> "OptimiserSpec":
         """Copy with ``samples`` per sampler iteration (elite counts capped at it); unchanged for ``None``
@@ -136,6 +164,7 @@ class OptimiserDriver:
         self.model = BicycleModel.from_env(env)
         self.config = adapt_to_vehicle(self.spec.config, scenario, self.model)
         self.prior = self.spec.prior(scenario.lanes)
+        self.safety_filter = self.spec.safety_filter(scenario.lanes)
         self.key = jax.random.PRNGKey(seed)
         self.period = 1.0 / scenario.policy_frequency  # [s] one policy period
         self.replan_period = self.spec.replan_every * self.period  # [s] between replans
@@ -143,10 +172,11 @@ class OptimiserDriver:
         # Compile outside the timed loop (the first call's trace and the later calls'); results are discarded.
         start = time.perf_counter()
         problem = self._problem(perceive(env, scenario))
-        warmup = plan(problem, self.config, key=jax.random.fold_in(self.key, 1), prior=self.prior)
+        warmup = plan(problem, self.config, key=jax.random.fold_in(self.key, 1), prior=self.prior, safety_filter=self.safety_filter)
         if self.spec.warm_start or self.carries_plan:
             warm, previous = self._carried(warmup)
-            plan(problem, self.config, key=jax.random.fold_in(self.key, 2), prior=self.prior, warm_start=warm, previous=previous)
+            plan(problem, self.config, key=jax.random.fold_in(self.key, 2), prior=self.prior, warm_start=warm, previous=previous,
+                 safety_filter=self.safety_filter)
         self.compile_seconds = time.perf_counter() - start
         self.warm = self.previous = self.executing = None
         self.executed_periods = 0
@@ -171,7 +201,7 @@ class OptimiserDriver:
         self.key, sub = jax.random.split(self.key)
         start = time.perf_counter()
         result = plan(problem, self.config, key=sub, prior=self.prior, warm_start=self.warm, previous=self.previous,
-                      x_offset=scene.ego.x)
+                      safety_filter=self.safety_filter, x_offset=scene.ego.x)
         elapsed = time.perf_counter() - start
         self.warm, self.previous = self._carried(result)
         self.executing, self.executed_periods = result, 1
