@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -26,8 +25,10 @@ import jax.numpy as jnp
 from driveopt.config import PlannerConfig, ProjectionConfig
 from driveopt.priors.base import Proposal, clip_setpoints, moments
 from driveopt.priors.gaussian import GaussianPrior
+from driveopt.shipped import shipped_weights_file
 
 COVARIANCE_JITTER = 0.01  # [-] added to the diagonal of the proposal's covariance
+SHIPPED = {2: "cvae-two-lane.ckpt", 4: "cvae-four-lane.ckpt"}  # lanes -> file in driveopt/weights
 
 
 @jax.tree_util.register_dataclass
@@ -74,11 +75,7 @@ def load_prior(path: str | Path, v_max: float = ProjectionConfig.v_max, gaussian
 
 def shipped_weights(lanes: int) -> Path | None:
     """Path of the CVAE weights shipped for roads with ``lanes`` lanes (2 or 4), or None."""
-    name = {2: "cvae-two-lane.ckpt", 4: "cvae-four-lane.ckpt"}.get(int(lanes))
-    if name is None:
-        return None
-    path = Path(str(resources.files("driveopt") / "weights" / name))
-    return path if path.exists() else None
+    return shipped_weights_file(SHIPPED, lanes)
 
 
 def prior_for(lanes: int, v_max: float, weights: str | Path | None, fallback: Any, gaussian_fraction: float = 0.0) -> Any:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,7 @@ import jax.numpy as jnp
 from driveopt.config import PlannerConfig, ProjectionConfig
 from driveopt.priors.base import Proposal, clip_setpoints, moments
 from driveopt.priors.gaussian import GaussianPrior
+from driveopt.shipped import shipped_weights_file
 
 COVARIANCE_JITTER = 0.01  # [-] added to the diagonal of the proposal's covariance
 SHIPPED = {2: "vqvae-two-lane.ckpt", 4: "vqvae-four-lane.ckpt"}  # lanes -> file in driveopt/weights (none yet)
@@ -73,11 +73,7 @@ def load_prior(path: str | Path, v_max: float = ProjectionConfig.v_max, lanes: i
 
 def shipped_weights(lanes: int) -> Path | None:
     """Path of the VQ-VAE prior weights shipped for roads with ``lanes`` lanes, or None (none ship yet)."""
-    name = SHIPPED.get(int(lanes))
-    if name is None:
-        return None
-    path = Path(str(resources.files("driveopt") / "weights" / name))
-    return path if path.exists() else None
+    return shipped_weights_file(SHIPPED, lanes)
 
 
 def prior_for(lanes: int, v_max: float, weights: str | Path | None, fallback: Any) -> Any:

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -28,6 +27,7 @@ import jax
 from driveopt.config import ConfigError
 from driveopt.problem import PlanningProblem
 from driveopt.safety.base import FilterInit
+from driveopt.shipped import shipped_weights_file
 
 SHIPPED = {2: "filter-two-lane.ckpt", 4: "filter-four-lane.ckpt"}  # lanes -> file in driveopt/weights (none yet)
 FILTER_SECTION = "safety_filter"  # --config section naming a filter checkpoint: {"safety_filter": {"weights": FILE}}
@@ -59,11 +59,7 @@ def load_filter(path: str | Path, lanes: int | None = None) -> LearnedFilter:
 
 def shipped_weights(lanes: int) -> Path | None:
     """Path of the filter weights shipped for roads with ``lanes`` lanes, or None (none ship yet)."""
-    name = SHIPPED.get(int(lanes))
-    if name is None:
-        return None
-    path = Path(str(resources.files("driveopt") / "weights" / name))
-    return path if path.exists() else None
+    return shipped_weights_file(SHIPPED, lanes)
 
 
 def filter_for(lanes: int, weights: str | Path | None) -> LearnedFilter | None:
