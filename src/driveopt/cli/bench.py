@@ -36,7 +36,6 @@ def run(args: argparse.Namespace) -> int:
     from driveopt.experiments.bench import BenchSpec, run_bench
     from driveopt.experiments.store import load_records
     from driveopt.experiments.summary import markdown_table
-
     from driveopt.sim.scenarios import load_overrides
 
     scenario = load_overrides(args.scenario_config) if args.scenario_config else None
