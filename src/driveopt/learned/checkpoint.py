@@ -62,8 +62,9 @@ def atomic_write(path: str | Path, data: bytes) -> Path:
     return path
 
 
-def load_checkpoint(path: str | Path, kind: str) -> tuple[dict[str, Any], dict[str, Any]]:
-    """(meta, state dict) of a checkpoint of ``kind``; CheckpointError on any problem."""
+def load_checkpoint(path: str | Path, kind: str, lanes: int | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(meta, state dict) of a checkpoint of ``kind``; CheckpointError on any problem, or when ``lanes`` is given
+    and the checkpoint was trained for roads with other lane counts (:func:`check_lanes`)."""
     path = Path(path)
     try:
         raw = path.read_bytes()
@@ -86,7 +87,37 @@ def load_checkpoint(path: str | Path, kind: str) -> tuple[dict[str, Any], dict[s
         state = serialization.msgpack_restore(body)
     except Exception as exc:  # msgpack raises several types on malformed input
         raise CheckpointError(f"{path} is corrupted: {exc}") from None
-    return header.get("meta", {}), state
+    meta = header.get("meta", {})
+    if lanes is not None:
+        check_lanes(meta, lanes, path)
+    return meta, state
+
+
+def check_lanes(meta: dict[str, Any], lanes: int, path: str | Path) -> None:
+    """CheckpointError unless the checkpoint's ``meta["lanes"]`` (the lane counts of the roads of its
+    training demonstrations) includes ``lanes``.
+
+    A checkpoint without the record (written before driveopt recorded it) is accepted unchecked: a
+    user's older weights keep working, and nothing in them tells the road; the shipped weights carry it.
+    """
+    trained = meta.get("lanes")
+    if trained is None:
+        return
+    if not isinstance(trained, list) or not all(isinstance(n, int) and not isinstance(n, bool) for n in trained):
+        raise CheckpointError(f"{path}: invalid lane record {trained!r} in the header (expected a list of lane counts)")
+    if int(lanes) not in trained:
+        roads = " or ".join(str(n) for n in trained)
+        raise CheckpointError(f"{path} was trained for {roads}-lane roads, not this {int(lanes)}-lane road: "
+                              f"use weights trained on {int(lanes)}-lane demonstrations")
+
+
+def header_config(meta: dict[str, Any], path: str | Path, config_type: Any, what: str, key: str = "config") -> Any:
+    """``config_type.from_dict(meta[key])``: the model configuration recorded in a checkpoint's header;
+    CheckpointError naming ``what`` (e.g. "CVAE") when it is missing or invalid."""
+    try:
+        return config_type.from_dict(meta[key])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{path}: invalid {what} config in the header: {exc}") from None
 
 
 def restore(target: Any, state: dict[str, Any], path: str | Path, what: str) -> Any:

@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from driveopt.config import BasisConfig, ConfigError, ProjectionConfig, QPConfig, check_count, check_number
-from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore
+from driveopt.learned.checkpoint import header_config, load_checkpoint, restore
 from driveopt.observation import (
     EGO_FEATURES,
     NEIGHBOUR_FEATURES,
@@ -229,31 +229,8 @@ def empty_state(cfg: CVAEConfig) -> dict[str, Any]:
 def load_cvae(path: str | Path, lanes: int | None = None) -> tuple[CVAEConfig, Any, Normaliser, dict[str, Any]]:
     """(config, params, normaliser, meta) of a CVAE checkpoint; CheckpointError when unusable, or when
     ``lanes`` is given and the checkpoint was trained for roads with other lane counts (:func:`check_lanes`)."""
-    meta, state = load_checkpoint(path, CHECKPOINT_KIND)
-    if lanes is not None:
-        check_lanes(meta, lanes, path)
-    try:
-        cfg = CVAEConfig.from_dict(meta["config"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CheckpointError(f"{path}: invalid CVAE config in the header: {exc}") from None
+    meta, state = load_checkpoint(path, CHECKPOINT_KIND, lanes)
+    cfg = header_config(meta, path, CVAEConfig, "CVAE")
     target = empty_state(cfg)
     restored = restore(target, {k: state.get(k) for k in target}, path, "the CVAE state")
     return cfg, restored["params"], Normaliser(*restored["normaliser"]), meta
-
-
-def check_lanes(meta: dict[str, Any], lanes: int, path: str | Path) -> None:
-    """CheckpointError unless the checkpoint's ``meta["lanes"]`` (the lane counts of the roads of its
-    training demonstrations) includes ``lanes``.
-
-    A checkpoint without the record (written before driveopt recorded it) is accepted unchecked: a
-    user's older weights keep working, and nothing in them tells the road; the shipped weights carry it.
-    """
-    trained = meta.get("lanes")
-    if trained is None:
-        return
-    if not isinstance(trained, list) or not all(isinstance(n, int) and not isinstance(n, bool) for n in trained):
-        raise CheckpointError(f"{path}: invalid lane record {trained!r} in the header (expected a list of lane counts)")
-    if int(lanes) not in trained:
-        roads = " or ".join(str(n) for n in trained)
-        raise CheckpointError(f"{path} was trained for {roads}-lane roads, not this {int(lanes)}-lane road: "
-                              f"use weights trained on {int(lanes)}-lane demonstrations")

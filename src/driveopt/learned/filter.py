@@ -35,8 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from driveopt.config import BasisConfig, ConfigError, check_count, check_number
-from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore
-from driveopt.learned.cvae import check_lanes
+from driveopt.learned.checkpoint import CheckpointError, header_config, load_checkpoint, restore
 from driveopt.observation import EGO_FEATURES, NEIGHBOUR_FEATURES, OBSERVATION_DIM
 from driveopt.problem import PlanningProblem
 from driveopt.safety.base import FilterError, FilterInit
@@ -191,13 +190,8 @@ def load_filter(path: str | Path, lanes: int | None = None) -> tuple[FilterConfi
     """(config, params, normaliser, meta) of a filter checkpoint; CheckpointError when unusable (corrupted, another
     kind, arrays of other shapes, non-finite weights), or when ``lanes`` is given and it was trained for roads with
     other lane counts."""
-    meta, state = load_checkpoint(path, CHECKPOINT_KIND)
-    if lanes is not None:
-        check_lanes(meta, lanes, path)
-    try:
-        cfg = FilterConfig.from_dict(meta["config"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CheckpointError(f"{path}: invalid safety-filter config in the header: {exc}") from None
+    meta, state = load_checkpoint(path, CHECKPOINT_KIND, lanes)
+    cfg = header_config(meta, path, FilterConfig, "safety-filter")
     target = empty_state(cfg)
     restored = restore(target, {k: state.get(k) for k in target}, path, "the safety-filter state")
     if not all(np.all(np.isfinite(np.asarray(leaf))) for leaf in jax.tree_util.tree_leaves(restored)):

@@ -30,9 +30,9 @@ import jax.numpy as jnp
 import optax
 
 from driveopt.config import ConfigError, check_count
-from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore
-from driveopt.learned.cvae import FEATURE_DIM, MLP, check_lanes
-from driveopt.learned.vqvae import Normaliser, VQVAEConfig, config_from_meta, empty_state
+from driveopt.learned.checkpoint import CheckpointError, header_config, load_checkpoint, restore
+from driveopt.learned.cvae import FEATURE_DIM, MLP
+from driveopt.learned.vqvae import Normaliser, VQVAEConfig, empty_state
 
 CHECKPOINT_KIND = "pixelcnn"
 
@@ -237,14 +237,9 @@ def load_vqvae_prior(path: str | Path, lanes: int | None = None) -> dict[str, An
     """Everything the VQ-VAE prior plans with, from a PixelCNN checkpoint (it embeds its VQ-VAE's decoder,
     codebook and normaliser): {"vqvae_config", "vqvae_params", "normaliser", "config", "params", "meta"}.
     CheckpointError when unusable, or when ``lanes`` is given and it was trained for other lane counts."""
-    meta, state = load_checkpoint(path, CHECKPOINT_KIND)
-    if lanes is not None:
-        check_lanes(meta, lanes, path)
-    vq_cfg = config_from_meta(meta, path, "vqvae_config")
-    try:
-        cfg = PixelCNNConfig.from_dict(meta["config"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CheckpointError(f"{path}: invalid PixelCNN config in the header: {exc}") from None
+    meta, state = load_checkpoint(path, CHECKPOINT_KIND, lanes)
+    vq_cfg = header_config(meta, path, VQVAEConfig, "VQ-VAE", "vqvae_config")
+    cfg = header_config(meta, path, PixelCNNConfig, "PixelCNN")
     if (cfg.num_latents, cfg.codebook_size) != (vq_cfg.num_latents, vq_cfg.codebook_size):
         raise CheckpointError(f"{path}: the PixelCNN ({cfg.num_latents} x {cfg.codebook_size} codes) does not match its "
                               f"VQ-VAE ({vq_cfg.num_latents} x {vq_cfg.codebook_size})")

@@ -35,8 +35,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from driveopt.config import BasisConfig, ConfigError, ProjectionConfig, QPConfig, check_count, check_number
-from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore
-from driveopt.learned.cvae import FEATURE_DIM, MLP, Batch, check_lanes, observation_features
+from driveopt.learned.checkpoint import header_config, load_checkpoint, restore
+from driveopt.learned.cvae import FEATURE_DIM, MLP, Batch, observation_features
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, TrajectoryModel, make_model, qp_layer
 
 CHECKPOINT_KIND = "vqvae"
@@ -241,19 +241,10 @@ def empty_state(cfg: VQVAEConfig) -> dict[str, Any]:
             "normaliser": Normaliser(zeros(FEATURE_DIM), zeros(FEATURE_DIM), zeros(nodes, 2), zeros(nodes, 2))}
 
 
-def config_from_meta(meta: dict[str, Any], path: str | Path, key: str = "config") -> VQVAEConfig:
-    try:
-        return VQVAEConfig.from_dict(meta[key])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CheckpointError(f"{path}: invalid VQ-VAE config in the header: {exc}") from None
-
-
 def load_vqvae(path: str | Path, lanes: int | None = None) -> tuple[VQVAEConfig, Any, Normaliser, dict[str, Any]]:
     """(config, params, normaliser, meta) of a VQ-VAE checkpoint; CheckpointError when unusable, or when ``lanes``
     is given and the checkpoint was trained for roads with other lane counts."""
-    meta, state = load_checkpoint(path, CHECKPOINT_KIND)
-    if lanes is not None:
-        check_lanes(meta, lanes, path)
-    cfg = config_from_meta(meta, path)
+    meta, state = load_checkpoint(path, CHECKPOINT_KIND, lanes)
+    cfg = header_config(meta, path, VQVAEConfig, "VQ-VAE")
     restored = restore(empty_state(cfg), {k: state.get(k) for k in ("params", "normaliser")}, path, "the VQ-VAE state")
     return cfg, restored["params"], Normaliser(*restored["normaliser"]), meta

@@ -66,7 +66,7 @@ class CVAEPrior:
 def load_prior(path: str | Path, v_max: float = ProjectionConfig.v_max, gaussian: Any = None, gaussian_fraction: float = 0.0,
                lanes: int | None = None) -> CVAEPrior:
     """The prior of the checkpoint ``path``; with ``lanes``, CheckpointError when the checkpoint records that
-    it was trained for roads with other lane counts (see :func:`driveopt.learned.cvae.check_lanes`)."""
+    it was trained for roads with other lane counts (see :func:`driveopt.learned.checkpoint.check_lanes`)."""
     from driveopt.learned.cvae import load_cvae
 
     cfg, params, norm, _ = load_cvae(path, lanes)
