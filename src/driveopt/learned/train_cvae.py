@@ -189,9 +189,7 @@ def train_cvae(
     stop_after: return after this many epochs of this call (for tests of resumption).
     The summary's ``weights`` is the path of ``cvae.ckpt``, or None when no epoch has written it yet.
     """
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise CheckpointError(f"the output folder {out} is an existing file; give a folder (for last.ckpt, cvae.ckpt, history.json)")
+    out = check_output_folder(out_dir, "cvae.ckpt")
     data, held, train_rows, val_rows = _rows(data_paths, validation_paths, tcfg)
     train, val = make_batch(data, train_rows), make_batch(held, val_rows)
     batch_size = min(tcfg.batch_size, len(train_rows))
@@ -277,6 +275,15 @@ def _rows(data_paths, validation_paths, tcfg: TrainConfig) -> tuple[Demonstratio
     if len(train_rows) < 2:
         raise DatasetError(f"only {len(train_rows)} usable training rows in {data_paths}: collect more demonstrations")
     return data, held, train_rows, val_rows
+
+
+def check_output_folder(out_dir: str | Path, weights: str) -> Path:
+    """``out_dir`` as a Path; CheckpointError, before anything is read or written, when it is an existing file
+    (a trainer writes last.ckpt, ``weights`` and history.json there)."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise CheckpointError(f"the output folder {out} is an existing file; give a folder (for last.ckpt, {weights}, history.json)")
+    return out
 
 
 def _make_folder(out: Path) -> None:

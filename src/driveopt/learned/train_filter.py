@@ -58,6 +58,7 @@ from driveopt.learned.train_cvae import (
     _check_same_data,
     _make_folder,
     _rows,
+    check_output_folder,
     data_record,
     epoch_bar,
     minibatches,
@@ -261,9 +262,7 @@ def train_filter(
     summary with the history. ``prior_weights``: checkpoint of the VQ-VAE (PixelCNN) or CVAE prior (default: the
     shipped one). ``stop_after``: return after this many epochs of this call (for tests of resumption). The summary's
     ``weights`` is the path of ``filter.ckpt``, or None before an epoch wrote it."""
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise CheckpointError(f"the output folder {out} is an existing file; give a folder (for last.ckpt, filter.ckpt, history.json)")
+    out = check_output_folder(out_dir, "filter.ckpt")
     if cfg.basis != config.basis:
         raise ConfigError(f"the filter's basis {cfg.basis} is not the planner's {config.basis}")
     data, held, train_rows, val_rows = _rows(data_paths, validation_paths, tcfg)

@@ -60,6 +60,7 @@ from driveopt.learned.train_cvae import (
     _check_same_data,
     _make_folder,
     _rows,
+    check_output_folder,
     data_record,
     epoch_bar,
     minibatches,
@@ -226,11 +227,6 @@ def weights_digest(state: Any) -> str:
     return hashlib.sha256(serialization.msgpack_serialize(serialization.to_state_dict(jax.device_get(state)))).hexdigest()[:16]
 
 
-def _check_out(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise CheckpointError(f"the output folder {out} is an existing file; give a folder (for last.ckpt, the weights, history.json)")
-
-
 def _check_resume(path: Path, meta: dict[str, Any], expected: dict[str, Any], tcfg: TrainConfig, what: str) -> None:
     """CheckpointError unless ``path``'s meta has ``expected``'s network configurations, the same training settings
     (epochs aside) and the same data record."""
@@ -267,8 +263,7 @@ def train_vqvae(
 
     The summary's ``weights`` is the path of ``vqvae.ckpt`` (None before an epoch wrote it); ``stop_after``
     returns after this many epochs of this call (for tests of resumption)."""
-    out = Path(out_dir)
-    _check_out(out)
+    out = check_output_folder(out_dir, "vqvae.ckpt")
     data, held, train_rows, val_rows, train, val = _examples(data_paths, validation_paths, tcfg, cfg.basis)
     n_train = len(train.observation)
     batch_size = min(tcfg.batch_size, n_train)
@@ -368,8 +363,7 @@ def train_pixelcnn(
 
     ``cfg`` defaults to P2's architecture sized for the VQ-VAE (:meth:`PixelCNNConfig.for_vqvae`); its
     sequence length and code count must be the VQ-VAE's. The summary's ``weights`` is ``pixelcnn.ckpt``."""
-    out = Path(out_dir)
-    _check_out(out)
+    out = check_output_folder(out_dir, "pixelcnn.ckpt")
     vq_cfg, vq_params, vq_norm, vq_meta = vq.load_vqvae(vqvae_path)
     cfg = cfg or px.PixelCNNConfig.for_vqvae(vq_cfg)
     if (cfg.num_latents, cfg.codebook_size) != (vq_cfg.num_latents, vq_cfg.codebook_size):
