@@ -15,6 +15,7 @@ The subclasses below only add what the scenarios need and upstream has no config
   so that same-lane bumper gaps are at least ``min_spawn_gap``: at density 3 upstream spawns
   overlapping cars (6-11 overlapping pairs of 50 on four lanes) and up to half of the
   neighbours crash into each other within 10 s;
+- a road that simulates the same, faster (:mod:`driveopt.sim.fast_road`);
 - truncation after ``duration`` seconds on every road, counted in integer simulation steps
   (upstream accumulates ``1 / policy_frequency`` in a float; two-way-v0 and merge-v0 never truncate);
 - rewards that do not read DiscreteMetaAction-only state (upstream two-way-v0 reads
@@ -35,6 +36,7 @@ from highway_env.envs.highway_env import HighwayEnv
 from highway_env.envs.merge_env import MergeEnv
 from highway_env.envs.two_way_env import TwoWayEnv
 
+from driveopt.sim.fast_road import FastRoad
 from driveopt.sim.scenarios import Scenario
 
 UPSTREAM_TRAFFIC = "highway_env.vehicle.behavior.IDMVehicle"
@@ -97,6 +99,10 @@ class _ScenarioTraffic:
 
 class DriveoptHighwayEnv(_ScenarioTraffic, HighwayEnv):
     """highway-v0 (straight multi-lane highway, neighbours spawned ahead of the ego) with scenario traffic."""
+
+    def _create_road(self) -> None:
+        super()._create_road()
+        self.road = FastRoad.like(self.road)  # same simulation, array neighbour search and collision pre-test
 
     def _reset(self) -> None:
         self._create_road()
