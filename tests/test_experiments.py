@@ -208,7 +208,7 @@ def test_cli_bench_out_is_a_file(tmp_path, capsys):
 
     (tmp_path / "X").write_text("not a folder")
     assert main(["bench", "--scenarios", "two-lane-d1.0", "--planners", "idm", "--out", str(tmp_path / "X")]) == 2
-    assert capsys.readouterr().err == f"driveopt: error: {tmp_path / 'X'} is a file, not a folder; use another output folder\n"
+    assert capsys.readouterr().err == f"driveopt: error: the output folder {tmp_path / 'X'} is an existing file; give a folder (for episodes.jsonl, spec.json and the summaries)\n"
     assert (tmp_path / "X").read_text() == "not a folder"
 
 
@@ -239,6 +239,10 @@ def test_summarise_merges_bench_folders_and_refuses_duplicates(tmp_path, capsys)
     assert main(["summarise", str(tmp_path / "idm"), str(tmp_path / "idm"), "--out", str(out)]) == 2
     assert "pass each run once" in capsys.readouterr().err
     assert main(["summarise", str(tmp_path / "missing"), "--out", str(out)]) == 2
+    (tmp_path / "file").write_text("x")
+    capsys.readouterr()
+    assert main(["summarise", str(tmp_path / "idm"), "--out", str(tmp_path / "file" / "sub")]) == 2
+    assert "cannot create the output folder" in capsys.readouterr().err
 
 
 def test_bench_refuses_a_planner_without_usable_weights_before_any_episode(tmp_path):

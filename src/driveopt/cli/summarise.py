@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from driveopt.cli.common import UsageError
+from driveopt.folders import make_output_folder
 
 
 def register(sub) -> None:
@@ -48,10 +49,7 @@ def run(args: argparse.Namespace) -> int:
     if not records:
         raise UsageError("the folders hold no finished episodes")
     rows = summarise(records, args.reference)
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"{out} is a file, not a folder")
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_output_folder(args.out, UsageError, "summary.md, summary.csv, summary.png")
     write_summaries(rows, out)
     print(markdown_table(rows))
     print(f"wrote {out}/summary.md, summary.csv, summary.png")

@@ -44,6 +44,7 @@ from driveopt.experiments.summary import (
     summarise,
     write_csv,
 )
+from driveopt.folders import make_output_folder
 from driveopt.registry import get_planner
 from driveopt.sim.rollout import run_episode
 from driveopt.sim.scenarios import resolve_scenario
@@ -131,7 +132,7 @@ def run_bench(
     spec.check()
     check_backend(backend)
     out = Path(out_dir)
-    _make_folder(out)
+    make_output_folder(out, StoreError, "episodes.jsonl, spec.json and the summaries")
     store = out / "episodes.jsonl"
     done = load_records(store)
     _claim(out / "spec.json", spec, has_episodes=bool(done))
@@ -164,16 +165,6 @@ def write_summaries(rows: list[dict[str, Any]], out: Path) -> None:
     _replace(out / "summary.md", lambda path: path.write_text(markdown_table(rows)))
     if rows:
         _replace(out / "summary.png", lambda path: plot_summary(rows, path))
-
-
-def _make_folder(out: Path) -> None:
-    """Create the output folder; StoreError when ``out`` (or a parent) is a file or cannot be created."""
-    if out.exists() and not out.is_dir():
-        raise StoreError(f"{out} is a file, not a folder; use another output folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise StoreError(f"cannot create the output folder {out}: {exc.strerror or exc}") from None
 
 
 def _claim(path: Path, spec: BenchSpec, *, has_episodes: bool) -> None:

@@ -42,6 +42,7 @@ import numpy as np
 import optax
 from tqdm import tqdm
 
+from driveopt import folders
 from driveopt.config import check_count, check_number
 from driveopt.data.demonstrations import (
     DatasetError,
@@ -280,17 +281,11 @@ def _rows(data_paths, validation_paths, tcfg: TrainConfig) -> tuple[Demonstratio
 def check_output_folder(out_dir: str | Path, weights: str) -> Path:
     """``out_dir`` as a Path; CheckpointError, before anything is read or written, when it is an existing file
     (a trainer writes last.ckpt, ``weights`` and history.json there)."""
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise CheckpointError(f"the output folder {out} is an existing file; give a folder (for last.ckpt, {weights}, history.json)")
-    return out
+    return folders.check_output_folder(out_dir, CheckpointError, f"last.ckpt, {weights}, history.json")
 
 
 def _make_folder(out: Path) -> None:
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise CheckpointError(f"cannot create the output folder {out}: {exc.strerror or exc}") from None
+    folders.make_output_folder(out, CheckpointError, "last.ckpt and history.json")
 
 
 def _paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:

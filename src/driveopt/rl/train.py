@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from driveopt.errors import DriveoptError
+from driveopt.folders import make_output_folder
 from driveopt.learned.checkpoint import atomic_write
 from driveopt.rl.env import DrivingEnv, RewardWeights, policy_scenario
 from driveopt.rl.policy import (
@@ -159,15 +160,6 @@ def _better(new: dict[str, Any], best: dict[str, Any] | None) -> bool:
     return best is None or (new["collision_rate"], -new["mean_return"]) < (best["collision_rate"], -best["mean_return"])
 
 
-def _check_folder(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise TrainingError(f"the output folder {out} is an existing file; give a folder (for last.zip, best.zip, curve.csv)")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise TrainingError(f"cannot create the output folder {out}: {exc.strerror or exc}") from None
-
-
 def _check_resume(path: Path, algo: str, record: dict[str, Any], stored: dict[str, Any]) -> None:
     """PolicyError unless the checkpoint ``stored`` was made by the same algorithm, scenario, seed, envs and settings."""
     if stored.get("algo") != algo:
@@ -226,7 +218,7 @@ def train_agent(
         except RuntimeError as exc:
             raise TrainingError(f"device {device!r} is not a PyTorch device (cpu, cuda, cuda:N, auto): {exc}") from None
     torch.set_num_threads(1)
-    _check_folder(out)
+    make_output_folder(out, TrainingError, "last.zip, best.zip, curve.csv")
     record = {"algo": algo, "scenario": scenario.to_dict(), "lanes": scenario.lanes, "seed": seed, "envs": envs,
               "settings": settings, "reward_weights": RewardWeights().to_dict()}
     last, curve_path = out / "last.zip", out / "curve.csv"
