@@ -130,7 +130,7 @@ class ProjectionConfig:
 
     max_iterations: int = 20  # [-] alternating-minimisation iterations; 0: no projection, every sample is ranked as drawn
     # (P2 Fig. 9's "no filter" ablation)
-    tolerance: float = 1e-3  # [-] early stop when every sample is feasible or has stopped moving
+    tolerance: float = 1e-3  # [m] early stop when no coefficient of any sample moved more than this in the last iteration
     rho_obstacle: float = 1.0  # [-] penalty weight of the obstacle rows
     rho_velocity: float = 10.0  # [-] penalty weight of the velocity rows
     rho_acceleration: float = 10.0  # [-] penalty weight of the acceleration rows

@@ -1,0 +1,290 @@
+"""Offline residuals of P2's learned safety filter against the plain projection, by iteration count (issue 15).
+
+    python benchmarks/filter_residuals.py --data HELD.h5 [HELD2.h5 ...] --filter-weights filter.ckpt \
+        --json out/filter_residuals.json [--samples-from vqvae|cvae|gaussian] [--prior-weights FILE] \
+        [--validation 0.1 --seed 0] [--max-rows N] [--samples 250] [--iterations 1 5 10 25 50 100] [--planner vqvae-filter]
+
+Rows: the demonstration rows ``driveopt train filter`` learns from (feasible plan, more than 3 s before
+a collision, the trainer's canonical order); with ``--validation F`` only the episodes that training
+with the same ``--validation`` and ``--seed`` holds out, otherwise all rows of ``--data`` (a held-out
+file); at most ``--max-rows`` evenly spaced ones. Each row's planning problem is rebuilt from its
+observation (:mod:`driveopt.data.replay`), as the trainer does.
+
+Planning configuration: ``--planner``'s (default ``vqvae-filter``: barrier projection, gammas 1),
+capped at the simulated car's acceleration and curvature as in closed loop
+(:func:`driveopt.learned.train_filter.scenario_config`), with ``--samples`` samples (250).
+
+For every row, ``--samples`` set-points are drawn from the prior (``--samples-from``, by default the
+one the filter was trained on as its checkpoint records it, else ``vqvae``; ``--prior-weights`` or
+the shipped weights; one key per row, ``--seed`` and the row index) and turned into trajectories by
+the planner's set-point QP; then, for each k of ``--iterations``, the same trajectories are projected
+with ``projection.max_iterations = k`` twice:
+
+* ``learned``: set up by the filter of ``--filter-weights`` (its per-sample gammas, initial
+  multipliers and first iterate; :func:`driveopt.planner.project_batch`);
+* ``plain``: the projection as configured without a filter (the configuration's fixed gammas, the
+  sample as first iterate, zero multipliers).
+
+The projection runs as the planner runs it (not unrolled), so k is "at most k iterations": it stops
+earlier once the batch has converged (no coefficient of any sample moved more than
+``projection.tolerance``, 1e-3 m, in the last iteration), which leaves its residual where it is; the
+iterations actually run are recorded (``iterations``).
+
+Measured per row, variant and k: the median over samples of the total residual of the projected
+trajectory against the plain constraints (:func:`driveopt.projection.constraint_residuals`, gamma = 1:
+the residual the planner ranks by and eq. 9 trains on; the constraint families summed in their own
+units, m, m/s and m/s^2) and the share of samples within the planner's ``sampler.residual_tolerance``
+(0.05). Summary per variant and k: the median over rows of those medians, the mean feasible share and
+the mean iterations run; per variant ``iterations_to_tolerance``, the smallest k of ``--iterations`` at
+which the median row's median sample is within the tolerance (null: none).
+
+Output: one JSON line per row in ``<json>.rows.jsonl``, appended as it goes, and the summary (with the
+settings and the machine) in ``--json``, rewritten atomically after every row. A rerun of the same
+command skips the rows done; a rerun with other settings or data is refused. Bad input (unreadable
+data, a corrupted filter checkpoint or one for another road, bad options) is reported on one line
+and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import hashlib
+import json
+import os
+import platform
+import sys
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm import tqdm
+
+from driveopt.data.demonstrations import load_demonstrations
+from driveopt.errors import DriveoptError
+from driveopt.learned import filter as fl
+from driveopt.learned.checkpoint import atomic_write
+from driveopt.learned.train_cvae import canonical_order, road_lanes, split_episodes, training_rows
+from driveopt.learned.train_filter import SAMPLE_SOURCES, TrainConfig, _draw, row_problems, scenario_config, training_prior
+from driveopt.planner import project_batch, setpoint_batch
+from driveopt.projection import constraint_residuals
+from driveopt.qp import make_model
+from driveopt.registry import get_optimiser
+from driveopt.safety.learned import LearnedFilter
+
+ITERATIONS = (1, 5, 10, 25, 50, 100)  # [-] projection iterations measured by default
+SAMPLES = 250  # [-] set-points drawn per row
+VARIANTS = ("learned", "plain")
+
+
+class FilterResidualsError(DriveoptError):
+    """Options, data or an existing results file that this run cannot use."""
+
+
+def held_out_rows(data, validation: float, seed: int, max_rows: int) -> np.ndarray:
+    """Rows to evaluate, in the trainer's canonical order; at most ``max_rows`` evenly spaced ones (0: all)."""
+    rows = canonical_order(data, training_rows(data, TrainConfig().crash_margin))
+    if validation > 0:
+        rows = split_episodes(data, rows, validation, seed)[1]
+    if max_rows and len(rows) > max_rows:
+        rows = rows[np.linspace(0, len(rows) - 1, max_rows).round().astype(int)]
+    return rows
+
+
+def file_digest(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
+def machine() -> dict[str, Any]:
+    return {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__, "device": str(jax.devices()[0])}
+
+
+def run_config(config, samples: int, iterations: int):
+    """``config`` with ``samples`` per batch, one sampler pass and at most ``iterations`` projection iterations."""
+    return config.with_samples(samples).replace(sampler={"num_iterations": 1}, projection={"max_iterations": iterations})
+
+
+@functools.partial(jax.jit, static_argnames=("config",))
+def projected_residuals(problem, setpoints, safety_filter, config):
+    """(total plain-constraint residual (S,), iterations run) of the set-points (S, 8) through the set-point QP and the
+    projection of ``config``, set up by ``safety_filter`` (None: as configured)."""
+    model = make_model(config.basis, config.qp)
+    qp_coeffs, b_x, b_y = setpoint_batch(model, problem, config, setpoints)
+    proj = project_batch(model, problem, config, qp_coeffs, b_x, b_y, safety_filter)
+    return constraint_residuals(model, problem, proj.coeffs, config.projection).total, proj.iterations
+
+
+def read_rows(path: Path, settings: dict[str, Any]) -> dict[int, dict[str, Any]]:
+    """Finished rows of an earlier run with the same settings (a torn last line is dropped); a new file starts with
+    the settings."""
+    header = json.dumps({"settings": settings})
+    lines = path.read_text().splitlines() if path.exists() else []
+    if not lines:
+        path.write_text(header + "\n")
+        return {}
+    try:
+        earlier = json.loads(lines[0])["settings"]
+        changed = sorted(k for k in set(earlier) | set(settings) if earlier.get(k) != settings.get(k))
+    except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
+        raise FilterResidualsError(f"{path} is not a filter_residuals results file: remove it or choose another --json") from None
+    if changed:
+        raise FilterResidualsError(f"{path} holds results of other settings ({', '.join(changed)}): "
+                                   "remove it or choose another --json")
+    done: dict[int, dict[str, Any]] = {}
+    kept = lines[:1]
+    for line in lines[1:]:
+        try:
+            record = json.loads(line)
+            for variant in VARIANTS:
+                for k in settings["iterations"]:
+                    float(record["results"][variant][str(k)]["residual_median"])
+            done[int(record["row"])] = record
+            kept.append(line)
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError):
+            break  # an interrupted write: redo from here
+    path.write_text("".join(f"{line}\n" for line in kept))
+    return done
+
+
+def summarise(records: list[dict[str, Any]], iterations: list[int], tolerance: float) -> dict[str, Any]:
+    """Per variant and k: median over rows of the per-row median residual, mean feasible share, mean iterations run;
+    per variant the smallest k whose median is within ``tolerance`` (None: none)."""
+    results: dict[str, Any] = {}
+    for variant in VARIANTS:
+        by_k = {}
+        for k in iterations:
+            cells = [r["results"][variant][str(k)] for r in records]
+            by_k[str(k)] = {"residual_median": float(np.median([c["residual_median"] for c in cells])),
+                            "feasible_share": float(np.mean([c["feasible_share"] for c in cells])),
+                            "iterations_mean": float(np.mean([c["iterations"] for c in cells]))}
+        reached = [k for k in iterations if by_k[str(k)]["residual_median"] <= tolerance]
+        results[variant] = {"by_iterations": by_k, "iterations_to_tolerance": reached[0] if reached else None}
+    return results
+
+
+def report(settings: dict[str, Any], tolerance: float, done: dict[int, dict[str, Any]]) -> dict[str, Any]:
+    records = [done[r] for r in sorted(done)]
+    results = summarise(records, settings["iterations"], tolerance) if records else {}
+    return {"settings": settings, "machine": machine(), "residual_tolerance": tolerance, "rows": len(records), "results": results}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", nargs="+", required=True, help="demonstrations (HDF5) of one road, from driveopt collect")
+    parser.add_argument("--filter-weights", required=True, help="safety-filter checkpoint (driveopt train filter: filter.ckpt)")
+    parser.add_argument("--json", default="out/filter_residuals.json", help="summary; per-row results go to <json>.rows.jsonl")
+    parser.add_argument("--samples-from", choices=SAMPLE_SOURCES,
+                        help="prior the samples come from (default: the one the filter was trained on, else vqvae)")
+    parser.add_argument("--prior-weights", help="its checkpoint: pixelcnn.ckpt or cvae.ckpt (default: the weights shipped for the road)")
+    parser.add_argument("--planner", default="vqvae-filter", help="optimiser whose projection and tolerance are measured")
+    parser.add_argument("--validation", type=float, default=0.0, help="evaluate the episodes train holds out with this fraction")
+    parser.add_argument("--seed", type=int, default=0, help="the split's seed (as train's) and the sampling seed")
+    parser.add_argument("--max-rows", type=int, default=0, help="evaluate at most this many evenly spaced rows (0: all)")
+    parser.add_argument("--samples", type=int, default=SAMPLES, help="set-points drawn per row")
+    parser.add_argument("--iterations", type=int, nargs="*", default=list(ITERATIONS), help="projection iteration counts k")
+    args = parser.parse_args(argv)
+    try:
+        return run(args)
+    except DriveoptError as exc:
+        print(f"filter_residuals: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def check_options(args: argparse.Namespace) -> list[int]:
+    """The sorted distinct iteration counts; FilterResidualsError for options out of range."""
+    if not args.iterations:
+        raise FilterResidualsError("--iterations needs at least one iteration count")
+    if min(args.iterations) < 1:
+        raise FilterResidualsError(f"--iterations must be positive, got {args.iterations}")
+    if not 0.0 <= args.validation < 1.0 or args.seed < 0 or args.max_rows < 0 or args.samples < 1:
+        raise FilterResidualsError("--validation must be in [0, 1), --seed and --max-rows >= 0, --samples >= 1")
+    return sorted(set(args.iterations))
+
+
+def notice(message: str) -> None:
+    print(f"filter_residuals: {message}", file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    iterations = check_options(args)
+    spec = get_optimiser(args.planner)
+    run_config(spec.config, args.samples, iterations[-1])  # ConfigError for too many iterations, before the data is read
+    data = load_demonstrations(args.data)
+    rows = held_out_rows(data, args.validation, args.seed, args.max_rows)
+    if len(rows) == 0:
+        raise FilterResidualsError("no usable rows to evaluate (feasible plans more than 3 s before a collision)")
+    lanes = road_lanes(data, rows)
+    if len(lanes) != 1:
+        raise FilterResidualsError(f"demonstrations of roads with {lanes} lanes: a filter is per lane count, give one road")
+    planner, v_des = scenario_config(data, rows, spec.config)
+    configs = {k: run_config(planner, args.samples, k) for k in iterations}
+    config = configs[iterations[-1]]
+    cfg, params, normaliser, meta = fl.load_filter(args.filter_weights, lanes=lanes[0])
+    if cfg.basis != config.basis:
+        raise FilterResidualsError(f"the filter's basis {cfg.basis} is not the planner's {config.basis}")
+    learned = LearnedFilter(params, normaliser, cfg)
+    trained_on = meta.get("prior") if isinstance(meta.get("prior"), dict) else {}
+    samples_from = args.samples_from or trained_on.get("samples_from") or "vqvae"
+    prior, prior_record = training_prior(samples_from, lanes, config, args.prior_weights)
+    if trained_on and (trained_on.get("samples_from"), trained_on.get("weights")) != (samples_from, prior_record["weights"]):
+        notice(f"the filter was trained on samples of another prior ({trained_on}); measuring with {prior_record}")
+    if isinstance(meta.get("projection"), dict):
+        now = {k: v for k, v in dataclasses.asdict(config.projection).items() if k != "max_iterations"}
+        differ = sorted(k for k, v in now.items() if meta["projection"].get(k) != v)
+        if differ:
+            notice(f"the filter was trained for another projection (differs in {', '.join(differ)})")
+    if not config.projection.barrier:
+        notice(f"{args.planner}'s projection is not in barrier mode: the filter's gammas are unused, only its initialisation acts")
+    tolerance = float(config.sampler.residual_tolerance)
+
+    settings = {"data": data.fingerprint(), "rows": len(rows), "validation": args.validation, "seed": args.seed,
+                "max_rows": args.max_rows, "samples": args.samples, "iterations": iterations, "planner": args.planner,
+                "filter": file_digest(args.filter_weights), "prior": prior_record}
+    summary_path = Path(args.json)
+    rows_path = summary_path.with_name(summary_path.stem + ".rows.jsonl")
+    summary_path.parent.mkdir(parents=True, exist_ok=True)
+    done = read_rows(rows_path, settings)
+    base_key = jax.random.PRNGKey(args.seed)
+    todo = [int(r) for r in rows if int(r) not in done]
+    bar = tqdm(todo, desc="filter residuals", unit="row", initial=len(rows) - len(todo), total=len(rows))
+    with rows_path.open("a") as out:
+        for row in bar:
+            stacked = row_problems(data, np.array([row]), v_des, config)
+            key = jax.random.fold_in(base_key, row)
+            setpoints = _draw(prior, jax.tree_util.tree_map(jnp.asarray, stacked), key[None], args.samples)[0]
+            problem = jax.tree_util.tree_map(lambda a: jnp.asarray(a[0]), stacked)
+            results: dict[str, dict[str, Any]] = {variant: {} for variant in VARIANTS}
+            for k in iterations:
+                for variant, safety_filter in zip(VARIANTS, (learned, None)):
+                    residual, ran = projected_residuals(problem, setpoints, safety_filter, configs[k])
+                    residual = np.asarray(residual)  # float32, compared with the tolerance as the planner does
+                    results[variant][str(k)] = {"residual_median": float(np.median(residual.astype(np.float64))),
+                                                "feasible_share": float(np.mean(residual <= np.float32(tolerance))),
+                                                "iterations": int(ran)}
+            record = {"row": row, "episode": int(data.episode[row]), "results": results}
+            done[row] = record
+            out.write(json.dumps(record) + "\n")
+            out.flush()
+            atomic_write(summary_path, json.dumps(report(settings, tolerance, done), indent=1).encode())
+            last = str(iterations[-1])
+            bar.set_postfix_str(" ".join(f"{v} {results[v][last]['residual_median']:.3f}" for v in VARIANTS))
+    final = report(settings, tolerance, done)
+    atomic_write(summary_path, json.dumps(final, indent=1).encode())
+    print(f"{final['rows']} rows, {args.samples} samples each; median over rows of the median sample's residual "
+          f"(share of samples within {tolerance:g}):")
+    for k in iterations:
+        print(f"  k = {k:>4}: " + ", ".join(f"{v} {final['results'][v]['by_iterations'][str(k)]['residual_median']:.4f} "
+                                           f"({100 * final['results'][v]['by_iterations'][str(k)]['feasible_share']:.0f}%)"
+                                           for v in VARIANTS))
+    for v in VARIANTS:
+        reached = final["results"][v]["iterations_to_tolerance"]
+        print(f"  {v}: median sample within tolerance at k = {reached if reached is not None else 'none of ' + str(iterations)}")
+    print(f"wrote {summary_path} and {rows_path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
