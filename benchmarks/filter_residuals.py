@@ -50,7 +50,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
-import hashlib
 import json
 import os
 import platform
@@ -65,10 +64,11 @@ from tqdm import tqdm
 
 from driveopt.data.demonstrations import load_demonstrations
 from driveopt.errors import DriveoptError
+from driveopt.experiments.rows_file import resume_rows
 from driveopt.learned import filter as fl
-from driveopt.learned.checkpoint import atomic_write
-from driveopt.learned.train_cvae import canonical_order, road_lanes, split_episodes, training_rows
-from driveopt.learned.train_filter import SAMPLE_SOURCES, TrainConfig, _draw, row_problems, scenario_config, training_prior
+from driveopt.learned.checkpoint import atomic_write, file_digest
+from driveopt.learned.train_cvae import evaluation_rows, road_lanes
+from driveopt.learned.train_filter import SAMPLE_SOURCES, _draw, row_problems, scenario_config, training_prior
 from driveopt.planner import project_batch, setpoint_batch
 from driveopt.projection import constraint_residuals
 from driveopt.qp import make_model
@@ -82,20 +82,6 @@ VARIANTS = ("learned", "plain")
 
 class FilterResidualsError(DriveoptError):
     """Options, data or an existing results file that this run cannot use."""
-
-
-def held_out_rows(data, validation: float, seed: int, max_rows: int) -> np.ndarray:
-    """Rows to evaluate, in the trainer's canonical order; at most ``max_rows`` evenly spaced ones (0: all)."""
-    rows = canonical_order(data, training_rows(data, TrainConfig().crash_margin))
-    if validation > 0:
-        rows = split_episodes(data, rows, validation, seed)[1]
-    if max_rows and len(rows) > max_rows:
-        rows = rows[np.linspace(0, len(rows) - 1, max_rows).round().astype(int)]
-    return rows
-
-
-def file_digest(path: str | Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
 def machine() -> dict[str, Any]:
@@ -118,35 +104,14 @@ def projected_residuals(problem, setpoints, safety_filter, config):
 
 
 def read_rows(path: Path, settings: dict[str, Any]) -> dict[int, dict[str, Any]]:
-    """Finished rows of an earlier run with the same settings (a torn last line is dropped); a new file starts with
-    the settings."""
-    header = json.dumps({"settings": settings})
-    lines = path.read_text().splitlines() if path.exists() else []
-    if not lines:
-        path.write_text(header + "\n")
-        return {}
-    try:
-        earlier = json.loads(lines[0])["settings"]
-        changed = sorted(k for k in set(earlier) | set(settings) if earlier.get(k) != settings.get(k))
-    except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
-        raise FilterResidualsError(f"{path} is not a filter_residuals results file: remove it or choose another --json") from None
-    if changed:
-        raise FilterResidualsError(f"{path} holds results of other settings ({', '.join(changed)}): "
-                                   "remove it or choose another --json")
-    done: dict[int, dict[str, Any]] = {}
-    kept = lines[:1]
-    for line in lines[1:]:
-        try:
-            record = json.loads(line)
-            for variant in VARIANTS:
-                for k in settings["iterations"]:
-                    float(record["results"][variant][str(k)]["residual_median"])
-            done[int(record["row"])] = record
-            kept.append(line)
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError):
-            break  # an interrupted write: redo from here
-    path.write_text("".join(f"{line}\n" for line in kept))
-    return done
+    """Finished rows of an earlier run with the same settings (:func:`resume_rows`), by row index."""
+    def parse(record: dict[str, Any]) -> tuple[int, dict[str, Any]]:
+        for variant in VARIANTS:
+            for k in settings["iterations"]:
+                float(record["results"][variant][str(k)]["residual_median"])
+        return int(record["row"]), record
+
+    return dict(resume_rows(path, settings, parse, FilterResidualsError, "filter_residuals"))
 
 
 def summarise(records: list[dict[str, Any]], iterations: list[int], tolerance: float) -> dict[str, Any]:
@@ -213,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
     spec = get_optimiser(args.planner)
     run_config(spec.config, args.samples, iterations[-1])  # ConfigError for too many iterations, before the data is read
     data = load_demonstrations(args.data)
-    rows = held_out_rows(data, args.validation, args.seed, args.max_rows)
+    rows = evaluation_rows(data, args.validation, args.seed, args.max_rows)
     if len(rows) == 0:
         raise FilterResidualsError("no usable rows to evaluate (feasible plans more than 3 s before a collision)")
     lanes = road_lanes(data, rows)

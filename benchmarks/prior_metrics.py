@@ -26,7 +26,6 @@ of the same command skips what is done; a rerun with other settings or data is r
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import sys
 from pathlib import Path
@@ -40,7 +39,9 @@ from driveopt.data.demonstrations import load_demonstrations
 from driveopt.data.replay import problem_from_row
 from driveopt.drivers.optimiser import adapt_to_vehicle
 from driveopt.errors import DriveoptError
-from driveopt.learned.train_cvae import TrainConfig, canonical_order, road_lanes, split_episodes, training_rows
+from driveopt.experiments.rows_file import resume_rows
+from driveopt.learned.checkpoint import file_digest
+from driveopt.learned.train_cvae import evaluation_rows, road_lanes
 from driveopt.priors import cvae, vqvae
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.priors.metrics import BEST_OF, FEASIBILITY_SAMPLES, RowMetrics, evaluation_config, row_metrics, summarise
@@ -53,20 +54,6 @@ PRIORS = ("gaussian-p1", "gaussian", "cvae", "vqvae")
 
 class MetricsRunError(DriveoptError):
     """Options, data or an existing results file that this run cannot use."""
-
-
-def held_out_rows(data, validation: float, seed: int, max_rows: int) -> np.ndarray:
-    """Rows to evaluate, in the trainer's canonical order; at most ``max_rows`` evenly spaced ones (0: all)."""
-    rows = canonical_order(data, training_rows(data, TrainConfig().crash_margin))
-    if validation > 0:
-        rows = split_episodes(data, rows, validation, seed)[1]
-    if max_rows and len(rows) > max_rows:
-        rows = rows[np.linspace(0, len(rows) - 1, max_rows).round().astype(int)]
-    return rows
-
-
-def file_digest(path: str | Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
 def make_priors(names: list[str], config, lanes: int, cvae_weights: str | None,
@@ -95,31 +82,11 @@ def make_priors(names: list[str], config, lanes: int, cvae_weights: str | None,
 
 
 def read_rows(path: Path, settings: dict[str, Any]) -> dict[tuple[str, int], RowMetrics]:
-    """Finished (prior, row) results of an earlier run with the same settings (a torn last line is dropped); a new
-    file starts with the settings."""
-    header = json.dumps({"settings": settings})
-    lines = path.read_text().splitlines() if path.exists() else []
-    if not lines:
-        path.write_text(header + "\n")
-        return {}
-    try:
-        earlier = json.loads(lines[0])["settings"]
-        changed = sorted(k for k in set(earlier) | set(settings) if earlier.get(k) != settings.get(k))
-    except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
-        raise MetricsRunError(f"{path} is not a prior_metrics results file: remove it or choose another --json") from None
-    if changed:
-        raise MetricsRunError(f"{path} holds results of other settings ({', '.join(changed)}): remove it or choose another --json")
-    done: dict[tuple[str, int], RowMetrics] = {}
-    kept = lines[:1]
-    for line in lines[1:]:
-        try:
-            record = json.loads(line)
-            done[(record["prior"], record["row"])] = RowMetrics(*(record[f] for f in RowMetrics._fields))
-            kept.append(line)
-        except (json.JSONDecodeError, KeyError, TypeError):
-            break  # an interrupted write: redo from here
-    path.write_text("".join(f"{line}\n" for line in kept))
-    return done
+    """Finished (prior, row) results of an earlier run with the same settings (:func:`resume_rows`)."""
+    def parse(record: dict[str, Any]) -> tuple[tuple[str, int], RowMetrics]:
+        return (record["prior"], record["row"]), RowMetrics(*(record[f] for f in RowMetrics._fields))
+
+    return dict(resume_rows(path, settings, parse, MetricsRunError, "prior_metrics"))
 
 
 def report(settings: dict[str, Any], priors: list[str], done: dict[tuple[str, int], RowMetrics]) -> dict[str, Any]:
@@ -156,7 +123,7 @@ def main(argv=None) -> int:
 
 def run(args: argparse.Namespace) -> int:
     data = load_demonstrations(args.data)
-    rows = held_out_rows(data, args.validation, args.seed, args.max_rows)
+    rows = evaluation_rows(data, args.validation, args.seed, args.max_rows)
     if len(rows) == 0:
         raise MetricsRunError("no usable rows to evaluate (feasible plans more than 3 s before a collision)")
     lanes = road_lanes(data, rows)

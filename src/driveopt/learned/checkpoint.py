@@ -34,6 +34,11 @@ class CheckpointError(DriveoptError):
     """A checkpoint is missing, corrupted, of another kind or version, or does not match its use."""
 
 
+def file_digest(path: str | Path) -> str:
+    """The first 16 hex digits of the SHA-256 of a file: how results and checkpoints name the weights they used."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
 def save_checkpoint(path: str | Path, kind: str, state: Any, meta: dict[str, Any]) -> Path:
     """Write ``state`` (a pytree of arrays) with JSON-ready ``meta`` to ``path`` atomically."""
     path = Path(path)

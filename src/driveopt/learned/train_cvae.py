@@ -135,6 +135,18 @@ def split_episodes(data: Demonstrations, rows: np.ndarray, fraction: float, seed
     return rows[~is_val], rows[is_val]
 
 
+def evaluation_rows(data: Demonstrations, validation: float, seed: int, max_rows: int) -> np.ndarray:
+    """Rows of an offline evaluation, in canonical order: the usable rows (:func:`training_rows`, default margin); with
+    ``validation`` > 0 only those a training with the same ``validation`` and ``seed`` holds out; at most ``max_rows``
+    evenly spaced ones (0: all)."""
+    rows = canonical_order(data, training_rows(data, TrainConfig().crash_margin))
+    if validation > 0:
+        rows = split_episodes(data, rows, validation, seed)[1]
+    if max_rows and len(rows) > max_rows:
+        rows = rows[np.linspace(0, len(rows) - 1, max_rows).round().astype(int)]
+    return rows
+
+
 def data_record(data: Demonstrations, held: Demonstrations, val_rows: np.ndarray) -> dict[str, Any]:
     """What a checkpoint records of its data: fingerprints (independent of the file order) of the training
     demonstrations and of the held-out episodes of ``held`` (those with rows in ``val_rows``), and their count."""

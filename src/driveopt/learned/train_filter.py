@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import hashlib
 import json
 import math
 import time
@@ -52,7 +51,7 @@ from driveopt.config import ConfigError, PlannerConfig, check_count, check_numbe
 from driveopt.data.demonstrations import DatasetError, Demonstrations
 from driveopt.data.replay import problem_from_row
 from driveopt.learned import filter as fl
-from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore, save_checkpoint
+from driveopt.learned.checkpoint import CheckpointError, file_digest, load_checkpoint, restore, save_checkpoint
 from driveopt.learned.train_cvae import (
     TrainingError,
     _check_same_data,
@@ -227,7 +226,7 @@ def training_prior(samples_from: str, lanes: list[int], config: PlannerConfig, w
         raise CheckpointError(f"no {name} weights shipped for {lanes[0]}-lane roads: give --prior-weights "
                               f"(from {command}) or --samples-from gaussian")
     prior = load_prior(path, v_max, lanes=lanes[0])
-    return prior, {"samples_from": samples_from, "weights": hashlib.sha256(path.read_bytes()).hexdigest()[:16]}
+    return prior, {"samples_from": samples_from, "weights": file_digest(path)}
 
 
 def _check_resume(path: Path, meta: dict[str, Any], expected: dict[str, Any], tcfg: TrainConfig) -> None:
