@@ -95,6 +95,8 @@ def test_summary_statistics():
     low, high = wilson_interval(2, 10)
     assert row["collision_ci_low"] == low and 0.05 < low < 0.2 < high < 0.52
     assert wilson_interval(0, 50)[0] == 0.0 and wilson_interval(0, 50)[1] < 0.08
+    for n in range(1, 60):  # every run collided (or none did): the interval still holds the rate
+        assert wilson_interval(n, n)[1] == 1.0 and wilson_interval(0, n)[0] == 0.0
     assert row["speed_std_collision_free"] == pytest.approx(float(np.std(np.arange(2, 10))))
     assert row["reference"] == "" and markdown_table([row]).splitlines()[-1].endswith("| 1.0 + 2.0 |")  # sim + plan
 

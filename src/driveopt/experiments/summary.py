@@ -27,7 +27,8 @@ def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[f
     denom = 1.0 + z * z / trials
     centre = (p + z * z / (2 * trials)) / denom
     half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denom
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    # The interval holds p exactly (at p = 0 or 1 rounding would otherwise put a bound a hair on the wrong side of it).
+    return (max(0.0, min(p, centre - half)), min(1.0, max(p, centre + half)))
 
 
 def _faster(rs: list[dict[str, Any]], reference: dict[tuple[Any, ...], dict[str, Any]]) -> tuple[int, int]:
