@@ -10,7 +10,7 @@ from driveopt.planner import goal_from_setpoints, plan
 from driveopt.priors.grids import GoalGridPrior, GridPrior
 from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
-from driveopt.registry import get_optimiser, get_planner, list_planners
+from driveopt.registry import P1_RANKING_COST_WEIGHT, get_optimiser, get_planner, list_planners
 from driveopt.scene import load_scene
 
 
@@ -45,7 +45,8 @@ def test_baselines_plan_finite_trajectories(name):
 @pytest.mark.parametrize("name", ["random", "grid", "vanilla", "batch"])
 def test_p1_faithful_baselines_differ_only_in_what_p1_did_not_have(name):
     base, p1 = get_optimiser(name), get_optimiser(f"{name}-p1")
-    assert p1.config == base.config.replace(stop_rows=False, sampler={"feasibility_first": False, "structured_fraction": 0.0},
+    assert p1.config == base.config.replace(stop_rows=False, sampler={"feasibility_first": False, "structured_fraction": 0.0,
+                                                                      "ranking_cost_weight": P1_RANKING_COST_WEIGHT},
                                             qp={"initial_lateral_acceleration": True})
     assert p1.make_prior is base.make_prior and p1.fixed_batch == base.fixed_batch and p1.warm_start == base.warm_start
     assert (p1.executes_infeasible, p1.braking_prediction, p1.replan_every) == (True, False, 5)

@@ -199,6 +199,7 @@ class SamplerConfig:
     residual_tolerance: float = 0.05  # [-] total residual under which a sample counts as feasible
     structured_fraction: float = 0.5  # [-] share of the first batch drawn as whole-horizon behaviours (0: P1)
     feasibility_first: bool = True  # rank feasible samples ahead of infeasible ones (False: P1's cost + residual ranking)
+    ranking_cost_weight: float = 1.0  # [-] w of the ranking score w * cost + residual (P1's authors' code: residual-led)
 
     def __post_init__(self) -> None:
         _check_types(self, "sampler")
@@ -214,6 +215,7 @@ class SamplerConfig:
         _require(0 < self.speed_std <= MAX_SPEED and 0 < self.lateral_std <= 100, "sampler needs speed_std in (0, 100] m/s and lateral_std in (0, 100] m")
         _require(0 <= self.residual_tolerance <= 1e3, "sampler.residual_tolerance must be in [0, 1000]")
         _require(0 <= self.structured_fraction <= 1, "sampler.structured_fraction must be in [0, 1]")
+        _require(0 < self.ranking_cost_weight <= MAX_WEIGHT, f"sampler.ranking_cost_weight must be in (0, {MAX_WEIGHT:g}]")
 
 
 @dataclass(frozen=True)

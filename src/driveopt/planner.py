@@ -18,7 +18,8 @@ feasible samples (total residual within ``sampler.residual_tolerance``) first, b
 infeasible ones follow, by residual for the constraint-elite set and by cost + residual within it,
 as in P1. With ``feasibility_first`` False it is P1's ranking alone: the ``num_constraint_elites``
 lowest residuals, the ``num_elites`` lowest cost + residual of those, and the lowest cost + residual
-is picked, feasible or not.
+is picked, feasible or not. "cost" is ``sampler.ranking_cost_weight`` (default 1) times the driving cost
+throughout: the ``-p1`` baselines weigh it 1e-5, as P1's authors' code lets the residual lead.
 
 Rows appended to every batch (their :class:`RowKind` is in ``Snapshot.kind``) are ranked like any
 sample: the previous replan's set-points when given, and, unless ``stop_rows`` is False (P1), a
@@ -235,7 +236,7 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     terms = cost_terms(evaluate(model, proj.coeffs), problem, None if previous is None else previous.lateral)
     cost = weighted_cost(terms, cfg.cost)
     residual = proj.residuals.total
-    score = cost + residual
+    score = s.ranking_cost_weight * cost + residual
     feasible = residual <= s.residual_tolerance
     key_score = _ranking_key(score, residual, feasible, s)
     if s.feasibility_first:
@@ -292,7 +293,7 @@ def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Cand
     cost = weighted_cost(terms, cfg.cost)
     total = jnp.sum(families, axis=0)
     feasible = total <= cfg.sampler.residual_tolerance
-    score = _ranking_key(cost + total, total, feasible, cfg.sampler)
+    score = _ranking_key(cfg.sampler.ranking_cost_weight * cost + total, total, feasible, cfg.sampler)
     setpoints = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
     contact = jnp.stack([first_contact(problem, path) for path in paths])
     emergency = jnp.where(contact[0] == contact[1], total[1] < total[0], contact[1] > contact[0])
