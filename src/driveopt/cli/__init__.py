@@ -1,4 +1,5 @@
-"""The ``driveopt`` command: ``plan | problems | drive | bench | summarise | collect | train | plot-prior | scenarios | planners``.
+"""The ``driveopt`` command: ``plan | problems | drive | bench | summarise | collect | train | plot-prior | plot-curves |
+scenarios | planners``.
 
 One module per command, each with ``register(subparsers)``. Errors in user input (a
 :class:`~driveopt.errors.DriveoptError`: unknown name, malformed file or config, unusable
@@ -16,7 +17,7 @@ import sys
 import threading
 from collections.abc import Sequence
 
-from driveopt.cli import bench, collect, drive, listing, plan, plot_prior, summarise, train
+from driveopt.cli import bench, collect, drive, listing, plan, plot_curves, plot_prior, summarise, train
 from driveopt.cli.common import UsageError
 from driveopt.errors import DriveoptError
 
@@ -26,7 +27,7 @@ __all__ = ["UsageError", "build_parser", "main"]
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="driveopt", description="Bi-level motion planning for dense highway traffic.")
     sub = parser.add_subparsers(dest="command", required=True)
-    for command in (plan, drive, bench, summarise, collect, train, plot_prior, listing):
+    for command in (plan, drive, bench, summarise, collect, train, plot_prior, plot_curves, listing):
         command.register(sub)
     return parser
 
