@@ -174,7 +174,7 @@ class CostConfig:
     heading: float = 20.0  # [1/rad^2] heading^2 relative to the road
     curvature: float = 10.0  # [m^2] curvature^2 (steering effort proxy)
     lane_centering: float = 0.5  # [1/m^2] squared distance of y(t) to the nearest lane centre
-    consistency: float = 0.0  # [1/m^2] (y(t) - y_previous(t))^2 against the previous replan's plan (0: not used)
+    consistency: float = 0.1  # [1/m^2] (y(t) - y_previous(t))^2 against the previous replan's plan (0: not used, P1)
 
     def __post_init__(self) -> None:
         _check_types(self, "cost")
