@@ -15,7 +15,8 @@ The subclasses below only add what the scenarios need and upstream has no config
   so that same-lane bumper gaps are at least ``min_spawn_gap``: at density 3 upstream spawns
   overlapping cars (6-11 overlapping pairs of 50 on four lanes) and up to half of the
   neighbours crash into each other within 10 s;
-- a road that simulates the same, faster (:mod:`driveopt.sim.fast_road`);
+- a road that simulates the same, faster (:mod:`driveopt.sim.fast_road`), and no upstream observation
+  (:class:`Unobserved`: driveopt perceives from ``env.unwrapped``);
 - truncation after ``duration`` seconds on every road, counted in integer simulation steps
   (upstream accumulates ``1 / policy_frequency`` in a float; two-way-v0 and merge-v0 never truncate);
 - rewards that do not read DiscreteMetaAction-only state (upstream two-way-v0 reads
@@ -32,6 +33,7 @@ from typing import Any, NamedTuple
 import gymnasium as gym
 import numpy as np
 from highway_env import utils
+from highway_env.envs.common.observation import ObservationType
 from highway_env.envs.highway_env import HighwayEnv
 from highway_env.envs.merge_env import MergeEnv
 from highway_env.envs.two_way_env import TwoWayEnv
@@ -45,8 +47,25 @@ ENV_IDS = {"highway": "driveopt/highway-v0", "two-way": "driveopt/two-way-v0", "
 """gymnasium id of the adapter env of each road layout."""
 
 
+class Unobserved(ObservationType):
+    """Upstream's observation slot, left empty: driveopt perceives from ``env.unwrapped`` (:mod:`driveopt.sim.perception`)
+    and never reads what ``reset`` and ``step`` return, which upstream's cheapest observation (Kinematics, built
+    with pandas) made ~10% of a simulator step. ``reset``/``step`` return a constant (1,) array."""
+
+    def space(self) -> gym.spaces.Box:
+        return gym.spaces.Box(0.0, 0.0, shape=(1,), dtype=np.float32)
+
+    def observe(self) -> np.ndarray:
+        return np.zeros(1, np.float32)
+
+
 class _ScenarioTraffic:
     """Mixin over an upstream env: speed limit, neighbour target speeds, ego speed, duration."""
+
+    def define_spaces(self) -> None:
+        super().define_spaces()  # type: ignore[misc]
+        self.observation_type = Unobserved(self)
+        self.observation_space = self.observation_type.space()
 
     @classmethod
     def default_config(cls) -> dict:
@@ -194,8 +213,8 @@ def env_config(scenario: Scenario) -> dict[str, Any]:
             "steering_range": scenario.steering_range,  # [rad]
             "clip": True,
         },
-        # driveopt builds its own observation from env.unwrapped, so upstream's (computed and discarded every
-        # step) is kept as cheap as it gets: the ego and one neighbour, no normalising (~15% of a simulator step).
+        # driveopt builds its own observation from env.unwrapped; upstream's is replaced by Unobserved after
+        # upstream's factory has run on this (valid, cheap) setting.
         "observation": {"type": "Kinematics", "vehicles_count": 2, "normalize": False, "clip": False},
         "simulation_frequency": scenario.simulation_frequency,  # [Hz]
         "policy_frequency": scenario.policy_frequency,  # [Hz]
