@@ -67,7 +67,7 @@ from driveopt.errors import DriveoptError
 from driveopt.experiments.rows_file import resume_rows
 from driveopt.learned import filter as fl
 from driveopt.learned.checkpoint import atomic_write, file_digest
-from driveopt.learned.train_cvae import evaluation_rows, road_lanes
+from driveopt.learned.train_cvae import evaluation_road_rows
 from driveopt.learned.train_filter import SAMPLE_SOURCES, _draw, row_problems, scenario_config, training_prior
 from driveopt.planner import project_batch, setpoint_batch
 from driveopt.projection import constraint_residuals
@@ -178,16 +178,11 @@ def run(args: argparse.Namespace) -> int:
     spec = get_optimiser(args.planner)
     run_config(spec.config, args.samples, iterations[-1])  # ConfigError for too many iterations, before the data is read
     data = load_demonstrations(args.data)
-    rows = evaluation_rows(data, args.validation, args.seed, args.max_rows)
-    if len(rows) == 0:
-        raise FilterResidualsError("no usable rows to evaluate (feasible plans more than 3 s before a collision)")
-    lanes = road_lanes(data, rows)
-    if len(lanes) != 1:
-        raise FilterResidualsError(f"demonstrations of roads with {lanes} lanes: a filter is per lane count, give one road")
+    rows, lanes = evaluation_road_rows(data, args.validation, args.seed, args.max_rows, "a filter is")
     planner, v_des = scenario_config(data, rows, spec.config)
     configs = {k: run_config(planner, args.samples, k) for k in iterations}
     config = configs[iterations[-1]]
-    cfg, params, normaliser, meta = fl.load_filter(args.filter_weights, lanes=lanes[0])
+    cfg, params, normaliser, meta = fl.load_filter(args.filter_weights, lanes=lanes)
     if cfg.basis != config.basis:
         raise FilterResidualsError(f"the filter's basis {cfg.basis} is not the planner's {config.basis}")
     learned = LearnedFilter(params, normaliser, cfg)

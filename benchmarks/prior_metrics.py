@@ -41,7 +41,7 @@ from driveopt.drivers.optimiser import adapt_to_vehicle
 from driveopt.errors import DriveoptError
 from driveopt.experiments.rows_file import resume_rows
 from driveopt.learned.checkpoint import file_digest
-from driveopt.learned.train_cvae import evaluation_rows, road_lanes
+from driveopt.learned.train_cvae import evaluation_road_rows
 from driveopt.priors import cvae, vqvae
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.priors.metrics import BEST_OF, FEASIBILITY_SAMPLES, RowMetrics, evaluation_config, row_metrics, summarise
@@ -123,16 +123,11 @@ def main(argv=None) -> int:
 
 def run(args: argparse.Namespace) -> int:
     data = load_demonstrations(args.data)
-    rows = evaluation_rows(data, args.validation, args.seed, args.max_rows)
-    if len(rows) == 0:
-        raise MetricsRunError("no usable rows to evaluate (feasible plans more than 3 s before a collision)")
-    lanes = road_lanes(data, rows)
-    if len(lanes) != 1:
-        raise MetricsRunError(f"demonstrations of roads with {lanes} lanes: the learned priors are per lane count, give one road")
+    rows, lanes = evaluation_road_rows(data, args.validation, args.seed, args.max_rows, "the learned priors are")
     spec = get_optimiser(args.planner)
     scenarios = {str(name): get_scenario(str(name)) for name in np.unique(data.episodes["scenario"][data.episode[rows]])}
     configs = {name: evaluation_config(adapt_to_vehicle(spec.config, s, BicycleModel()), args.samples) for name, s in scenarios.items()}
-    priors, weights = make_priors(args.priors, spec.config, lanes[0], args.cvae_weights, args.vqvae_weights)
+    priors, weights = make_priors(args.priors, spec.config, lanes, args.cvae_weights, args.vqvae_weights)
     settings = {"data": data.fingerprint(), "rows": len(rows), "validation": args.validation, "seed": args.seed,
                 "max_rows": args.max_rows, "samples": args.samples, "best_of": args.best_of, "planner": args.planner,
                 "priors": list(priors), "weights": weights}

@@ -147,6 +147,18 @@ def evaluation_rows(data: Demonstrations, validation: float, seed: int, max_rows
     return rows
 
 
+def evaluation_road_rows(data: Demonstrations, validation: float, seed: int, max_rows: int, what: str) -> tuple[np.ndarray, int]:
+    """(:func:`evaluation_rows`, their road's lane count); DatasetError when there are none or they span several lane
+    counts (``what`` is learned per lane count, e.g. "the learned priors are")."""
+    rows = evaluation_rows(data, validation, seed, max_rows)
+    if len(rows) == 0:
+        raise DatasetError("no usable rows to evaluate (feasible plans more than 3 s before a collision)")
+    lanes = road_lanes(data, rows)
+    if len(lanes) != 1:
+        raise DatasetError(f"demonstrations of roads with {lanes} lanes: {what} per lane count, give one road")
+    return rows, lanes[0]
+
+
 def data_record(data: Demonstrations, held: Demonstrations, val_rows: np.ndarray) -> dict[str, Any]:
     """What a checkpoint records of its data: fingerprints (independent of the file order) of the training
     demonstrations and of the held-out episodes of ``held`` (those with rows in ``val_rows``), and their count."""
