@@ -127,7 +127,7 @@ def test_select_modes_keeps_distinct_feasible_samples_lowest_cost_first():
     residual = np.array([0.0, 0.0, 0.01, 0.0, 0.0, 0.0, 0.5], np.float32)  # the cheapest plan is infeasible
     kind = np.array([RowKind.SAMPLE] * 4 + [RowKind.COMFORTABLE_STOP] + [RowKind.SAMPLE] * 2)
     snapshot = Snapshot(sp, coeffs, coeffs, residual, np.arange(3), kind, cost)
-    modes = select_modes(snapshot, problem, basis, tolerance=0.05, max_modes=8)
+    modes = select_modes([snapshot], problem, basis, tolerance=0.05, max_modes=8)
     assert modes.mask.tolist() == [True] * 4 + [False] * 4
     # 10.5 m/s in lane 1 first (cost 0.5); 10 m/s in lane 1 is not distinct from it; lane 2; 13 m/s in lane 1; 20 m/s in lane 2
     np.testing.assert_allclose(modes.cost[:4], [0.5, 2.0, 3.0, 4.0])
@@ -138,8 +138,15 @@ def test_select_modes_keeps_distinct_feasible_samples_lowest_cost_first():
     for i in range(4):
         for j in range(i):
             assert lanes[i] != lanes[j] or np.max(np.abs(speeds[i] - speeds[j])) > SPEED_GAP
-    assert select_modes(snapshot, problem, basis, 0.05, max_modes=2).mask.tolist() == [True, True]
-    assert not select_modes(snapshot, problem, basis, tolerance=-1.0, max_modes=3).mask.any()
+    assert select_modes([snapshot], problem, basis, 0.05, max_modes=2).mask.tolist() == [True, True]
+    assert not select_modes([snapshot], problem, basis, tolerance=-1.0, max_modes=3).mask.any()
+    # several batches (collect: the first and the final one): a plan seen in both counts once, and a feasible plan
+    # that only the other batch holds (here 10 m/s to lane 0, the comfortable stop's row above) is a mode of its own
+    twice = select_modes([snapshot, snapshot], problem, basis, tolerance=0.05, max_modes=8)
+    np.testing.assert_array_equal(twice.setpoints, modes.setpoints)
+    other = snapshot._replace(kind=np.full(len(kind), RowKind.SAMPLE), residual=np.where(kind == RowKind.SAMPLE, 1.0, 0.0))
+    both = select_modes([snapshot, other], problem, basis, tolerance=0.05, max_modes=8)
+    assert both.mask.sum() == 5 and both.cost[4] == 9.0 and np.array_equal(both.setpoints[4], sp[4])
 
 
 def test_collect_writes_schema_2_modes(tmp_path, capsys):

@@ -20,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--duration", type=float, default=50.0, help="episode length [s]")
     p.add_argument("--workers", type=positive_int, default=1, help="parallel episodes")
     p.add_argument("--modes", type=positive_int, default=8,
-                   help="distinct feasible plans of the expert's final batch stored per step (VQ-VAE training)")
+                   help="distinct feasible plans of the expert's first and final batches stored per step (VQ-VAE training)")
     p.add_argument("--out", default="out/demonstrations.h5", help="HDF5 file (rerun to resume)")
     p.add_argument("--json", help="write the collection summary as JSON here")
     p.set_defaults(func=run)

@@ -2,7 +2,7 @@
 
 The expert is the ``bilevel`` planner with a large batch. Every planning step of every episode is
 stored (:mod:`driveopt.data.demonstrations`), with up to ``modes`` distinct feasible plans of the
-expert's final batch (:mod:`driveopt.data.modes`, schema version 2); episodes run in parallel worker
+expert's first and final batches (:mod:`driveopt.data.modes`, schema version 2); episodes run in parallel worker
 processes and the parent appends each one as it finishes, so a rerun with the same file skips
 finished episodes and an interruption loses only the episodes in flight.
 """
@@ -54,7 +54,7 @@ def demonstration_episode(job: JobKey, options: dict[str, Any]) -> dict[str, Any
     rollout = Rollout(scenario, spec.driver(), job.env_seed, duration=options.get("duration"))
     for step in rollout:
         problem, result = step.decision.problem, step.decision.result
-        modes = select_modes(result.last, problem, basis, tolerance, max_modes)
+        modes = select_modes((result.first, result.last), problem, basis, tolerance, max_modes)
         for name, values in zip(MODE_FIELDS, modes):
             rows[name].append(values)
         executed = result.safe_trajectory
@@ -104,7 +104,7 @@ def collect(
     progress: bool = True,
 ) -> dict[str, Any]:
     """Append the missing expert episodes (scenarios x episodes, traffic from ``seed``) to ``out``, each
-    row with up to ``modes`` modes of the expert's final batch.
+    row with up to ``modes`` modes of the expert's first and final batches.
 
     Returns a summary: episodes and rows written now, skipped as already present, wall time, and
     ``modes_per_row`` ({"k": rows written now with k modes}).

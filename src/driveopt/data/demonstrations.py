@@ -17,7 +17,7 @@ datasets (n = rows, K = nodes)::
     episodes/scenario (str), seed, episode, env_seed, collided, duration [s], first_row, num_rows
 
 Schema version 2 adds the expert's **modes** per row (M = ``max_modes``, 8 by default; the distinct
-feasible plans of the expert's final batch, lowest cost first; the selection rule is in
+feasible plans of the expert's first and final batches, lowest cost first; the selection rule is in
 :mod:`driveopt.data.modes`)::
 
     mode_setpoints (n, M, 8)   f4  their set-points
