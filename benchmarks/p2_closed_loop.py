@@ -1,0 +1,187 @@
+"""P2's closed-loop figures as resumable sweeps of ``driveopt bench`` (issues 14 and 15).
+
+    python benchmarks/p2_closed_loop.py --figure fig7|fig8a|fig8b|fig9 --out DIR [--episodes N] [--workers 2]
+        [--cvae-weights FILE] [--vqvae-weights FILE] [--filter-weights FILE] [--duration S] [--list]
+
+Figures (P2's traffic, :mod:`driveopt.sim.scenarios` ``p2-*``; 1000 samples; seed 42):
+
+* ``fig7``: ``cvae-filter``, ``cvae``, ``vqvae`` and ``vqvae-cem`` on ``p2-four-lane-d3.0`` (density 3, limit
+  15 m/s) and ``p2-four-lane-d1.5-slow`` (density 1.5, limit 7 m/s); 50 episodes.
+* ``fig8a``: the learned filter (``vqvae-filter``) against the plain barrier filter (``vqvae``) for
+  ``projection.max_iterations`` 10, 25, 50 and 100 on ``p2-four-lane-d3.0``; 30 episodes, 50 at 100.
+* ``fig8b``: the same pair for 250, 500, 750 and 1000 samples at 100 iterations; 30 episodes, 50 at 1000 (fig8a's
+  100-iteration points).
+* ``fig9``: ``cvae-filter`` and ``vqvae-filter`` with their filter and without (``max_iterations`` 0: the
+  samples ranked as drawn) at densities 1.0, 1.5 and 3.0; 30 episodes.
+
+``--episodes`` replaces every point's count. Each point is one ``driveopt bench`` folder under ``--out``,
+named by its settings, so figures share the points they have in common (a point's summary covers its own
+episode count, the first N of the folder) and a rerun resumes every point where it stopped. After every point ``DIR/<figure>.json`` (the bench summary row of each point with its
+settings, for plotting elsewhere) and ``DIR/<figure>.png`` (collision rate with its 95% interval, speed over
+collision-free episodes with its standard deviation, and median planning time per call, against the swept
+value) are rewritten, so a partial sweep can be looked at. Weights default to the shipped ones; a file that
+is missing, or that a planner cannot use on the road, stops the sweep with a one-line error (status 2)
+before anything runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from driveopt.errors import DriveoptError
+from driveopt.experiments.bench import BenchSpec, run_bench
+
+SAMPLES = 1000  # [-] P2's sample count
+DEFAULT_ITERATIONS = 100  # [-] projection.max_iterations of vqvae, vqvae-filter and cvae-filter (P2)
+DENSE, SLOW = "p2-four-lane-d3.0", "p2-four-lane-d1.5-slow"
+
+
+class Point(NamedTuple):
+    """One bench run of a sweep: ``x`` is the swept value on the figure's axis, ``variant`` its line."""
+
+    scenario: str
+    planner: str
+    samples: int
+    iterations: int | None  # projection.max_iterations (None: the planner's own, 100 for P2's pipelines)
+    episodes: int
+    variant: str
+    x: float | str
+
+    @property
+    def folder(self) -> str:
+        its = "default" if self.iterations is None else str(self.iterations)
+        return f"{self.scenario}--{self.planner}--n{self.samples}--k{its}"
+
+
+def _iterations(k: int) -> int | None:
+    """The override for ``k`` filter iterations: none for P2's 100, the planners' default, so that equal runs share a folder."""
+    return None if k == DEFAULT_ITERATIONS else k
+
+
+def points(figure: str, episodes: int | None = None) -> list[Point]:
+    """The points of ``figure``; ``episodes`` replaces every point's episode count."""
+    learned_vs_plain = (("learned", "vqvae-filter"), ("plain", "vqvae"))
+    if figure == "fig7":
+        out = [Point(s, p, SAMPLES, None, 50, p, s) for s in (DENSE, SLOW) for p in ("cvae-filter", "cvae", "vqvae", "vqvae-cem")]
+    elif figure == "fig8a":
+        out = [Point(DENSE, p, SAMPLES, _iterations(k), 50 if k == 100 else 30, v, k) for k in (10, 25, 50, 100)
+               for v, p in learned_vs_plain]
+    elif figure == "fig8b":
+        out = [Point(DENSE, p, n, None, 50 if n == SAMPLES else 30, v, n) for n in (250, 500, 750, SAMPLES) for v, p in learned_vs_plain]
+    elif figure == "fig9":
+        out = [Point(f"p2-four-lane-d{d}", p, SAMPLES, k, 30, f"{p}{'' if k is None else ' without filter'}", d)
+               for d in ("1.0", "1.5", "3.0") for p in ("cvae-filter", "vqvae-filter") for k in (None, 0)]
+    else:
+        raise DriveoptError(f"unknown figure {figure!r}: fig7, fig8a, fig8b or fig9")
+    return [pt._replace(episodes=episodes) for pt in out] if episodes else out
+
+
+def bench_spec(point: Point, weights: dict[str, str | None], duration: float | None) -> BenchSpec:
+    """The ``driveopt bench`` run of ``point``: its prior's weights (``cvae``/``vqvae``) and, for ``vqvae-filter``,
+    the filter's, when given; the iteration count as a config override."""
+    options: dict[str, Any] = {"samples": point.samples}
+    prior = "cvae" if point.planner.startswith("cvae") else "vqvae"
+    if weights.get(prior):
+        options["weights"] = weights[prior]
+    config: dict[str, Any] = {}
+    if point.iterations is not None:
+        config["projection"] = {"max_iterations": point.iterations}
+    if point.planner == "vqvae-filter" and weights.get("filter"):
+        config["safety_filter"] = {"weights": weights["filter"]}
+    if config:
+        options["config"] = config
+    if duration is not None:
+        options["duration"] = duration
+    return BenchSpec((point.scenario,), (point.planner,), (42,), point.episodes, options)
+
+
+def figure_rows(pts: list[Point], rows: dict[Point, dict[str, Any]]) -> list[dict[str, Any]]:
+    """The JSON rows of a figure: each finished point's settings and its bench summary row."""
+    return [{**pt._asdict(), "folder": pt.folder, **rows[pt]} for pt in pts if pt in rows]
+
+
+def plot(figure: str, table: list[dict[str, Any]], path: Path) -> Path:
+    """Collision rate (95% interval), speed (sd over collision-free episodes) and median plan time per call against
+    the swept value, one line per variant (fig7: one group per scenario)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    xlabel = {"fig7": "scenario", "fig8a": "filter iterations", "fig8b": "samples", "fig9": "density [vehicles/km/lane]"}[figure]
+    for variant in dict.fromkeys(r["variant"] for r in table):
+        rs = [r for r in table if r["variant"] == variant]
+        xs = [str(r["x"]) for r in rs] if figure in ("fig7", "fig9") else [r["x"] for r in rs]
+        rate = [r["collision_rate"] for r in rs]
+        err = [[r["collision_rate"] - r["collision_ci_low"] for r in rs], [r["collision_ci_high"] - r["collision_rate"] for r in rs]]
+        axes[0].errorbar(xs, rate, yerr=err, marker="o", capsize=3, label=variant)
+        axes[1].errorbar(xs, [r["mean_speed_collision_free"] for r in rs], yerr=[r["speed_std_collision_free"] for r in rs],
+                         marker="o", capsize=3, label=variant)
+        axes[2].plot(xs, [r["plan_ms_median"] for r in rs], marker="o", label=variant)
+    for ax, ylabel in zip(axes, ("collision rate", "speed, collision-free [m/s]", "plan time per call, median [ms]")):
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylim(bottom=0)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"P2 {figure}: {len(table)} points")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def run(figure: str, out: Path, episodes: int | None, workers: int, weights: dict[str, str | None], duration: float | None) -> list[dict[str, Any]]:
+    pts = points(figure, episodes)
+    specs = {pt: bench_spec(pt, weights, duration) for pt in pts}
+    for spec in specs.values():  # every point's names, weights and settings before anything runs
+        spec.check()
+    rows: dict[Point, dict[str, Any]] = {}
+    for i, pt in enumerate(pts):
+        print(f"[{i + 1}/{len(pts)}] {pt.folder}: {pt.episodes} episodes", flush=True)
+        rows[pt] = run_bench(specs[pt], out / pt.folder, workers=workers)[0]
+        table = figure_rows(pts, rows)
+        tmp = out / f".{figure}.json.tmp"
+        tmp.write_text(json.dumps(table, indent=1))
+        os.replace(tmp, out / f"{figure}.json")
+        plot(figure, table, out / f"{figure}.png")
+    return figure_rows(pts, rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--figure", required=True, choices=["fig7", "fig8a", "fig8b", "fig9"])
+    parser.add_argument("--out", required=True, help="folder of the points' bench folders (rerun to resume)")
+    parser.add_argument("--episodes", type=int, help="episodes per point (default: the figure's, 30 or 50)")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel episodes")
+    parser.add_argument("--cvae-weights", help="CVAE checkpoint (default: shipped)")
+    parser.add_argument("--vqvae-weights", help="PixelCNN checkpoint (default: shipped)")
+    parser.add_argument("--filter-weights", help="learned safety-filter checkpoint (default: shipped)")
+    parser.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
+    parser.add_argument("--list", action="store_true", help="print the points and exit")
+    args = parser.parse_args(argv)
+    try:
+        if args.episodes is not None and args.episodes < 1:
+            raise DriveoptError(f"--episodes must be at least 1, got {args.episodes}")
+        if args.list:
+            for pt in points(args.figure, args.episodes):
+                print(f"{pt.folder}: {pt.episodes} episodes ({pt.variant}, x = {pt.x})")
+            return 0
+        weights = {"cvae": args.cvae_weights, "vqvae": args.vqvae_weights, "filter": args.filter_weights}
+        table = run(args.figure, Path(args.out), args.episodes, args.workers, weights, args.duration)
+    except DriveoptError as exc:
+        print(f"p2_closed_loop: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {args.out}/{args.figure}.json and {args.figure}.png ({len(table)} points)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
