@@ -1,6 +1,8 @@
 """``driveopt collect``: expert demonstrations from the bi-level planner in closed loop (P1 §III-D).
 
-The expert is the ``bilevel`` planner with a large batch. Every planning step of every episode is
+The expert is the ``bilevel`` planner as ``drive`` and ``bench`` run it, 250 samples by default (P1's expert used a
+large batch; with 1000 samples it crashed in 2 of the first 7 four-lane episodes, which the 250-sample planner
+finishes: README, CVAE section). Every planning step of every episode is
 stored (:mod:`driveopt.data.demonstrations`), with up to ``modes`` distinct feasible plans of the
 expert's first and final batches (:mod:`driveopt.data.modes`, schema version 2); episodes run in parallel worker
 processes and the parent appends each one as it finishes, so a rerun with the same file skips
@@ -96,7 +98,7 @@ def collect(
     *,
     seed: int = 7,
     episodes: int = 10,
-    samples: int = 1000,
+    samples: int = 250,
     iterations: int = 5,
     duration: float = 50.0,
     workers: int = 1,
