@@ -144,6 +144,7 @@ def run(figure: str, out: Path, episodes: int | None, workers: int, weights: dic
     for spec in specs.values():  # every point's names, weights and settings before anything runs
         spec.check()
     rows: dict[Point, dict[str, Any]] = {}
+    table: list[dict[str, Any]] = []
     for i, pt in enumerate(pts):
         print(f"[{i + 1}/{len(pts)}] {pt.folder}: {pt.episodes} episodes", flush=True)
         rows[pt] = run_bench(specs[pt], out / pt.folder, workers=workers)[0]
@@ -152,7 +153,7 @@ def run(figure: str, out: Path, episodes: int | None, workers: int, weights: dic
         tmp.write_text(json.dumps(table, indent=1))
         os.replace(tmp, out / f"{figure}.json")
         plot(figure, table, out / f"{figure}.png")
-    return figure_rows(pts, rows)
+    return table
 
 
 def main(argv: list[str] | None = None) -> int:
