@@ -355,12 +355,13 @@ def test_training_resumes_without_repeating_epochs_and_refuses_other_settings(da
         train_filter(data_file, tmp_path, CFG, TCFG, config=PLANNER.config.replace(projection={"rho_lane": 2.0}), progress=False)
 
 
-def test_train_filter_command_resumes_and_reports_bad_input_in_one_line(data_file, tmp_path, capsys):
+def test_train_filter_command_resumes_and_reports_bad_input_in_one_line(data_file, tmp_path, capsys, monkeypatch):
     out = tmp_path / "cli"
     assert main(["train", "filter", "--data", str(data_file), "--out", str(out), *TRAIN_ARGS]) == 0
     assert "trained 4 epochs on 12 observations (6 validation)" in capsys.readouterr().out
     assert main(["train", "filter", "--data", str(data_file), "--out", str(out), *TRAIN_ARGS]) == 0  # resumes: nothing to do
     assert len(json.loads((out / "history.json").read_text())) == 4
+    monkeypatch.setattr("driveopt.priors.vqvae.SHIPPED", {})  # as for a road without shipped weights
     for args, message in (
         (["--samples-from", "vqvae"], "no VQ-VAE weights shipped for 4-lane roads"),
         (["--samples-from", "gaussian", "--prior-weights", str(data_file)], "--prior-weights is for --samples-from vqvae or cvae"),

@@ -55,7 +55,7 @@ def test_the_multi_homotopy_problems_are_built_in():
         assert not [n for n in scene.neighbours if n.y in (0.0, 8.0)]  # both neighbouring lanes open
 
 
-def test_plot_prior_draws_one_column_per_prior_with_densities(weights, tmp_path, capsys):
+def test_plot_prior_draws_one_column_per_prior_with_densities(weights, tmp_path, capsys, monkeypatch):
     cvae_path, pixelcnn_path = weights
     out = tmp_path / "prior.png"
     args = ["plot-prior", "--problem", "slow-leader-four-lane", "--samples", "40", "--out", str(out)]
@@ -64,7 +64,8 @@ def test_plot_prior_draws_one_column_per_prior_with_densities(weights, tmp_path,
     assert f"wrote {out}: 4 priors" in printed.out and "CVAE (cvae.ckpt)" in printed.out
     assert "VQ-VAE + PixelCNN (pixelcnn.ckpt)" in printed.out and printed.err == ""
     assert _columns(out) == pytest.approx(4, abs=0.05)
-    # No VQ-VAE weights ship yet: a notice, and the column left out.
+    # A road without shipped VQ-VAE weights: a notice, and the column left out.
+    monkeypatch.setattr("driveopt.priors.vqvae.SHIPPED", {})
     assert main([*args, "--cvae-weights", str(cvae_path)]) == 0
     printed = capsys.readouterr()
     assert "3 priors" in printed.out and "VQ-VAE" not in printed.out

@@ -378,11 +378,25 @@ def test_vqvae_planners_without_weights_warn_and_plan():
     assert spec.config.projection.barrier and spec.config.projection.max_iterations == 100
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        prior = spec.prior(4)  # no weights ship yet for any road
+        fallback = spec.prior(3)  # the Gaussian start
     config = spec.config.with_samples(100)
-    result = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior)
+    result = plan(problem, config, key=jax.random.PRNGKey(0), prior=fallback)
     assert result.status in (PlanStatus.SUCCESS, PlanStatus.INFEASIBLE) and result.history.best_score.shape == (1,)
     assert np.all(np.isfinite(result.trajectory.x)) and np.all(np.isfinite(result.fallback.x))
+
+
+@pytest.mark.parametrize("lanes, problem_name", [(4, "slow-leader-four-lane"), (2, None)])
+def test_shipped_vqvae_weights_load_by_default_and_plan_feasibly(lanes, problem_name):
+    spec = get_optimiser("vqvae")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no fallback notice: weights ship for two- and four-lane roads
+        prior = spec.prior(lanes)
+    assert isinstance(prior, VQVAEPrior)
+    if problem_name is None:
+        return
+    problem = build_problem(load_scene(problem_name))
+    result = plan(problem, spec.config.with_samples(200), key=jax.random.PRNGKey(0), prior=prior)
+    assert result.status == PlanStatus.SUCCESS and np.all(np.isfinite(result.trajectory.x))
 
 
 def test_vqvae_prior_in_the_planner(trained):

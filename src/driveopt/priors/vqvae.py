@@ -30,7 +30,7 @@ from driveopt.priors.gaussian import GaussianPrior
 from driveopt.shipped import shipped_weights_file
 
 COVARIANCE_JITTER = 0.01  # [-] added to the diagonal of the proposal's covariance
-SHIPPED = {2: "vqvae-two-lane.ckpt", 4: "vqvae-four-lane.ckpt"}  # lanes -> file in driveopt/weights (none yet)
+SHIPPED = {2: "vqvae-two-lane.ckpt", 4: "vqvae-four-lane.ckpt"}  # lanes -> file in driveopt/weights
 
 
 @jax.tree_util.register_dataclass
