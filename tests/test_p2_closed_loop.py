@@ -27,6 +27,9 @@ def test_the_figures_points_are_p2s_and_equal_runs_share_a_folder():
     assert {p.iterations for p in fig9} == {None, 0} and {p.x for p in fig9} == {"1.0", "1.5", "3.0"}
     assert {p.scenario for p in fig7} == {"p2-four-lane-d3.0", "p2-four-lane-d1.5-slow"} and len(fig7) == 8
     assert {p.episodes for p in SCRIPT.points("fig9", episodes=3)} == {3}
+    pair = SCRIPT.points("fig7", episodes=10, planners=["vqvae", "cvae-filter"])  # a first look: the same folders
+    assert [p.folder for p in pair] == [p.folder for p in fig7 if p.planner in ("vqvae", "cvae-filter")]
+    assert {p.episodes for p in pair} == {10}
 
 
 def test_a_points_bench_run_carries_its_weights_iterations_and_filter():
@@ -43,7 +46,7 @@ def test_a_points_bench_run_carries_its_weights_iterations_and_filter():
 def test_a_sweep_runs_writes_its_table_and_plot_and_resumes(tmp_path, monkeypatch):
     # idm ignores samples and config (no compilation): the sweep machinery is what is tested here
     tiny = [SCRIPT.Point("two-lane-d1.0", "idm", 20, k, 1, "plain", k or 5) for k in (None, 2)]
-    monkeypatch.setattr(SCRIPT, "points", lambda figure, episodes=None: tiny)
+    monkeypatch.setattr(SCRIPT, "points", lambda figure, episodes=None, planners=None: tiny)
     argv = ["--figure", "fig8a", "--out", str(tmp_path), "--workers", "1", "--duration", "0.3"]
     assert SCRIPT.main(argv) == 0
     table = json.loads((tmp_path / "fig8a.json").read_text())
@@ -58,6 +61,7 @@ def test_a_sweep_runs_writes_its_table_and_plot_and_resumes(tmp_path, monkeypatc
 @pytest.mark.parametrize("argv, needle", [
     (["--figure", "fig7", "--cvae-weights", "missing.ckpt"], "missing.ckpt does not exist"),
     (["--figure", "fig8a", "--episodes", "0"], "--episodes must be at least 1"),
+    (["--figure", "fig7", "--planners", "vqvae", "vqvae-filter"], "fig7 has no points of vqvae-filter; its planners: cvae, cvae-filter, vqvae, vqvae-cem"),
 ])
 def test_bad_options_stop_the_sweep_before_it_runs(tmp_path, capsys, argv, needle):
     assert SCRIPT.main([*argv, "--out", str(tmp_path / "out")]) == 2
