@@ -188,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
     learned = LearnedFilter(params, normaliser, cfg)
     trained_on = meta.get("prior") if isinstance(meta.get("prior"), dict) else {}
     samples_from = args.samples_from or trained_on.get("samples_from") or "vqvae"
-    prior, prior_record = training_prior(samples_from, lanes, config, args.prior_weights)
+    prior, prior_record = training_prior(samples_from, [lanes], config, args.prior_weights)
     if trained_on and (trained_on.get("samples_from"), trained_on.get("weights")) != (samples_from, prior_record["weights"]):
         notice(f"the filter was trained on samples of another prior ({trained_on}); measuring with {prior_record}")
     if isinstance(meta.get("projection"), dict):

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from test_prior_metrics import write_demonstrations
-from tiny_models import _random_params
+from tiny_models import _random_params, tiny_pixelcnn
 
 from driveopt.learned import filter as fl
 from driveopt.learned.checkpoint import save_checkpoint
@@ -124,6 +124,22 @@ def test_more_iterations_lower_the_plain_residual(measured):
     by_k = report["results"]["plain"]["by_iterations"]
     assert by_k["25"]["residual_median"] < 0.5 * by_k["1"]["residual_median"]
     assert by_k["25"]["feasible_share"] >= by_k["1"]["feasible_share"]
+
+
+def test_samples_from_a_learned_prior_are_measured_and_its_road_is_checked(measured, tmp_path, capsys):
+    tmp, data, random, _, _, _ = measured
+    out = tmp_path / "vqvae.json"
+    pixelcnn = tiny_pixelcnn(tmp_path / "pixelcnn.ckpt")
+    assert SCRIPT.main(arguments(data, random, out, "--samples-from", "vqvae", "--prior-weights", str(pixelcnn))) == 0
+    report = json.loads(out.read_text())
+    assert report["settings"]["prior"]["samples_from"] == "vqvae"
+    assert "trained on samples of another prior" in capsys.readouterr().err  # the filter's record says gaussian
+    for variant in ("learned", "plain"):
+        assert all(np.isfinite(c["residual_median"]) for c in report["results"][variant]["by_iterations"].values())
+    two_lane = tiny_pixelcnn(tmp_path / "two-lane.ckpt", lanes=(2,))
+    args = arguments(data, random, tmp_path / "bad.json", "--samples-from", "vqvae", "--prior-weights", str(two_lane))
+    assert SCRIPT.main(args) == 2
+    assert "not this 4-lane road" in capsys.readouterr().err
 
 
 def test_a_rerun_resumes_and_other_settings_are_refused(measured, tmp_path, capsys):
