@@ -256,3 +256,23 @@ def test_bench_refuses_a_planner_without_usable_weights_before_any_episode(tmp_p
         with pytest.raises(DriveoptError, match="policy|dqn"):
             run_bench(spec, tmp_path / "out", workers=1, episode_fn=fake_episode, progress=False)
         assert not (tmp_path / "out" / "episodes.jsonl").exists()
+
+
+def test_resuming_after_the_shipped_weights_changed_is_refused(tmp_path, monkeypatch):
+    """A folder records the digest of the learned weights each planner drove with; replacing the shipped weights
+    (same options) must not mix two models in one table."""
+    from driveopt.priors import cvae as cvae_prior
+    from tiny_models import tiny_cvae
+
+    spec = BenchSpec(scenarios=("four-lane-d3.0",), planners=("cvae", "bilevel"), seeds=(42,), episodes=2)
+    run_bench(spec, tmp_path / "out", workers=1, episode_fn=fake_episode, progress=False)
+    recorded = json.loads((tmp_path / "out" / "spec.json").read_text())["weights"]
+    assert list(recorded) == ["cvae/four-lane-d3.0"]  # bilevel's Gaussian prior has no learned weights
+    run_bench(spec, tmp_path / "out", workers=1, episode_fn=fake_episode, progress=False)  # same weights: a resume
+
+    other = tiny_cvae(tmp_path / "other.ckpt")
+    monkeypatch.setattr(cvae_prior, "shipped_weights", lambda lanes: other)
+    more = BenchSpec(spec.scenarios, spec.planners, spec.seeds, episodes=3)
+    with pytest.raises(StoreError, match="cvae/four-lane-d3.0 driven with other learned weights"):
+        run_bench(more, tmp_path / "out", workers=1, episode_fn=fake_episode, progress=False)
+    assert len(load_records(tmp_path / "out" / "episodes.jsonl")) == 4

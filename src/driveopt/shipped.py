@@ -1,5 +1,5 @@
-"""Files shipped inside the package: the weights in ``driveopt/weights`` (the CVAE's today; the VQ-VAE's and the
-safety filter's once trained), looked up by file name for a road's lane count."""
+"""Files shipped inside the package: the weights in ``driveopt/weights`` (CVAE, VQ-VAE + PixelCNN, safety filter,
+RL policies), looked up by file name for a road's lane count."""
 
 from __future__ import annotations
 

@@ -62,6 +62,11 @@ class DriverSpec:
         """Raise the user-facing error that a driver would raise in ``reset`` on ``scenario`` (missing,
         unusable or wrong-road weights), before any episode starts; nothing to check by default."""
 
+    def weights_digest(self, scenario: Any) -> str | None:
+        """A digest of the learned weights this planner drives with on ``scenario``'s road (given or shipped),
+        so that a bench folder can refuse to mix episodes of two sets of weights; None when it uses none."""
+        return None
+
     def with_samples(self, samples: int | None) -> "DriverSpec":
         return self
 

@@ -30,6 +30,7 @@ import jax
 
 from driveopt.config import PlannerConfig, _check_types, check_count
 from driveopt.drivers.base import Decision, DriverSpec
+from driveopt.learned.checkpoint import pytree_digest
 from driveopt.planner import PlanResult, PlanStatus, plan, previous_plan
 from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
@@ -120,6 +121,13 @@ class OptimiserSpec(DriverSpec):
     def check(self, scenario: Scenario) -> None:
         self.prior(scenario.lanes)
         self.safety_filter(scenario.lanes)
+
+    def weights_digest(self, scenario: Scenario) -> str | None:
+        """Digest of the learned prior's and learned filter's arrays for ``scenario``'s road; None for a Gaussian
+        prior without a learned filter."""
+        learned = [part for part in (self.make_prior and self.prior(scenario.lanes), self.safety_filter(scenario.lanes))
+                   if part is not None]
+        return pytree_digest(learned) if learned else None
 
     def with_overrides(self, **sections: Any) -> "OptimiserSpec":
         """Copy with config sections updated, e.g. ``sampler={"num_samples": 250}``; a ``safety_filter`` section

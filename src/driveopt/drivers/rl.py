@@ -24,6 +24,7 @@ from typing import Any
 
 from driveopt.drivers.base import Decision, DriverSpec
 from driveopt.drivers.idm import IDLE_ACTION
+from driveopt.learned.checkpoint import file_digest
 from driveopt.rl.env import ACTIONS, POLICY_PERIOD, apply_behaviour, hand_ego_to_behaviours, policy_observation
 from driveopt.rl.policy import PolicyError, cached_policy, check_algo, lane_word, shipped_policy
 from driveopt.sim.perception import perceive
@@ -69,6 +70,10 @@ class RLSpec(DriverSpec):
                               f"`{train_command(self.algo, scenario)}` and pass --weights {folder}/best.zip "
                               f"(or copy it to src/driveopt/weights/{self.algo}-{lane_word(scenario.lanes)}-lane.zip)")
         return path
+
+    def weights_digest(self, scenario: Scenario) -> str:
+        """Digest of the policy file for ``scenario``'s road."""
+        return file_digest(self.policy_file(scenario))
 
     def policy(self, scenario: Scenario) -> Any:
         """The loaded policy for ``scenario``'s road (once per process and file); PolicyError when there is none or it

@@ -104,6 +104,18 @@ class BenchSpec:
             for scenario in scenarios:
                 spec.check(scenario)
 
+    def weights_digests(self) -> dict[str, str]:
+        """``{"planner/scenario": digest}`` of the learned weights each planner drives with on each scenario (given or
+        shipped; see ``DriverSpec.weights_digest``); planners without learned weights are left out."""
+        digests = {}
+        for scenario_name in self.scenarios:
+            scenario = resolve_scenario(scenario_name, overrides=self.options.get("scenario"))
+            for name in self.planners:
+                digest = planner_spec(name, self.options).weights_digest(scenario)
+                if digest is not None:
+                    digests[f"{name}/{scenario_name}"] = digest
+        return digests
+
 
 def _check_options(options: dict[str, Any]) -> None:
     duration, samples, weights = options.get("duration"), options.get("samples"), options.get("weights")
@@ -168,18 +180,26 @@ def write_summaries(rows: list[dict[str, Any]], out: Path) -> None:
 
 
 def _claim(path: Path, spec: BenchSpec, *, has_episodes: bool) -> None:
-    """Record ``spec`` in the output folder; StoreError when the folder holds episodes run with other
-    options (samples, duration, weights, config): resuming must not mix two settings in one table.
-    A folder without episodes is free, whatever its spec.json says."""
+    """Record ``spec`` and the digests of the learned weights it drives with in the output folder; StoreError when
+    the folder holds episodes run with other options (samples, duration, weights, config) or, for a planner and
+    scenario it recorded, other weights (e.g. shipped weights replaced since): resuming must not mix two settings
+    in one table. A folder without episodes is free, whatever its spec.json says."""
+    weights = spec.weights_digests()
     if has_episodes and path.exists():
         try:
-            options = json.loads(path.read_text())["options"]
-        except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as exc:
+            recorded = json.loads(path.read_text())
+            options, recorded_weights = recorded["options"], recorded.get("weights", {})
+        except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, AttributeError) as exc:
             raise StoreError(f"{path} is unreadable ({exc}); remove it or use another output folder") from None
         if options != json.loads(json.dumps(spec.options)):
             raise StoreError(f"{path.parent} holds episodes run with options {options}, not {spec.options}; "
                              "use another output folder")
-    _replace(path, lambda tmp: tmp.write_text(json.dumps(asdict(spec), indent=1)))
+        changed = sorted(key for key in set(recorded_weights) & set(weights) if recorded_weights[key] != weights[key])
+        if changed:
+            raise StoreError(f"{path.parent} holds episodes of {', '.join(changed)} driven with other learned weights "
+                             f"(digest {recorded_weights[changed[0]]}, now {weights[changed[0]]}); use another output folder")
+        weights = {**recorded_weights, **weights}
+    _replace(path, lambda tmp: tmp.write_text(json.dumps({**asdict(spec), "weights": weights}, indent=1)))
 
 
 def _replace(path: Path, write: Callable[[Path], Any]) -> None:

@@ -39,6 +39,20 @@ def file_digest(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
+def pytree_digest(tree: Any) -> str:
+    """The first 16 hex digits of the SHA-256 over the shapes, dtypes and bytes of a pytree's array leaves (loaded
+    weights), in leaf order."""
+    import jax
+    import numpy as np
+
+    sha = hashlib.sha256()
+    for leaf in jax.tree_util.tree_leaves(tree):
+        array = np.asarray(leaf)
+        sha.update(f"{array.shape}{array.dtype}".encode())
+        sha.update(np.ascontiguousarray(array).tobytes())
+    return sha.hexdigest()[:16]
+
+
 def save_checkpoint(path: str | Path, kind: str, state: Any, meta: dict[str, Any]) -> Path:
     """Write ``state`` (a pytree of arrays) with JSON-ready ``meta`` to ``path`` atomically."""
     path = Path(path)

@@ -9,7 +9,7 @@ pass; ``vqvae-cem`` uses them as the first batch of the bi-level optimiser. ``wa
 
 Weights are one PixelCNN checkpoint (``driveopt train pixelcnn``), which embeds its VQ-VAE; it records
 the lane counts of its training roads, and :func:`prior_for` refuses weights trained for another
-lane count. Without weights for a road (none ship yet) the planners warn and use the Gaussian start.
+lane count. Without weights for a road (two- and four-lane ones ship) the planners warn and use the Gaussian start.
 
 Flax is imported when weights are loaded or sampled, not with this module.
 """
