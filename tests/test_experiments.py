@@ -261,8 +261,9 @@ def test_bench_refuses_a_planner_without_usable_weights_before_any_episode(tmp_p
 def test_resuming_after_the_shipped_weights_changed_is_refused(tmp_path, monkeypatch):
     """A folder records the digest of the learned weights each planner drove with; replacing the shipped weights
     (same options) must not mix two models in one table."""
-    from driveopt.priors import cvae as cvae_prior
     from tiny_models import tiny_cvae
+
+    from driveopt.priors import cvae as cvae_prior
 
     spec = BenchSpec(scenarios=("four-lane-d3.0",), planners=("cvae", "bilevel"), seeds=(42,), episodes=2)
     run_bench(spec, tmp_path / "out", workers=1, episode_fn=fake_episode, progress=False)

@@ -38,8 +38,10 @@ def reference_solution(qp: QPConfig, p: np.ndarray, init_x, init_y, goal=None) -
         Ax, rx = np.vstack([Ax, wa * b.Wdd[:1]]), np.concatenate([rx, [wa * init_x[2]]])
         Ay, ry = np.vstack([Ay, wa * b.Wdd[:1]]), np.concatenate([ry, [wa * init_y[2]]])
     if goal is not None:
-        Ex.append(b.W[-1]); ex.append(goal[0])
-        Ey.append(b.W[-1]); ey.append(goal[1])
+        Ex.append(b.W[-1])
+        ex.append(goal[0])
+        Ey.append(b.W[-1])
+        ey.append(goal[1])
 
     def solve(A, r, E, e):
         E, e = np.array(E), np.array(e)
@@ -106,8 +108,8 @@ def test_gradients_match_finite_differences():
         base = (p0, s0)[arg]
         for i in range(base.shape[0]):
             e = jnp.zeros_like(base).at[i].set(h)
-            args_hi = [p0, s0]; args_hi[arg] = base + e
-            args_lo = [p0, s0]; args_lo[arg] = base - e
+            args_hi, args_lo = [p0, s0], [p0, s0]
+            args_hi[arg], args_lo[arg] = base + e, base - e
             fd = (end_state(*args_hi) - end_state(*args_lo)) / (2 * h)
             np.testing.assert_allclose(jac[:, i], fd, rtol=2e-2, atol=2e-3)
     assert float(jnp.abs(jac_p).max()) > 0.1  # set-points do move the trajectory
