@@ -367,6 +367,7 @@ def test_train_filter_command_resumes_and_reports_bad_input_in_one_line(data_fil
         (["--samples-from", "gaussian", "--prior-weights", str(data_file)], "--prior-weights is for --samples-from vqvae or cvae"),
         (["--lr", "-1"], "learning_rate must be a finite number > 0"),
         (["--residual-weight", "nan"], "residual_weight must be a finite number"),
+        (["--gamma-min", "1.5"], "gamma_min must be a finite number > 0 and < 1, got 1.5"),
         (["--planner", "idm"], "does not plan with the optimiser"),
     ):
         code = main(["train", "filter", "--data", str(data_file), "--out", str(tmp_path / "bad"), *args])

@@ -28,6 +28,8 @@ def register_models(models) -> None:
     p.add_argument("--residual-weight", type=float, default=10.0, help="s of P2 eq. 9 [m^2 per unit of residual]")
     p.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate (x0.1 every 20 epochs)")
     p.add_argument("--hidden", type=positive_int, nargs="+", default=[256, 256, 256, 256], help="MLP widths")
+    p.add_argument("--gamma-min", type=float, default=0.1,
+                   help="lowest gamma the filter may predict, in (0, 1) (small gammas converge slowly)")
     p.add_argument("--validation", type=float, default=0.1, help="share of episodes held out for validation")
     p.add_argument("--validation-data", nargs="+", help="hold out these demonstration files instead (--validation unused)")
     p.add_argument("--train-episodes", type=int, default=0,
@@ -42,7 +44,7 @@ def run_filter(args: argparse.Namespace) -> int:
     from driveopt.registry import get_optimiser
 
     spec = get_optimiser(args.planner)
-    cfg = FilterConfig(hidden=tuple(args.hidden), basis=spec.config.basis)
+    cfg = FilterConfig(hidden=tuple(args.hidden), gamma_min=args.gamma_min, basis=spec.config.basis)
     tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, samples=args.samples, unroll=args.unroll,
                        residual_weight=args.residual_weight, samples_from=args.samples_from, learning_rate=args.lr,
                        validation_fraction=args.validation, train_episodes=args.train_episodes, seed=args.seed)
