@@ -2,7 +2,8 @@
 # The closed-loop tables of the README's issue-13 sections, one bench folder each, in priority order.
 # Resumable: rerun the same command and every folder continues where it stopped (bench never repeats
 # or loses an episode). Each finished folder's records are copied to benchmarks/results/NAME (small
-# JSON lines and the summaries), so the README's numbers are kept with the code that produced them.
+# JSON lines and the summaries), so the README's numbers are kept with the code that produced them;
+# a folder missing from OUT starts from the records kept there (a new machine resumes them).
 #
 #   nohup bash benchmarks/readme_tables.sh OUT_DIR [WORKERS] > OUT_DIR.log 2>&1 &
 #
@@ -19,6 +20,10 @@ table() {  # NAME SCENARIOS -- PLANNERS
     while [ "$1" != "--" ]; do scenarios+=("$1"); shift; done
     shift
     echo "== $name: ${scenarios[*]} x $*  ($(date -u +%H:%M))"
+    if [ ! -e "$out/$name/episodes.jsonl" ] && [ -e "$results/$name/episodes.jsonl" ]; then
+        mkdir -p "$out/$name"
+        cp "$results/$name/episodes.jsonl" "$results/$name/spec.json" "$out/$name/"
+    fi
     driveopt bench --scenarios "${scenarios[@]}" --planners "$@" --seeds 42 --episodes 50 --samples 250 \
         --workers "$workers" --out "$out/$name"
     mkdir -p "$results/$name"
