@@ -99,6 +99,8 @@ def test_summary_statistics():
         assert wilson_interval(n, n)[1] == 1.0 and wilson_interval(0, n)[0] == 0.0
     assert row["speed_std_collision_free"] == pytest.approx(float(np.std(np.arange(2, 10))))
     assert row["reference"] == "" and markdown_table([row]).splitlines()[-1].endswith("| 1.0 + 2.0 |")  # sim + plan
+    (crashed,) = summarise([dict(r, collided=True) for r in records])  # no collision-free episode: no speed, not "nan"
+    assert "| 1.00 (0.72-1.00) | - | 4.50 |" in markdown_table([crashed])
 
 
 def test_planners_are_compared_with_the_reference_on_the_same_episodes():

@@ -96,14 +96,18 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
     def ms(value: float) -> str:
         return "-" if math.isnan(value) else f"{value:.0f}"
 
+    def speed(r: dict[str, Any]) -> str:  # no collision-free episode: no speed to show
+        mean, std = r["mean_speed_collision_free"], r["speed_std_collision_free"]
+        return "-" if math.isnan(mean) else f"{mean:.2f} ({std:.2f})"
+
     def faster(r: dict[str, Any]) -> str:
         return f"{r['faster_than_reference']}/{r['compared_with_reference']} ({r['reference']})" if r["reference"] else "-"
 
     for r in rows:
         lines.append(
             f"| {r['scenario']} | {r['planner']} | {r['episodes']} | {r['collision_rate']:.2f} "
-            f"({r['collision_ci_low']:.2f}-{r['collision_ci_high']:.2f}) | {r['mean_speed_collision_free']:.2f} "
-            f"({r['speed_std_collision_free']:.2f}) | {r['mean_speed_all']:.2f} | {faster(r)} | {r['off_road_rate']:.2f} | "
+            f"({r['collision_ci_low']:.2f}-{r['collision_ci_high']:.2f}) | {speed(r)} "
+            f"| {r['mean_speed_all']:.2f} | {faster(r)} | {r['off_road_rate']:.2f} | "
             f"{ms(r['plan_ms_median'])} / {ms(r['plan_ms_p95'])} | "
             f"{r['sim_s_per_episode']:.1f} + {r['plan_s_per_episode']:.1f} |"
         )
