@@ -32,6 +32,9 @@ table() {  # NAME SCENARIOS -- PLANNERS
 
 # P1's claim (bilevel >= 4x fewer collisions than its MPC baselines) on both dense roads.
 table p1-dense four-lane-d3.0 two-lane-d2.5 -- random-p1 grid-p1 batch-p1 vanilla-p1
+# P1 Fig. 8: the shipped DQN and PPO policies (bilevel and idm on two-lane-d1.0: sparse-two; on four-lane-d3.0: dense-four).
+table rl-two two-lane-d1.0 -- dqn ppo
+table rl-four four-lane-d3.0 -- dqn ppo
 # P1 Fig. 7's low-density settings.
 table sparse-two two-lane-d1.0 -- bilevel idm random-p1 grid-p1 batch-p1 vanilla-p1
 table sparse-four four-lane-d1.5 -- bilevel idm random-p1 grid-p1 batch-p1 vanilla-p1

@@ -262,6 +262,26 @@ def test_shipped_policies_are_chosen_by_lane_count(monkeypatch, tmp_path):
         get_planner("dqn").policy_file(FOUR)
 
 
+@pytest.mark.parametrize("algo", ["dqn", "ppo"])
+@pytest.mark.parametrize("lanes", [2, 4])
+def test_shipped_policies_are_what_their_names_say_and_drive(algo, lanes):
+    """Each shipped file is a checksummed driveopt policy of its algorithm, trained on a road of its lane
+    count with the training env's current reward and settings, and the planner drives with it."""
+    pytest.importorskip("stable_baselines3")
+    from driveopt.rl.train import settings_for
+
+    path = rl_policy.shipped_policy(algo, lanes)
+    assert path is not None and path.name == f"{algo}-{rl_policy.lane_word(lanes)}-lane.zip"
+    record = read_record(path, algo)
+    assert record["lanes"] == lanes and record["scenario"]["lanes"] == lanes
+    assert record["reward_weights"] == RewardWeights().to_dict()
+    assert record["settings"] == settings_for(algo, record["envs"])
+    assert record["replay_buffer"] is None  # nothing beside the file is needed to drive
+    road = SMALL if lanes == 2 else FOUR
+    episode = run_episode(road, get_planner(algo), seed=3, duration=3.0)
+    assert len(episode.speeds) == 30 and np.all(np.isfinite(episode.speeds))
+
+
 def test_train_command_and_its_errors(tmp_path, capsys):
     pytest.importorskip("stable_baselines3")
     small = tmp_path / "small.json"
