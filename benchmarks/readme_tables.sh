@@ -38,7 +38,10 @@ table rl-four four-lane-d3.0 -- dqn ppo
 # P1 Fig. 7's low-density settings.
 table sparse-two two-lane-d1.0 -- bilevel idm random-p1 grid-p1 batch-p1 vanilla-p1
 table sparse-four four-lane-d1.5 -- bilevel idm random-p1 grid-p1 batch-p1 vanilla-p1
-# Every optimiser on the dense roads, with idm in the same folder for the per-episode comparison.
-table dense-four four-lane-d3.0 -- idm random grid batch vanilla bilevel-p1 cvae cvae-mix bilevel
-table dense-two two-lane-d2.5 -- idm random grid batch vanilla bilevel-p1 cvae cvae-mix bilevel
+# Every optimiser on the dense roads, with idm in the same folder for the per-episode comparison; the
+# single-pass optimisers (minutes per table) apart from the bi-level ones (about 40 min each on 2 cores).
+table dense-four four-lane-d3.0 -- idm random grid batch vanilla
+table dense-two two-lane-d2.5 -- idm random grid batch vanilla
+table dense-four-bilevel four-lane-d3.0 -- bilevel bilevel-p1 cvae cvae-mix
+table dense-two-bilevel two-lane-d2.5 -- bilevel bilevel-p1 cvae cvae-mix
 echo "== all tables done ($(date -u +%H:%M))"
