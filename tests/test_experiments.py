@@ -250,11 +250,11 @@ def test_summarise_merges_bench_folders_and_refuses_duplicates(tmp_path, capsys)
 
 
 def test_bench_refuses_a_planner_without_usable_weights_before_any_episode(tmp_path):
-    """No dqn policy ships for 4-lane roads (or the one given is not a policy): refused up front, nothing written."""
+    """No dqn policy ships for 3-lane roads (or the one given is not a policy): refused up front, nothing written."""
     bad = tmp_path / "policy.zip"
     bad.write_bytes(b"not a zip")
     for options in ({}, {"weights": str(bad)}):
-        spec = BenchSpec(scenarios=("four-lane-d3.0",), planners=("dqn",), seeds=(42,), episodes=2, options=options)
+        spec = BenchSpec(scenarios=("three-lane-d1.0",), planners=("dqn",), seeds=(42,), episodes=2, options=options)
         with pytest.raises(DriveoptError, match="policy|dqn"):
             run_bench(spec, tmp_path / "out", workers=1, episode_fn=fake_episode, progress=False)
         assert not (tmp_path / "out" / "episodes.jsonl").exists()
