@@ -1,6 +1,6 @@
 """Planning latency benchmark (issue 2 targets).
 
-    python benchmarks/latency.py --json out/latency.json [--calls 30] [--resume]
+    python benchmarks/latency.py --json out/latency.json [--calls 30] [--resume] [--config overrides.json]
 
 For each batch size in {250, 500, 1000} and (sampler iterations x projection
 iterations) in {(5, 20), (1, 100)}, on the built-in 10-neighbour problem
@@ -25,7 +25,9 @@ import jax
 import numpy as np
 from tqdm import tqdm
 
+from driveopt.cli.common import config_overrides
 from driveopt.config import PlannerConfig
+from driveopt.errors import DriveoptError
 from driveopt.planner import plan
 from driveopt.problem import build_problem
 from driveopt.projection import XLA_CPU_COMPILER_OPTIONS, supported_compiler_options
@@ -39,8 +41,8 @@ def case_name(batch: int, iterations: int, projection: int) -> str:
     return f"{batch}x{iterations}x{projection}"
 
 
-def run_case(batch: int, iterations: int, projection: int, calls: int) -> dict:
-    config = PlannerConfig().replace(
+def run_case(batch: int, iterations: int, projection: int, calls: int, overrides: dict | None = None) -> dict:
+    config = PlannerConfig().replace(**(overrides or {})).replace(
         sampler={"num_samples": batch, "num_iterations": iterations, "num_constraint_elites": min(100, batch), "num_elites": 40},
         projection={"max_iterations": projection, "tolerance": 0.0},  # fixed work per call
     )
@@ -76,15 +78,23 @@ def main(argv=None) -> int:
     parser.add_argument("--calls", type=int, default=30, help="steady-state calls per case (>= 30 for the README)")
     parser.add_argument("--resume", action="store_true", help="keep finished cases of an existing results file")
     parser.add_argument("--batches", type=int, nargs="+", default=list(BATCHES))
+    parser.add_argument("--config", help="planner-config overrides (JSON, as for driveopt plan --config), applied before "
+                                         "each case's samples and iterations")
     args = parser.parse_args(argv)
     if args.calls < 1:
         parser.error("--calls must be >= 1")
+    try:
+        overrides = config_overrides(args.config)
+        PlannerConfig().replace(**overrides)  # e.g. a safety_filter section: not a planner setting
+    except DriveoptError as exc:
+        print(f"latency: error: {exc}", file=sys.stderr)
+        return 2
 
     path = Path(args.json)
     path.parent.mkdir(parents=True, exist_ok=True)
     machine = {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__, "device": str(jax.devices()[0])}
     machine["compiler_options"] = supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else {}
-    report = {"machine": machine, "results": []}
+    report = {"machine": machine, "config": overrides, "results": []}
     if args.resume and path.exists():
         try:
             report["results"] = json.loads(path.read_text())["results"]
@@ -94,7 +104,7 @@ def main(argv=None) -> int:
     done = {r["case"] for r in report["results"]}
     cases = [(b, i, p) for b in args.batches for i, p in SCHEDULES if case_name(b, i, p) not in done]
     for batch, iterations, projection in tqdm(cases, desc="latency", unit="case"):
-        result = run_case(batch, iterations, projection, args.calls)
+        result = run_case(batch, iterations, projection, args.calls, overrides)
         report["results"].append(result)
         tmp = path.with_suffix(".tmp")
         tmp.write_text(json.dumps(report, indent=1))

@@ -185,3 +185,22 @@ def test_p1_baselines_rank_by_residual_first_as_the_authors_code():
     prior = spec.prior(3)
     p1 = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=prior)
     assert p1.status == PlanStatus.SUCCESS and p1.residuals["total"] <= spec.config.sampler.residual_tolerance
+
+
+def test_a_blocked_lane_is_left_within_the_course_bound(small_config):
+    """Ego at 6 m/s in the rightmost lane, a car stopped 20 m ahead in it, the next lane busy: the plan goes
+    around or stops, and its velocity stays within ``projection.course_max`` of the road. Without the bound
+    the projection bent such plans into sideways swerves across several lanes (issue 13, four-lane-d3.0
+    episode 48: up to 0.95 rad at 6 m/s)."""
+    config = small_config.replace(projection={"a_max": 4.5})
+    assert config.projection.course_max == ProjectionConfig().course_max > 0
+    stopped = Neighbour(x=20.0, y=0.0, vx=0.0)
+    busy = tuple(Neighbour(x=x, y=4.0, vx=9.0) for x in (-25.0, 30.0))
+    scene = Scene(ego=EgoState(x=0.0, y=0.0, vx=6.0), road=Road(num_lanes=4), neighbours=(stopped, *busy))
+    for seed in range(3):
+        result = plan(build_problem(scene, config.basis), config, key=jax.random.PRNGKey(seed))
+        assert result.status == PlanStatus.SUCCESS
+        traj = result.trajectory
+        moving = traj.speed[1:] > 0.5
+        course = np.abs(np.arctan2(traj.vy[1:], traj.vx[1:]))[moving]
+        assert course.max() < config.projection.course_max + 0.02

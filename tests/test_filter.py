@@ -129,7 +129,7 @@ def test_barrier_gammas_are_validated_configuration_and_default_to_the_plain_con
 
 def test_without_a_filter_the_projection_gives_the_numbers_it_gave_before_issue_15():
     """Residuals of 8 samples after 5 iterations, recorded with the code before the barrier gammas, 0 iterations and
-    per-sample filters were added (plain and barrier mode agree at gamma = 1)."""
+    per-sample filters were added (plain and barrier mode agree at gamma = 1); no course bound, which came later."""
     model = make_model()
     problem = build_problem(load_scene("dense-snapshot"))
     key = jax.random.PRNGKey(3)
@@ -140,7 +140,8 @@ def test_without_a_filter_the_projection_gives_the_numbers_it_gave_before_issue_
     # Recorded on another machine: XLA's float32 CPU code differs between processor generations (an AVX-512 AMD EPYC
     # gave 1.3e-4 relative on the last sample), far below what a change to the projection's logic moves.
     for barrier in (False, True):
-        out = project(model, problem, target, b_x, b_y, ProjectionConfig(max_iterations=5, tolerance=0.0, barrier=barrier))
+        out = project(model, problem, target, b_x, b_y, ProjectionConfig(max_iterations=5, tolerance=0.0, barrier=barrier,
+                                                                             course_max=0.0))
         np.testing.assert_allclose(out.residuals.total, before, rtol=1e-3)
 
 

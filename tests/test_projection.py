@@ -23,7 +23,8 @@ from driveopt.scene import EgoState, Neighbour, Road, Scene, load_scene
 
 MODEL = make_model()
 # Everything "off" except what a test turns on.
-LOOSE = ProjectionConfig(max_iterations=300, tolerance=0.0, v_max=60.0, a_max=100.0, kappa_max=0.0, centripetal_max=100.0)
+LOOSE = ProjectionConfig(max_iterations=300, tolerance=0.0, v_max=60.0, a_max=100.0, kappa_max=0.0, centripetal_max=100.0,
+                         course_max=0.0)
 
 
 def setup(scene: Scene, setpoints, qp=QPConfig()):
@@ -108,6 +109,45 @@ def test_lane_only():
     check_boundary(problem, out.coeffs)
 
 
+def course(traj):
+    """[rad] |angle between the velocity and the road| at every node."""
+    return np.abs(np.arctan2(np.asarray(traj.vy), np.asarray(traj.vx)))
+
+
+def test_course_only():
+    # A lane change at 8 m/s: the set-point QP's path leaves the lane at up to ~0.47 rad to the road.
+    problem, target, b_x, b_y = setup(empty_scene(vx=8.0, y=4.0), [[8.0] * 4 + [8.0] * 4])
+    assert course(evaluate(MODEL, target)).max() > 0.4
+    cfg = dataclasses.replace(LOOSE, course_max=0.25)
+    assert float(constraint_residuals(MODEL, problem, target, cfg).velocity[0]) > 1.0
+    out = project(MODEL, problem, target, b_x, b_y, cfg)
+    traj = evaluate(MODEL, out.coeffs)
+    assert course(traj)[:, 1:].max() < 0.25 + 0.01
+    assert float(out.residuals.velocity[0]) < 0.05
+    assert abs(float(traj.y[0, -1]) - 8.0) < 0.5  # it still ends in the target lane
+    check_boundary(problem, out.coeffs)
+    # Without the bound (P1) the same projection leaves the path as steep as it was.
+    free = evaluate(MODEL, project(MODEL, problem, target, b_x, b_y, LOOSE).coeffs)
+    assert course(free).max() > 0.4
+
+
+def test_a_car_turned_across_the_road_plans_its_way_back_within_the_course_bound():
+    """Course 0.8 rad now (bound 0.35): the bound starts at the car's course and narrows to 0.35 by the recovery
+    time, so a plan that straightens out is feasible; without the recovery no plan is."""
+    heading = 0.8
+    ego = dict(vx=6.0 * np.cos(heading), vy=6.0 * np.sin(heading), y=2.0)
+    problem, target, b_x, b_y = setup(empty_scene(**ego), [[6.0] * 4 + [4.0] * 4])
+    cfg = dataclasses.replace(LOOSE, a_max=4.5, course_max=0.35, recovery_time=3.0)
+    out = project(MODEL, problem, target, b_x, b_y, cfg)
+    traj = evaluate(MODEL, out.coeffs)
+    assert float(out.residuals.velocity[0]) < 0.1
+    after = np.asarray(MODEL.t) >= cfg.recovery_time
+    assert course(traj)[0][after].max() < 0.35 + 0.01
+    check_boundary(problem, out.coeffs)
+    never_relaxed = project(MODEL, problem, target, b_x, b_y, dataclasses.replace(cfg, recovery_time=0.0))
+    assert float(never_relaxed.residuals.velocity[0]) > 0.5
+
+
 @pytest.fixture(scope="module")
 def dense_batch():
     problem = build_problem(load_scene("dense-snapshot"))
@@ -150,13 +190,16 @@ def test_lane_barrier_limits_the_approach_rate():
     assert np.any(gap_plain[1:] < (1 - gamma) * gap_plain[:-1] - 0.05)  # plain mode approaches faster
 
 
-def test_unrolled_equals_early_stopping_loop(dense_batch):
+@pytest.mark.parametrize("course_max, rtol, atol", [(0.0, 1e-5, 1e-4), (0.35, 1e-3, 1e-2)])
+def test_unrolled_equals_early_stopping_loop(dense_batch, course_max, rtol, atol):
+    """The same iterations either way. With the course bound, a node whose velocity sits on the bound switches
+    branch on float-order differences between the two compiled loops, so those agree to 1e-3 rather than 1e-5."""
     problem, target, b_x, b_y = dense_batch
-    cfg = ProjectionConfig(max_iterations=12, tolerance=0.0)
+    cfg = ProjectionConfig(max_iterations=12, tolerance=0.0, course_max=course_max)
     loop = jax.jit(lambda t: project(MODEL, problem, t, b_x, b_y, cfg))(target)
     scan = jax.jit(lambda t: project(MODEL, problem, t, b_x, b_y, cfg, unroll=True))(target)
     assert int(loop.iterations) == int(scan.iterations) == 12
-    np.testing.assert_allclose(loop.coeffs, scan.coeffs, rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(loop.coeffs, scan.coeffs, rtol=rtol, atol=atol)
 
 
 def test_early_stop_on_a_feasible_batch():

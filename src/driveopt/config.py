@@ -144,7 +144,9 @@ class ProjectionConfig:
     gamma_obs: float = 1.0  # [-] in (0, 1]: obstacle barrier parameter with ``barrier`` (1: the plain bound d >= 1; P2 trains
     # with 0.98); a safety filter's per-sample values replace it
     gamma_lane: float = 1.0  # [-] in (0, 1]: lane barrier parameter with ``barrier`` (1: the plain bound; P2: 0.9); likewise
-    recovery_time: float = 3.0  # [s] a car off the lane bounds (or drifting past them) must be back by then (0: never relaxed)
+    recovery_time: float = 3.0  # [s] a car off the lane bounds (or drifting past them), or whose course exceeds
+    # ``course_max``, must be back within them by then (0: never relaxed)
+    course_max: float = 0.35  # [rad] bound on the angle between the velocity and the road (0: no bound, P1)
 
     def __post_init__(self) -> None:
         _check_types(self, "projection")
@@ -158,6 +160,7 @@ class ProjectionConfig:
         _require(0 <= self.kappa_max <= 10, "projection.kappa_max must be in [0, 10] 1/m")
         _require(0 < self.centripetal_max <= MAX_ACCELERATION, f"projection.centripetal_max must be in (0, {MAX_ACCELERATION:g}] m/s^2")
         _require(0 <= self.recovery_time <= MAX_HORIZON, f"projection.recovery_time must be in [0, {MAX_HORIZON:g}] s")
+        _require(0 <= self.course_max < math.pi / 2, f"projection.course_max must be in [0, pi/2) rad, got {self.course_max:g}")
         for name in ("gamma_obs", "gamma_lane"):
             value = getattr(self, name)
             _require(0 < value <= 1, f"projection.{name} must be in (0, 1], got {value:g}")

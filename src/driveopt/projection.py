@@ -2,8 +2,8 @@
 
 Solves, for every sample j of the batch at once and approximately,
 
-    min 0.5 |xi - xi_bar_j|^2   s.t.  A_eq xi = b_j,  obstacle ellipses, speed, acceleration,
-                                     curvature, centripetal and lane bounds
+    min 0.5 |xi - xi_bar_j|^2   s.t.  A_eq xi = b_j,  obstacle ellipses, speed, course angle,
+                                     acceleration, curvature, centripetal and lane bounds
 
 by alternating minimisation on an augmented Lagrangian in polar form. Each
 iteration is: a linear solve with a KKT matrix that is constant during the call
@@ -126,6 +126,7 @@ class _Operators(NamedTuple):
     lane_gamma: jnp.ndarray  # () gamma of the lane rows (1 in plain mode), or (B, 1) one per sample
     lane_rows: jnp.ndarray  # (K,) 1 at the nodes that carry a lane row (all but node 0)
     lane_bounds: jnp.ndarray  # (2, K) upper-row and lower-row bounds e of the row at each node (node 0: unused); (2, B, K) per sample
+    course: jnp.ndarray  # (2, K) cosine and sine of the course-angle bound at each node (:func:`course_bounds`)
     per_sample: _SampleY | None  # the y axis's per-sample changes when gamma_lane is per sample, else None
 
 
@@ -165,6 +166,24 @@ def lane_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: Projectio
     else:
         fade = jnp.zeros_like(t)
     return problem.y_lb - below * fade, problem.y_ub + above * fade
+
+
+def course_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
+    """[rad] bound on |course angle| (the velocity's angle to the road) at every node (K,): ``cfg.course_max``,
+    except near t = 0 when the car's course already exceeds it: then the bound starts at the current course and
+    narrows linearly to ``course_max`` by ``recovery_time`` (as the lane bounds do for a car off the road), so a
+    car that is turned across the road plans its way back instead of finding every plan infeasible.
+
+    The bound keeps the projection from turning a blocked plan into a sideways swerve: in dense traffic a plan
+    pushed around a stopped car by the obstacle rows alone crossed three lanes in 3 s at 6 m/s (course up to
+    0.95 rad), and the lateral speed it built up could not be undone before the next car (issue 13)."""
+    t = jnp.asarray(model.t)
+    vx0, vy0 = problem.init_x[1], problem.init_y[1]
+    moving = vx0 * vx0 + vy0 * vy0 > CURVATURE_MIN_SPEED ** 2
+    course0 = jnp.where(moving, jnp.abs(jnp.arctan2(vy0, vx0)), 0.0)
+    excess = jnp.maximum(course0 - cfg.course_max, 0.0)
+    fade = jnp.clip(1.0 - t / cfg.recovery_time, 0.0, 1.0) if cfg.recovery_time > 0 else jnp.zeros_like(t)
+    return cfg.course_max + excess * fade
 
 
 def lane_constraint(model: TrajectoryModel, lower, upper, gamma_lane, barrier: bool) -> tuple[jnp.ndarray, jnp.ndarray]:
@@ -217,6 +236,7 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
     penalty_y = penalty_x + cfg.rho_lane * G.T @ G
     n = W.shape[1]
     eye = jnp.eye(n, dtype=W.dtype)
+    course = course_bounds(model, problem, cfg)
 
     def kkt_inverse(penalty, A):
         A = jnp.asarray(A)
@@ -248,6 +268,7 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
         lane_gamma=jnp.asarray(gamma_lane if cfg.barrier else 1.0, W.dtype),
         lane_rows=(jnp.arange(W.shape[0]) > 0).astype(W.dtype),
         lane_bounds=bounds,  # (2, K), or (2, B, K) per sample
+        course=jnp.stack([jnp.cos(course), jnp.sin(course)]),
         per_sample=sample_y,
     )
 
@@ -338,7 +359,18 @@ def _analysis_step(
         v_lo = jnp.where(turning, jnp.maximum(v_lo, _safe_sqrt(d_acc_prev * sin_va / cfg.kappa_max)), v_lo)
     road_k = jnp.abs(problem.road_curvature)
     v_hi = jnp.minimum(cfg.v_max, jnp.sqrt(cfg.centripetal_max / jnp.maximum(uvx * uvx * road_k, _EPS)))
-    d_vel = jnp.minimum(jnp.maximum(speed, v_lo), v_hi)
+    # Course bound: a velocity turned further from the road than the bound goes to the nearest point of the
+    # bound's ray, of length |v| cos(course - bound) (then the speed bounds apply); no bound (P1): as it is.
+    # Like the curvature bound it applies above CURVATURE_MIN_SPEED: a stopping car's direction means nothing.
+    along = speed
+    dir_x, dir_y = uvx, uvy
+    if cfg.course_max > 0:
+        cos_b, sin_b = ops.course[0], ops.course[1]
+        turned = (uvx < cos_b) & turning
+        dir_x = jnp.where(turned, cos_b, uvx)
+        dir_y = jnp.where(turned, jnp.where(uvy < 0, -sin_b, sin_b), uvy)
+        along = jnp.where(turned, jnp.maximum(vx * cos_b + jnp.abs(vy) * sin_b, 0.0), speed)
+    d_vel = jnp.minimum(jnp.maximum(along, v_lo), v_hi)
     a_hi = jnp.full_like(acc, cfg.a_max)
     if cfg.kappa_max > 0:
         a_hi = jnp.where(turning, jnp.minimum(a_hi, cfg.kappa_max * d_vel * d_vel / jnp.maximum(sin_va, _EPS)), a_hi)
@@ -357,17 +389,21 @@ def _analysis_step(
     # rho F'h per axis as three (B, K) x (K, n) products: no (B, 3K) concatenation is materialised.
     back_pos, back_vel, back_acc = ops.back[:K], ops.back[K:2 * K], ops.back[2 * K:]
     pull = jnp.stack([
-        (cfg.rho_obstacle * h_ox) @ back_pos + (cfg.rho_velocity * d_vel * uvx) @ back_vel
+        (cfg.rho_obstacle * h_ox) @ back_pos + (cfg.rho_velocity * d_vel * dir_x) @ back_vel
         + (cfg.rho_acceleration * d_acc * uax) @ back_acc,
-        (cfg.rho_obstacle * h_oy + cfg.rho_lane * lane_pull) @ back_pos + (cfg.rho_velocity * d_vel * uvy) @ back_vel
+        (cfg.rho_obstacle * h_oy + cfg.rho_lane * lane_pull) @ back_pos + (cfg.rho_velocity * d_vel * dir_y) @ back_vel
         + (cfg.rho_acceleration * d_acc * uay) @ back_acc,
     ])  # (2, B, n)
     if not with_residuals:
         return pull, d_obs_next, d_acc, None
     free = ops.free_nodes
+    if cfg.course_max > 0:
+        velocity_sq = (vx - d_vel * dir_x) ** 2 + (vy - d_vel * dir_y) ** 2
+    else:
+        velocity_sq = (speed - d_vel) ** 2
     residuals = Residuals(
         obstacle=_safe_sqrt(jnp.sum(free[0] * obstacle_sq, axis=1)),
-        velocity=_safe_sqrt(jnp.sum(free[1] * (speed - d_vel) ** 2, axis=1)),
+        velocity=_safe_sqrt(jnp.sum(free[1] * velocity_sq, axis=1)),
         acceleration=_safe_sqrt(jnp.sum(free[2] * (acc - d_acc) ** 2, axis=1)),
         lane=_safe_sqrt(jnp.sum(ops.lane_rows * ((rows - target_ub) ** 2 + (-rows - target_lb) ** 2), axis=1)),
     )

@@ -1,0 +1,53 @@
+"""benchmarks/latency.py: planner-config overrides are applied to every case, and bad ones refused in one line."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+@pytest.fixture(scope="module")
+def latency():
+    spec = importlib.util.spec_from_file_location("latency", BENCHMARKS / "latency.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_case_runs_with_the_overrides_and_is_recorded_with_them(latency, tmp_path, monkeypatch):
+    seen = []
+    real = latency.plan
+
+    def recording_plan(problem, config, **kwargs):
+        seen.append(config)
+        return real(problem, config, **kwargs)
+
+    monkeypatch.setattr(latency, "plan", recording_plan)
+    overrides = tmp_path / "c.json"
+    overrides.write_text(json.dumps({"projection": {"course_max": 0.0}}))
+    out = tmp_path / "lat.json"
+    monkeypatch.setattr(latency, "SCHEDULES", ((1, 2),))
+    assert latency.main(["--json", str(out), "--calls", "2", "--batches", "50", "--config", str(overrides)]) == 0
+    report = json.loads(out.read_text())
+    assert report["config"] == {"projection": {"course_max": 0.0}}
+    assert [r["case"] for r in report["results"]] == ["50x1x2"]
+    assert seen and all(c.projection.course_max == 0.0 and c.sampler.num_samples == 50 for c in seen)
+
+
+@pytest.mark.parametrize("content, message", [
+    ('{"projection": {"course_max": 2.0}}', "course_max"),
+    ('{"projection": {"no_such_key": 1}}', "no_such_key"),
+    ("not json", "cannot read config"),
+])
+def test_bad_overrides_are_refused_in_one_line(latency, tmp_path, capsys, content, message):
+    overrides = tmp_path / "c.json"
+    overrides.write_text(content)
+    assert latency.main(["--json", str(tmp_path / "lat.json"), "--config", str(overrides)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert not (tmp_path / "lat.json").exists()
