@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 
@@ -13,15 +11,12 @@ from driveopt.experiments.store import JobKey
 from driveopt.registry import get_planner
 from driveopt.sim.rollout import run_episode
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+import benchmark_scripts
 
 
 @pytest.fixture(scope="module")
 def trace_episode():
-    spec = importlib.util.spec_from_file_location("trace_episode", BENCHMARKS / "trace_episode.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_scripts.load("trace_episode")
 
 
 def test_the_trace_replays_the_bench_episode_step_by_step(trace_episode, tmp_path, capsys):
