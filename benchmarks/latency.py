@@ -97,9 +97,14 @@ def main(argv=None) -> int:
     report = {"machine": machine, "config": overrides, "results": []}
     if args.resume and path.exists():
         try:
-            report["results"] = json.loads(path.read_text())["results"]
-        except (json.JSONDecodeError, KeyError) as exc:
+            previous = json.loads(path.read_text())
+            report["results"] = previous["results"]
+        except (json.JSONDecodeError, KeyError, TypeError) as exc:
             print(f"latency: error: cannot resume from {path}: {exc}", file=sys.stderr)
+            return 2
+        if previous.get("config", {}) != overrides:  # files from before --config hold none
+            print(f"latency: error: {path} was measured with config {previous.get('config', {})}, not {overrides}: "
+                  "resume with the same --config or write another file", file=sys.stderr)
             return 2
     done = {r["case"] for r in report["results"]}
     cases = [(b, i, p) for b in args.batches for i, p in SCHEDULES if case_name(b, i, p) not in done]

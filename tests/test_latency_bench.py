@@ -46,3 +46,11 @@ def test_bad_overrides_are_refused_in_one_line(latency, tmp_path, capsys, conten
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1
     assert not (tmp_path / "lat.json").exists()
+
+
+def test_resuming_with_other_overrides_is_refused(latency, tmp_path, capsys):
+    out = tmp_path / "lat.json"
+    out.write_text(json.dumps({"machine": {}, "config": {"projection": {"course_max": 0.0}}, "results": []}))
+    assert latency.main(["--json", str(out), "--resume"]) == 2
+    assert "resume with the same --config" in capsys.readouterr().err
+    assert json.loads(out.read_text())["results"] == []
