@@ -19,7 +19,7 @@ road() {  # SCENARIO SHORT
     local s=$1 r=$2
     echo "== $s: collect ($(date -u +%H:%M))"
     driveopt collect --scenarios "$s" --episodes 40 --duration 30 --seed 7 --samples 250 --modes 8 \
-        --out "$out/$s.h5" --json "$out/$s.json"
+        --out "$out/$s.h5" $( [ -e "$out/$s.json" ] || echo --json "$out/$s.json" )
     echo "== $s: train cvae ($(date -u +%H:%M))"
     driveopt train cvae --data "$out/$s.h5" --out "$out/cvae-$r"
     echo "== $s: train vqvae ($(date -u +%H:%M))"
