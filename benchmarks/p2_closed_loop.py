@@ -189,6 +189,10 @@ def main(argv: list[str] | None = None) -> int:
     except DriveoptError as exc:
         print(f"p2_closed_loop: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"p2_closed_loop: interrupted; the finished episodes are kept in {args.out}, rerun the same command to resume",
+              file=sys.stderr)
+        return 130
     print(f"wrote {args.out}/{args.figure}.json and {args.figure}.png ({len(table)} points)")
     return 0
 
