@@ -1,7 +1,7 @@
 """P2's closed-loop figures as resumable sweeps of ``driveopt bench`` (issues 14 and 15).
 
     python benchmarks/p2_closed_loop.py --figure fig7|fig8a|fig8b|fig9 --out DIR [--episodes N] [--workers 2]
-        [--planners P ...] [--cvae-weights FILE] [--vqvae-weights FILE] [--filter-weights FILE] [--duration S] [--list]
+        [--planners P ...] [--cvae-weights FILE] [--vqvae-weights FILE] [--filter-weights FILE] [--duration S] [--records DIR] [--list]
 
 Figures (P2's traffic, :mod:`driveopt.sim.scenarios` ``p2-*``; 1000 samples; seed 42):
 
@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -145,8 +146,21 @@ def plot(figure: str, table: list[dict[str, Any]], path: Path) -> Path:
     return path
 
 
+RECORD_FILES = ("episodes.jsonl", "spec.json")  # what --records keeps of a point's bench folder
+
+
+def _sync(source: Path, target: Path) -> None:
+    target.mkdir(parents=True, exist_ok=True)
+    for name in RECORD_FILES:
+        if (source / name).exists():
+            shutil.copy2(source / name, target / name)
+
+
 def run(figure: str, out: Path, episodes: int | None, workers: int, weights: dict[str, str | None], duration: float | None,
-        planners: list[str] | None = None) -> list[dict[str, Any]]:
+        planners: list[str] | None = None, records: Path | None = None) -> list[dict[str, Any]]:
+    """Run (or resume) ``figure``'s points under ``out``. ``records``: a folder of kept points (e.g. the repository's
+    ``benchmarks/results/p2``); a point missing from ``out`` starts from its records there, and every point's
+    records are copied there when it ends or is interrupted, so a new machine resumes where the last one stopped."""
     pts = points(figure, episodes, planners)
     specs = {pt: bench_spec(pt, weights, duration) for pt in pts}
     for spec in specs.values():  # every point's names, weights and settings before anything runs
@@ -155,7 +169,13 @@ def run(figure: str, out: Path, episodes: int | None, workers: int, weights: dic
     table: list[dict[str, Any]] = []
     for i, pt in enumerate(pts):
         print(f"[{i + 1}/{len(pts)}] {pt.folder}: {pt.episodes} episodes", flush=True)
-        rows[pt] = run_bench(specs[pt], out / pt.folder, workers=workers)[0]
+        if records is not None and not (out / pt.folder / "episodes.jsonl").exists() and (records / pt.folder).is_dir():
+            _sync(records / pt.folder, out / pt.folder)
+        try:
+            rows[pt] = run_bench(specs[pt], out / pt.folder, workers=workers)[0]
+        finally:
+            if records is not None and (out / pt.folder).is_dir():
+                _sync(out / pt.folder, records / pt.folder)
         table = figure_rows(pts, rows)
         tmp = out / f".{figure}.json.tmp"
         tmp.write_text(json.dumps(table, indent=1))
@@ -175,6 +195,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--vqvae-weights", help="PixelCNN checkpoint (default: shipped)")
     parser.add_argument("--filter-weights", help="learned safety-filter checkpoint (default: shipped)")
     parser.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
+    parser.add_argument("--records", help="folder that keeps every point's episodes (benchmarks/results/p2): a point "
+                        "missing from --out resumes from there, and is copied back when it ends or is interrupted")
     parser.add_argument("--list", action="store_true", help="print the points and exit")
     args = parser.parse_args(argv)
     try:
@@ -185,7 +207,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{pt.folder}: {pt.episodes} episodes ({pt.variant}, x = {pt.x})")
             return 0
         weights = {"cvae": args.cvae_weights, "vqvae": args.vqvae_weights, "filter": args.filter_weights}
-        table = run(args.figure, Path(args.out), args.episodes, args.workers, weights, args.duration, args.planners)
+        table = run(args.figure, Path(args.out), args.episodes, args.workers, weights, args.duration, args.planners,
+                    Path(args.records) if args.records else None)
     except DriveoptError as exc:
         print(f"p2_closed_loop: error: {exc}", file=sys.stderr)
         return 2

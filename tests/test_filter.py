@@ -31,7 +31,7 @@ from driveopt.learned.train_filter import (
     value_and_grad,
 )
 from driveopt.observation import OBSERVATION_DIM, observation_vector
-from driveopt.planner import plan, project_batch, setpoint_batch
+from driveopt.planner import PlanStatus, plan, project_batch, setpoint_batch
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import build_problem
 from driveopt.projection import constraint_residuals, project
@@ -388,9 +388,26 @@ def test_vqvae_filter_is_p2s_pipeline_and_warns_without_weights():
     assert PLANNER.config == vqvae.config and PLANNER.learned_filter and not vqvae.learned_filter
     same = dataclasses.replace(PLANNER, name="vqvae", description=vqvae.description, make_prior=vqvae.make_prior, learned_filter=False)
     assert same == vqvae  # samples, projection, ranking, fallback: all vqvae's
-    with pytest.warns(UserWarning, match="no safety-filter weights shipped for 4-lane roads"):
-        assert PLANNER.safety_filter(4) is None  # the plain barrier filter of its configuration
+    with pytest.warns(UserWarning, match="no safety-filter weights shipped for 3-lane roads"):
+        assert PLANNER.safety_filter(3) is None  # the plain barrier filter of its configuration
     assert vqvae.safety_filter(4) is None
+
+
+@pytest.mark.parametrize("lanes, problem_name", [(4, "slow-leader-four-lane"), (2, None)])
+def test_shipped_filter_weights_load_by_default_and_plan_feasibly(lanes, problem_name):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no fallback notice: filter weights ship for two- and four-lane roads
+        learned = PLANNER.safety_filter(lanes)
+        prior = PLANNER.prior(lanes)
+    assert isinstance(learned, LearnedFilter) and learned.config.gamma_min == 0.5
+    if problem_name is None:
+        return
+    problem = build_problem(load_scene(problem_name))
+    config = PLANNER.config.with_samples(200)
+    result = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior, safety_filter=learned)
+    assert result.status == PlanStatus.SUCCESS and np.all(np.isfinite(result.trajectory.x))
+    plain = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior)
+    assert not np.allclose(result.trajectory.x, plain.trajectory.x)  # the filter changes the projection
 
 
 def test_any_optimiser_takes_a_filter_checkpoint_and_wrong_roads_are_refused(trained, tmp_path):

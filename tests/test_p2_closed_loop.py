@@ -58,6 +58,18 @@ def test_a_sweep_runs_writes_its_table_and_plot_and_resumes(tmp_path, monkeypatc
     assert {p.folder: (tmp_path / p.folder / "episodes.jsonl").read_text() for p in tiny} == lines
 
 
+def test_records_carry_a_sweep_to_a_new_output_folder(tmp_path, monkeypatch):
+    tiny = [SCRIPT.Point("two-lane-d1.0", "idm", 20, None, 1, "plain", 5)]
+    monkeypatch.setattr(SCRIPT, "points", lambda figure, episodes=None, planners=None: tiny)
+    records = tmp_path / "records"
+    argv = ["--figure", "fig8a", "--workers", "1", "--duration", "0.3", "--records", str(records)]
+    assert SCRIPT.main([*argv, "--out", str(tmp_path / "first")]) == 0
+    kept = (records / tiny[0].folder / "episodes.jsonl").read_text()
+    assert kept == (tmp_path / "first" / tiny[0].folder / "episodes.jsonl").read_text() and kept.strip()
+    assert SCRIPT.main([*argv, "--out", str(tmp_path / "second")]) == 0  # another machine: resumes from the records
+    assert (tmp_path / "second" / tiny[0].folder / "episodes.jsonl").read_text() == kept  # nothing rerun or repeated
+
+
 @pytest.mark.parametrize("argv, needle", [
     (["--figure", "fig7", "--cvae-weights", "missing.ckpt"], "missing.ckpt does not exist"),
     (["--figure", "fig8a", "--episodes", "0"], "--episodes must be at least 1"),

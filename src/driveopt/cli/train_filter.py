@@ -24,11 +24,12 @@ def register_models(models) -> None:
     p.add_argument("--epochs", type=positive_int, default=30)
     p.add_argument("--batch-size", type=positive_int, default=16, help="observations per step")
     p.add_argument("--samples", type=positive_int, default=64, help="trajectories per observation")
-    p.add_argument("--unroll", type=positive_int, default=5, help="projection iterations unrolled (the authors: 5)")
-    p.add_argument("--residual-weight", type=float, default=10.0, help="s of P2 eq. 9 [m^2 per unit of residual]")
+    p.add_argument("--unroll", type=positive_int, default=25,
+                   help="projection iterations unrolled (the authors: 5; 25: the planner's iterations the filter is meant for)")
+    p.add_argument("--residual-weight", type=float, default=1000.0, help="s of P2 eq. 9 [m^2 per unit of residual]")
     p.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate (x0.1 every 20 epochs)")
     p.add_argument("--hidden", type=positive_int, nargs="+", default=[256, 256, 256, 256], help="MLP widths")
-    p.add_argument("--gamma-min", type=float, default=0.1,
+    p.add_argument("--gamma-min", type=float, default=0.5,
                    help="lowest gamma the filter may predict, in (0, 1) (small gammas converge slowly)")
     p.add_argument("--validation", type=float, default=0.1, help="share of episodes held out for validation")
     p.add_argument("--validation-data", nargs="+", help="hold out these demonstration files instead (--validation unused)")

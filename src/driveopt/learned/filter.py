@@ -48,7 +48,7 @@ OUTPUT_LAYER = "output"  # name of the last Dense layer in the parameters
 @dataclasses.dataclass(frozen=True)
 class FilterConfig:
     hidden: tuple[int, ...] = (256, 256, 256, 256)  # [-] MLP widths (the authors': four hidden layers)
-    gamma_min: float = 0.1  # [-] in (0, 1): predicted gammas lie in (gamma_min, 1)
+    gamma_min: float = 0.5  # [-] in (0, 1): predicted gammas lie in (gamma_min, 1); small ones converge slowly
     gamma_obs_init: float = 0.98  # [-] gamma_obs of the untrained network (P2 trains with 0.98)
     gamma_lane_init: float = 0.9  # [-] gamma_lane of the untrained network (P2: 0.9)
     coeff_scale: float = 1.0  # [m] first iterate = xi + coeff_scale * output

@@ -6,7 +6,7 @@ Examples: the observations of the demonstration rows the CVAE learns from (statu
 (:func:`driveopt.data.replay.problem_from_row`). For every observation ``samples`` set-points are drawn
 from the chosen prior (``samples_from``: the VQ-VAE as P2, the CVAE, or the planner's Gaussian) and
 turned into trajectories xi by the planner's own set-point QP (:func:`driveopt.planner.setpoint_batch`);
-the filter sets up their projection, which runs exactly ``unroll`` iterations (the authors: 5) of the
+the filter sets up their projection, which runs exactly ``unroll`` iterations (default 25; the authors: 5) of the
 planner's own code (:func:`driveopt.planner.project_batch` with ``unroll=True``), and the loss is P2
 eq. 9, a mean over samples and observations::
 
@@ -79,8 +79,8 @@ class TrainConfig:
     epochs: int = 30  # [-]
     batch_size: int = 16  # [-] observations (demonstration rows) per step
     samples: int = 64  # [-] trajectories drawn from the prior per observation
-    unroll: int = 5  # [-] projection iterations unrolled (the authors': 5)
-    residual_weight: float = 10.0  # [m^2] s of eq. 9, per unit of total residual (m, m/s, m/s^2 summed, as ranked)
+    unroll: int = 25  # [-] projection iterations unrolled (the authors': 5; 25 is what the planner runs in P2 Fig. 8's target)
+    residual_weight: float = 1000.0  # [m^2] s of eq. 9, per unit of total residual (m, m/s, m/s^2 summed, as ranked)
     samples_from: str = "vqvae"  # [-] the prior the samples come from: vqvae | cvae | gaussian
     learning_rate: float = 1e-3  # [-] AdamW initial rate
     weight_decay: float = 6e-5  # [-]

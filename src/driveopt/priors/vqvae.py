@@ -72,7 +72,7 @@ def load_prior(path: str | Path, v_max: float = ProjectionConfig.v_max, lanes: i
 
 
 def shipped_weights(lanes: int) -> Path | None:
-    """Path of the VQ-VAE prior weights shipped for roads with ``lanes`` lanes, or None (none ship yet)."""
+    """Path of the VQ-VAE prior weights shipped for roads with ``lanes`` lanes, or None."""
     return shipped_weights_file(SHIPPED, lanes)
 
 

@@ -7,7 +7,7 @@ projection. Planners with equal configurations share one compilation whatever th
 
 Weights are one checkpoint (``driveopt train filter``: ``filter.ckpt``); it records the lane counts
 of its training roads, and :func:`filter_for` refuses weights trained for another lane count.
-Without weights for a road (none ship yet) the ``vqvae-filter`` planner warns and projects with the
+Without weights for a road (they ship for two and four lanes) the ``vqvae-filter`` planner warns and projects with the
 plain barrier filter of its configuration. Any optimiser takes a filter checkpoint through
 ``--filter-weights FILE`` (drive, bench, plan) or the ``--config`` section
 ``{"safety_filter": {"weights": FILE}}`` (:func:`split_filter_section`).
@@ -29,7 +29,7 @@ from driveopt.problem import PlanningProblem
 from driveopt.safety.base import FilterInit
 from driveopt.shipped import shipped_weights_file
 
-SHIPPED = {2: "filter-two-lane.ckpt", 4: "filter-four-lane.ckpt"}  # lanes -> file in driveopt/weights (none yet)
+SHIPPED = {2: "filter-two-lane.ckpt", 4: "filter-four-lane.ckpt"}  # lanes -> file in driveopt/weights
 FILTER_SECTION = "safety_filter"  # --config section naming a filter checkpoint: {"safety_filter": {"weights": FILE}}
 
 
@@ -58,7 +58,7 @@ def load_filter(path: str | Path, lanes: int | None = None) -> LearnedFilter:
 
 
 def shipped_weights(lanes: int) -> Path | None:
-    """Path of the filter weights shipped for roads with ``lanes`` lanes, or None (none ship yet)."""
+    """Path of the filter weights shipped for roads with ``lanes`` lanes, or None."""
     return shipped_weights_file(SHIPPED, lanes)
 
 
