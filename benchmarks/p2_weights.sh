@@ -6,8 +6,8 @@
 #
 #   nohup bash benchmarks/p2_weights.sh OUT_DIR > OUT_DIR.log 2>&1 &
 #
-# Both roads run side by side (one process each: the 2-core machine). About 34 min of collection, then
-# ~15 min of training and ~3 min of metrics per road. The weights are not copied into the package: ship
+# Both roads run side by side (one process each: the 2-core machine). About 19 min of collection, then
+# ~15 min of training and ~2 min of metrics per road (483fbd1: 35 min in all). The weights are not copied into the package: ship
 # OUT_DIR/pixelcnn-{four,two}/pixelcnn.ckpt as src/driveopt/weights/vqvae-{four,two}-lane.ckpt and
 # OUT_DIR/cvae-{four,two}/cvae.ckpt as cvae-{four,two}-lane.ckpt after reading the histories.
 set -euo pipefail
