@@ -6,7 +6,10 @@
 Figures (P2's traffic, :mod:`driveopt.sim.scenarios` ``p2-*``; 1000 samples; seed 42):
 
 * ``fig7``: ``cvae-filter``, ``cvae``, ``vqvae`` and ``vqvae-cem`` on ``p2-four-lane-d3.0`` (density 3, limit
-  15 m/s) and ``p2-four-lane-d1.5-slow`` (density 1.5, limit 7 m/s); 50 episodes.
+  15 m/s) and ``p2-four-lane-d1.5-slow`` (density 1.5, limit 7 m/s); 50 episodes. With them, at their own sample
+  counts, the references ``bilevel-p1`` (issue 14's stall criterion: a P2 planner *stalls* in an episode it
+  finishes without collision at under 2.5 m/s where ``bilevel-p1`` finishes it above 6 m/s; each row counts them
+  as ``stalls`` of ``stall_episodes`` comparable ones) and ``idm``.
 * ``fig8a``: the learned filter (``vqvae-filter``) against the plain barrier filter (``vqvae``) for
   ``projection.max_iterations`` 10, 25, 50 and 100 on ``p2-four-lane-d3.0``; 30 episodes, 50 at 100.
 * ``fig8b``: the same pair for 250, 500, 750 and 1000 samples at 100 iterations; 30 episodes, 50 at 1000 (fig8a's
@@ -41,6 +44,8 @@ from driveopt.experiments.bench import BenchSpec, run_bench
 SAMPLES = 1000  # [-] P2's sample count
 DEFAULT_ITERATIONS = 100  # [-] projection.max_iterations of vqvae, vqvae-filter and cvae-filter (P2)
 DENSE, SLOW = "p2-four-lane-d3.0", "p2-four-lane-d1.5-slow"
+STALL_REFERENCE = "bilevel-p1"  # issue 14: no episode under STALL_SPEED where this planner drives above REFERENCE_SPEED
+STALL_SPEED, REFERENCE_SPEED = 2.5, 6.0  # [m/s] mean speeds of an episode
 
 
 class Point(NamedTuple):
@@ -48,7 +53,7 @@ class Point(NamedTuple):
 
     scenario: str
     planner: str
-    samples: int
+    samples: int | None  # None: the planner's own (the references)
     iterations: int | None  # projection.max_iterations (None: the planner's own, 100 for P2's pipelines)
     episodes: int
     variant: str
@@ -57,7 +62,8 @@ class Point(NamedTuple):
     @property
     def folder(self) -> str:
         its = "default" if self.iterations is None else str(self.iterations)
-        return f"{self.scenario}--{self.planner}--n{self.samples}--k{its}"
+        samples = "default" if self.samples is None else str(self.samples)
+        return f"{self.scenario}--{self.planner}--n{samples}--k{its}"
 
 
 def _iterations(k: int) -> int | None:
@@ -69,7 +75,8 @@ def points(figure: str, episodes: int | None = None, planners: list[str] | None 
     """The points of ``figure``; ``episodes`` replaces every point's episode count; ``planners`` keeps only theirs."""
     learned_vs_plain = (("learned", "vqvae-filter"), ("plain", "vqvae"))
     if figure == "fig7":
-        out = [Point(s, p, SAMPLES, None, 50, p, s) for s in (DENSE, SLOW) for p in ("cvae-filter", "cvae", "vqvae", "vqvae-cem")]
+        out = [Point(s, p, None, None, 50, p, s) for s in (DENSE, SLOW) for p in (STALL_REFERENCE, "idm")]  # cheap: first
+        out += [Point(s, p, SAMPLES, None, 50, p, s) for s in (DENSE, SLOW) for p in ("cvae-filter", "cvae", "vqvae", "vqvae-cem")]
     elif figure == "fig8a":
         out = [Point(DENSE, p, SAMPLES, _iterations(k), 50 if k == 100 else 30, v, k) for k in (10, 25, 50, 100)
                for v, p in learned_vs_plain]
@@ -92,9 +99,9 @@ def points(figure: str, episodes: int | None = None, planners: list[str] | None 
 def bench_spec(point: Point, weights: dict[str, str | None], duration: float | None) -> BenchSpec:
     """The ``driveopt bench`` run of ``point``: its prior's weights (``cvae``/``vqvae``) and, for ``vqvae-filter``,
     the filter's, when given; the iteration count as a config override."""
-    options: dict[str, Any] = {"samples": point.samples}
-    prior = "cvae" if point.planner.startswith("cvae") else "vqvae"
-    if weights.get(prior):
+    options: dict[str, Any] = {} if point.samples is None else {"samples": point.samples}
+    prior = next((p for p in ("cvae", "vqvae") if point.planner.startswith(p)), None)
+    if prior and weights.get(prior):
         options["weights"] = weights[prior]
     config: dict[str, Any] = {}
     if point.iterations is not None:
@@ -108,9 +115,36 @@ def bench_spec(point: Point, weights: dict[str, str | None], duration: float | N
     return BenchSpec((point.scenario,), (point.planner,), (42,), point.episodes, options)
 
 
-def figure_rows(pts: list[Point], rows: dict[Point, dict[str, Any]]) -> list[dict[str, Any]]:
-    """The JSON rows of a figure: each finished point's settings and its bench summary row."""
-    return [{**pt._asdict(), "folder": pt.folder, **rows[pt]} for pt in pts if pt in rows]
+def episode_speeds(folder: Path, episodes: int) -> dict[int, float | None]:
+    """Mean speed [m/s] of each of the first ``episodes`` episodes of a bench folder; None for one that collided."""
+    speeds = {}
+    with open(folder / "episodes.jsonl") as f:
+        for line in f:
+            record = json.loads(line)
+            if record["episode"] < episodes:
+                speeds[record["episode"]] = None if record["collided"] else record["mean_speed"]
+    return speeds
+
+
+def stalls(speeds: dict[int, float | None], reference: dict[int, float | None]) -> tuple[int, int]:
+    """(stalls, comparable episodes): episodes both finish without collision, and of those the ones where the planner's
+    mean speed is under :data:`STALL_SPEED` while the reference's is above :data:`REFERENCE_SPEED`."""
+    both = [e for e in speeds if speeds[e] is not None and reference.get(e) is not None]
+    return sum(speeds[e] < STALL_SPEED and reference[e] > REFERENCE_SPEED for e in both), len(both)
+
+
+def figure_rows(pts: list[Point], rows: dict[Point, dict[str, Any]], out: Path | None = None) -> list[dict[str, Any]]:
+    """The JSON rows of a figure: each finished point's settings and its bench summary row, and, where the stall
+    reference has run on the same scenario (folders under ``out``), the point's stalls against it."""
+    table = []
+    for pt in (pt for pt in pts if pt in rows):
+        row = {**pt._asdict(), "folder": pt.folder, **rows[pt]}
+        reference = next((r for r in rows if r.planner == STALL_REFERENCE and r.scenario == pt.scenario), None)
+        if out is not None and reference is not None and pt.samples is not None:
+            row["stalls"], row["stall_episodes"] = stalls(episode_speeds(out / pt.folder, pt.episodes),
+                                                          episode_speeds(out / reference.folder, reference.episodes))
+        table.append(row)
+    return table
 
 
 def plot(figure: str, table: list[dict[str, Any]], path: Path) -> Path:
@@ -176,7 +210,7 @@ def run(figure: str, out: Path, episodes: int | None, workers: int, weights: dic
         finally:
             if records is not None and (out / pt.folder).is_dir():
                 _sync(out / pt.folder, records / pt.folder)
-        table = figure_rows(pts, rows)
+        table = figure_rows(pts, rows, out)
         tmp = out / f".{figure}.json.tmp"
         tmp.write_text(json.dumps(table, indent=1))
         os.replace(tmp, out / f"{figure}.json")

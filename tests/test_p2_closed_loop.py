@@ -25,7 +25,11 @@ def test_the_figures_points_are_p2s_and_equal_runs_share_a_folder():
     assert {p.folder for p in fig9 if p.x == "3.0" and p.iterations is None} & {p.folder for p in fig7} == {
         "p2-four-lane-d3.0--cvae-filter--n1000--kdefault"}
     assert {p.iterations for p in fig9} == {None, 0} and {p.x for p in fig9} == {"1.0", "1.5", "3.0"}
-    assert {p.scenario for p in fig7} == {"p2-four-lane-d3.0", "p2-four-lane-d1.5-slow"} and len(fig7) == 8
+    assert {p.scenario for p in fig7} == {"p2-four-lane-d3.0", "p2-four-lane-d1.5-slow"} and len(fig7) == 12
+    references = [p for p in fig7 if p.samples is None]  # at their own sample counts, first (they are cheap)
+    assert fig7[:4] == references and {p.planner for p in references} == {"bilevel-p1", "idm"}
+    assert "p2-four-lane-d3.0--bilevel-p1--ndefault--kdefault" in {p.folder for p in references}
+    assert SCRIPT.bench_spec(references[0], {"vqvae": "p.ckpt", "cvae": "c.ckpt"}, None).options == {}
     assert {p.episodes for p in SCRIPT.points("fig9", episodes=3)} == {3}
     pair = SCRIPT.points("fig7", episodes=10, planners=["vqvae", "cvae-filter"])  # a first look: the same folders
     assert [p.folder for p in pair] == [p.folder for p in fig7 if p.planner in ("vqvae", "cvae-filter")]
@@ -73,7 +77,7 @@ def test_records_carry_a_sweep_to_a_new_output_folder(tmp_path, monkeypatch):
 @pytest.mark.parametrize("argv, needle", [
     (["--figure", "fig7", "--cvae-weights", "missing.ckpt"], "missing.ckpt does not exist"),
     (["--figure", "fig8a", "--episodes", "0"], "--episodes must be at least 1"),
-    (["--figure", "fig7", "--planners", "vqvae", "vqvae-filter"], "fig7 has no points of vqvae-filter; its planners: cvae, cvae-filter, vqvae, vqvae-cem"),
+    (["--figure", "fig7", "--planners", "vqvae", "vqvae-filter"], "fig7 has no points of vqvae-filter; its planners: bilevel-p1, cvae, cvae-filter, idm, vqvae, vqvae-cem"),
 ])
 def test_bad_options_stop_the_sweep_before_it_runs(tmp_path, capsys, argv, needle):
     assert SCRIPT.main([*argv, "--out", str(tmp_path / "out")]) == 2
@@ -85,3 +89,19 @@ def test_bad_options_stop_the_sweep_before_it_runs(tmp_path, capsys, argv, needl
 def test_list_prints_every_point(capsys):
     assert SCRIPT.main(["--figure", "fig9", "--out", "unused", "--list"]) == 0
     assert len(capsys.readouterr().out.strip().splitlines()) == 12
+
+
+def test_stalls_count_slow_episodes_where_the_reference_drives_on(tmp_path):
+    """An episode finished under 2.5 m/s is a stall where bilevel-p1 finishes the same one above 6 m/s; collided
+    episodes (either side) and episodes beyond the point's count are not compared."""
+    def folder(name, records):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "episodes.jsonl").write_text(
+            "".join(json.dumps({"episode": e, "collided": c, "mean_speed": v}) + "\n" for e, c, v in records))
+        return tmp_path / name
+
+    planner = folder("p", [(0, False, 1.0), (1, False, 2.0), (2, True, 0.5), (3, False, 2.4), (4, False, 7.0), (5, False, 1.0)])
+    reference = folder("r", [(0, False, 8.0), (1, False, 5.0), (2, False, 9.0), (3, True, 9.0), (4, False, 9.0), (5, False, 9.0)])
+    speeds = SCRIPT.episode_speeds(planner, episodes=5)
+    assert speeds == {0: 1.0, 1: 2.0, 2: None, 3: 2.4, 4: 7.0}
+    assert SCRIPT.stalls(speeds, SCRIPT.episode_speeds(reference, 50)) == (1, 3)  # episode 0; compared 0, 1, 4

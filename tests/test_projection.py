@@ -15,6 +15,7 @@ from driveopt.projection import (
     _fast_rsqrt,
     constraint_residuals,
     lane_constraint,
+    obstacle_floor,
     project,
     quasi_definite_inverse,
     supported_compiler_options,
@@ -58,6 +59,33 @@ def test_obstacle_only():
     assert ratio.min() > 0.97
     assert float(out.residuals.obstacle[0]) < 0.3
     check_boundary(problem, out.coeffs)
+
+
+def _ratios(problem, traj, i=0):
+    return np.sqrt(((traj.x - problem.obstacle_x[i]) / problem.obstacle_a[i]) ** 2
+                   + ((traj.y - problem.obstacle_y[i]) / problem.obstacle_b[i]) ** 2)
+
+
+def test_a_car_starting_inside_an_ellipse_may_leave_it_but_not_go_deeper():
+    """Stopped beside and just behind a stopped car in the next lane, inside its ellipse (ratio 0.96) but not
+    touching it: driving on is feasible (the floor of the constraint rises from 0.96 to 1 over the recovery time);
+    without the recovery no plan is, and a plan creeping into the car is not."""
+    scene = dataclasses.replace(empty_scene(y=4.0, vx=0.0), neighbours=(Neighbour(x=-4.0, y=1.5),))
+    problem, target, b_x, b_y = setup(scene, [[6.0] * 4 + [4.0] * 4])
+    r0 = float(_ratios(problem, evaluate(MODEL, target))[0, 0])
+    assert 0.9 < r0 < 1.0
+    floor = np.asarray(obstacle_floor(MODEL, problem, LOOSE))
+    assert floor[0, 0] == pytest.approx(r0, abs=1e-5) and np.all(np.diff(floor[0]) >= 0) and floor[0, -1] == 1.0
+    assert np.all(floor[1:] == 1.0)  # the absent (masked) obstacles keep the plain constraint
+    leave = project(MODEL, problem, target, b_x, b_y, LOOSE)
+    assert float(leave.residuals.total[0]) < 1e-2
+    stuck = project(MODEL, problem, target, b_x, b_y, dataclasses.replace(LOOSE, recovery_time=0.0))
+    assert float(stuck.residuals.obstacle[0]) > 0.1
+    _, deeper, b_x, b_y = setup(scene, [[0.5] * 4 + [1.5] * 4])  # creeping sideways into the stopped car
+    assert _ratios(problem, evaluate(MODEL, deeper))[0].min() < 0.8
+    out = project(MODEL, problem, deeper, b_x, b_y, LOOSE)
+    assert float(out.residuals.obstacle[0]) > 0.1  # the projection pushes it back out, but not within the floor
+    assert np.all(_ratios(problem, evaluate(MODEL, out.coeffs))[0] > 0.9)
 
 
 def test_velocity_only():

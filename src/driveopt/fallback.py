@@ -24,7 +24,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from driveopt.costs import Trajectory, nearest_lane_center
-from driveopt.problem import PlanningProblem
+from driveopt.problem import PlanningProblem, ellipse_axes
 from driveopt.qp import NUM_SEGMENTS, TrajectoryModel, fit_positions
 
 EASING_TIME = 3.0  # [s] the stop rows reach their lateral target in this time
@@ -115,7 +115,8 @@ def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, to_l
 def first_contact(problem: PlanningProblem, trajectory: Trajectory) -> jnp.ndarray:
     """() index of the first node at which ``trajectory`` (planning frame, (K,) fields) is inside a
     real obstacle's collision ellipse; K when it never is."""
-    dx = (trajectory.x - problem.obstacle_x) / problem.obstacle_a[:, None]
-    dy = (trajectory.y - problem.obstacle_y) / problem.obstacle_b[:, None]
+    a, b = ellipse_axes(problem)
+    dx = (trajectory.x - problem.obstacle_x) / a
+    dy = (trajectory.y - problem.obstacle_y) / b
     inside = jnp.any((dx * dx + dy * dy < 1.0) & (problem.obstacle_mask[:, None] > 0), axis=0)  # (K,)
     return jnp.where(jnp.any(inside), jnp.argmax(inside), inside.shape[0])

@@ -25,11 +25,34 @@ def ellipse_semi_axes(ego: EgoState, other: Neighbour, margin: EllipseMargin) ->
     box with half-sides (A, B): outside it, the two axis-aligned boxes cannot overlap. The
     neighbour's box is first replaced by the axis-aligned box around it at its heading, so a car
     turned across the road (changing lanes steeply, or stopped askew after a crash) is covered.
+    The ego's box here is the one along the road; while the ego is turned its box grows for the
+    first seconds of the plan (:func:`ego_box_growth`).
     """
     other_long, other_lat = other.half_extents
     half_long = 0.5 * ego.length + other_long
     half_lat = 0.5 * ego.width + other_lat
     return math.sqrt(2.0) * half_long + margin.longitudinal, math.sqrt(2.0) * half_lat + margin.lateral
+
+
+EGO_TURN_FADE = 2.0  # [s] the ego's turned box counts in full at t = 0 and not at all from this time on
+
+
+def ego_box_growth(ego: EgoState, t: np.ndarray) -> np.ndarray:
+    """[m] (2, K) growth of every collision ellipse's longitudinal and lateral semi-axis at times ``t`` [s] because
+    the ego is turned: sqrt(2) x how much the axis-aligned box around the ego at heading theta(t) exceeds its box
+    along the road, with theta fading linearly from its heading now (:attr:`EgoState.box_heading`) to 0 by
+    :data:`EGO_TURN_FADE`.
+
+    At 0.28 rad the ego's front corner reaches 0.7 m further into the next lane than its side: in P2's dense
+    traffic the ego crawling diagonally out of a jam touched the car ahead in the next lane, inside no ellipse.
+    The growth fades because the plan itself turns the car back (replanning applies it again from the heading the
+    car then has); held over the whole horizon it made a turned, stopped car's every plan past a neighbour
+    infeasible."""
+    heading = ego.box_heading * np.clip(1.0 - np.asarray(t) / EGO_TURN_FADE, 0.0, 1.0)
+    c, s = np.abs(np.cos(heading)), np.abs(np.sin(heading))
+    grow_long = 0.5 * (ego.length * c + ego.width * s) - 0.5 * ego.length
+    grow_lat = 0.5 * (ego.length * s + ego.width * c) - 0.5 * ego.width
+    return math.sqrt(2.0) * np.maximum(np.stack([grow_long, grow_lat]), 0.0)
 
 
 BRAKING_TIME = 3.0  # [s] how long an observed braking is assumed to last in predictions

@@ -16,7 +16,9 @@ import numpy as np
 
 from driveopt.config import BasisConfig
 from driveopt.observation import OBSERVATION_DIM, observation_vector
-from driveopt.prediction import BRAKING_TIME, SELECTION_TIME, ellipse_semi_axes, predict_neighbour, relevant_neighbours
+from driveopt.prediction import (
+    BRAKING_TIME, SELECTION_TIME, ego_box_growth, ellipse_semi_axes, predict_neighbour, relevant_neighbours,
+)
 from driveopt.scene import ProblemError, Scene
 
 
@@ -40,6 +42,7 @@ class PlanningProblem(NamedTuple):
     obstacle_a: jnp.ndarray  # (N,) [m] longitudinal semi-axis of the collision ellipse
     obstacle_b: jnp.ndarray  # (N,) [m] lateral semi-axis
     obstacle_mask: jnp.ndarray  # (N,) 1.0 for a real obstacle, 0.0 for padding
+    ellipse_growth: jnp.ndarray  # (2, K) [m] added to every ellipse's (longitudinal, lateral) semi-axis per node: the ego turned
     observation: jnp.ndarray  # (55,) the learned priors' input (driveopt.observation)
 
 
@@ -91,8 +94,14 @@ def build_problem(
         obstacle_a=f32(oa),
         obstacle_b=f32(ob),
         obstacle_mask=f32(mask),
+        ellipse_growth=f32(ego_box_growth(ego, t)),
         observation=f32(observation_vector(scene)),
     )
+
+
+def ellipse_axes(problem: PlanningProblem) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """[m] (N, K) longitudinal and lateral semi-axes of every obstacle's collision ellipse at every node."""
+    return (problem.obstacle_a[:, None] + problem.ellipse_growth[0], problem.obstacle_b[:, None] + problem.ellipse_growth[1])
 
 
 def check_problem(problem: PlanningProblem, basis: BasisConfig = BasisConfig()) -> None:
@@ -104,7 +113,8 @@ def check_problem(problem: PlanningProblem, basis: BasisConfig = BasisConfig()) 
     expected = {
         "init_x": (3,), "init_y": (3,), "y_lb": (), "y_ub": (), "lane_center0": (), "lane_width": (),
         "num_lanes": (), "road_curvature": (), "v_des": (), "obstacle_x": (N, K), "obstacle_y": (N, K),
-        "obstacle_a": (N,), "obstacle_b": (N,), "obstacle_mask": (N,), "observation": (OBSERVATION_DIM,),
+        "obstacle_a": (N,), "obstacle_b": (N,), "obstacle_mask": (N,), "ellipse_growth": (2, K),
+        "observation": (OBSERVATION_DIM,),
     }
     for name, shape in expected.items():
         value = np.asarray(getattr(problem, name))
@@ -118,3 +128,5 @@ def check_problem(problem: PlanningProblem, basis: BasisConfig = BasisConfig()) 
         raise ProblemError("problem.y_lb must be below problem.y_ub")
     if np.any(np.asarray(problem.obstacle_a) <= 0) or np.any(np.asarray(problem.obstacle_b) <= 0):
         raise ProblemError("obstacle ellipse semi-axes must be > 0")
+    if np.any(np.asarray(problem.ellipse_growth) < 0):
+        raise ProblemError("problem.ellipse_growth must be >= 0")

@@ -5,6 +5,9 @@ Solves, for every sample j of the batch at once and approximately,
     min 0.5 |xi - xi_bar_j|^2   s.t.  A_eq xi = b_j,  obstacle ellipses, speed, course angle,
                                      acceleration, curvature, centripetal and lane bounds
 
+(the lane, course and obstacle bounds relaxed near t = 0 for a car that starts beyond them, so that it plans its
+way back: :func:`lane_bounds`, :func:`course_bounds`, :func:`obstacle_floor`)
+
 by alternating minimisation on an augmented Lagrangian in polar form. Each
 iteration is: a linear solve with a KKT matrix that is constant during the call
 (inverted once per call, it depends only on which obstacles are present and on
@@ -37,7 +40,7 @@ import jax
 import jax.numpy as jnp
 
 from driveopt.config import ProjectionConfig
-from driveopt.problem import PlanningProblem
+from driveopt.problem import PlanningProblem, ellipse_axes
 from driveopt.qp import TrajectoryModel, split
 
 _EPS = 1e-6
@@ -127,6 +130,7 @@ class _Operators(NamedTuple):
     lane_rows: jnp.ndarray  # (K,) 1 at the nodes that carry a lane row (all but node 0)
     lane_bounds: jnp.ndarray  # (2, K) upper-row and lower-row bounds e of the row at each node (node 0: unused); (2, B, K) per sample
     course: jnp.ndarray  # (2, K) cosine and sine of the course-angle bound at each node (:func:`course_bounds`)
+    obstacle_floor: jnp.ndarray  # (N, K) lowest ellipse ratio allowed per obstacle and node (:func:`obstacle_floor`)
     per_sample: _SampleY | None  # the y axis's per-sample changes when gamma_lane is per sample, else None
 
 
@@ -184,6 +188,24 @@ def course_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: Project
     excess = jnp.maximum(course0 - cfg.course_max, 0.0)
     fade = jnp.clip(1.0 - t / cfg.recovery_time, 0.0, 1.0) if cfg.recovery_time > 0 else jnp.zeros_like(t)
     return cfg.course_max + excess * fade
+
+
+def obstacle_floor(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
+    """[-] (N, K) lowest ellipse ratio each obstacle's constraint allows at each node: 1 (outside the ellipse), except
+    for an obstacle whose ellipse already holds the ego at t = 0, at ratio r0 < 1: then r0, rising linearly to 1 by
+    ``recovery_time`` (as the lane and course bounds recover).
+
+    The ellipses circumscribe the two cars' boxes with margins, so a car can be inside one without touching: stopped
+    in a jam beside a stopped car, or cut in on. No plan can leave at once, so without the floor every plan stays
+    infeasible and the car stops where it is, however the traffic around it moves. With it, plans that move away in
+    time are feasible, and those that go deeper into the ellipse are not."""
+    t = jnp.asarray(model.t)
+    a, b = ellipse_axes(problem)
+    dx = (problem.init_x[0] - problem.obstacle_x[:, 0]) / a[:, 0]
+    dy = (problem.init_y[0] - problem.obstacle_y[:, 0]) / b[:, 0]
+    r0 = jnp.minimum(jnp.sqrt(dx * dx + dy * dy), 1.0)[:, None]
+    fade = jnp.clip(t / cfg.recovery_time, 0.0, 1.0) if cfg.recovery_time > 0 else jnp.ones_like(t)
+    return r0 + (1.0 - r0) * fade
 
 
 def lane_constraint(model: TrajectoryModel, lower, upper, gamma_lane, barrier: bool) -> tuple[jnp.ndarray, jnp.ndarray]:
@@ -291,6 +313,7 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
         lane_rows=(jnp.arange(W.shape[0]) > 0).astype(W.dtype),
         lane_bounds=bounds,  # (2, K), or (2, B, K) per sample
         course=jnp.stack([jnp.cos(course), jnp.sin(course)]),
+        obstacle_floor=obstacle_floor(model, problem, cfg),
         per_sample=sample_y,
     )
 
@@ -348,19 +371,22 @@ def _analysis_step(
     h_oy = jnp.zeros_like(y)
     obstacle_sq = jnp.zeros_like(x)
     d_obs = []
-    inv_a, inv_b = 1.0 / problem.obstacle_a, 1.0 / problem.obstacle_b
+    a, b = ellipse_axes(problem)
+    inv_a, inv_b = 1.0 / a, 1.0 / b  # (N, K)
     for i in range(problem.obstacle_x.shape[0]):
         ox, oy = problem.obstacle_x[i], problem.obstacle_y[i]
         dx, dy = x - ox, y - oy
         inv_ratio = _fast_rsqrt(jnp.maximum((dx * inv_a[i]) ** 2 + (dy * inv_b[i]) ** 2, _EPS * _EPS))
-        # d = max(ratio, lower bound), and h - x_o = (x - x_o) * d / ratio = (x - x_o) * scale.
+        # d = max(ratio, lower bound), and h - x_o = (x - x_o) * d / ratio = (x - x_o) * scale. The lower bound is
+        # lowered by the obstacle's recovery (1 - floor: 0 unless the ego starts inside the ellipse).
+        floor = ops.obstacle_floor[i]
         if cfg.barrier:
             prev = jnp.concatenate([jnp.ones_like(d_obs_prev[i][:, :1]), d_obs_prev[i][:, :-1]], axis=1)
-            lower = 1.0 + (1.0 - gamma_obs) * (prev - 1.0)
+            lower = 1.0 + (1.0 - gamma_obs) * (prev - 1.0) - (1.0 - floor)
             scale = jnp.maximum(1.0, lower * inv_ratio)
             d_obs.append(scale / inv_ratio)
         else:
-            scale = jnp.maximum(1.0, inv_ratio)
+            scale = jnp.maximum(1.0, floor * inv_ratio)
         m = problem.obstacle_mask[i]
         h_ox = h_ox + m * (ox + dx * scale)
         h_oy = h_oy + m * (oy + dy * scale)

@@ -55,6 +55,9 @@ def _number(name: str, value: Any, field: str | None = None) -> float:
     return v
 
 
+BOX_MIN_SPEED = 0.5  # [m/s] below this speed a car without a given yaw is taken to point along the road
+
+
 @dataclass(frozen=True)
 class EgoState:
     """Ego vehicle state in the road frame."""
@@ -67,10 +70,13 @@ class EgoState:
     ay: float = 0.0  # [m/s^2]
     length: float = 5.0  # [m] (highway-env default vehicle)
     width: float = 2.0  # [m]
+    yaw: float | None = None  # [rad] body heading relative to the road; None: the velocity's direction
 
     def __post_init__(self) -> None:
         for f in ("x", "y", "vx", "vy", "ax", "ay", "length", "width"):
             object.__setattr__(self, f, _number(f"ego.{f}", getattr(self, f)))
+        if self.yaw is not None:
+            object.__setattr__(self, "yaw", _number("ego.yaw", self.yaw))
 
     @property
     def speed(self) -> float:
@@ -80,6 +86,14 @@ class EgoState:
     def heading(self) -> float:
         """[rad] direction of travel relative to the road."""
         return math.atan2(self.vy, self.vx) if self.speed > 1e-6 else 0.0
+
+    @property
+    def box_heading(self) -> float:
+        """[rad] heading of the ego's box: ``yaw`` when given, else the direction of travel above
+        :data:`BOX_MIN_SPEED` (0 when nearly stopped)."""
+        if self.yaw is not None:
+            return self.yaw
+        return self.heading if self.speed > BOX_MIN_SPEED else 0.0
 
 
 @dataclass(frozen=True)
@@ -106,7 +120,7 @@ class Neighbour:
         """[rad] heading of the box: ``yaw`` when given, else from the velocity (0 when nearly stopped)."""
         if self.yaw is not None:
             return self.yaw
-        return math.atan2(self.vy, self.vx) if math.hypot(self.vx, self.vy) > 0.5 else 0.0
+        return math.atan2(self.vy, self.vx) if math.hypot(self.vx, self.vy) > BOX_MIN_SPEED else 0.0
 
     @property
     def half_extents(self) -> tuple[float, float]:
@@ -146,7 +160,7 @@ class EllipseMargin:
     """Extra clearance added to each semi-axis of the collision ellipse."""
 
     longitudinal: float = 0.5  # [m]
-    lateral: float = 0.3  # [m] also covers the ego box turning by up to ~0.1 rad
+    lateral: float = 0.3  # [m]
 
     def __post_init__(self) -> None:
         for f in ("longitudinal", "lateral"):

@@ -183,6 +183,7 @@ def test_ego_velocity_follows_the_course_not_the_body_heading():
     beta = math.atan(0.5 * math.tan(0.2))
     e = scene_from_env(env, scenario).ego
     assert (e.vx, e.vy) == pytest.approx((12.0 * math.cos(0.05 + beta), 12.0 * math.sin(0.05 + beta)))
+    assert e.yaw == pytest.approx(0.05)  # the body heading sizes the ego's box in the collision ellipses
 
 
 def test_ego_acceleration_matches_finite_differences_of_the_simulation():

@@ -43,7 +43,8 @@ def _read(env: Any, scenario: Scenario) -> tuple[Scene, Motion]:
     reference = lanes[0]
     try:
         me = vehicle_motion(ego_vehicle, reference)
-        ego = EgoState(x=me.x, y=me.y, vx=me.vx, vy=me.vy, ax=me.ax, ay=me.ay, length=me.length, width=me.width)
+        ego = EgoState(x=me.x, y=me.y, vx=me.vx, vy=me.vy, ax=me.ax, ay=me.ay, length=me.length, width=me.width,
+                       yaw=me.heading)
         neighbours = []
         others = [v for v in sim.road.vehicles if v is not ego_vehicle]
         others += [o for o in sim.road.objects if getattr(o, "collidable", True)]

@@ -1,0 +1,71 @@
+"""The collision ellipse of a neighbour (with the ego's turned-box growth at t = 0) covers every position where the
+two cars' boxes overlap, whatever their headings; the growth fades over the first seconds of the plan."""
+
+import math
+
+import numpy as np
+import pytest
+
+from driveopt.prediction import EGO_TURN_FADE, ego_box_growth, ellipse_semi_axes
+from driveopt.problem import build_problem, ellipse_axes
+from driveopt.scene import Road, Scene
+from driveopt.scene import EgoState, EllipseMargin, Neighbour
+
+
+def _axes_now(ego, other, margin):
+    a, b = ellipse_semi_axes(ego, other, margin)
+    grow_long, grow_lat = ego_box_growth(ego, np.zeros(1))[:, 0]
+    return a + grow_long, b + grow_lat
+
+
+def _corners(x, y, length, width, heading):
+    c, s = math.cos(heading), math.sin(heading)
+    local = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [0.5 * length, 0.5 * width]
+    return local @ np.array([[c, s], [-s, c]]) + [x, y]
+
+
+def _overlap(a, b) -> bool:
+    """Separating-axis test of two convex quadrilaterals (corners in order)."""
+    for poly in (a, b):
+        for i in range(4):
+            edge = poly[(i + 1) % 4] - poly[i]
+            axis = np.array([-edge[1], edge[0]])
+            pa, pb = a @ axis, b @ axis
+            if pa.max() < pb.min() or pb.max() < pa.min():
+                return False
+    return True
+
+
+@pytest.mark.parametrize("ego_yaw, other_yaw", [(0.0, 0.0), (0.3, 0.0), (-0.3, 0.1), (0.0, 0.4), (0.5, -0.2)])
+def test_overlapping_boxes_lie_inside_the_ellipse(ego_yaw, other_yaw):
+    ego = EgoState(x=0.0, y=0.0, vx=3.0, yaw=ego_yaw)
+    rng = np.random.default_rng(0)
+    a, b = _axes_now(ego, Neighbour(x=0.0, y=0.0, vx=3.0, yaw=other_yaw), EllipseMargin(0.0, 0.0))
+    ego_box = _corners(0.0, 0.0, ego.length, ego.width, ego_yaw)
+    inside = overlapping = 0
+    for dx, dy in rng.uniform([-9.0, -5.0], [9.0, 5.0], size=(4000, 2)):
+        if _overlap(ego_box, _corners(dx, dy, 5.0, 2.0, other_yaw)):
+            overlapping += 1
+            inside += (dx / a) ** 2 + (dy / b) ** 2 <= 1.0
+    assert overlapping > 100 and inside == overlapping
+
+
+def test_a_turned_ego_reaches_further_into_the_next_lane_for_the_first_second():
+    """The ego's box is taken at its body heading (yaw), else at its direction of travel once it moves; the growth
+    fades to nothing by EGO_TURN_FADE, and the problem's ellipses carry it node by node."""
+    margin = EllipseMargin(0.0, 0.0)
+    other = Neighbour(x=5.0, y=4.0, vx=3.0)
+    straight = _axes_now(EgoState(x=0.0, y=0.0, vx=3.0), other, margin)
+    turned = _axes_now(EgoState(x=0.0, y=0.0, vx=3.0, yaw=0.3), other, margin)
+    by_velocity = _axes_now(EgoState(x=0.0, y=0.0, vx=3.0 * math.cos(0.3), vy=3.0 * math.sin(0.3)), other, margin)
+    assert straight == pytest.approx(ellipse_semi_axes(EgoState(x=0.0, y=0.0, vx=3.0), other, margin))
+    assert turned[1] > straight[1] + 0.5 and by_velocity == pytest.approx(turned)
+    # nearly stopped without a yaw: no direction to take, the box points along the road
+    assert _axes_now(EgoState(x=0.0, y=0.0, vx=0.1, vy=0.1), other, margin) == pytest.approx(straight)
+    ego, neighbour = EgoState(x=0.0, y=4.0, vx=3.0, yaw=-0.3), Neighbour(x=5.0, y=0.0)
+    problem = build_problem(Scene(ego=ego, road=Road(num_lanes=4), neighbours=(neighbour,)))
+    b = np.asarray(ellipse_axes(problem)[1])[0]
+    t = np.linspace(0.0, 5.0, b.shape[0])
+    along_road = ellipse_semi_axes(ego, neighbour, EllipseMargin())[1]
+    assert b[0] == pytest.approx(along_road + ego_box_growth(ego, np.zeros(1))[1, 0], rel=1e-5)
+    assert np.all(np.diff(b) <= 1e-6) and b[t >= EGO_TURN_FADE] == pytest.approx(along_road, rel=1e-5)
