@@ -5,11 +5,11 @@ import math
 
 import numpy as np
 import pytest
+from conftest import box_corners, boxes_overlap
 
 from driveopt.prediction import EGO_TURN_FADE, ego_box_growth, ellipse_semi_axes
 from driveopt.problem import build_problem, ellipse_axes
-from driveopt.scene import Road, Scene
-from driveopt.scene import EgoState, EllipseMargin, Neighbour
+from driveopt.scene import EgoState, EllipseMargin, Neighbour, Road, Scene
 
 
 def _axes_now(ego, other, margin):
@@ -18,33 +18,15 @@ def _axes_now(ego, other, margin):
     return a + grow_long, b + grow_lat
 
 
-def _corners(x, y, length, width, heading):
-    c, s = math.cos(heading), math.sin(heading)
-    local = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [0.5 * length, 0.5 * width]
-    return local @ np.array([[c, s], [-s, c]]) + [x, y]
-
-
-def _overlap(a, b) -> bool:
-    """Separating-axis test of two convex quadrilaterals (corners in order)."""
-    for poly in (a, b):
-        for i in range(4):
-            edge = poly[(i + 1) % 4] - poly[i]
-            axis = np.array([-edge[1], edge[0]])
-            pa, pb = a @ axis, b @ axis
-            if pa.max() < pb.min() or pb.max() < pa.min():
-                return False
-    return True
-
-
 @pytest.mark.parametrize("ego_yaw, other_yaw", [(0.0, 0.0), (0.3, 0.0), (-0.3, 0.1), (0.0, 0.4), (0.5, -0.2)])
 def test_overlapping_boxes_lie_inside_the_ellipse(ego_yaw, other_yaw):
     ego = EgoState(x=0.0, y=0.0, vx=3.0, yaw=ego_yaw)
     rng = np.random.default_rng(0)
     a, b = _axes_now(ego, Neighbour(x=0.0, y=0.0, vx=3.0, yaw=other_yaw), EllipseMargin(0.0, 0.0))
-    ego_box = _corners(0.0, 0.0, ego.length, ego.width, ego_yaw)
+    ego_box = box_corners(0.0, 0.0, ego_yaw, ego.length, ego.width)
     inside = overlapping = 0
     for dx, dy in rng.uniform([-9.0, -5.0], [9.0, 5.0], size=(4000, 2)):
-        if _overlap(ego_box, _corners(dx, dy, 5.0, 2.0, other_yaw)):
+        if boxes_overlap(ego_box, box_corners(dx, dy, other_yaw, 5.0, 2.0)):
             overlapping += 1
             inside += (dx / a) ** 2 + (dy / b) ** 2 <= 1.0
     assert overlapping > 100 and inside == overlapping
