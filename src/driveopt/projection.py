@@ -131,6 +131,7 @@ class _Operators(NamedTuple):
     lane_bounds: jnp.ndarray  # (2, K) upper-row and lower-row bounds e of the row at each node (node 0: unused); (2, B, K) per sample
     course: jnp.ndarray  # (2, K) cosine and sine of the course-angle bound at each node (:func:`course_bounds`)
     obstacle_floor: jnp.ndarray  # (N, K) lowest ellipse ratio allowed per obstacle and node (:func:`obstacle_floor`)
+    inverse_axes: jnp.ndarray  # (2, N, K) [1/m] 1 / the ellipses' longitudinal and lateral semi-axes per node
     per_sample: _SampleY | None  # the y axis's per-sample changes when gamma_lane is per sample, else None
 
 
@@ -314,6 +315,7 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
         lane_bounds=bounds,  # (2, K), or (2, B, K) per sample
         course=jnp.stack([jnp.cos(course), jnp.sin(course)]),
         obstacle_floor=obstacle_floor(model, problem, cfg),
+        inverse_axes=1.0 / jnp.stack(ellipse_axes(problem)),
         per_sample=sample_y,
     )
 
@@ -371,8 +373,7 @@ def _analysis_step(
     h_oy = jnp.zeros_like(y)
     obstacle_sq = jnp.zeros_like(x)
     d_obs = []
-    a, b = ellipse_axes(problem)
-    inv_a, inv_b = 1.0 / a, 1.0 / b  # (N, K)
+    inv_a, inv_b = ops.inverse_axes
     for i in range(problem.obstacle_x.shape[0]):
         ox, oy = problem.obstacle_x[i], problem.obstacle_y[i]
         dx, dy = x - ox, y - oy
