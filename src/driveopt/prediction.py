@@ -43,8 +43,9 @@ def ego_box_growth(ego: EgoState, t: np.ndarray) -> np.ndarray:
     along the road, with theta fading linearly from its heading now (:attr:`EgoState.box_heading`) to 0 by
     :data:`EGO_TURN_FADE`.
 
-    At 0.28 rad the ego's front corner reaches 0.65 m further into the next lane than its side does along the road: in P2's dense
-    traffic the ego crawling diagonally out of a jam touched the car ahead in the next lane, inside no ellipse.
+    At 0.28 rad the ego's front corner reaches 0.65 m further into the next lane than its side does along the
+    road: in P2's dense traffic the ego crawling diagonally out of a jam touched the car ahead in the next lane,
+    inside no ellipse.
     The growth fades because the plan itself turns the car back (replanning applies it again from the heading the
     car then has); held over the whole horizon it made a turned, stopped car's every plan past a neighbour
     infeasible."""
