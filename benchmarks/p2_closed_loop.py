@@ -1,7 +1,7 @@
 """P2's closed-loop figures as resumable sweeps of ``driveopt bench`` (issues 14 and 15).
 
     python benchmarks/p2_closed_loop.py --figure fig7|fig8a|fig8b|fig9 --out DIR [--episodes N] [--workers 2]
-        [--planners P ...] [--cvae-weights FILE] [--vqvae-weights FILE] [--filter-weights FILE] [--duration S] [--records DIR] [--list]
+        [--planners P ...] [--scenarios S ...] [--cvae-weights FILE] [--vqvae-weights FILE] [--filter-weights FILE] [--duration S] [--records DIR] [--list]
 
 Figures (P2's traffic, :mod:`driveopt.sim.scenarios` ``p2-*``; 1000 samples; seed 42):
 
@@ -17,8 +17,9 @@ Figures (P2's traffic, :mod:`driveopt.sim.scenarios` ``p2-*``; 1000 samples; see
 * ``fig9``: ``cvae-filter`` and ``vqvae-filter`` with their filter and without (``max_iterations`` 0: the
   samples ranked as drawn) at densities 1.0, 1.5 and 3.0; 30 episodes.
 
-``--episodes`` replaces every point's count; ``--planners`` runs only those planners' points (e.g. a first look at
-``vqvae`` against ``cvae-filter``; the others follow on a later run without it). Each point is one ``driveopt bench`` folder under ``--out``,
+``--episodes`` replaces every point's count; ``--planners`` runs only those planners' points, in the order given
+(e.g. a first look at ``vqvae`` against ``cvae-filter``; the others follow on a later run without it);
+``--scenarios`` only the points on those roads. Each point is one ``driveopt bench`` folder under ``--out``,
 named by its settings, so figures share the points they have in common (a point's summary covers its own
 episode count, the first N of the folder) and a rerun resumes every point where it stopped. After every point ``DIR/<figure>.json`` (the bench summary row of each point with its
 settings, for plotting elsewhere) and ``DIR/<figure>.png`` (collision rate with its 95% interval, speed over
@@ -71,8 +72,10 @@ def _iterations(k: int) -> int | None:
     return None if k == DEFAULT_ITERATIONS else k
 
 
-def points(figure: str, episodes: int | None = None, planners: list[str] | None = None) -> list[Point]:
-    """The points of ``figure``; ``episodes`` replaces every point's episode count; ``planners`` keeps only theirs."""
+def points(figure: str, episodes: int | None = None, planners: list[str] | None = None,
+           scenarios: list[str] | None = None) -> list[Point]:
+    """The points of ``figure``; ``episodes`` replaces every point's episode count; ``planners`` keeps only theirs,
+    in the order given; ``scenarios`` only those on these roads."""
     learned_vs_plain = (("learned", "vqvae-filter"), ("plain", "vqvae"))
     if figure == "fig7":
         out = [Point(s, p, None, None, 50, p, s) for s in (DENSE, SLOW) for p in (STALL_REFERENCE, "idm")]  # cheap: first
@@ -92,7 +95,13 @@ def points(figure: str, episodes: int | None = None, planners: list[str] | None 
         unknown = sorted(set(planners) - set(known))
         if unknown:
             raise DriveoptError(f"{figure} has no points of {', '.join(unknown)}; its planners: {', '.join(known)}")
-        out = [pt for pt in out if pt.planner in planners]
+        out = sorted((pt for pt in out if pt.planner in planners), key=lambda pt: planners.index(pt.planner))
+    if scenarios:
+        known = sorted({pt.scenario for pt in out})
+        unknown = sorted(set(scenarios) - set(known))
+        if unknown:
+            raise DriveoptError(f"{figure} has no points on {', '.join(unknown)}; its scenarios: {', '.join(known)}")
+        out = [pt for pt in out if pt.scenario in scenarios]
     return [pt._replace(episodes=episodes) for pt in out] if episodes else out
 
 
@@ -191,11 +200,12 @@ def _sync(source: Path, target: Path) -> None:
 
 
 def run(figure: str, out: Path, episodes: int | None, workers: int, weights: dict[str, str | None], duration: float | None,
-        planners: list[str] | None = None, records: Path | None = None) -> list[dict[str, Any]]:
+        planners: list[str] | None = None, records: Path | None = None,
+        scenarios: list[str] | None = None) -> list[dict[str, Any]]:
     """Run (or resume) ``figure``'s points under ``out``. ``records``: a folder of kept points (e.g. the repository's
     ``benchmarks/results/p2``); a point missing from ``out`` starts from its records there, and every point's
     records are copied there when it ends or is interrupted, so a new machine resumes where the last one stopped."""
-    pts = points(figure, episodes, planners)
+    pts = points(figure, episodes, planners, scenarios)
     specs = {pt: bench_spec(pt, weights, duration) for pt in pts}
     for spec in specs.values():  # every point's names, weights and settings before anything runs
         spec.check()
@@ -224,7 +234,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", required=True, help="folder of the points' bench folders (rerun to resume)")
     parser.add_argument("--episodes", type=int, help="episodes per point (default: the figure's, 30 or 50)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel episodes")
-    parser.add_argument("--planners", nargs="+", help="run only these planners' points (default: all of the figure's)")
+    parser.add_argument("--planners", nargs="+", help="run only these planners' points, in this order (default: all of "
+                        "the figure's)")
+    parser.add_argument("--scenarios", nargs="+", help="run only the points on these roads (default: all of the figure's)")
     parser.add_argument("--cvae-weights", help="CVAE checkpoint (default: shipped)")
     parser.add_argument("--vqvae-weights", help="PixelCNN checkpoint (default: shipped)")
     parser.add_argument("--filter-weights", help="learned safety-filter checkpoint (default: shipped)")
@@ -237,12 +249,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.episodes is not None and args.episodes < 1:
             raise DriveoptError(f"--episodes must be at least 1, got {args.episodes}")
         if args.list:
-            for pt in points(args.figure, args.episodes, args.planners):
+            for pt in points(args.figure, args.episodes, args.planners, args.scenarios):
                 print(f"{pt.folder}: {pt.episodes} episodes ({pt.variant}, x = {pt.x})")
             return 0
         weights = {"cvae": args.cvae_weights, "vqvae": args.vqvae_weights, "filter": args.filter_weights}
         table = run(args.figure, Path(args.out), args.episodes, args.workers, weights, args.duration, args.planners,
-                    Path(args.records) if args.records else None)
+                    Path(args.records) if args.records else None, args.scenarios)
     except DriveoptError as exc:
         print(f"p2_closed_loop: error: {exc}", file=sys.stderr)
         return 2
