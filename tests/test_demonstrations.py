@@ -197,3 +197,42 @@ def test_terminated_collect_keeps_finished_episodes_and_resumes(tmp_path):
     assert summary["skipped"] == finished and summary["episodes"] == 1
     data = load_demonstrations(out)
     assert sorted(data.episodes["episode"]) == list(range(finished + 1))
+
+
+def _hold_open(path, mode: str, seconds: float):
+    """A process that holds ``path`` open in ``mode`` for ``seconds``; returned once the file is open."""
+    import subprocess
+    import sys
+
+    code = f"import h5py, sys, time\nf = h5py.File({str(path)!r}, {mode!r})\nprint('open', flush=True)\ntime.sleep({seconds})\nf.close()"
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "open"
+    return proc
+
+
+@pytest.mark.parametrize("holder_mode", ["r", "a"])
+def test_a_file_held_open_by_another_process_is_waited_for(tmp_path, holder_mode):
+    path = write_synthetic(tmp_path / "d.h5", episodes=1, rows=8)
+    holder = _hold_open(path, holder_mode, 1.0)  # e.g. `train` loading while `collect` writes
+    _writer(path).append_episode(_entry(1), synthetic_rows(np.random.default_rng(1), 8))
+    assert holder.wait(timeout=30) == 0
+    holder = _hold_open(path, "a", 1.0)  # and a load while the collector writes
+    assert len(load_demonstrations(path)) == 16
+    holder.wait(timeout=30)
+
+
+def test_a_file_held_longer_than_the_wait_is_a_clear_error(tmp_path, monkeypatch):
+    import driveopt.data.demonstrations as demonstrations
+
+    path = write_synthetic(tmp_path / "d.h5", episodes=1, rows=8)
+    monkeypatch.setattr(demonstrations, "LOCK_WAIT_S", 0.3)
+    holder = _hold_open(path, "a", 5.0)
+    try:
+        with pytest.raises(DatasetError, match="another process held it for over 0.3 s"):
+            _writer(path).append_episode(_entry(1), synthetic_rows(np.random.default_rng(1), 8))
+        with pytest.raises(DatasetError, match="another process held it"):
+            load_demonstrations(path)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert len(load_demonstrations(path)) == 8

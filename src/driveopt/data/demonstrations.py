@@ -53,6 +53,7 @@ import contextlib
 import hashlib
 import itertools
 import json
+import time
 from pathlib import Path
 from typing import Any, Iterable, NamedTuple
 
@@ -198,7 +199,7 @@ class DemonstrationWriter:
     @contextlib.contextmanager
     def _open(self):
         try:
-            f = _h5py().File(self.path, "a")
+            f = _open_waiting_for_lock(self.path, "a")
         except OSError as exc:
             raise DatasetError(f"cannot open demonstrations {self.path}{_locked_hint(exc)}: {exc}") from None
         try:
@@ -315,8 +316,32 @@ def _truncate_partial(f: Any) -> tuple[int, int]:
     return count, end
 
 
+LOCK_WAIT_S = 60.0
+"""How long [s] opening a demonstrations file waits for another process (a reader or the collector) to close it."""
+
+
+def _is_lock_error(exc: OSError) -> bool:
+    return "lock" in str(exc).lower()
+
+
+def _open_waiting_for_lock(path: Path, mode: str) -> Any:
+    """``h5py.File(path, mode)``, retried while another process holds the file's HDF5 lock (the collector opens the
+    file only for each write and readers only for each load, so a lock is released within about a second); the last
+    OSError after LOCK_WAIT_S seconds, or at once when the error is not a lock."""
+    deadline = time.monotonic() + LOCK_WAIT_S
+    delay = 0.05
+    while True:
+        try:
+            return _h5py().File(path, mode)
+        except OSError as exc:
+            if not _is_lock_error(exc) or time.monotonic() + delay > deadline:
+                raise
+        time.sleep(delay)
+        delay = min(2 * delay, 1.0)
+
+
 def _locked_hint(exc: OSError) -> str:
-    return " (is another process writing it?)" if "lock" in str(exc).lower() else ""
+    return f" (another process held it for over {LOCK_WAIT_S:g} s)" if _is_lock_error(exc) else ""
 
 
 def _attr(value: Any) -> Any:
@@ -377,9 +402,8 @@ def _joined_modes(parts: list[Demonstrations]) -> ModeRows | None:
 def _load_one(path: Path) -> Demonstrations:
     if not path.exists():
         raise DatasetError(f"demonstrations file {path} does not exist")
-    h5py = _h5py()
     try:
-        with h5py.File(path, "r") as f:
+        with _open_waiting_for_lock(path, "r") as f:
             version = _check_attrs(f, path)
             count, end = _complete_extent(f)
             eps = {name: f["episodes"][name][:count] for name in EPISODE_FIELDS}
