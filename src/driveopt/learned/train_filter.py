@@ -332,6 +332,7 @@ def train_filter(
             sums["loss"] += float(value)
             for k in ("correction", "residual", "feasible"):
                 sums[k] += float(terms[k])
+            bar.set_postfix_str(f"step {i + 1}/{steps_per_epoch} train {sums['loss'] / (i + 1):.2f}")
         record = {"epoch": epoch + 1, **{f"train_{k}": v / steps_per_epoch for k, v in sums.items()}}
         if not math.isfinite(record["train_loss"]):
             raise TrainingError(f"training diverged in epoch {epoch + 1} (train loss {record['train_loss']}): "
