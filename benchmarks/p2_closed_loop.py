@@ -1,7 +1,7 @@
 """P2's closed-loop figures as resumable sweeps of ``driveopt bench`` (issues 14 and 15).
 
     python benchmarks/p2_closed_loop.py --figure fig7|fig8a|fig8b|fig9 --out DIR [--episodes N] [--workers 2]
-        [--planners P ...] [--scenarios S ...] [--cvae-weights FILE] [--vqvae-weights FILE] [--filter-weights FILE] [--duration S] [--records DIR] [--list]
+        [--planners P ...] [--scenarios S ...] [--x V ...] [--cvae-weights FILE] [--vqvae-weights FILE] [--filter-weights FILE] [--duration S] [--records DIR] [--list]
 
 Figures (P2's traffic, :mod:`driveopt.sim.scenarios` ``p2-*``; 1000 samples; seed 42):
 
@@ -73,9 +73,10 @@ def _iterations(k: int) -> int | None:
 
 
 def points(figure: str, episodes: int | None = None, planners: list[str] | None = None,
-           scenarios: list[str] | None = None) -> list[Point]:
+           scenarios: list[str] | None = None, xs: list[str] | None = None) -> list[Point]:
     """The points of ``figure``; ``episodes`` replaces every point's episode count; ``planners`` keeps only theirs,
-    in the order given; ``scenarios`` only those on these roads."""
+    in the order given; ``scenarios`` only those on these roads; ``xs`` only those at these values of the figure's
+    axis (as written: ``25`` iterations, ``500`` samples, ``1.5`` density, a scenario's name)."""
     learned_vs_plain = (("learned", "vqvae-filter"), ("plain", "vqvae"))
     if figure == "fig7":
         out = [Point(s, p, None, None, 50, p, s) for s in (DENSE, SLOW) for p in (STALL_REFERENCE, "idm")]  # cheap: first
@@ -102,6 +103,12 @@ def points(figure: str, episodes: int | None = None, planners: list[str] | None 
         if unknown:
             raise DriveoptError(f"{figure} has no points on {', '.join(unknown)}; its scenarios: {', '.join(known)}")
         out = [pt for pt in out if pt.scenario in scenarios]
+    if xs:
+        known = sorted({str(pt.x) for pt in out})
+        unknown = sorted(set(xs) - set(known))
+        if unknown:
+            raise DriveoptError(f"{figure} has no points at {', '.join(unknown)}; its values: {', '.join(known)}")
+        out = [pt for pt in out if str(pt.x) in xs]
     return [pt._replace(episodes=episodes) for pt in out] if episodes else out
 
 
@@ -201,11 +208,11 @@ def _sync(source: Path, target: Path) -> None:
 
 def run(figure: str, out: Path, episodes: int | None, workers: int, weights: dict[str, str | None], duration: float | None,
         planners: list[str] | None = None, records: Path | None = None,
-        scenarios: list[str] | None = None) -> list[dict[str, Any]]:
+        scenarios: list[str] | None = None, xs: list[str] | None = None) -> list[dict[str, Any]]:
     """Run (or resume) ``figure``'s points under ``out``. ``records``: a folder of kept points (e.g. the repository's
     ``benchmarks/results/p2``); a point missing from ``out`` starts from its records there, and every point's
     records are copied there when it ends or is interrupted, so a new machine resumes where the last one stopped."""
-    pts = points(figure, episodes, planners, scenarios)
+    pts = points(figure, episodes, planners, scenarios, xs)
     specs = {pt: bench_spec(pt, weights, duration) for pt in pts}
     for spec in specs.values():  # every point's names, weights and settings before anything runs
         spec.check()
@@ -237,6 +244,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--planners", nargs="+", help="run only these planners' points, in this order (default: all of "
                         "the figure's)")
     parser.add_argument("--scenarios", nargs="+", help="run only the points on these roads (default: all of the figure's)")
+    parser.add_argument("--x", nargs="+", help="run only the points at these values of the figure's axis (fig8a: "
+                        "iterations, fig8b: samples, fig9: density, fig7: scenario)")
     parser.add_argument("--cvae-weights", help="CVAE checkpoint (default: shipped)")
     parser.add_argument("--vqvae-weights", help="PixelCNN checkpoint (default: shipped)")
     parser.add_argument("--filter-weights", help="learned safety-filter checkpoint (default: shipped)")
@@ -249,12 +258,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.episodes is not None and args.episodes < 1:
             raise DriveoptError(f"--episodes must be at least 1, got {args.episodes}")
         if args.list:
-            for pt in points(args.figure, args.episodes, args.planners, args.scenarios):
+            for pt in points(args.figure, args.episodes, args.planners, args.scenarios, args.x):
                 print(f"{pt.folder}: {pt.episodes} episodes ({pt.variant}, x = {pt.x})")
             return 0
         weights = {"cvae": args.cvae_weights, "vqvae": args.vqvae_weights, "filter": args.filter_weights}
         table = run(args.figure, Path(args.out), args.episodes, args.workers, weights, args.duration, args.planners,
-                    Path(args.records) if args.records else None, args.scenarios)
+                    Path(args.records) if args.records else None, args.scenarios, args.x)
     except DriveoptError as exc:
         print(f"p2_closed_loop: error: {exc}", file=sys.stderr)
         return 2

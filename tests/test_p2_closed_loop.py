@@ -40,6 +40,12 @@ def test_the_figures_points_are_p2s_and_equal_runs_share_a_folder():
                                          "p2-four-lane-d3.0--bilevel-p1--ndefault--kdefault"]
     with pytest.raises(SCRIPT.DriveoptError, match="no points on two-lane-d2.5"):
         SCRIPT.points("fig7", scenarios=["two-lane-d2.5"])
+    target = SCRIPT.points("fig8a", planners=["vqvae-filter", "vqvae"], xs=["25", "100"])  # the pair first
+    assert [p.folder for p in target] == ["p2-four-lane-d3.0--vqvae-filter--n1000--k25",
+                                          "p2-four-lane-d3.0--vqvae-filter--n1000--kdefault",
+                                          "p2-four-lane-d3.0--vqvae--n1000--k25", "p2-four-lane-d3.0--vqvae--n1000--kdefault"]
+    with pytest.raises(SCRIPT.DriveoptError, match="fig8a has no points at 20; its values: 10, 100, 25, 50"):
+        SCRIPT.points("fig8a", xs=["20"])
 
 
 def test_a_points_bench_run_carries_its_weights_iterations_and_filter():
@@ -56,7 +62,7 @@ def test_a_points_bench_run_carries_its_weights_iterations_and_filter():
 def test_a_sweep_runs_writes_its_table_and_plot_and_resumes(tmp_path, monkeypatch):
     # idm ignores samples and config (no compilation): the sweep machinery is what is tested here
     tiny = [SCRIPT.Point("two-lane-d1.0", "idm", 20, k, 1, "plain", k or 5) for k in (None, 2)]
-    monkeypatch.setattr(SCRIPT, "points", lambda figure, episodes=None, planners=None, scenarios=None: tiny)
+    monkeypatch.setattr(SCRIPT, "points", lambda figure, episodes=None, planners=None, scenarios=None, xs=None: tiny)
     argv = ["--figure", "fig8a", "--out", str(tmp_path), "--workers", "1", "--duration", "0.3"]
     assert SCRIPT.main(argv) == 0
     table = json.loads((tmp_path / "fig8a.json").read_text())
@@ -70,7 +76,7 @@ def test_a_sweep_runs_writes_its_table_and_plot_and_resumes(tmp_path, monkeypatc
 
 def test_records_carry_a_sweep_to_a_new_output_folder(tmp_path, monkeypatch):
     tiny = [SCRIPT.Point("two-lane-d1.0", "idm", 20, None, 1, "plain", 5)]
-    monkeypatch.setattr(SCRIPT, "points", lambda figure, episodes=None, planners=None, scenarios=None: tiny)
+    monkeypatch.setattr(SCRIPT, "points", lambda figure, episodes=None, planners=None, scenarios=None, xs=None: tiny)
     records = tmp_path / "records"
     argv = ["--figure", "fig8a", "--workers", "1", "--duration", "0.3", "--records", str(records)]
     assert SCRIPT.main([*argv, "--out", str(tmp_path / "first")]) == 0
