@@ -103,6 +103,20 @@ def test_summary_statistics():
     assert "| 1.00 (0.72-1.00) | - | 4.50 |" in markdown_table([crashed])
 
 
+def test_plan_times_come_only_from_episodes_planned_on_the_cpu():
+    """A point may hold episodes run on an accelerator for their outcomes: they count in every rate and speed,
+    but the plan-time and wall-time columns are the CPU episodes' (records without a device ran on the CPU)."""
+    old = {"scenario": "s", "planner": "p", "collided": False, "off_road": False, "mean_speed": 5.0,
+           "plan_ms": [100.0, 300.0], "sim_seconds": 1.0, "plan_seconds": 2.0}
+    cpu = [old, {**old, "device": "cpu", "plan_ms": [200.0]}]
+    gpu = {**old, "device": "gpu", "collided": True, "plan_ms": [1.0] * 9, "sim_seconds": 9.0, "plan_seconds": 9.0}
+    (row,) = summarise(cpu + [gpu])
+    assert row["episodes"] == 3 and row["collision_rate"] == pytest.approx(1 / 3)
+    assert row["plan_ms_median"] == 200.0 and row["sim_s_per_episode"] == 1.0 and row["plan_s_per_episode"] == 2.0
+    (untimed,) = summarise([gpu])
+    assert np.isnan(untimed["plan_ms_median"]) and markdown_table([untimed]).splitlines()[-1].endswith("| - / - | - + - |")
+
+
 def test_planners_are_compared_with_the_reference_on_the_same_episodes():
     """Only episodes the reference also ran (same scenario, seed, episode) and neither collided in count."""
     def record(planner, episode, speed, collided=False, scenario="s"):
@@ -227,6 +241,7 @@ def test_scenario_overrides_and_replan_period_are_bench_options(tmp_path):
     options = {"duration": 0.5, "replan_every": 5, "scenario": {"traffic_reverses": False}}
     record = episode_record(JobKey("two-lane-d1.0", "grid", 42, 0), options)
     assert record["steps"] == 5 and len(record["plan_ms"]) == 1  # one plan executed for five periods
+    assert record["device"] == "cpu"  # the JAX backend it planned on (the test machine has no accelerator)
 
 
 def test_summarise_merges_bench_folders_and_refuses_duplicates(tmp_path, capsys):

@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import jax
 from tqdm import tqdm
 
 from driveopt.config import check_count, check_number
@@ -64,7 +65,8 @@ def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
     """
     spec = planner_spec(job.planner, options)
     scenario = resolve_scenario(job.scenario, overrides=options.get("scenario"))
-    return run_episode(scenario, spec, job.env_seed, duration=options.get("duration")).record()
+    record = run_episode(scenario, spec, job.env_seed, duration=options.get("duration")).record()
+    return {**record, "device": jax.default_backend()}  # where it planned: its plan_ms are that device's
 
 
 def planner_spec(name: str, options: dict[str, Any]) -> DriverSpec:

@@ -17,6 +17,7 @@ COLUMNS = (
     "plan_ms_p95", "sim_s_per_episode", "plan_s_per_episode", "reference", "faster_than_reference", "compared_with_reference",
 )
 REFERENCE = "idm"  # the planner every other one is compared with, episode by episode, when the records hold it
+TIMING_DEVICE = "cpu"  # plan-time columns come from episodes planned on this JAX backend (records before it was kept: cpu)
 
 
 def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
@@ -43,7 +44,8 @@ def summarise(records: Iterable[dict[str, Any]], reference: str = REFERENCE) -> 
     """One row per (scenario, planner), in first-seen order. Speeds [m/s]: mean episode speed, averaged
     over episodes; its standard deviation over the collision-free ones. Every planner but ``reference``
     is compared with it episode by episode where the records hold it (``faster_than_reference`` of
-    ``compared_with_reference`` episodes, both collision-free)."""
+    ``compared_with_reference`` episodes, both collision-free). Plan and wall times come only from the episodes
+    planned on :data:`TIMING_DEVICE` (a point may hold episodes run elsewhere for their outcomes; NaN when none)."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
     for r in records:
         groups[(r["scenario"], r["planner"])].append(r)
@@ -56,7 +58,8 @@ def summarise(records: Iterable[dict[str, Any]], reference: str = REFERENCE) -> 
         low, high = wilson_interval(crashed, n)
         free = [r["mean_speed"] for r in rs if not r["collided"]]
         faster, compared = _faster(rs, by_episode) if by_episode and planner != reference else (0, 0)
-        plan_ms = np.concatenate([np.asarray(r.get("plan_ms", []), float) for r in rs]) if rs else np.zeros(0)
+        timed = [r for r in rs if r.get("device", TIMING_DEVICE) == TIMING_DEVICE]
+        plan_ms = np.concatenate([np.asarray(r.get("plan_ms", []), float) for r in timed]) if timed else np.zeros(0)
         rows.append({
             "scenario": scenario,
             "planner": planner,
@@ -70,8 +73,8 @@ def summarise(records: Iterable[dict[str, Any]], reference: str = REFERENCE) -> 
             "off_road_rate": sum(bool(r["off_road"]) for r in rs) / n,
             "plan_ms_median": float(np.median(plan_ms)) if plan_ms.size else math.nan,
             "plan_ms_p95": float(np.percentile(plan_ms, 95)) if plan_ms.size else math.nan,
-            "sim_s_per_episode": float(np.mean([r["sim_seconds"] for r in rs])),
-            "plan_s_per_episode": float(np.mean([r["plan_seconds"] for r in rs])),
+            "sim_s_per_episode": float(np.mean([r["sim_seconds"] for r in timed])) if timed else math.nan,
+            "plan_s_per_episode": float(np.mean([r["plan_seconds"] for r in timed])) if timed else math.nan,
             "reference": reference if compared else "",
             "faster_than_reference": faster,
             "compared_with_reference": compared,
@@ -96,6 +99,9 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
     def ms(value: float) -> str:
         return "-" if math.isnan(value) else f"{value:.0f}"
 
+    def seconds(value: float) -> str:
+        return "-" if math.isnan(value) else f"{value:.1f}"
+
     def speed(r: dict[str, Any]) -> str:  # no collision-free episode: no speed to show
         mean, std = r["mean_speed_collision_free"], r["speed_std_collision_free"]
         return "-" if math.isnan(mean) else f"{mean:.2f} ({std:.2f})"
@@ -109,7 +115,7 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
             f"({r['collision_ci_low']:.2f}-{r['collision_ci_high']:.2f}) | {speed(r)} "
             f"| {r['mean_speed_all']:.2f} | {faster(r)} | {r['off_road_rate']:.2f} | "
             f"{ms(r['plan_ms_median'])} / {ms(r['plan_ms_p95'])} | "
-            f"{r['sim_s_per_episode']:.1f} + {r['plan_s_per_episode']:.1f} |"
+            f"{seconds(r['sim_s_per_episode'])} + {seconds(r['plan_s_per_episode'])} |"
         )
     return "\n".join(lines) + "\n"
 
