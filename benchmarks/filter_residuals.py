@@ -34,7 +34,9 @@ Measured per row, variant and k: the median over samples of the total residual o
 trajectory against the plain constraints (:func:`driveopt.projection.constraint_residuals`, gamma = 1:
 the residual the planner ranks by and eq. 9 trains on; the constraint families summed in their own
 units, m, m/s and m/s^2) and the share of samples within the planner's ``sampler.residual_tolerance``
-(0.05). Summary per variant and k: the median over rows of those medians, the mean feasible share and
+(0.05), over all samples and separately over the lane-changing ones (last lateral set-point more than
+half a lane from the ego's y) and the others; and the cost and mean speed of the least-cost feasible
+sample, the plan a one-pass pipeline (``vqvae``, ``vqvae-filter``) would choose. Summary per variant and k: the median over rows of those medians, the mean feasible share and
 the mean iterations run; per variant ``iterations_to_tolerance``, the smallest k of ``--iterations`` at
 which the median row's median sample is within the tolerance (null: none).
 
@@ -62,6 +64,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
+from driveopt.costs import cost_terms, evaluate, weighted_cost
 from driveopt.data.demonstrations import load_demonstrations
 from driveopt.errors import DriveoptError
 from driveopt.experiments.rows_file import resume_rows
@@ -95,12 +98,24 @@ def run_config(config, samples: int, iterations: int):
 
 @functools.partial(jax.jit, static_argnames=("config",))
 def projected_residuals(problem, setpoints, safety_filter, config):
-    """(total plain-constraint residual (S,), iterations run) of the set-points (S, 8) through the set-point QP and the
-    projection of ``config``, set up by ``safety_filter`` (None: as configured)."""
+    """(total plain-constraint residual (S,), iterations run, cost (S,), mean speed (S,) [m/s]) of the set-points (S, 8)
+    through the set-point QP and the projection of ``config``, set up by ``safety_filter`` (None: as configured); the
+    cost is the planner's ranking cost of the projected trajectory (no previous plan: no consistency term)."""
     model = make_model(config.basis, config.qp)
     qp_coeffs, b_x, b_y = setpoint_batch(model, problem, config, setpoints)
     proj = project_batch(model, problem, config, qp_coeffs, b_x, b_y, safety_filter)
-    return constraint_residuals(model, problem, proj.coeffs, config.projection).total, proj.iterations
+    traj = evaluate(model, proj.coeffs)
+    cost = weighted_cost(cost_terms(traj, problem), config.cost)
+    residual = constraint_residuals(model, problem, proj.coeffs, config.projection).total
+    return residual, proj.iterations, cost, jnp.mean(traj.speed, axis=-1)
+
+
+def chosen(feasible: np.ndarray, cost: np.ndarray, speed: np.ndarray) -> tuple[float | None, float | None]:
+    """(cost, mean speed [m/s]) of the least-cost feasible sample: the one-pass pipeline's pick; (None, None): none."""
+    if not feasible.any():
+        return None, None
+    best = int(np.argmin(np.where(feasible, cost, np.inf)))
+    return float(cost[best]), float(speed[best])
 
 
 def read_rows(path: Path, settings: dict[str, Any]) -> dict[int, dict[str, Any]]:
@@ -114,6 +129,20 @@ def read_rows(path: Path, settings: dict[str, Any]) -> dict[int, dict[str, Any]]
     return dict(resume_rows(path, settings, parse, FilterResidualsError, "filter_residuals"))
 
 
+def lane_changes(setpoints: np.ndarray, ego_y: float, lane_width: float) -> np.ndarray:
+    """(S,) True for the samples whose last lateral set-point [m] lies more than half a lane from the ego's y [m]."""
+    return np.abs(setpoints[:, -1] - ego_y) > 0.5 * lane_width
+
+
+def _share(feasible: np.ndarray) -> float | None:
+    return float(np.mean(feasible)) if feasible.size else None
+
+
+def _mean(values: list[float | None]) -> float | None:
+    kept = [v for v in values if v is not None]
+    return float(np.mean(kept)) if kept else None
+
+
 def summarise(records: list[dict[str, Any]], iterations: list[int], tolerance: float) -> dict[str, Any]:
     """Per variant and k: median over rows of the per-row median residual, mean feasible share, mean iterations run;
     per variant the smallest k whose median is within ``tolerance`` (None: none)."""
@@ -124,6 +153,10 @@ def summarise(records: list[dict[str, Any]], iterations: list[int], tolerance: f
             cells = [r["results"][variant][str(k)] for r in records]
             by_k[str(k)] = {"residual_median": float(np.median([c["residual_median"] for c in cells])),
                             "feasible_share": float(np.mean([c["feasible_share"] for c in cells])),
+                            "lane_change_feasible_share": _mean([c.get("lane_change_feasible_share") for c in cells]),
+                            "keep_lane_feasible_share": _mean([c.get("keep_lane_feasible_share") for c in cells]),
+                            "chosen_speed_mean": _mean([c.get("chosen_speed") for c in cells]),
+                            "rows_without_feasible": sum(c.get("chosen_speed") is None for c in cells),
                             "iterations_mean": float(np.mean([c["iterations"] for c in cells]))}
         reached = [k for k in iterations if by_k[str(k)]["residual_median"] <= tolerance]
         results[variant] = {"by_iterations": by_k, "iterations_to_tolerance": reached[0] if reached else None}
@@ -216,15 +249,22 @@ def run(args: argparse.Namespace) -> int:
             key = jax.random.fold_in(base_key, row)
             setpoints = _draw(prior, jax.tree_util.tree_map(jnp.asarray, stacked), key[None], args.samples)[0]
             problem = jax.tree_util.tree_map(lambda a: jnp.asarray(a[0]), stacked)
+            changes = lane_changes(np.asarray(setpoints), float(problem.init_y[0]), float(problem.lane_width))
             results: dict[str, dict[str, Any]] = {variant: {} for variant in VARIANTS}
             for k in iterations:
                 for variant, safety_filter in zip(VARIANTS, (learned, None)):
-                    residual, ran = projected_residuals(problem, setpoints, safety_filter, configs[k])
+                    residual, ran, cost, speed = projected_residuals(problem, setpoints, safety_filter, configs[k])
                     residual = np.asarray(residual)  # float32, compared with the tolerance as the planner does
+                    feasible = residual <= np.float32(tolerance)
+                    best_cost, best_speed = chosen(feasible, np.asarray(cost), np.asarray(speed))
                     results[variant][str(k)] = {"residual_median": float(np.median(residual.astype(np.float64))),
-                                                "feasible_share": float(np.mean(residual <= np.float32(tolerance))),
+                                                "feasible_share": float(np.mean(feasible)),
+                                                "lane_change_feasible_share": _share(feasible[changes]),
+                                                "keep_lane_feasible_share": _share(feasible[~changes]),
+                                                "chosen_cost": best_cost, "chosen_speed": best_speed,
                                                 "iterations": int(ran)}
-            record = {"row": row, "episode": int(data.episode[row]), "results": results}
+            record = {"row": row, "episode": int(data.episode[row]), "lane_change_share": float(np.mean(changes)),
+                      "results": results}
             done[row] = record
             out.write(json.dumps(record) + "\n")
             out.flush()
@@ -239,6 +279,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"  k = {k:>4}: " + ", ".join(f"{v} {final['results'][v]['by_iterations'][str(k)]['residual_median']:.4f} "
                                            f"({100 * final['results'][v]['by_iterations'][str(k)]['feasible_share']:.0f}%)"
                                            for v in VARIANTS))
+    pct = lambda share: "-" if share is None else f"{100 * share:.0f}%"  # noqa: E731
+    print(f"feasible share of the lane-changing samples ({100 * np.mean([r['lane_change_share'] for r in done.values()]):.0f}% of "
+          "all: last lateral set-point over half a lane from the ego) / of the others:")
+    for k in iterations:
+        cells = {v: final["results"][v]["by_iterations"][str(k)] for v in VARIANTS}
+        print(f"  k = {k:>4}: " + ", ".join(f"{v} {pct(c['lane_change_feasible_share'])} / {pct(c['keep_lane_feasible_share'])}"
+                                           for v, c in cells.items()))
+    print("mean speed [m/s] of the least-cost feasible sample (the one-pass pick; rows with none left out):")
+    for k in iterations:
+        cells = {v: final["results"][v]["by_iterations"][str(k)] for v in VARIANTS}
+        print(f"  k = {k:>4}: " + ", ".join(f"{v} {c['chosen_speed_mean']:.2f} ({c['rows_without_feasible']} rows with none)"
+                                           if c["chosen_speed_mean"] is not None else f"{v} -" for v, c in cells.items()))
     for v in VARIANTS:
         reached = final["results"][v]["iterations_to_tolerance"]
         print(f"  {v}: median sample within tolerance at k = {reached if reached is not None else 'none of ' + str(iterations)}")

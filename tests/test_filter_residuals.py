@@ -95,10 +95,29 @@ def test_both_variants_are_measured_at_every_k_with_finite_residuals(measured):
             assert cell["feasible_share"] == pytest.approx(np.mean([c["feasible_share"] for c in per_row]))
             assert all(np.isfinite(c["residual_median"]) and c["residual_median"] >= 0.0 and 1 <= c["iterations"] <= k
                        for c in per_row)
+            for r, c in ((r, r["results"][variant][str(k)]) for r in rows):  # the split shares make up the whole
+                change, keep = c["lane_change_feasible_share"], c["keep_lane_feasible_share"]
+                whole = r["lane_change_share"] * (change or 0.0) + (1.0 - r["lane_change_share"]) * (keep or 0.0)
+                assert (change is None) == (r["lane_change_share"] == 0.0) and (keep is None) == (r["lane_change_share"] == 1.0)
+                assert whole == pytest.approx(c["feasible_share"], abs=1e-9)
+                assert (c["chosen_speed"] is None) == (c["feasible_share"] == 0.0)  # the pick exists iff a sample is feasible
+                assert c["chosen_speed"] is None or (c["chosen_speed"] >= 0.0 and np.isfinite(c["chosen_cost"]))
         reached = [k for k in ITERATIONS if summary["by_iterations"][str(k)]["residual_median"] <= report["residual_tolerance"]]
         assert summary["iterations_to_tolerance"] == (reached[0] if reached else None)
     # The random network does set the projection up differently from the plain projection.
     assert any(r["results"]["learned"][str(k)] != r["results"]["plain"][str(k)] for r in rows for k in ITERATIONS)
+
+
+def test_lane_changing_samples_end_over_half_a_lane_from_the_ego():
+    setpoints = np.array([[10, 10, 10, 10, 4.0, 4.5, 5.0, 5.9], [10, 10, 10, 10, 4.0, 8.0, 8.0, 6.1],
+                          [10, 10, 10, 10, 0.0, 0.0, 1.0, 1.9], [10, 10, 10, 10, 4.0, 4.0, 4.0, 8.0]])
+    assert SCRIPT.lane_changes(setpoints, ego_y=4.0, lane_width=4.0).tolist() == [False, True, True, True]
+
+
+def test_the_pick_is_the_least_cost_feasible_sample():
+    feasible = np.array([False, True, True, False])
+    assert SCRIPT.chosen(feasible, np.array([0.1, 5.0, 3.0, 1.0]), np.array([20.0, 8.0, 9.0, 15.0])) == (3.0, 9.0)
+    assert SCRIPT.chosen(np.zeros(4, bool), np.ones(4), np.ones(4)) == (None, None)
 
 
 def test_a_filter_with_gamma_one_and_zero_initialisation_measures_as_the_plain_projection(measured):
