@@ -36,8 +36,9 @@ the residual the planner ranks by and eq. 9 trains on; the constraint families s
 units, m, m/s and m/s^2) and the share of samples within the planner's ``sampler.residual_tolerance``
 (0.05), over all samples and separately over the lane-changing ones (last lateral set-point more than
 half a lane from the ego's y) and the others; and the cost and mean speed of the least-cost feasible
-sample, the plan a one-pass pipeline (``vqvae``, ``vqvae-filter``) would choose. Summary per variant and k: the median over rows of those medians, the mean feasible share and
-the mean iterations run; per variant ``iterations_to_tolerance``, the smallest k of ``--iterations`` at
+sample, the plan a one-pass pipeline (``vqvae``, ``vqvae-filter``) would choose. Summary per variant and
+k: the median over rows of those medians, the mean feasible shares, the pick's mean speed and the mean
+iterations run; per variant ``iterations_to_tolerance``, the smallest k of ``--iterations`` at
 which the median row's median sample is within the tolerance (null: none).
 
 Output: one JSON line per row in ``<json>.rows.jsonl``, appended as it goes, and the summary (with the
