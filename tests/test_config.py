@@ -30,6 +30,8 @@ def test_round_trip_and_hashable():
         ({"sampler": {"feasibility_first": "false"}}, "sampler.feasibility_first must be true or false"),
         ({"stop_rows": 0}, "stop_rows must be true or false"),
         ({"stop_rowz": False}, "valid: .*stop_rows"),
+        ({"sampler": {"num_samples": 10, "num_constraint_elites": 10, "num_elites": 5, "refine_samples": 11}}, "refine_samples"),
+        ({"sampler": {"refine_iterations": 0}}, "refine_iterations"),
     ],
 )
 def test_bad_config_is_rejected(data, needle):
@@ -40,3 +42,8 @@ def test_bad_config_is_rejected(data, needle):
 def test_sampler_rejects_bad_learning_rate():
     with pytest.raises(ConfigError):
         SamplerConfig(learning_rate=0.0)
+
+
+def test_fewer_samples_cap_the_refined_ones():
+    cfg = PlannerConfig().replace(sampler={"refine_samples": 50})
+    assert cfg.with_samples(20).sampler.refine_samples == 20 and cfg.with_samples(250).sampler.refine_samples == 50

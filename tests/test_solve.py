@@ -122,3 +122,30 @@ def test_without_stop_rows_the_batch_is_the_samples_alone():
         assert list(snapshot.kind) == [RowKind.SAMPLE] * config.sampler.num_samples
         assert snapshot.setpoints.shape[0] == len(snapshot.residual) == config.sampler.num_samples
     assert np.all(np.isfinite(result.fallback.x)) and np.all(np.diff(result.fallback.speed) <= 1e-5)  # still offered
+
+
+def test_refining_the_cheapest_rows_only_lowers_their_ranking_keys(small_config):
+    """``sampler.refine_samples``: the same batch, but its lowest-cost rows projected further; a row changes only where
+    its key (cost + residual, infeasible behind feasible) falls, every other row is untouched, so the pick can only
+    improve. With a safety filter the refined rows take its gammas."""
+    config = small_config.replace(sampler=dict(num_samples=64, num_iterations=1, num_constraint_elites=16, num_elites=8),
+                                  projection=dict(max_iterations=2))
+    refined = config.replace(sampler={"refine_samples": 8, "refine_iterations": 60})
+    problem = build_problem(load_scene("dense-snapshot"), config.basis)
+    prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
+    n = 2 * (config.basis.order + 1)
+    for safety_filter in (None, OffsetFilter(jnp.zeros(n, jnp.float32))):
+        plain, more = (plan(problem, c, key=jax.random.PRNGKey(0), prior=prior, safety_filter=safety_filter) for c in (config, refined))
+        before, after = plain.first, more.first
+        np.testing.assert_array_equal(before.setpoints, after.setpoints)
+
+        def key(snapshot):
+            feasible = snapshot.residual <= config.sampler.residual_tolerance
+            return np.where(feasible, snapshot.cost + snapshot.residual, 1e6 + snapshot.residual)
+
+        changed = np.flatnonzero(np.any(before.projected_coeffs != after.projected_coeffs, axis=1))
+        assert 0 < len(changed) <= 8  # two iterations leave room: some of the 8 improve
+        assert np.all(key(after)[changed] < key(before)[changed])
+        kept = np.setdiff1d(np.arange(len(before.residual)), changed)
+        np.testing.assert_array_equal(after.residual[kept], before.residual[kept])
+        assert more.history.best_score[0] <= plain.history.best_score[0]

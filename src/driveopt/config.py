@@ -203,6 +203,8 @@ class SamplerConfig:
     structured_fraction: float = 0.5  # [-] share of the first batch drawn as whole-horizon behaviours (0: P1)
     feasibility_first: bool = True  # rank feasible samples ahead of infeasible ones (False: P1's cost + residual ranking)
     ranking_cost_weight: float = 1.0  # [-] w of the ranking score w * cost + residual (P1's authors' code: residual-led)
+    refine_samples: int = 0  # [-] lowest-cost samples projected refine_iterations more after each batch (0: none, P1/P2)
+    refine_iterations: int = 75  # [-] projection iterations added to each refined sample
 
     def __post_init__(self) -> None:
         _check_types(self, "sampler")
@@ -219,6 +221,9 @@ class SamplerConfig:
         _require(0 <= self.residual_tolerance <= 1e3, "sampler.residual_tolerance must be in [0, 1000]")
         _require(0 <= self.structured_fraction <= 1, "sampler.structured_fraction must be in [0, 1]")
         _require(0 < self.ranking_cost_weight <= MAX_WEIGHT, f"sampler.ranking_cost_weight must be in (0, {MAX_WEIGHT:g}]")
+        _require(0 <= self.refine_samples <= self.num_samples,
+                 f"sampler.refine_samples must be in [0, num_samples = {self.num_samples}], got {self.refine_samples}")
+        _require(1 <= self.refine_iterations <= 10_000, f"sampler.refine_iterations must be in [1, 10000], got {self.refine_iterations}")
 
 
 @dataclass(frozen=True)
@@ -248,9 +253,9 @@ class PlannerConfig:
     def with_samples(self, samples: int) -> "PlannerConfig":
         """Copy with ``samples`` per sampler iteration, the elite counts capped at it."""
         elites = min(self.sampler.num_constraint_elites, samples)
-        return self.replace(
-            sampler={"num_samples": samples, "num_constraint_elites": elites, "num_elites": min(self.sampler.num_elites, elites)}
-        )
+        return self.replace(sampler={"num_samples": samples, "num_constraint_elites": elites,
+                                     "num_elites": min(self.sampler.num_elites, elites),
+                                     "refine_samples": min(self.sampler.refine_samples, samples)})
 
 
 _SECTIONS = {

@@ -31,6 +31,11 @@ INFEASIBLE, the chosen candidate (with feasibility first: the lowest-residual on
 ``result.fallback`` offers the stop that enters an obstacle's ellipse later, by the lower residual
 when that ties (computed whether or not the stops ride in the batch; :mod:`driveopt.fallback`).
 
+With ``sampler.refine_samples`` M > 0, each batch's M lowest-cost rows (whatever their residual) are projected
+``sampler.refine_iterations`` more, from their iterate and multipliers, and a row takes its refined trajectory only
+where that lowers its ranking key: the fast plans are the cheap ones and the ones that need the most iterations, so a
+short projection of the whole batch plus a long one of a few rows recovers most of what a long projection of all buys.
+
 Given the previous replan's plan (``previous``), the ``consistency`` cost term measures each
 sample's lateral deviation from that plan: between two near-equal manoeuvres (pass left or right)
 the one already begun keeps winning.
@@ -45,6 +50,7 @@ ranked as the set-point QP made it (P2 Fig. 9's "no filter").
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import functools
 from typing import Any, NamedTuple
@@ -233,7 +239,10 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     for i, (decel, to_centre) in zip(range(-len(stops), 0), stops):
         qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), to_centre))
     proj = project_batch(model, problem, cfg, qp_coeffs, b_x, b_y, safety_filter, unroll)
-    terms = cost_terms(evaluate(model, proj.coeffs), problem, None if previous is None else previous.lateral)
+    lateral = None if previous is None else previous.lateral
+    if s.refine_samples and cfg.projection.max_iterations:
+        proj = _refine(model, problem, cfg, qp_coeffs, b_x, b_y, proj, safety_filter, unroll, lateral)
+    terms = cost_terms(evaluate(model, proj.coeffs), problem, lateral)
     cost = weighted_cost(terms, cfg.cost)
     residual = proj.residuals.total
     score = s.ranking_cost_weight * cost + residual
@@ -264,6 +273,38 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     )
     snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked, kind, cost)
     return candidate(pick), snapshot, score, stats
+
+
+def _refine(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs, b_x, b_y, proj: ProjectionResult, safety_filter,
+            unroll: bool, lateral) -> ProjectionResult:
+    """``proj`` with its ``sampler.refine_samples`` lowest-cost rows (whatever their residual) projected
+    ``sampler.refine_iterations`` more from where they stopped (iterate and multipliers; a filter's gammas), each
+    row replaced only where that lowers its ranking key. The fast plans are the lowest-cost ones and the ones that
+    need the most iterations to become feasible; a few more iterations for a few rows buy most of what more
+    iterations for the whole batch would."""
+    s = cfg.sampler
+
+    def key(coeffs, residual):
+        cost = weighted_cost(cost_terms(evaluate(model, coeffs), problem, lateral), cfg.cost)
+        return cost, _ranking_key(s.ranking_cost_weight * cost + residual, residual, residual <= s.residual_tolerance, s)
+
+    cost, before = key(proj.coeffs, proj.residuals.total)
+    rows = select_lowest(cost, s.refine_samples)
+    gamma_obs = gamma_lane = None
+    if safety_filter is not None:
+        init = check_filter_init(safety_filter.initialise(problem, qp_coeffs[rows]), qp_coeffs[rows].shape)
+        gamma_obs, gamma_lane = init.gamma_obs, init.gamma_lane
+    pick = lambda b: b if b.ndim == 1 else b[rows]  # noqa: E731  (boundary rows are per sample only for goals)
+    more = project(model, problem, qp_coeffs[rows], pick(b_x), pick(b_y),
+                   dataclasses.replace(cfg.projection, max_iterations=s.refine_iterations), gamma_obs=gamma_obs,
+                   gamma_lane=gamma_lane, init_coeffs=proj.coeffs[rows], init_multipliers=proj.multipliers[rows], unroll=unroll)
+    better = key(more.coeffs, more.residuals.total)[1] < before[rows]
+
+    def merge(old, new):
+        return old.at[rows].set(jnp.where(better.reshape((-1,) + (1,) * (new.ndim - 1)), new, old[rows]))
+
+    return proj._replace(coeffs=merge(proj.coeffs, more.coeffs), multipliers=merge(proj.multipliers, more.multipliers),
+                         residuals=jax.tree_util.tree_map(merge, proj.residuals, more.residuals))
 
 
 def _stops(cfg: PlannerConfig) -> tuple[tuple[float, bool], tuple[float, bool]]:
