@@ -240,9 +240,9 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
         qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), to_centre))
     proj = project_batch(model, problem, cfg, qp_coeffs, b_x, b_y, safety_filter, unroll)
     lateral = None if previous is None else previous.lateral
-    if s.refine_samples and cfg.projection.max_iterations:
-        proj = _refine(model, problem, cfg, qp_coeffs, b_x, b_y, proj, safety_filter, unroll, lateral)
     terms = cost_terms(evaluate(model, proj.coeffs), problem, lateral)
+    if s.refine_samples and cfg.projection.max_iterations:
+        proj, terms = _refine(model, problem, cfg, qp_coeffs, b_x, b_y, proj, terms, safety_filter, unroll, lateral)
     cost = weighted_cost(terms, cfg.cost)
     residual = proj.residuals.total
     score = s.ranking_cost_weight * cost + residual
@@ -275,20 +275,19 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     return candidate(pick), snapshot, score, stats
 
 
-def _refine(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs, b_x, b_y, proj: ProjectionResult, safety_filter,
-            unroll: bool, lateral) -> ProjectionResult:
-    """``proj`` with its ``sampler.refine_samples`` lowest-cost rows (whatever their residual) projected
-    ``sampler.refine_iterations`` more from where they stopped (iterate and multipliers; a filter's gammas), each
-    row replaced only where that lowers its ranking key. The fast plans are the lowest-cost ones and the ones that
+def _refine(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs, b_x, b_y, proj: ProjectionResult, terms,
+            safety_filter, unroll: bool, lateral) -> tuple[ProjectionResult, dict[str, jnp.ndarray]]:
+    """``proj`` and its cost ``terms`` with the ``sampler.refine_samples`` lowest-cost rows (whatever their residual)
+    projected ``sampler.refine_iterations`` more from where they stopped (iterate and multipliers; a filter's gammas),
+    each row replaced only where that lowers its ranking key. The fast plans are the lowest-cost ones and the ones that
     need the most iterations to become feasible; a few more iterations for a few rows buy most of what more
     iterations for the whole batch would."""
     s = cfg.sampler
 
-    def key(coeffs, residual):
-        cost = weighted_cost(cost_terms(evaluate(model, coeffs), problem, lateral), cfg.cost)
-        return cost, _ranking_key(s.ranking_cost_weight * cost + residual, residual, residual <= s.residual_tolerance, s)
+    def key(cost, residual):
+        return _ranking_key(s.ranking_cost_weight * cost + residual, residual, residual <= s.residual_tolerance, s)
 
-    cost, before = key(proj.coeffs, proj.residuals.total)
+    cost = weighted_cost(terms, cfg.cost)
     rows = select_lowest(cost, s.refine_samples)
     gamma_obs = gamma_lane = None
     if safety_filter is not None:
@@ -298,13 +297,15 @@ def _refine(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs, b_x,
     more = project(model, problem, qp_coeffs[rows], pick(b_x), pick(b_y),
                    dataclasses.replace(cfg.projection, max_iterations=s.refine_iterations), gamma_obs=gamma_obs,
                    gamma_lane=gamma_lane, init_coeffs=proj.coeffs[rows], init_multipliers=proj.multipliers[rows], unroll=unroll)
-    better = key(more.coeffs, more.residuals.total)[1] < before[rows]
+    more_terms = cost_terms(evaluate(model, more.coeffs), problem, lateral)
+    better = key(weighted_cost(more_terms, cfg.cost), more.residuals.total) < key(cost[rows], proj.residuals.total[rows])
 
     def merge(old, new):
         return old.at[rows].set(jnp.where(better.reshape((-1,) + (1,) * (new.ndim - 1)), new, old[rows]))
 
-    return proj._replace(coeffs=merge(proj.coeffs, more.coeffs), multipliers=merge(proj.multipliers, more.multipliers),
-                         residuals=jax.tree_util.tree_map(merge, proj.residuals, more.residuals))
+    refined = proj._replace(coeffs=merge(proj.coeffs, more.coeffs), multipliers=merge(proj.multipliers, more.multipliers),
+                            residuals=jax.tree_util.tree_map(merge, proj.residuals, more.residuals))
+    return refined, jax.tree_util.tree_map(merge, terms, more_terms)
 
 
 def _stops(cfg: PlannerConfig) -> tuple[tuple[float, bool], tuple[float, bool]]:
