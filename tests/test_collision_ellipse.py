@@ -51,3 +51,31 @@ def test_a_turned_ego_reaches_further_into_the_next_lane_for_the_first_second():
     along_road = ellipse_semi_axes(ego, neighbour, EllipseMargin())[1]
     assert b[0] == pytest.approx(along_road + ego_box_growth(ego, np.zeros(1))[1, 0], rel=1e-5)
     assert np.all(np.diff(b) <= 1e-6) and b[t >= EGO_TURN_FADE] == pytest.approx(along_road, rel=1e-5)
+
+
+def test_with_a_turn_rate_a_plan_that_stands_keeps_the_turned_box_and_one_that_drives_sheds_it():
+    """projection.ego_turn_rate > 0: the growth fades with each sample's own distance travelled, not with time. The
+    ego stands turned 0.3 rad 3.5 m beside a car: inside the ellipse grown for its turned box, outside the one along
+    the road. Standing still for 5 s keeps the box turned (the obstacle rows are violated once the floor has risen);
+    driving beside a car of the same speed turns it back within 2 m (feasible). Fading with time, standing still
+    counts as turning back."""
+    from driveopt.config import ProjectionConfig, QPConfig
+    from driveopt.projection import constraint_residuals
+    from driveopt.qp import boundary_values, fit_positions, make_model
+
+    model = make_model()
+    t = np.asarray(model.t)
+
+    def obstacle_residual(speed, turn_rate):
+        ego = EgoState(x=0.0, y=3.5, vx=speed, yaw=-0.3)
+        scene = Scene(ego=ego, road=Road(num_lanes=4), neighbours=(Neighbour(x=0.0, y=0.0, vx=speed),),
+                      ellipse_margin=EllipseMargin(0.0, 0.0))
+        problem = build_problem(scene)
+        b_x, b_y = boundary_values(problem.init_x, problem.init_y, QPConfig())
+        coeffs = fit_positions(model, np.float32(speed * t)[None], np.full((1, t.size), 3.5, np.float32), b_x, b_y)
+        cfg = ProjectionConfig(ego_turn_rate=turn_rate)
+        return float(constraint_residuals(model, problem, coeffs, cfg).obstacle[0])
+
+    assert obstacle_residual(0.0, 0.179) > 0.1
+    assert obstacle_residual(5.0, 0.179) < 1e-3
+    assert obstacle_residual(0.0, 0.0) < 1e-3 and obstacle_residual(5.0, 0.0) < 1e-3

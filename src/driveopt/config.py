@@ -147,6 +147,9 @@ class ProjectionConfig:
     recovery_time: float = 3.0  # [s] a car off the lane bounds (or drifting past them), or whose course exceeds
     # ``course_max``, must be back within them by then (0: never relaxed)
     course_max: float = 0.35  # [rad] bound on the angle between the velocity and the road (0: no bound, P1)
+    ego_turn_rate: float = 0.0  # [rad/m] > 0: the lateral growth of the ellipses for the ego's turned box fades per sample,
+    # its heading falling this much per metre the sample travels along the road (a plan that stands keeps it), instead
+    # of over the plan's first seconds (problem.ellipse_growth); 0.179 is highway-env's bicycle at full lock
 
     def __post_init__(self) -> None:
         _check_types(self, "projection")
@@ -160,6 +163,7 @@ class ProjectionConfig:
         _require(0 <= self.kappa_max <= 10, "projection.kappa_max must be in [0, 10] 1/m")
         _require(0 < self.centripetal_max <= MAX_ACCELERATION, f"projection.centripetal_max must be in (0, {MAX_ACCELERATION:g}] m/s^2")
         _require(0 <= self.recovery_time <= MAX_HORIZON, f"projection.recovery_time must be in [0, {MAX_HORIZON:g}] s")
+        _require(0 <= self.ego_turn_rate <= 10, f"projection.ego_turn_rate must be in [0, 10] rad/m, got {self.ego_turn_rate:g}")
         _require(0 <= self.course_max < math.pi / 2, f"projection.course_max must be in [0, pi/2) rad, got {self.course_max:g}")
         for name in ("gamma_obs", "gamma_lane"):
             value = getattr(self, name)

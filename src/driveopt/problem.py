@@ -43,6 +43,7 @@ class PlanningProblem(NamedTuple):
     obstacle_b: jnp.ndarray  # (N,) [m] lateral semi-axis
     obstacle_mask: jnp.ndarray  # (N,) 1.0 for a real obstacle, 0.0 for padding
     ellipse_growth: jnp.ndarray  # (2, K) [m] added to every ellipse's (longitudinal, lateral) semi-axis per node: the ego turned
+    ego_heading: jnp.ndarray  # () [rad] heading of the ego's box now (EgoState.box_heading), whose growth ellipse_growth[:, 0] is
     observation: jnp.ndarray  # (55,) the learned priors' input (driveopt.observation)
 
 
@@ -95,6 +96,7 @@ def build_problem(
         obstacle_b=f32(ob),
         obstacle_mask=f32(mask),
         ellipse_growth=f32(ego_box_growth(ego, t)),
+        ego_heading=f32(ego.box_heading),
         observation=f32(observation_vector(scene)),
     )
 
@@ -114,6 +116,7 @@ def check_problem(problem: PlanningProblem, basis: BasisConfig = BasisConfig()) 
         "init_x": (3,), "init_y": (3,), "y_lb": (), "y_ub": (), "lane_center0": (), "lane_width": (),
         "num_lanes": (), "road_curvature": (), "v_des": (), "obstacle_x": (N, K), "obstacle_y": (N, K),
         "obstacle_a": (N,), "obstacle_b": (N,), "obstacle_mask": (N,), "ellipse_growth": (2, K),
+        "ego_heading": (),
         "observation": (OBSERVATION_DIM,),
     }
     for name, shape in expected.items():
