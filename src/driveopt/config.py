@@ -147,9 +147,10 @@ class ProjectionConfig:
     recovery_time: float = 3.0  # [s] a car off the lane bounds (or drifting past them), or whose course exceeds
     # ``course_max``, must be back within them by then (0: never relaxed)
     course_max: float = 0.35  # [rad] bound on the angle between the velocity and the road (0: no bound, P1)
-    ego_turn_rate: float = 0.0  # [rad/m] > 0: the lateral growth of the ellipses for the ego's turned box fades per sample,
-    # its heading falling this much per metre the sample travels along the road (a plan that stands keeps it), instead
-    # of over the plan's first seconds (problem.ellipse_growth); 0.179 is highway-env's bicycle at full lock
+    ego_turn_rate: float = 0.179  # [rad/m] > 0: the lateral growth of the ellipses for the ego's turned box lasts, per
+    # sample, until its heading has fallen this much per metre the sample travels along the road (a plan that stands keeps
+    # it), and at least over the plan's first seconds (problem.ellipse_growth; 0: only those, as before c0f4b76); 0.179 is
+    # highway-env's bicycle at full lock
 
     def __post_init__(self) -> None:
         _check_types(self, "projection")

@@ -378,12 +378,13 @@ def _analysis_step(
     d_obs = []
     inv_a, inv_b = ops.inverse_axes
     if cfg.ego_turn_rate > 0:
-        # Each sample sheds the ego's turned box as it travels: the heading falls by ego_turn_rate per metre, and the
-        # growth with it (linearly: the growth is concave in the heading, so this errs by < 2 cm at 0.3 rad).
+        # A sample keeps the ego's turned box until it has travelled far enough to turn back (its heading falling by
+        # ego_turn_rate per metre; the growth with it, linearly: the growth is concave in the heading, so this errs
+        # by < 2 cm at 0.3 rad), and at least over the plan's first seconds as every plan does (ellipse_growth).
         travelled = jnp.maximum(x - x[:, :1], 0.0)  # (B, K) [m]
         per_metre = cfg.ego_turn_rate / jnp.maximum(jnp.abs(problem.ego_heading), 1e-6)
         turned = jnp.clip(1.0 - per_metre * travelled, 0.0, 1.0)
-        grow_lat = problem.ellipse_growth[1, 0] * turned
+        grow_lat = jnp.maximum(problem.ellipse_growth[1, 0] * turned, problem.ellipse_growth[1])
         # The longitudinal growth (< 0.3 m at 0.3 rad, on semi-axes of 7 m and more) is kept whole: a division less.
         inv_a_full = 1.0 / (problem.obstacle_a + problem.ellipse_growth[0, 0])
     for i in range(problem.obstacle_x.shape[0]):
