@@ -1,13 +1,14 @@
 """Bench harness: resume without loss or duplicates, parallel workers, summary statistics."""
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
 from driveopt.errors import DriveoptError
-from driveopt.experiments.bench import BenchSpec, run_bench
-from driveopt.experiments.store import StoreError, load_records
+from driveopt.experiments.bench import BenchOptionError, BenchSpec, run_bench
+from driveopt.experiments.store import StoreError, key_of, load_records
 from driveopt.experiments.summary import markdown_table, summarise, wilson_interval
 
 
@@ -217,6 +218,10 @@ def test_cli_bench_refuses_bad_options_without_writing_then_runs(tmp_path, capsy
     assert main([*argv, "--duration", "-3"]) == 2
     assert capsys.readouterr().err == "driveopt: error: duration must be a finite number > 0 s, got -3.0\n"
     assert not out.exists()
+    assert main([*argv, "--episode-list", "2"]) == 2
+    assert "episode list [2]" in capsys.readouterr().err and not out.exists()
+    assert main([*argv, "--duration", "3", "--episode-list", "1"]) == 0
+    assert [r["episode"] for r in load_records(out / "episodes.jsonl")] == [1]
     assert main([*argv, "--duration", "3"]) == 0
     assert len(load_records(out / "episodes.jsonl")) == 2
 
@@ -294,3 +299,21 @@ def test_resuming_after_the_shipped_weights_changed_is_refused(tmp_path, monkeyp
     with pytest.raises(StoreError, match="cvae/four-lane-d3.0 driven with other learned weights"):
         run_bench(more, tmp_path / "out", workers=1, episode_fn=fake_episode, progress=False)
     assert len(load_records(tmp_path / "out" / "episodes.jsonl")) == 4
+
+
+def test_an_episode_list_runs_only_those_episodes_and_a_full_run_adds_the_rest(tmp_path):
+    chosen = dataclasses.replace(SPEC, episode_list=(2, 0))
+    rows = run_bench(chosen, tmp_path, workers=1, episode_fn=fake_episode, progress=False)
+    assert sorted({r["episode"] for r in load_records(tmp_path / "episodes.jsonl")}) == [0, 2]
+    assert sum(r["episodes"] for r in rows) == 2 * 2 * 2 * 2  # scenarios x planners x seeds x chosen episodes
+    run_bench(SPEC, tmp_path, workers=1, episode_fn=fake_episode, progress=False)
+    keys = [key_of(r) for r in load_records(tmp_path / "episodes.jsonl")]
+    assert len(keys) == len(set(keys)) == len(SPEC.jobs())
+
+
+@pytest.mark.parametrize("episode_list", [(3,), (-1,), (1, 1)])
+def test_an_episode_list_outside_the_episodes_or_with_repeats_is_refused(tmp_path, episode_list):
+    with pytest.raises(BenchOptionError, match="episode list"):
+        run_bench(dataclasses.replace(SPEC, episode_list=episode_list), tmp_path / "out", workers=1,
+                  episode_fn=fake_episode, progress=False)
+    assert not (tmp_path / "out").exists()

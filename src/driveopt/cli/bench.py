@@ -18,6 +18,8 @@ def register(sub) -> None:
     p.add_argument("--planners", nargs="+", default=["bilevel", "vanilla", "grid", "random", "batch", "idm"])
     p.add_argument("--seeds", nargs="+", type=int, default=[42])
     p.add_argument("--episodes", type=positive_int, default=50, help="episodes per scenario, planner and seed")
+    p.add_argument("--episode-list", nargs="+", type=int, metavar="E",
+                   help="run only these episode indices (each below --episodes), e.g. an A/B on the episodes that collided")
     p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="override the optimisers' samples per iteration (not vanilla's single sample)")
     p.add_argument("--weights", help="learned-prior checkpoint for the cvae planner, or policy file for dqn/ppo (default: shipped weights)")
@@ -43,7 +45,8 @@ def run(args: argparse.Namespace) -> int:
              ("config", config_overrides(args.config, args.filter_weights) or None), ("replan_every", args.replan_every),
              ("scenario", scenario))
     options = {k: v for k, v in given if v is not None}
-    spec = BenchSpec(tuple(args.scenarios), tuple(args.planners), tuple(args.seeds), args.episodes, options)
+    spec = BenchSpec(tuple(args.scenarios), tuple(args.planners), tuple(args.seeds), args.episodes, options,
+                     tuple(args.episode_list or ()))
     try:
         rows = run_bench(spec, args.out, workers=args.workers, backend=args.backend)
     except KeyboardInterrupt:

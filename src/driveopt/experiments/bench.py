@@ -83,24 +83,29 @@ class BenchSpec:
     seeds: tuple[int, ...] = (42,)
     episodes: int = 50  # per (scenario, planner, seed)
     options: dict[str, Any] = field(default_factory=dict)  # passed to every episode (duration, samples, ...)
+    episode_list: tuple[int, ...] = ()  # only these episode indices (each < episodes), e.g. an A/B on those that collided
 
     def jobs(self) -> list[JobKey]:
         return [
             JobKey(scenario, planner, seed, episode)
             for scenario in self.scenarios
             for seed in self.seeds
-            for episode in range(self.episodes)
+            for episode in (self.episode_list or range(self.episodes))
             for planner in self.planners
         ]
 
     def check(self) -> None:
-        """Refuse, as a DriveoptError, what an episode would refuse: an unknown scenario or planner, a
-        duration that is not a finite number > 0, samples that are not an integer >= 1, a weights file
-        that does not exist, config overrides the planner config rejects, weights a planner cannot use on a
-        scenario's road (``DriverSpec.check``). Other options (those of a
-        custom episode function) pass unchecked."""
+        """Refuse, as a DriveoptError, what an episode would refuse: an episode list with an index twice or outside
+        ``episodes``, an unknown scenario or planner, a duration that is not a finite number > 0, samples that are not
+        an integer >= 1, a weights file that does not exist, config overrides the planner config rejects, weights a
+        planner cannot use on a scenario's road (``DriverSpec.check``). Other options (those of a custom episode
+        function) pass unchecked."""
         scenarios = [resolve_scenario(name, overrides=self.options.get("scenario")) for name in self.scenarios]
         _check_options(self.options)
+        outside = [e for e in self.episode_list if not 0 <= e < self.episodes]
+        if outside or len(set(self.episode_list)) < len(self.episode_list):
+            raise BenchOptionError(f"episode list {list(self.episode_list)}: each episode once, from 0 to {self.episodes - 1} "
+                                   "(--episodes)")
         for name in self.planners:
             spec = planner_spec(name, self.options)
             for scenario in scenarios:
