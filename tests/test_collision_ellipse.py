@@ -79,3 +79,31 @@ def test_with_a_turn_rate_a_plan_that_stands_keeps_the_turned_box_and_one_that_d
     assert obstacle_residual(0.0, 0.179) > 0.1
     assert obstacle_residual(5.0, 0.179) < 1e-3
     assert obstacle_residual(0.0, 0.0) < 1e-3 and obstacle_residual(5.0, 0.0) < 1e-3
+
+
+@pytest.mark.parametrize("neighbour_yaw", [0.0, 0.6])
+def test_a_standing_plan_keeps_the_grown_ellipse_of_a_turned_or_straight_neighbour_to_a_percent(neighbour_yaw):
+    """With ego_turn_rate the lateral semi-axis of a standing plan is the neighbour's own (wider when it is turned)
+    plus the ego's growth now, whatever the other obstacles: 1% outside it is feasible, 1% inside is not."""
+    from driveopt.config import ProjectionConfig, QPConfig
+    from driveopt.projection import constraint_residuals
+    from driveopt.qp import boundary_values, fit_positions, make_model
+
+    model = make_model()
+    t = np.asarray(model.t)
+    margin = EllipseMargin(0.0, 0.0)
+    neighbour = Neighbour(x=0.0, y=0.0, yaw=neighbour_yaw)
+    other = Neighbour(x=-40.0, y=8.0)  # a second, narrower obstacle far away
+    probe = EgoState(x=0.0, y=0.0, vx=0.0, yaw=0.3)
+    semi_axis = ellipse_semi_axes(probe, neighbour, margin)[1] + ego_box_growth(probe, np.zeros(1))[1, 0]
+
+    def obstacle_residual(scale):
+        ego = EgoState(x=0.0, y=scale * semi_axis, vx=0.0, yaw=0.3)
+        scene = Scene(ego=ego, road=Road(num_lanes=4), neighbours=(neighbour, other), ellipse_margin=margin)
+        problem = build_problem(scene)
+        b_x, b_y = boundary_values(problem.init_x, problem.init_y, QPConfig())
+        coeffs = fit_positions(model, np.zeros((1, t.size), np.float32), np.full((1, t.size), ego.y, np.float32), b_x, b_y)
+        return float(constraint_residuals(model, problem, coeffs, ProjectionConfig(ego_turn_rate=0.179)).obstacle[0])
+
+    assert obstacle_residual(1.01) < 1e-4
+    assert obstacle_residual(0.99) > 1e-3
