@@ -2,13 +2,15 @@
 
 import dataclasses
 import json
+import os
 
 import numpy as np
 import pytest
 
 from driveopt.errors import DriveoptError
 from driveopt.experiments.bench import BenchOptionError, BenchSpec, run_bench
-from driveopt.experiments.store import StoreError, key_of, load_records
+from driveopt.experiments.runner import cpu_shares, execute
+from driveopt.experiments.store import JobKey, StoreError, key_of, load_records
 from driveopt.experiments.summary import markdown_table, summarise, wilson_interval
 
 
@@ -61,6 +63,34 @@ def test_parallel_workers_give_the_same_records_as_serial(tmp_path):
     a = sorted(json.dumps(r, sort_keys=True) for r in load_records(tmp_path / "a" / "episodes.jsonl"))
     b = sorted(json.dumps(r, sort_keys=True) for r in load_records(tmp_path / "b" / "episodes.jsonl"))
     assert a == b
+
+
+def cpus_episode(job, options):
+    """The worker's process id and the CPUs it may run on."""
+    return {"pid": os.getpid(), "cpus": sorted(os.sched_getaffinity(0))}
+
+
+def test_cpu_shares_split_the_cpus_into_disjoint_near_equal_parts():
+    shares = cpu_shares(range(16), 3)
+    assert [len(s) for s in shares] == [6, 5, 5]
+    assert sorted(c for s in shares for c in s) == list(range(16))
+    assert cpu_shares({3, 1}, 2) == [(1,), (3,)]
+    assert cpu_shares(range(2), 3) == []  # more workers than CPUs: left unbound
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="CPU affinity is Linux-only")
+def test_each_worker_runs_on_its_own_share_of_the_cpus():
+    parent = sorted(os.sched_getaffinity(0))
+    records = []
+    jobs = [JobKey("s", "p", 0, episode) for episode in range(6)]
+    execute(jobs, {}, cpus_episode, records.append, workers=2)
+    by_worker = {r["pid"]: tuple(r["cpus"]) for r in records}
+    assert len(records) == 6 and len(by_worker) <= 2
+    if len(parent) >= 2:
+        assert set(by_worker.values()) <= set(cpu_shares(parent, 2))
+        assert len(set(by_worker.values())) == len(by_worker)  # two workers never share a CPU
+    else:
+        assert set(by_worker.values()) == {tuple(parent)}
 
 
 def test_corrupted_results_file_is_reported(tmp_path):

@@ -66,7 +66,12 @@ def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
     spec = planner_spec(job.planner, options)
     scenario = resolve_scenario(job.scenario, overrides=options.get("scenario"))
     record = run_episode(scenario, spec, job.env_seed, duration=options.get("duration")).record()
-    return {**record, "device": jax.default_backend()}  # where it planned: its plan_ms are that device's
+    # where it planned, and on how many CPUs (the worker's share, see driveopt.experiments.runner): its plan_ms are theirs
+    return {**record, "device": jax.default_backend(), "cpus": _usable_cpus()}
+
+
+def _usable_cpus() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 def planner_spec(name: str, options: dict[str, Any]) -> DriverSpec:
