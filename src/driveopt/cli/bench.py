@@ -27,7 +27,7 @@ def register(sub) -> None:
     p.add_argument("--config", help="planner config overrides applied to every optimiser, JSON (nested sections)")
     p.add_argument("--replan-every", type=positive_int, help="policy periods each plan is executed open-loop (P1: 5; default 1)")
     p.add_argument("--scenario-config", help="JSON file of scenario-field overrides applied to every scenario")
-    p.add_argument("--workers", type=positive_int, help="parallel episodes (default: CPU count)")
+    p.add_argument("--workers", type=positive_int, help="parallel episodes (default: the CPUs it may use, its affinity)")
     p.add_argument("--backend", choices=["local", "ray"], default="local",
                    help="local processes, or Ray (RAY_ADDRESS names the cluster; needs driveopt[ray])")
     p.add_argument("--out", default="out/bench", help="output directory (rerun to resume)")

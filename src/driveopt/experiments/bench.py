@@ -29,7 +29,7 @@ from tqdm import tqdm
 from driveopt.config import check_count, check_number
 from driveopt.drivers.base import DriverSpec
 from driveopt.errors import DriveoptError
-from driveopt.experiments.runner import EpisodeFn, check_backend, execute
+from driveopt.experiments.runner import EpisodeFn, check_backend, execute, usable_cpus
 from driveopt.experiments.store import (
     JobKey,
     StoreError,
@@ -67,11 +67,7 @@ def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
     scenario = resolve_scenario(job.scenario, overrides=options.get("scenario"))
     record = run_episode(scenario, spec, job.env_seed, duration=options.get("duration")).record()
     # where it planned, and on how many CPUs (the worker's share, see driveopt.experiments.runner): its plan_ms are theirs
-    return {**record, "device": jax.default_backend(), "cpus": _usable_cpus()}
-
-
-def _usable_cpus() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return {**record, "device": jax.default_backend(), "cpus": len(usable_cpus())}
 
 
 def planner_spec(name: str, options: dict[str, Any]) -> DriverSpec:
@@ -150,7 +146,7 @@ def run_bench(
 ) -> list[dict[str, Any]]:
     """Run the missing jobs of ``spec``, then write summary.csv, summary.md and summary.png.
 
-    workers: parallel episodes (default: CPU count); 1 runs in this process. backend: 'local' or 'ray'.
+    workers: parallel episodes (default: the CPUs this process may use); 1 runs in this process. backend: 'local' or 'ray'.
     Returns the summary rows over all records of the spec (old and new).
     """
     spec.check()
@@ -163,7 +159,7 @@ def run_bench(
     repair(store)
     jobs = spec.jobs()
     todo = pending(jobs, done)
-    workers = workers or os.cpu_count() or 1
+    workers = workers or len(usable_cpus())
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="bench", unit="ep", disable=not progress)
 
     def finished(record: dict) -> None:

@@ -79,6 +79,13 @@ def execute(
         _run_pool(todo, options, episode_fn, finished, workers)
 
 
+def usable_cpus() -> list[int]:
+    """The CPUs this process may run on (its affinity; every CPU where the platform has no affinity)."""
+    if hasattr(os, "sched_getaffinity"):
+        return sorted(os.sched_getaffinity(0))
+    return list(range(os.cpu_count() or 1))
+
+
 def cpu_shares(cpus: Sequence[int], workers: int) -> list[tuple[int, ...]]:
     """``cpus`` split into ``workers`` contiguous shares whose sizes differ by at most one; none (``[]``: workers
     unbound) when there are more workers than CPUs."""
@@ -96,7 +103,7 @@ def _run_pool(todo: Sequence[JobKey], options: dict, episode_fn: EpisodeFn, fini
     # parent-death signal (sent when the creating thread ends) cannot fire while the pool is in use.
     context = multiprocessing.get_context("spawn")
     shares = context.SimpleQueue()
-    for share in cpu_shares(os.sched_getaffinity(0), workers) if hasattr(os, "sched_getaffinity") else []:
+    for share in cpu_shares(usable_cpus(), workers) if hasattr(os, "sched_setaffinity") else []:
         shares.put(share)
     pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=context,
                                   initializer=_bind_to_parent, initargs=(os.getpid(), shares))
