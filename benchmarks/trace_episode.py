@@ -1,14 +1,16 @@
 """The last seconds of one bench episode, policy step by policy step: what the car did and what was planned.
 
     python benchmarks/trace_episode.py --scenario four-lane-d1.5 --planner bilevel --episode 38 \
-        [--seed 42] [--samples 250] [--config overrides.json] [--last 3.0] [--duration S] [--json out/trace.json]
+        [--seed 42] [--samples 250] [--config overrides.json] [--weights FILE] [--filter-weights FILE] \
+        [--last 3.0] [--duration S] [--json out/trace.json]
 
 Replays bench episode ``--episode`` of ``--seed`` (the traffic of ``driveopt bench``) with ``--planner``
 and prints, for the last ``--last`` seconds (the approach to a collision when there is one): the ego's
 position [m], speed [m/s] and heading [rad], the action sent, and for an optimiser the call's status,
 total residual, chosen set-points (4 speeds [m/s], 4 lateral positions [m]) and the chosen plan's
 lateral position at 0.5, 1, 2 and 3 s; then every car within 25 m along and 6 m across as
-(dx, dy) [m] relative to the ego and its speed. ``--json`` writes the same rows. How the README's
+(dx, dy) [m] relative to the ego and its speed. ``--weights`` and ``--filter-weights`` are bench's (a learned
+prior's or policy's checkpoint, a learned safety filter's). ``--json`` writes the same rows. How the README's
 traced crashes were read (e.g. bilevel's four-lane-d1.5 episode 38).
 """
 
@@ -54,10 +56,14 @@ def step_row(step) -> dict:
 
 
 def trace(scenario_name: str, planner: str, episode: int, *, seed: int = 42, samples: int | None = 250,
-          overrides: dict | None = None, duration: float | None = None) -> tuple[dict, list[dict]]:
-    """(episode summary, one row per policy step) of the replayed bench episode."""
+          overrides: dict | None = None, duration: float | None = None,
+          weights: str | None = None) -> tuple[dict, list[dict]]:
+    """(episode summary, one row per policy step) of the replayed bench episode; ``weights``: a learned prior's or
+    policy's checkpoint instead of the shipped one (as bench's ``--weights``)."""
     scenario = get_scenario(scenario_name)
-    spec = get_planner(planner)
+    if weights is not None and not Path(weights).is_file():
+        raise DriveoptError(f"weights file {weights} does not exist")
+    spec = get_planner(planner).with_weights(weights)
     if spec.is_optimiser:
         spec = spec.with_samples(samples).with_overrides(**(overrides or {}))
     elif overrides:
@@ -88,6 +94,8 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=42, help="bench seed")
     parser.add_argument("--samples", type=int, default=250)
     parser.add_argument("--config", help="planner-config overrides (JSON file, as for driveopt bench --config)")
+    parser.add_argument("--weights", help="learned prior or policy checkpoint (default: the shipped weights)")
+    parser.add_argument("--filter-weights", help="learned safety-filter checkpoint (as for driveopt bench)")
     parser.add_argument("--last", type=float, default=3.0, help="[s] how much of the episode's end to print")
     parser.add_argument("--duration", type=float, help="[s] stop the episode here (default: the scenario's)")
     parser.add_argument("--json", help="write the summary and every step's row here")
@@ -95,9 +103,9 @@ def main(argv=None) -> int:
     if args.episode < 0 or args.samples < 1 or not args.last > 0 or (args.duration is not None and not args.duration > 0):
         parser.error("--episode must be >= 0, --samples >= 1, --last and --duration > 0")
     try:
-        overrides = config_overrides(args.config) if args.config else None
+        overrides = config_overrides(args.config, args.filter_weights) or None
         summary, rows = trace(args.scenario, args.planner, args.episode, seed=args.seed, samples=args.samples,
-                              overrides=overrides, duration=args.duration)
+                              overrides=overrides, duration=args.duration, weights=args.weights)
     except DriveoptError as exc:
         print(f"trace_episode: error: {exc}", file=sys.stderr)
         return 2

@@ -48,3 +48,7 @@ def test_bad_options_are_one_line_errors(trace_episode, tmp_path, capsys):
         trace_episode.trace("two-lane-d1.0", "idm", 0, overrides={"cost": {"consistency": 0.0}}, duration=0.2)
     with pytest.raises(SystemExit):
         trace_episode.main(["--scenario", "two-lane-d1.0", "--planner", "grid", "--episode", "-1"])
+    # weights the bench would refuse are refused here too, before any episode runs
+    assert trace_episode.main(["--scenario", "two-lane-d1.0", "--planner", "vqvae", "--episode", "0",
+                               "--weights", str(tmp_path / "missing.ckpt")]) == 2
+    assert "missing.ckpt does not exist" in capsys.readouterr().err
