@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, build_problem, plan
-from driveopt.config import ProjectionConfig, QPConfig
+from driveopt.config import ProjectionConfig, QPConfig, from_dict
 from driveopt.planner import PreviousPlan, braking_coeffs, previous_plan
 from driveopt.prediction import is_follower, predict_neighbour, relevant_neighbours
 from driveopt.priors.gaussian import GaussianPrior
@@ -204,3 +204,38 @@ def test_a_blocked_lane_is_left_within_the_course_bound(small_config):
         moving = traj.speed[1:] > 0.5
         course = np.abs(np.arctan2(traj.vy[1:], traj.vx[1:]))[moving]
         assert course.max() < config.projection.course_max + 0.02
+
+
+@pytest.mark.parametrize("to_lane_centre", [True, False])
+def test_a_fallback_from_a_swerve_points_along_the_road_when_the_car_stops(to_lane_centre):
+    """5.1 m/s on a course 0.21 rad off the road (the slip of the steering applied now; P2's dense traffic, where
+    braking on that course put a corner into a car standing in the next lane): at 3 m/s^2 the stop eases back to
+    the road's direction within its 4.3 m, with the path's curvature within the easing bound (the comfortable
+    stop gives up part of the way to its lane centre for it). (Eased over 20 m,
+    the path still pointed 0.06 rad off when the car stopped, and replanned from the course it kept turning.)"""
+    from driveopt.fallback import EASING_CURVATURE, stop_trajectory
+
+    problem = build_problem(Scene(ego=EgoState(x=0.0, y=11.06, vx=4.99, vy=-1.07), road=Road(num_lanes=4)))
+    t = jnp.linspace(0.0, 5.0, 501)
+    stop = stop_trajectory(problem, t, 3.0, to_lane_centre, straightens=True)
+    stopped = np.asarray(stop.speed) <= 1e-6
+    # by default (fallback_straightens = false) the easing takes its 20 m: the emergency stop still points 0.06 rad off
+    before = stop_trajectory(problem, t, 3.0, to_lane_centre)
+    assert to_lane_centre or float(jnp.abs(before.heading[-1])) > 0.05
+    assert stopped.any() and abs(float(stop.heading[0]) + 0.21) < 0.01
+    assert np.all(np.abs(np.asarray(stop.heading)[stopped]) < 0.01)
+    moving = ~stopped
+    # the bound is on d2y/ds2; the path's curvature is that over cos(heading), 2% more at 0.21 rad
+    assert np.all(np.abs(np.asarray(stop.curvature)[moving]) <= 1.03 * EASING_CURVATURE)
+    # sideways while stopping: under half a metre (the comfortable stop moves less than the 0.94 m to its lane centre)
+    assert abs(float(stop.y[-1]) - 11.06) < 0.5
+
+
+def test_fallback_straightens_is_a_planner_setting(small_config):
+    """``fallback_straightens`` reaches the fallback that plan() offers (set from --config like any field)."""
+    scene = Scene(ego=EgoState(x=0.0, y=8.0, vx=4.99, vy=-1.07), road=Road(num_lanes=4))  # on a lane centre
+    on = small_config.replace(fallback_straightens=True)
+    assert from_dict({"fallback_straightens": True}).fallback_straightens
+    ends = [abs(float(plan(build_problem(scene, c.basis), c, key=jax.random.PRNGKey(0)).fallback.heading[-1]))
+            for c in (small_config, on)]
+    assert ends[1] < 0.01 < ends[0]

@@ -71,6 +71,24 @@ def test_any_accepted_problem_gives_finite_results_and_a_stopping_fallback(
     assert_fallback_is_a_stop(result, scene)
 
 
+@settings(max_examples=60, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    ego_y=st.floats(-15.0, 30.0), ego_v=st.floats(-2.0, 40.0), ego_vy=st.floats(-3.0, 3.0),
+    neighbours=st.lists(neighbour, max_size=8),
+)
+def test_a_straightening_fallback_is_a_stop_too(small_config, ego_y, ego_v, ego_vy, neighbours):
+    """``fallback_straightens``: the same promises, and the path points along the road once the car stands."""
+    scene = Scene(ego=EgoState(x=0.0, y=ego_y, vx=ego_v, vy=ego_vy), road=Road(num_lanes=3), neighbours=tuple(neighbours))
+    config = small_config.replace(fallback_straightens=True)
+    result = plan(build_problem(scene, config.basis), config, key=jax.random.PRNGKey(0))
+    assert_finite(result)
+    assert_fallback_is_a_stop(result, scene)
+    fb = result.fallback
+    standing = np.asarray(fb.speed) <= 1e-6
+    # a path still turning at the stop: only where the curvature bound cannot straighten a steep course in time
+    assert np.all(np.abs(np.asarray(fb.heading)[standing]) <= np.abs(fb.heading[0]) + TOLERANCE)
+
+
 def test_the_fallback_stops_where_the_projected_stop_reversed(small_config):
     """static-blockage with 1000 random neighbours: the fallback drove 21 m backwards before."""
     rng = np.random.default_rng(0)

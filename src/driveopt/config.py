@@ -241,6 +241,7 @@ class PlannerConfig:
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     cost: CostConfig = field(default_factory=CostConfig)
     fallback_deceleration: float = 3.0  # [m/s^2] comfortable braking of the fallback plan
+    fallback_straightens: bool = False  # the fallback points along the road when the car stops (driveopt.fallback.easing)
     stop_rows: bool = True  # append the comfortable and the emergency stop to every batch (False: P1)
 
     def __post_init__(self) -> None:

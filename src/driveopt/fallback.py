@@ -5,7 +5,8 @@ not a polynomial and it is never projected: it brakes at a constant deceleration
 so its speed ``max(v0 - d t, 0)`` [m/s] never increases and never goes below zero, and it never
 turns back (the path's heading stays within 72 degrees of the road). The path eases from the
 current lateral position and heading to a target inside the road: the nearest lane centre
-(comfortable stop) or the current position clipped to the road (emergency stop). Where the ego
+(comfortable stop) or the current position clipped to the road (emergency stop), over 20 m or more; with
+``fallback_straightens`` (planner config) it points along the road by the time the car stops (:func:`easing`). Where the ego
 starts on the road the path stays between the road bounds; an ego off the road never moves
 further away from it. Its residual (how far it is from meeting the constraints) is that of the
 polynomial closest to it; when that is not zero the planner still offers the stop and says so
@@ -30,6 +31,7 @@ from driveopt.qp import NUM_SEGMENTS, TrajectoryModel, fit_positions
 EASING_TIME = 3.0  # [s] the stop rows reach their lateral target in this time
 MIN_EASING_DISTANCE = 20.0  # [m] the fallback's lateral change is spread over at least this path length
 EASING_DISTANCE_PER_METRE = 6.0  # [m/m] ... and over at least this many metres per metre of lateral change
+EASING_CURVATURE = 0.2  # [1/m] ... but over no more than the stopping distance where this curvature allows
 MAX_HEADING_SINE = 0.95  # [-] |sin| of the fallback path's heading relative to the road (72 degrees)
 _FINE_STEPS = 512  # [-] path samples for integrating x along the path
 
@@ -61,21 +63,43 @@ def braking_coeffs(model: TrajectoryModel, problem: PlanningProblem, decel: floa
     return fit_positions(model, x, y, b_x, b_y)
 
 
-def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, to_lane_centre: bool):
-    """(y, dy/ds, d2y/ds2) of the fallback path at path lengths s [m] (arc-length parametrised)."""
+def easing(slope0: jnp.ndarray, y0: jnp.ndarray, target: jnp.ndarray,
+           stop_distance: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """(length [m], target [m]) of the fallback's easing from lateral position ``y0`` [m] and slope ``slope0`` [-] to
+    the road's direction at lateral position ``target`` [m]: spread over :data:`MIN_EASING_DISTANCE`, or
+    :data:`EASING_DISTANCE_PER_METRE` per metre, but done by the time the car stops (``stop_distance`` [m]) where
+    :data:`EASING_CURVATURE` allows; when the stop comes sooner than the whole move allows, the move is shortened
+    so that the path still points along the road at the stop.
+
+    The start slope is the car's course, which includes the slip of the steering applied now; a path that is still
+    turning when the car stops is replanned from that course at every step, so a car braking out of a swerve kept
+    its steering and turned on (P2's dense traffic: a corner into a car standing in the next lane).
+    """
+    k, slope, shift = EASING_CURVATURE, jnp.abs(slope0), target - y0
+    gentle = jnp.maximum(MIN_EASING_DISTANCE, EASING_DISTANCE_PER_METRE * jnp.abs(shift))
+    straighten = jnp.maximum(4.0 * slope / k, 1.0)  # [m] shortest that turns the slope to 0 in place (1 m at standstill)
+    length = jnp.minimum(gentle, jnp.maximum(stop_distance, straighten))
+    # the cubic Hermite's |y''| peaks at an end: (6 |shift| + 4 L |slope0|) / L^2 <= k
+    reach = jnp.maximum(k * length**2 - 4.0 * slope * length, 0.0) / 6.0
+    return length, jnp.where(length < gentle, y0 + jnp.clip(shift, -reach, reach), target)
+
+
+def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, to_lane_centre: bool, stop_distance: jnp.ndarray):
+    """(y, dy/ds, d2y/ds2) of the fallback path at path lengths s [m] (arc-length parametrised) for a stop within
+    ``stop_distance`` [m]."""
     y0 = problem.init_y[0]
     inside = jnp.clip(y0, problem.y_lb, problem.y_ub)
     target = jnp.clip(nearest_lane_center(problem, inside), problem.y_lb, problem.y_ub) if to_lane_centre else inside
     speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
     slope0 = jnp.clip(jnp.where(speed > 1e-3, problem.init_y[1] / jnp.maximum(speed, 1e-3), 0.0), -0.5, 0.5)
-    length = jnp.maximum(MIN_EASING_DISTANCE, EASING_DISTANCE_PER_METRE * jnp.abs(target - y0))
+    length, target = easing(slope0, y0, target, stop_distance)
     u = jnp.clip(s / length, 0.0, 1.0)
-    easing = s < length
+    within = s < length
     # cubic Hermite from (y0, slope0) to (target, 0) over [0, length]; the target beyond
     h00, h10, h01 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u, -2 * u**3 + 3 * u**2
     y = h00 * y0 + h10 * length * slope0 + h01 * target
-    dy = jnp.where(easing, ((6 * u**2 - 6 * u) * (y0 - target) + (3 * u**2 - 4 * u + 1) * length * slope0) / length, 0.0)
-    d2y = jnp.where(easing, ((12 * u - 6) * (y0 - target) + (6 * u - 4) * length * slope0) / length**2, 0.0)
+    dy = jnp.where(within, ((6 * u**2 - 6 * u) * (y0 - target) + (3 * u**2 - 4 * u + 1) * length * slope0) / length, 0.0)
+    d2y = jnp.where(within, ((12 * u - 6) * (y0 - target) + (6 * u - 4) * length * slope0) / length**2, 0.0)
     # never beyond the road bounds (or beyond the start, for an ego outside them): flat where clipped
     low, high = jnp.minimum(y0, problem.y_lb), jnp.maximum(y0, problem.y_ub)
     clipped = (y < low) | (y > high)
@@ -85,10 +109,12 @@ def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, to_lane_centre: bool
     return y, dy, d2y
 
 
-def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, to_lane_centre: bool) -> Trajectory:
+def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, to_lane_centre: bool,
+                    straightens: bool = False) -> Trajectory:
     """The fallback: brake at ``decel`` [m/s^2] from the current speed along the eased path (planning frame).
 
-    t: (K,) [s] node times. Speed max(v0 - decel t, 0), path length s(t) = its integral.
+    t: (K,) [s] node times. Speed max(v0 - decel t, 0), path length s(t) = its integral. ``straightens``: the easing
+    is done by the time the car stops where the curvature allows (:func:`easing`); otherwise it takes its full length.
     """
     speed0 = jnp.hypot(problem.init_x[1], problem.init_y[1])
     stop_time = speed0 / decel
@@ -97,12 +123,13 @@ def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, to_l
     v = jnp.maximum(speed0 - decel * t, 0.0)
     a = jnp.where(t < stop_time, -decel, 0.0)
     # x along the path: integral of sqrt(1 - (dy/ds)^2) ds, on a fine grid up to the stopping distance
+    stop_distance = 0.5 * speed0 * stop_time if straightens else jnp.inf
     fine = jnp.linspace(0.0, 1.0, _FINE_STEPS) * jnp.max(s)
-    _, dy_fine, _ = _lateral_path(problem, fine, to_lane_centre)
+    _, dy_fine, _ = _lateral_path(problem, fine, to_lane_centre, stop_distance)
     cos_fine = jnp.sqrt(1.0 - dy_fine**2)
     x_fine = jnp.concatenate([jnp.zeros(1), jnp.cumsum(0.5 * (cos_fine[1:] + cos_fine[:-1]) * jnp.diff(fine))])
     x = problem.init_x[0] + jnp.interp(s, fine, x_fine)
-    y, dy, d2y = _lateral_path(problem, s, to_lane_centre)
+    y, dy, d2y = _lateral_path(problem, s, to_lane_centre, stop_distance)
     dx = jnp.sqrt(1.0 - dy**2)
     d2x = -dy * d2y / dx
     vx, vy = v * dx, v * dy

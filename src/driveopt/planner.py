@@ -325,7 +325,7 @@ def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Cand
     unless the emergency stop is closer to meeting the constraints. Residuals and cost terms of both are
     measured in one batch, on their closest polynomials and their own paths."""
     stops = _stops(cfg)
-    paths = [stop_trajectory(problem, jnp.asarray(model.t), decel, to_centre) for decel, to_centre in stops]
+    paths = [stop_trajectory(problem, jnp.asarray(model.t), decel, to_centre, cfg.fallback_straightens) for decel, to_centre in stops]
     both = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths)  # (2, K) fields
     goal = jnp.stack([both.x[:, -1], both.y[:, -1]], axis=-1) if cfg.qp.terminal_position else None
     b_x, b_y = boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
