@@ -25,6 +25,7 @@ import numpy as np
 
 from driveopt.cli.common import config_overrides
 from driveopt.errors import DriveoptError
+from driveopt.experiments.bench import check_options
 from driveopt.experiments.store import JobKey
 from driveopt.registry import get_planner
 from driveopt.sim import get_scenario
@@ -61,8 +62,7 @@ def trace(scenario_name: str, planner: str, episode: int, *, seed: int = 42, sam
     """(episode summary, one row per policy step) of the replayed bench episode; ``weights``: a learned prior's or
     policy's checkpoint instead of the shipped one (as bench's ``--weights``)."""
     scenario = get_scenario(scenario_name)
-    if weights is not None and not Path(weights).is_file():
-        raise DriveoptError(f"weights file {weights} does not exist")
+    check_options({"weights": weights})
     spec = get_planner(planner).with_weights(weights)
     if spec.is_optimiser:
         spec = spec.with_samples(samples).with_overrides(**(overrides or {}))

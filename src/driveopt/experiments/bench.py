@@ -102,7 +102,7 @@ class BenchSpec:
         planner cannot use on a scenario's road (``DriverSpec.check``). Other options (those of a custom episode
         function) pass unchecked."""
         scenarios = [resolve_scenario(name, overrides=self.options.get("scenario")) for name in self.scenarios]
-        _check_options(self.options)
+        check_options(self.options)
         outside = [e for e in self.episode_list if not 0 <= e < self.episodes]
         if outside or len(set(self.episode_list)) < len(self.episode_list):
             raise BenchOptionError(f"episode list {list(self.episode_list)}: each episode once, from 0 to {self.episodes - 1} "
@@ -125,7 +125,8 @@ class BenchSpec:
         return digests
 
 
-def _check_options(options: dict[str, Any]) -> None:
+def check_options(options: dict[str, Any]) -> None:
+    """BenchOptionError or ConfigError for a bench option out of range or a weights file that does not exist."""
     duration, samples, weights = options.get("duration"), options.get("samples"), options.get("weights")
     if duration is not None:
         check_number("duration", duration, 0.0, low_open=True, unit="s")
