@@ -41,7 +41,7 @@ def step_row(step) -> dict:
     ego = env.vehicle
     row = {"t": round(float(env.time), 2), "x": round(float(ego.position[0]), 2), "y": round(float(ego.position[1]), 3),
            "speed": round(float(ego.speed), 2), "heading": round(float(ego.heading), 4),
-           "action": [round(float(a), 4) for a in np.ravel(step.decision.action)]}
+           "action": [round(float(a), 4) for a in np.ravel(step.decision.action)], "guarded": step.decision.guarded}
     result = step.decision.result
     if result is not None:
         plan = result.trajectory
@@ -74,7 +74,7 @@ def trace(scenario_name: str, planner: str, episode: int, *, seed: int = 42, sam
     done = rollout.episode
     summary = {"scenario": scenario_name, "planner": planner, "seed": seed, "episode": episode, "env_seed": env_seed,
                "collided": done.collided, "off_road": done.off_road, "end_s": round(done.sim_duration, 2),
-               "mean_speed": round(done.mean_speed, 3)}
+               "mean_speed": round(done.mean_speed, 3), "guarded": done.guarded}
     return summary, rows
 
 
@@ -83,6 +83,8 @@ def _line(row: dict) -> str:
     if "status" in row:
         text += (f" {row['status'][:4]} res={row['residual']:.3f} v_set={row['setpoints'][:4]} y_set={row['setpoints'][4:]}"
                  f" plan_y={row['plan_y']}")
+    if row["guarded"]:
+        text += " GUARDED"
     return text + " | " + " ".join(f"({dx:+.1f},{dy:+.1f}) v{v:.1f}" for dx, dy, v in row["near"])
 
 

@@ -99,7 +99,7 @@ def test_p1_driver_executes_its_plan_unless_it_is_not_finite(status):
     for name in ("grid", "grid-p1"):
         driver = get_planner(name).driver()
         driver.model = model
-        actions[name] = driver._command(result, 0.0, state, env)
+        actions[name] = driver._command(result, 0.0, state, env)[0]
     np.testing.assert_array_equal(actions["grid"], brakes_now.action)
     expected = follows_plan if status == PlanStatus.INFEASIBLE else brakes_now
     np.testing.assert_array_equal(actions["grid-p1"], expected.action)

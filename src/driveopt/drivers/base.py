@@ -27,6 +27,7 @@ class Decision(NamedTuple):
     scene: Scene | None = None  # the scene it planned in
     problem: PlanningProblem | None = None  # the planning problem it solved
     plan_seconds: float = 0.0  # [s] wall time of the planning call
+    guarded: bool = False  # the contact guard replaced the command by braking now (driveopt.sim.contact)
 
 
 class Driver(Protocol):

@@ -15,7 +15,8 @@ now). With ``replan_every`` N > 1 (P1 §V executes five control periods per plan
 plans every N-th step and tracks the same plan open-loop in between. Its PRNG key derives from the
 episode seed: same seed, same episode. A learned safety filter (P2 §III-C; ``filter_weights``, or the
 shipped weights for a spec with ``learned_filter``) sets up every batch's projection
-(:mod:`driveopt.safety.learned`).
+(:mod:`driveopt.safety.learned`). With ``contact_guard`` in its configuration, a command at crawling speed that
+would touch a car's box sooner than braking now is replaced by braking now (:mod:`driveopt.sim.contact`).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from driveopt.learned.checkpoint import pytree_digest
 from driveopt.planner import PlanResult, PlanStatus, plan, previous_plan
 from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
+from driveopt.sim.contact import guard
 from driveopt.sim.control import BicycleModel, brake_at_least, ego_kinematics, track
 from driveopt.sim.perception import Perception, perceive
 from driveopt.sim.scenarios import Scenario
@@ -200,9 +202,12 @@ class OptimiserDriver:
 
     def act(self, env: Any) -> Decision:
         if self.executing is not None and self.executed_periods < self.spec.replan_every:  # P1's open-loop periods
-            action = self._command(self.executing, self.executed_periods * self.period, ego_kinematics(env), env)
+            perception = perceive(env, self.scenario) if self.spec.config.contact_guard else None
+            kinematics = perception.kinematics if perception else ego_kinematics(env)
+            action, guarded = self._command(self.executing, self.executed_periods * self.period, kinematics, env,
+                                            perception and perception.scene)
             self.executed_periods += 1
-            return Decision(action)
+            return Decision(action, guarded=guarded)
         perception = perceive(env, self.scenario)
         scene = perception.scene
         problem = self._problem(perception)
@@ -213,13 +218,18 @@ class OptimiserDriver:
         elapsed = time.perf_counter() - start
         self.warm, self.previous = self._carried(result)
         self.executing, self.executed_periods = result, 1
-        return Decision(self._command(result, 0.0, perception.kinematics, env), result, scene, problem, elapsed)
+        action, guarded = self._command(result, 0.0, perception.kinematics, env, scene)
+        return Decision(action, result, scene, problem, elapsed, guarded)
 
-    def _command(self, result: PlanResult, elapsed: float, kinematics, env: Any):
-        """The action that follows ``result``'s executed plan ``elapsed`` [s] after it was made."""
+    def _command(self, result: PlanResult, elapsed: float, kinematics, env: Any, scene=None) -> tuple[Any, bool]:
+        """(the action that follows ``result``'s executed plan ``elapsed`` [s] after it was made, whether the contact
+        guard replaced it by braking now; ``scene``: the world now, read when the configuration guards)."""
         if self.spec.executes_infeasible and result.status != PlanStatus.NUMERICAL_ERROR:  # P1: the chosen plan, feasible or not
-            return track(result.trajectory, elapsed, kinematics, self.model).action
+            return track(result.trajectory, elapsed, kinematics, self.model).action, False
         command = track(result.safe_trajectory, elapsed, kinematics, self.model)
         if result.status != PlanStatus.SUCCESS:  # executing the fallback: brake now, not after a ramp
             command = brake_at_least(command, result.fallback_deceleration, self.model, float(env.unwrapped.vehicle.speed))
-        return command.action
+        guarded = False
+        if self.spec.config.contact_guard:
+            command, guarded = guard(command, kinematics, scene, self.model)
+        return command.action, guarded

@@ -45,6 +45,7 @@ class Episode:
     sim_seconds: float = 0.0  # wall time spent in the simulator
     plan_seconds: float = 0.0  # wall time spent planning
     statuses: Counter = field(default_factory=Counter)
+    guarded: int = 0  # [-] steps whose command the contact guard replaced by braking now
 
     @property
     def mean_speed(self) -> float:
@@ -63,6 +64,7 @@ class Episode:
             "sim_seconds": self.sim_seconds,
             "plan_seconds": self.plan_seconds,
             "statuses": dict(self.statuses),
+            "guarded": self.guarded,
         }
 
     def summary(self) -> dict[str, Any]:
@@ -111,6 +113,7 @@ class Rollout:
                     episode.plan_ms.append(1e3 * decision.plan_seconds)
                     episode.plan_seconds += decision.plan_seconds
                     episode.statuses[decision.result.status.name] += 1
+                episode.guarded += decision.guarded
                 yield Step(env, decision, episode)
                 start = time.perf_counter()
                 outcome = step_env(env, decision.action)
