@@ -14,7 +14,7 @@ from driveopt.costs import Trajectory
 from driveopt.planner import PlanResult, PlanStatus
 from driveopt.registry import get_planner
 from driveopt.scene import EgoState, Neighbour, Road, Scene
-from driveopt.sim.contact import GUARD_SPEED, MIN_HORIZON, Boxes, first_contact, guard, overlap, rollout
+from driveopt.sim.contact import CONTACT_MARGIN, GUARD_SPEED, MIN_HORIZON, Boxes, clearance, guard, rollout, separation
 from driveopt.sim.control import BicycleModel, Command, EgoKinematics, predict, to_action
 
 MODEL = BicycleModel()
@@ -25,13 +25,18 @@ size = st.floats(0.5, 6.0)
 
 @settings(max_examples=300, deadline=None)
 @given(coordinate, coordinate, angle, angle, size, size, size, size)
-def test_overlap_agrees_with_the_corner_test(x, y, ha, hb, la, wa, lb, wb):
-    """The shadow-radius test and the corner-projection test of conftest answer alike (away from exact touching)."""
+def test_separation_agrees_with_the_corner_test(x, y, ha, hb, la, wa, lb, wb):
+    """Separation's sign and the corner-projection test of conftest answer alike (away from exact touching); a
+    positive separation is a gap: moving one box that far along the line of centres cannot make them overlap."""
     b = box_corners(x, y, hb, lb, wb)
     touching = boxes_overlap(box_corners(0.0, 0.0, ha, la + 1e-6, wa + 1e-6), b) != boxes_overlap(
         box_corners(0.0, 0.0, ha, la - 1e-6, wa - 1e-6), b)
-    got = overlap(Boxes(0.0, 0.0, ha, 0.5 * la, 0.5 * wa), Boxes(x, y, hb, 0.5 * lb, 0.5 * wb))
-    assert touching or bool(got) == boxes_overlap(box_corners(0.0, 0.0, ha, la, wa), b)
+    gap = float(separation(Boxes(0.0, 0.0, ha, 0.5 * la, 0.5 * wa), Boxes(x, y, hb, 0.5 * lb, 0.5 * wb)))
+    assert touching or (gap <= 0.0) == boxes_overlap(box_corners(0.0, 0.0, ha, la, wa), b)
+    if gap > 1e-6:
+        d = np.hypot(x, y)
+        closer = (1.0 - (gap - 1e-6) / d) if d > 0 else 1.0
+        assert not boxes_overlap(box_corners(0.0, 0.0, ha, la, wa), box_corners(x * closer, y * closer, hb, lb, wb))
 
 
 def test_rollout_follows_upstreams_model_then_brakes_to_a_standstill():
@@ -71,7 +76,7 @@ def test_guard_stops_a_crawl_that_would_push_the_corner_into_a_stopped_car():
 
     guarded, replaced = guard(command, state, scene, MODEL)
     assert replaced and guarded.acceleration == 0.0 and guarded.steering == command.steering
-    assert first_contact(*rollout(state, guarded.acceleration, guarded.steering, MODEL), scene) == math.inf
+    assert 0.0 < clearance(*rollout(state, guarded.acceleration, guarded.steering, MODEL), scene) < CONTACT_MARGIN
 
 
 def test_guard_brakes_a_crawling_car_as_hard_as_it_can_without_reversing():
@@ -93,7 +98,7 @@ def test_guard_leaves_commands_alone(case):
         follower = Neighbour(x=93.0, y=6.0, vx=6.0, yaw=0.0)
         scene, state = _beside_a_stopped_car(30.0, follower=follower), EgoKinematics(0.0, 0.0)
         command = _command(4.0, 0.0)
-        assert first_contact(*rollout(state, 0.0, 0.0, MODEL), scene) < math.inf  # standing, it is hit
+        assert clearance(*rollout(state, 0.0, 0.0, MODEL), scene) < 0.0  # standing, it is hit
     kept, replaced = guard(command, state, scene, MODEL)
     assert kept is command and not replaced
 

@@ -16,7 +16,8 @@ plans every N-th step and tracks the same plan open-loop in between. Its PRNG ke
 episode seed: same seed, same episode. A learned safety filter (P2 §III-C; ``filter_weights``, or the
 shipped weights for a spec with ``learned_filter``) sets up every batch's projection
 (:mod:`driveopt.safety.learned`). With ``contact_guard`` in its configuration, a command at crawling speed that
-would touch a car's box sooner than braking now is replaced by braking now (:mod:`driveopt.sim.contact`).
+would take the ego's box within 0.1 m of a car's, where braking now would keep it further, is replaced by braking
+now (:mod:`driveopt.sim.contact`).
 """
 
 from __future__ import annotations

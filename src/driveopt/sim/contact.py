@@ -9,8 +9,11 @@ fallback braked in the next, 4 cm closer each time, until the corner touched).
 
 :func:`guard` rolls the command out over one action period and then brakes as hard as the car can with the
 steering held (the earliest the next decision could stop it), and rolls out braking now, both over the same
-time and at least :data:`MIN_HORIZON`. Neighbours keep their velocity. When the command's rollout touches a neighbour's box and braking now touches later or never,
-braking now is returned instead. Touching is tested exactly for rectangles (separating axes, :func:`overlap`).
+time and at least :data:`MIN_HORIZON`; neighbours keep their velocity. Each rollout's clearance is the smallest
+separation of the ego's box from a neighbour's along it (:func:`separation`; negative when they overlap). When the command's clearance falls below :data:`CONTACT_MARGIN` and braking now keeps more,
+braking now is returned instead. The margin matters: upstream counts a crash when the boxes would touch after
+one more simulation step along the bodies' headings, and a car creeping past a corner 2 mm away (P2 Fig. 7
+episode 2 at 31.0 s) crashed 0.1 s later.
 
 It acts only at crawling speed (:data:`GUARD_SPEED`): there the planner's course and curvature bounds are off
 (below 1 m/s a stopping car's direction means nothing to them), and the rollout is short (0.9 m to stop from
@@ -30,6 +33,8 @@ from driveopt.sim.control import BicycleModel, Command, EgoKinematics, to_action
 from driveopt.sim.road_frame import slip_angle
 
 GUARD_SPEED = 3.0  # [m/s] the guard checks commands at or below this speed
+CONTACT_MARGIN = 0.1  # [m] clearance a command may not take away (2 m/s closing over one 20 Hz simulation step)
+CLEARANCE_TOLERANCE = 1e-3  # [m] braking now must keep this much more clearance than the command to replace it
 MIN_HORIZON = 1.0  # [s] shortest rollout (standing still after a stop): long enough to see a car closing in
 MAX_HORIZON = 10.0  # [s] longest rollout: a stop from 50 m/s at 5 m/s^2
 
@@ -44,17 +49,19 @@ class Boxes(NamedTuple):
     half_width: np.ndarray
 
 
-def overlap(a: Boxes, b: Boxes) -> np.ndarray:
-    """Whether each pair of rectangles touches (broadcast over a's and b's arrays): no separating axis among the
-    four edge normals. A rectangle's shadow on a unit axis u has radius l |e_l . u| + w |e_w . u|."""
+def separation(a: Boxes, b: Boxes) -> np.ndarray:
+    """[m] separation of each pair of rectangles (broadcast over a's and b's arrays): the largest gap between their
+    shadows on the four edge normals; positive: apart by at least that much (the distance, when an edge faces the
+    other box), zero: touching, negative: overlapping. A rectangle's shadow on a unit axis u has radius
+    l |e_l . u| + w |e_w . u|."""
     dx, dy = b.x - a.x, b.y - a.y
-    separated = np.zeros(np.broadcast(dx, b.heading, a.heading).shape, dtype=bool)
+    gaps = []
     for heading in (a.heading, a.heading + 0.5 * math.pi, b.heading, b.heading + 0.5 * math.pi):
         ux, uy = np.cos(heading), np.sin(heading)
         radius = sum(half * np.abs(np.cos(h) * ux + np.sin(h) * uy) + other * np.abs(-np.sin(h) * ux + np.cos(h) * uy)
                      for h, half, other in ((a.heading, a.half_length, a.half_width), (b.heading, b.half_length, b.half_width)))
-        separated |= np.abs(dx * ux + dy * uy) > radius
-    return ~separated
+        gaps.append(np.abs(dx * ux + dy * uy) - radius)
+    return np.maximum.reduce(np.broadcast_arrays(*gaps))
 
 
 def rollout(state: EgoKinematics, acceleration: float, steering: float, model: BicycleModel,
@@ -83,9 +90,9 @@ def rollout(state: EgoKinematics, acceleration: float, steering: float, model: B
     return tuple(np.asarray(col) for col in zip(*out))
 
 
-def first_contact(t: np.ndarray, x: np.ndarray, y: np.ndarray, heading: np.ndarray, scene: Scene) -> float:
-    """[s] first time the ego box, at (x, y) relative to its position now with ``heading``, touches a neighbour
-    of ``scene`` that keeps its velocity (inf: never within ``t``)."""
+def clearance(t: np.ndarray, x: np.ndarray, y: np.ndarray, heading: np.ndarray, scene: Scene) -> float:
+    """[m] smallest :func:`separation` of the ego's box, at (x, y) relative to its position now with ``heading``
+    at times ``t``, from the neighbours of ``scene``, which keep their velocity (inf: no neighbour)."""
     if not scene.neighbours:
         return math.inf
     ego = scene.ego
@@ -95,23 +102,22 @@ def first_contact(t: np.ndarray, x: np.ndarray, y: np.ndarray, heading: np.ndarr
     others = Boxes(nx, ny, np.array([o.heading for o in n])[None, :],
                    0.5 * np.array([o.length for o in n])[None, :], 0.5 * np.array([o.width for o in n])[None, :])
     me = Boxes(x[:, None], y[:, None], heading[:, None], 0.5 * ego.length, 0.5 * ego.width)
-    touching = np.any(overlap(me, others), axis=1)
-    return float(t[np.argmax(touching)]) if touching.any() else math.inf
+    return float(np.min(separation(me, others)))
 
 
 def guard(command: Command, state: EgoKinematics, scene: Scene, model: BicycleModel) -> tuple[Command, bool]:
-    """(``command``, False), or (braking now, True) when ``command``'s rollout touches a neighbour sooner than
-    braking now does, at or below :data:`GUARD_SPEED` (see the module docstring). Braking now never reverses within
-    one action period."""
+    """(``command``, False), or (braking now, True) when ``command``'s rollout comes within :data:`CONTACT_MARGIN`
+    of a neighbour and braking now keeps more clearance, at or below :data:`GUARD_SPEED` (see the module docstring).
+    Braking now never reverses within one action period."""
     if state.speed > GUARD_SPEED:
         return command, False
     a_brake = max(model.acceleration_range[0], -max(state.speed, 0.0) / model.action_period)
     if command.acceleration <= a_brake:
         return command, False
     moving = rollout(state, command.acceleration, command.steering, model)
-    ahead = first_contact(*moving, scene)
-    if math.isinf(ahead):
+    closest = clearance(*moving, scene)
+    if closest >= CONTACT_MARGIN:
         return command, False
-    if first_contact(*rollout(state, a_brake, command.steering, model, until=moving[0][-1]), scene) <= ahead:
+    if clearance(*rollout(state, a_brake, command.steering, model, until=moving[0][-1]), scene) <= closest + CLEARANCE_TOLERANCE:
         return command, False
     return Command(a_brake, command.steering, to_action(a_brake, command.steering, model), command.saturated), True
