@@ -65,8 +65,8 @@ def separation(a: Boxes, b: Boxes) -> np.ndarray:
 
 
 def rollout(state: EgoKinematics, acceleration: float, steering: float, model: BicycleModel,
-            hold_periods: int = 1, until: float = MIN_HORIZON) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Upstream's integration from the origin: ``acceleration`` [m/s^2] for ``hold_periods`` action periods, then
+            until: float = MIN_HORIZON) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Upstream's integration from the origin: ``acceleration`` [m/s^2] for one action period, then
     the hardest braking until standstill (never reversing), the steering [rad] held throughout; standing still
     until ``until`` [s] when it stops sooner.
 
@@ -77,7 +77,7 @@ def rollout(state: EgoKinematics, acceleration: float, steering: float, model: B
     px = py = 0.0
     v, psi = max(state.speed, 0.0), state.heading
     out = [(0.0, px, py, psi)]
-    steps = hold_periods * model.steps_per_action
+    steps = model.steps_per_action
     k = 0
     while k * h < MAX_HORIZON and (k < steps or v > 0.0 or (k + 0.5) * h < until):
         a = acceleration if k < steps else a_brake
