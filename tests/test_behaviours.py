@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, build_problem, plan
-from driveopt.config import ProjectionConfig, QPConfig, from_dict
+from driveopt.config import PlannerConfig, ProjectionConfig, QPConfig, from_dict
 from driveopt.planner import PreviousPlan, braking_coeffs, previous_plan
 from driveopt.prediction import is_follower, predict_neighbour, relevant_neighbours
 from driveopt.priors.gaussian import GaussianPrior
@@ -219,7 +219,7 @@ def test_a_fallback_from_a_swerve_points_along_the_road_when_the_car_stops(to_la
     t = jnp.linspace(0.0, 5.0, 501)
     stop = stop_trajectory(problem, t, 3.0, to_lane_centre, straightens=True)
     stopped = np.asarray(stop.speed) <= 1e-6
-    # by default (fallback_straightens = false) the easing takes its 20 m: the emergency stop still points 0.06 rad off
+    # without straightening (fallback_straightens = false) the easing takes its 20 m: the emergency stop still points 0.06 rad off
     before = stop_trajectory(problem, t, 3.0, to_lane_centre)
     assert to_lane_centre or float(jnp.abs(before.heading[-1])) > 0.05
     assert stopped.any() and abs(float(stop.heading[0]) + 0.21) < 0.01
@@ -231,11 +231,34 @@ def test_a_fallback_from_a_swerve_points_along_the_road_when_the_car_stops(to_la
     assert abs(float(stop.y[-1]) - 11.06) < 0.5
 
 
+@pytest.mark.parametrize("to_lane_centre", [True, False])
+def test_a_short_stop_on_a_course_towards_its_target_does_not_swing_back(to_lane_centre):
+    """4.1 m/s half a metre below a one-lane road (3 m lanes), on a course 0.245 rad towards it: the stop (2.7 or
+    0.5 m) is shorter than the easing's 20 m, so the easing is shortened. Its move was
+    clipped to an interval symmetric about 0 that the course's own turn fills (a move of 0 here): the path rose
+    towards the road and came back out (found by the reliability property test). The move's interval follows the
+    course now, so the path goes on towards the road, and the comfortable stop (2.7 m of the 2.45 m it needs) points
+    along it when the car stands."""
+    from driveopt.fallback import EASING_CURVATURE, stop_trajectory
+
+    scene = Scene(ego=EgoState(x=0.0, y=-1.0, vx=4.0, vy=1.0), road=Road(num_lanes=1, lane_width=3.0))
+    low, _ = scene.lateral_bounds
+    for decel in (3.0, 18.0):
+        stop = stop_trajectory(build_problem(scene), jnp.linspace(0.0, 5.0, 501), decel, to_lane_centre, straightens=True)
+        y, stopped = np.asarray(stop.y), np.asarray(stop.speed) <= 1e-6
+        assert np.all(np.diff(y) >= -1e-6) and y[-1] > y[0] + 0.05  # on towards the road, never back
+        heading = np.asarray(stop.heading)
+        assert np.all(heading >= -1e-6) and np.all(heading[stopped] < heading[0])  # turning towards the road's direction
+        assert decel > 3.0 or np.all(heading[stopped] < 0.01)  # 2.7 m are enough to straighten: 2 x 0.245 / 0.2
+        assert np.all(np.abs(np.asarray(stop.curvature)[~stopped]) <= 1.03 * EASING_CURVATURE)
+        assert y[-1] <= low + 1e-6 or to_lane_centre  # the emergency stop's target is the road's edge
+
+
 def test_fallback_straightens_is_a_planner_setting(small_config):
     """``fallback_straightens`` reaches the fallback that plan() offers (set from --config like any field)."""
     scene = Scene(ego=EgoState(x=0.0, y=8.0, vx=4.99, vy=-1.07), road=Road(num_lanes=4))  # on a lane centre
-    on = small_config.replace(fallback_straightens=True)
-    assert from_dict({"fallback_straightens": True}).fallback_straightens
+    off, on = (small_config.replace(fallback_straightens=flag) for flag in (False, True))
+    assert not from_dict({"fallback_straightens": False}).fallback_straightens and PlannerConfig().fallback_straightens
     ends = [abs(float(plan(build_problem(scene, c.basis), c, key=jax.random.PRNGKey(0)).fallback.heading[-1]))
-            for c in (small_config, on)]
+            for c in (off, on)]
     assert ends[1] < 0.01 < ends[0]

@@ -241,8 +241,8 @@ class PlannerConfig:
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     cost: CostConfig = field(default_factory=CostConfig)
     fallback_deceleration: float = 3.0  # [m/s^2] comfortable braking of the fallback plan
-    fallback_straightens: bool = False  # the fallback points along the road when the car stops (driveopt.fallback.easing)
-    contact_guard: bool = False  # closed loop: brake now when a command at crawling speed would take the ego's box
+    fallback_straightens: bool = True  # the fallback points along the road when the car stops (driveopt.fallback.easing)
+    contact_guard: bool = True  # closed loop: brake now when a command at crawling speed would take the ego's box
     # within 0.1 m of a car's and braking now would not (driveopt.sim.contact; not for drivers that execute infeasible
     # plans, P1)
     stop_rows: bool = True  # append the comfortable and the emergency stop to every batch (False: P1)

@@ -77,11 +77,14 @@ def easing(slope0: jnp.ndarray, y0: jnp.ndarray, target: jnp.ndarray,
     """
     k, slope, shift = EASING_CURVATURE, jnp.abs(slope0), target - y0
     gentle = jnp.maximum(MIN_EASING_DISTANCE, EASING_DISTANCE_PER_METRE * jnp.abs(shift))
-    straighten = jnp.maximum(4.0 * slope / k, 1.0)  # [m] shortest that turns the slope to 0 in place (1 m at standstill)
+    straighten = jnp.maximum(2.0 * slope / k, 1.0)  # [m] shortest that turns the slope to 0 (1 m at standstill)
     length = jnp.minimum(gentle, jnp.maximum(stop_distance, straighten))
-    # the cubic Hermite's |y''| peaks at an end: (6 |shift| + 4 L |slope0|) / L^2 <= k
-    reach = jnp.maximum(k * length**2 - 4.0 * slope * length, 0.0) / 6.0
-    return length, jnp.where(length < gentle, y0 + jnp.clip(shift, -reach, reach), target)
+    # the cubic Hermite's |y''| peaks at an end: |6 D - 4 L slope0| / L^2 at the start and |6 D - 2 L slope0| / L^2 at
+    # the end, for a move D; both <= k bound D to an interval on the course's side, from L slope0 / 3 (the path turns
+    # straight without swinging back) to 2 L slope0 / 3 when L is the shortest
+    turn, room = length * (3.0 * slope0 + slope), k * length**2
+    low, high = (turn - room) / 6.0, (turn - 2.0 * slope * length + room) / 6.0
+    return length, jnp.where(length < gentle, y0 + jnp.clip(shift, low, high), target)
 
 
 def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, to_lane_centre: bool, stop_distance: jnp.ndarray):

@@ -116,7 +116,7 @@ def test_the_driver_guards_only_when_configured(contact_guard):
     result = PlanResult(**dict.fromkeys(PlanResult._fields))._replace(
         status=PlanStatus.SUCCESS, trajectory=plan_, fallback=plan_, fallback_deceleration=3.0)
     spec = get_planner("grid").with_overrides(contact_guard=contact_guard)
-    assert spec.config.contact_guard == contact_guard and not PlannerConfig().contact_guard
+    assert spec.config.contact_guard == contact_guard and PlannerConfig().contact_guard
     driver = spec.driver()
     driver.model = MODEL
     env = SimpleNamespace(unwrapped=SimpleNamespace(vehicle=SimpleNamespace(speed=0.0)))
