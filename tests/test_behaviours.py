@@ -219,7 +219,7 @@ def test_a_fallback_from_a_swerve_points_along_the_road_when_the_car_stops(to_la
     t = jnp.linspace(0.0, 5.0, 501)
     stop = stop_trajectory(problem, t, 3.0, to_lane_centre, straightens=True)
     stopped = np.asarray(stop.speed) <= 1e-6
-    # without straightening (fallback_straightens = false) the easing takes its 20 m: the emergency stop still points 0.06 rad off
+    # without straightening (fallback_straightens = false) the easing takes its 20 m: the emergency stop points 0.06 rad off
     before = stop_trajectory(problem, t, 3.0, to_lane_centre)
     assert to_lane_centre or float(jnp.abs(before.heading[-1])) > 0.05
     assert stopped.any() and abs(float(stop.heading[0]) + 0.21) < 0.01
@@ -237,8 +237,8 @@ def test_a_short_stop_on_a_course_towards_its_target_does_not_swing_back(to_lane
     0.5 m) is shorter than the easing's 20 m, so the easing is shortened. Its move was
     clipped to an interval symmetric about 0 that the course's own turn fills (a move of 0 here): the path rose
     towards the road and came back out (found by the reliability property test). The move's interval follows the
-    course now, so the path goes on towards the road, and the comfortable stop (2.7 m of the 2.45 m it needs) points
-    along it when the car stands."""
+    course now, so the path goes on towards the road, and the comfortable stop (2.7 m, more than the 2.45 m it needs)
+    points along it when the car stands."""
     from driveopt.fallback import EASING_CURVATURE, stop_trajectory
 
     scene = Scene(ego=EgoState(x=0.0, y=-1.0, vx=4.0, vy=1.0), road=Road(num_lanes=1, lane_width=3.0))

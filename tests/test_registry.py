@@ -45,8 +45,9 @@ def test_baselines_plan_finite_trajectories(name):
 @pytest.mark.parametrize("name", ["random", "grid", "vanilla", "batch"])
 def test_p1_faithful_baselines_differ_only_in_what_p1_did_not_have(name):
     base, p1 = get_optimiser(name), get_optimiser(f"{name}-p1")
-    assert p1.config == base.config.replace(stop_rows=False, fallback_straightens=False, contact_guard=False, sampler={"feasibility_first": False, "structured_fraction": 0.0,
-                                                                      "ranking_cost_weight": P1_RANKING_COST_WEIGHT},
+    assert p1.config == base.config.replace(stop_rows=False, fallback_straightens=False, contact_guard=False,
+                                            sampler={"feasibility_first": False, "structured_fraction": 0.0,
+                                                     "ranking_cost_weight": P1_RANKING_COST_WEIGHT},
                                             qp={"initial_lateral_acceleration": True}, cost={"consistency": 0.0},
                                             projection={"course_max": 0.0, "ego_turn_rate": 0.0})
     assert base.config.projection.course_max > 0 and base.config.projection.ego_turn_rate > 0
