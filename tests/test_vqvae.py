@@ -26,7 +26,8 @@ from driveopt.data.demonstrations import (
     describe,
     load_demonstrations,
 )
-from driveopt.data.modes import SPEED_GAP, plan_features, select_modes
+from driveopt.data.modes import SPEED_GAP, lanes_per_row, plan_features, select_modes
+from driveopt.data.replay import mode_lanes
 from driveopt.learned import pixelcnn as px
 from driveopt.learned import vqvae as vq
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
@@ -135,6 +136,8 @@ def test_select_modes_keeps_distinct_feasible_samples_lowest_cost_first():
     np.testing.assert_array_equal(modes.coeffs[4:], 0.0)
     lanes, speeds = plan_features(modes.coeffs[:4], basis, 0.0, 4.0, 4)
     assert lanes.tolist() == [1, 2, 1, 2]
+    assert lanes_per_row(modes.coeffs[None], modes.mask[None], basis, [0.0], [4.0], [4]).tolist() == [2]
+    assert lanes_per_row(modes.coeffs[None], np.zeros((1, 8), bool), basis, [0.0], [4.0], [4]).tolist() == [0]
     for i in range(4):
         for j in range(i):
             assert lanes[i] != lanes[j] or np.max(np.abs(speeds[i] - speeds[j])) > SPEED_GAP
@@ -170,6 +173,8 @@ def test_collect_writes_schema_2_modes(tmp_path, capsys):
         c = modes.coeffs[row, valid]
         np.testing.assert_allclose(c[:, :11] @ basis.W[0], 0.0, atol=1e-3)  # each mode starts at the ego
         np.testing.assert_allclose(c[:, 11:] @ basis.W[0], data.init_y[row, 0], atol=1e-3)
+        end_lanes = np.clip(np.round(c[:, 11:] @ basis.W[-1] / 4.0), 0, 1)  # two lanes centred at 0 and 4 m
+        assert mode_lanes(data)[row] == len(set(end_lanes.tolist()))
     with pytest.raises(DatasetError, match="3 modes per row, not 8"):
         DemonstrationWriter(out, {}, 100, 22, 55)
 
@@ -178,6 +183,8 @@ def test_version_1_files_stay_readable_for_the_cvae(tmp_path):
     old = write_v1(tmp_path / "v1.h5")
     data = load_demonstrations(old)
     assert data.modes is None and len(data) == 32 and describe(data)["modes_per_row"] is None
+    with pytest.raises(DatasetError, match="no modes"):
+        mode_lanes(data)
     batch = make_batch(data, training_rows(data, 3.0))
     assert batch.trajectory.shape == (32, 100, 2)
     np.testing.assert_array_equal(batch.observation, data.observation)

@@ -61,6 +61,20 @@ def plan_features(coeffs: np.ndarray, basis: Basis, lane_center0: float, lane_wi
     return lane, quarters
 
 
+def lanes_per_row(coeffs: np.ndarray, mask: np.ndarray, basis: Basis, lane_center0: np.ndarray, lane_width: np.ndarray,
+                  num_lanes: np.ndarray) -> np.ndarray:
+    """(n,) how many distinct target lanes the real modes of each of n rows reach (0 for a row without modes).
+
+    coeffs (n, M, 2n_c), mask (n, M) as in :class:`Modes`; the road of each row: lane_center0 [m], lane_width [m],
+    num_lanes [-] (n,) each. The target lane is :func:`plan_features`'s."""
+    coeffs, mask = np.asarray(coeffs, np.float64), np.asarray(mask, bool)
+    counts = np.zeros(len(coeffs), np.int64)
+    for i in np.flatnonzero(mask.any(axis=1)):
+        lanes, _ = plan_features(coeffs[i][mask[i]], basis, float(lane_center0[i]), float(lane_width[i]), int(num_lanes[i]))
+        counts[i] = np.unique(lanes).size
+    return counts
+
+
 def distinct(lane: int, speeds: np.ndarray, kept_lanes: np.ndarray, kept_speeds: np.ndarray, speed_gap: float) -> bool:
     """Whether a plan (target lane, quarter speeds (4,)) differs from every kept one (rule 3 of the module docstring)."""
     if len(kept_lanes) == 0:

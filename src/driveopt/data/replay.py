@@ -22,8 +22,10 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from driveopt.basis import make_basis
 from driveopt.config import BasisConfig
 from driveopt.data.demonstrations import DatasetError, Demonstrations
+from driveopt.data.modes import lanes_per_row
 from driveopt.observation import NEIGHBOUR_FEATURES, ObservationError, neighbour_mask, split_observation
 from driveopt.problem import PlanningProblem, build_problem
 from driveopt.scene import EgoState, Neighbour, ProblemError, Road, Scene
@@ -72,3 +74,17 @@ def problem_from_row(data: Demonstrations, row: int, v_des: float, basis: BasisC
     f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
     return problem._replace(init_x=f32(data.init_x[row]), init_y=f32(data.init_y[row]), y_lb=f32(data.lane_bounds[row, 0]),
                             y_ub=f32(data.lane_bounds[row, 1]), observation=f32(data.observation[row]))
+
+
+def mode_lanes(data: Demonstrations) -> np.ndarray:
+    """(n,) distinct target lanes of each row's modes (:func:`driveopt.data.modes.lanes_per_row`), each row's road read
+    from its lane bounds and the basis from the file's horizon and node count; DatasetError for a file without modes."""
+    if data.modes is None:
+        raise DatasetError("the demonstrations hold no modes (schema version 1): nothing to count")
+    bounds, index = np.unique(data.lane_bounds, axis=0, return_inverse=True)
+    roads = [road_from_bounds(float(lo), float(hi)) for lo, hi in bounds]
+    index = index.reshape(-1)
+    center0, width, lanes = (np.array([getattr(r, f) for r in roads])[index] for f in ("first_lane_center", "lane_width", "num_lanes"))
+    basis = make_basis(BasisConfig(horizon=float(data.attrs.get("horizon", BasisConfig.horizon)),
+                                   num_nodes=int(data.attrs.get("num_nodes", BasisConfig.num_nodes))))
+    return lanes_per_row(data.modes.coeffs, data.modes.mask, basis, center0, width, lanes)
