@@ -20,7 +20,7 @@ from driveopt.cli.common import config_overrides
 from driveopt.config import BasisConfig, ConfigError, ProjectionConfig, QPConfig
 from driveopt.data.demonstrations import DemonstrationWriter, load_demonstrations
 from driveopt.learned import filter as fl
-from driveopt.learned.checkpoint import CheckpointError, save_checkpoint
+from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from driveopt.learned.train_filter import (
     TrainConfig,
     _draw,
@@ -356,6 +356,25 @@ def test_training_resumes_without_repeating_epochs_and_refuses_other_settings(da
         train_filter(data_file, tmp_path, dataclasses.replace(CFG, gamma_min=0.2), TCFG, config=PLANNER.config, progress=False)
     with pytest.raises(CheckpointError, match="another projection"):
         train_filter(data_file, tmp_path, CFG, TCFG, config=PLANNER.config.replace(projection={"rho_lane": 2.0}), progress=False)
+
+
+def test_training_resumes_inside_an_epoch_taking_the_same_steps(data_file, trained, tmp_path):
+    first = train_filter(data_file, tmp_path, CFG, TCFG, config=PLANNER.config, progress=False, stop_after_steps=2)
+    meta, _ = load_checkpoint(tmp_path / "last.ckpt", fl.CHECKPOINT_KIND)
+    assert first["history"] == [] and first["weights"] is None  # stopped inside epoch 1 (3 steps of 4 of 12 rows)
+    assert meta["partial"]["epoch"] == 1 and meta["partial"]["steps"] == 2
+    second = train_filter(data_file, tmp_path, CFG, TCFG, config=PLANNER.config, progress=False, stop_after_steps=3)
+    assert [r["epoch"] for r in second["history"]] == [1]  # its last step, then 2 of epoch 2
+    partial = load_checkpoint(tmp_path / "last.ckpt", fl.CHECKPOINT_KIND)[0]["partial"]
+    assert (partial["epoch"], partial["steps"]) == (2, 2)
+    final = train_filter(data_file, tmp_path, CFG, TCFG, config=PLANNER.config, progress=False)
+    assert len(final["history"]) == len(trained[1]["history"]) == 4
+    for a, b in zip(final["history"], trained[1]["history"]):  # the same run as uninterrupted
+        assert a == pytest.approx(b, rel=1e-5)
+    resumed = load_filter(tmp_path / "filter.ckpt")
+    reference = load_filter(trained[0] / "filter.ckpt")
+    for a, b in zip(jax.tree_util.tree_leaves(resumed), jax.tree_util.tree_leaves(reference)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6)
 
 
 def test_train_filter_command_resumes_and_reports_bad_input_in_one_line(data_file, tmp_path, capsys, monkeypatch):

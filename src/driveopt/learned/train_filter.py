@@ -26,7 +26,10 @@ planner's residual tolerance).
 
 Optimiser: AdamW with a step decay. Output folder, as the other trainers: ``last.ckpt`` (resume
 state), ``filter.ckpt`` (lowest validation loss: what ``--filter-weights`` and the ``vqvae-filter``
-planner load) and ``history.json``, written atomically after every epoch; rerunning resumes. A
+planner load) and ``history.json``, written atomically after every epoch; ``last.ckpt`` also every ``save_every``
+seconds within an epoch (the steps done and their running sums: an epoch of 20 000 observations takes about an hour
+on 2 cores). Rerunning resumes, mid-epoch too: each step's minibatch and samples follow from the seed, the epoch and
+the step, so a resumed run takes the same steps as an uninterrupted one. A
 checkpoint from other data, another split, other settings, another prior or projection is refused
 with the reason; settings are checked before the data is read, and a non-finite training loss stops
 with :class:`~driveopt.learned.train_cvae.TrainingError`.
@@ -255,12 +258,15 @@ def train_filter(
     prior_weights: str | Path | None = None,
     validation_paths: str | Path | Sequence[str | Path] | None = None,
     progress: bool = True,
+    save_every: float = 300.0,
     stop_after: int | None = None,
+    stop_after_steps: int | None = None,
 ) -> dict[str, Any]:
     """Train (or resume training) the filter for the planning configuration ``config`` into ``out_dir``; returns a
     summary with the history. ``prior_weights``: checkpoint of the VQ-VAE (PixelCNN) or CVAE prior (default: the
-    shipped one). ``stop_after``: return after this many epochs of this call (for tests of resumption). The summary's
-    ``weights`` is the path of ``filter.ckpt``, or None before an epoch wrote it."""
+    shipped one). ``save_every`` [s]: the period of mid-epoch saves of ``last.ckpt``. ``stop_after`` /
+    ``stop_after_steps``: return after this many epochs / minibatch steps of this call, saved (for tests of
+    resumption). The summary's ``weights`` is the path of ``filter.ckpt``, or None before an epoch wrote it."""
     out = check_output_folder(out_dir, "filter.ckpt")
     if cfg.basis != config.basis:
         raise ConfigError(f"the filter's basis {cfg.basis} is not the planner's {config.basis}")
@@ -293,6 +299,7 @@ def train_filter(
     opt_state = optimiser.init(params)
     history: list[dict[str, Any]] = []
     best = float("inf")
+    partial = None  # {"epoch", "steps", "sums"} of an epoch that a mid-epoch save left unfinished
     last = out / "last.ckpt"
     if last.exists():
         meta, state = load_checkpoint(last, fl.CHECKPOINT_KIND)
@@ -301,6 +308,7 @@ def train_filter(
         restored = restore(target, {k: state.get(k) for k in target}, last, "the training state")
         params, normaliser, opt_state = restored["params"], fl.Normaliser(*restored["normaliser"]), restored["opt_state"]
         history, best = list(meta.get("history", [])), float(meta.get("best", float("inf")))
+        partial = meta.get("partial")
     _make_folder(out)
 
     validate, baseline = None, None
@@ -320,11 +328,18 @@ def train_filter(
 
     weight = jnp.float32(tcfg.residual_weight)
     bar = epoch_bar(len(history), tcfg, stop_after, "train filter", progress)
-    start = time.perf_counter()
+    start = saved = time.perf_counter()
+    steps_run, stopped = 0, False
     for epoch in bar:
         epoch_key = jax.random.fold_in(key, epoch + 1)
         sums = {"loss": 0.0, "correction": 0.0, "residual": 0.0, "feasible": 0.0}
+        done = 0
+        if partial is not None and partial.get("epoch") == epoch + 1:  # resume inside this epoch
+            done, sums = int(partial["steps"]), {k: float(partial["sums"][k]) for k in sums}
+        partial = None
         for i, idx in enumerate(minibatches(epoch_key, len(train_rows), batch_size, steps_per_epoch)):
+            if i < done:
+                continue
             problems = _take(train_problems, idx)
             setpoints = _draw(prior, problems, jax.random.split(jax.random.fold_in(epoch_key, i + 1), len(idx)), tcfg.samples)
             (value, terms), grads = value_and_grad(params, normaliser, problems, setpoints, weight, cfg, run_config)
@@ -333,6 +348,17 @@ def train_filter(
             for k in ("correction", "residual", "feasible"):
                 sums[k] += float(terms[k])
             bar.set_postfix_str(f"step {i + 1}/{steps_per_epoch} train {sums['loss'] / (i + 1):.2f}")
+            steps_run += 1
+            stopped = stop_after_steps is not None and steps_run >= stop_after_steps
+            if i + 1 < steps_per_epoch and (stopped or time.perf_counter() - saved >= save_every):
+                save_checkpoint(last, fl.CHECKPOINT_KIND, {"params": params, "normaliser": normaliser, "opt_state": opt_state},
+                                {**meta_base, "epoch": epoch, "history": history, "baseline": baseline, "best": best,
+                                 "partial": {"epoch": epoch + 1, "steps": i + 1, "sums": sums}})
+                saved = time.perf_counter()
+                if stopped:
+                    break
+        if stopped and i + 1 < steps_per_epoch:
+            break
         record = {"epoch": epoch + 1, **{f"train_{k}": v / steps_per_epoch for k, v in sums.items()}}
         if not math.isfinite(record["train_loss"]):
             raise TrainingError(f"training diverged in epoch {epoch + 1} (train loss {record['train_loss']}): "
@@ -347,8 +373,11 @@ def train_filter(
             save_checkpoint(out / "filter.ckpt", fl.CHECKPOINT_KIND, {"params": params, "normaliser": normaliser}, meta)
         save_checkpoint(last, fl.CHECKPOINT_KIND, {"params": params, "normaliser": normaliser, "opt_state": opt_state},
                         {**meta, "best": best})
+        saved = time.perf_counter()
         (out / "history.json").write_text(json.dumps(history, indent=1))
         bar.set_postfix_str(f"train {record['train_loss']:.2f} val {record.get('val_loss', float('nan')):.2f}")
+        if stopped:
+            break
     bar.close()
     weights = out / "filter.ckpt"
     return {"epochs": len(history), "history": history, "best_val_loss": best, "baseline": baseline, "rows": meta_base["rows"],
