@@ -206,8 +206,8 @@ def test_a_blocked_lane_is_left_within_the_course_bound(small_config):
         assert course.max() < config.projection.course_max + 0.02
 
 
-@pytest.mark.parametrize("to_lane_centre", [True, False])
-def test_a_fallback_from_a_swerve_points_along_the_road_when_the_car_stops(to_lane_centre):
+@pytest.mark.parametrize("target", ["centre", "hold"])
+def test_a_fallback_from_a_swerve_points_along_the_road_when_the_car_stops(target):
     """5.1 m/s on a course 0.21 rad off the road (the slip of the steering applied now; P2's dense traffic, where
     braking on that course put a corner into a car standing in the next lane): at 3 m/s^2 the stop eases back to
     the road's direction within its 4.3 m, with the path's curvature within the easing bound (the comfortable
@@ -217,11 +217,11 @@ def test_a_fallback_from_a_swerve_points_along_the_road_when_the_car_stops(to_la
 
     problem = build_problem(Scene(ego=EgoState(x=0.0, y=11.06, vx=4.99, vy=-1.07), road=Road(num_lanes=4)))
     t = jnp.linspace(0.0, 5.0, 501)
-    stop = stop_trajectory(problem, t, 3.0, to_lane_centre, straightens=True)
+    stop = stop_trajectory(problem, t, 3.0, target, straightens=True)
     stopped = np.asarray(stop.speed) <= 1e-6
     # without straightening (fallback_straightens = false) the easing takes its 20 m: the emergency stop points 0.06 rad off
-    before = stop_trajectory(problem, t, 3.0, to_lane_centre)
-    assert to_lane_centre or float(jnp.abs(before.heading[-1])) > 0.05
+    before = stop_trajectory(problem, t, 3.0, target)
+    assert target == "centre" or float(jnp.abs(before.heading[-1])) > 0.05
     assert stopped.any() and abs(float(stop.heading[0]) + 0.21) < 0.01
     assert np.all(np.abs(np.asarray(stop.heading)[stopped]) < 0.01)
     moving = ~stopped
@@ -231,8 +231,8 @@ def test_a_fallback_from_a_swerve_points_along_the_road_when_the_car_stops(to_la
     assert abs(float(stop.y[-1]) - 11.06) < 0.5
 
 
-@pytest.mark.parametrize("to_lane_centre", [True, False])
-def test_a_short_stop_on_a_course_towards_its_target_does_not_swing_back(to_lane_centre):
+@pytest.mark.parametrize("target", ["centre", "hold"])
+def test_a_short_stop_on_a_course_towards_its_target_does_not_swing_back(target):
     """4.1 m/s half a metre below a one-lane road (3 m lanes), on a course 0.245 rad towards it: the stop (2.7 or
     0.5 m) is shorter than the easing's 20 m, so the easing is shortened. Its move was
     clipped to an interval symmetric about 0 that the course's own turn fills (a move of 0 here): the path rose
@@ -244,14 +244,14 @@ def test_a_short_stop_on_a_course_towards_its_target_does_not_swing_back(to_lane
     scene = Scene(ego=EgoState(x=0.0, y=-1.0, vx=4.0, vy=1.0), road=Road(num_lanes=1, lane_width=3.0))
     low, _ = scene.lateral_bounds
     for decel in (3.0, 18.0):
-        stop = stop_trajectory(build_problem(scene), jnp.linspace(0.0, 5.0, 501), decel, to_lane_centre, straightens=True)
+        stop = stop_trajectory(build_problem(scene), jnp.linspace(0.0, 5.0, 501), decel, target, straightens=True)
         y, stopped = np.asarray(stop.y), np.asarray(stop.speed) <= 1e-6
         assert np.all(np.diff(y) >= -1e-6) and y[-1] > y[0] + 0.05  # on towards the road, never back
         heading = np.asarray(stop.heading)
         assert np.all(heading >= -1e-6) and np.all(heading[stopped] < heading[0])  # turning towards the road's direction
         assert decel > 3.0 or np.all(heading[stopped] < 0.01)  # 2.7 m are enough to straighten: 2 x 0.245 / 0.2
         assert np.all(np.abs(np.asarray(stop.curvature)[~stopped]) <= 1.03 * EASING_CURVATURE)
-        assert y[-1] <= low + 1e-6 or to_lane_centre  # the emergency stop's target is the road's edge
+        assert y[-1] <= low + 1e-6 or target == "centre"  # the emergency stop's target is the road's edge
 
 
 def test_fallback_straightens_is_a_planner_setting(small_config):
@@ -262,3 +262,30 @@ def test_fallback_straightens_is_a_planner_setting(small_config):
     ends = [abs(float(plan(build_problem(scene, c.basis), c, key=jax.random.PRNGKey(0)).fallback.heading[-1]))
             for c in (off, on)]
     assert ends[1] < 0.01 < ends[0]
+
+
+def test_the_far_lane_stop_leaves_the_lane_of_the_car_it_would_meet(small_config):
+    """`cvae`'s Fig. 7 episode 12 at 29.4 s: 15.6 m/s, 1.3 m above the centre of a lane in which a car creeps at
+    0.7 m/s 17.8 m ahead, and no sample feasible. The comfortable stop eases back to that lane's centre and the
+    emergency stop (5 m/s^2, the simulated car's bound) holds 9.3 m: both enter the car's ellipse. With ``fallback_far_lane`` the fallback also weighs an
+    emergency stop towards the centre of the other lane the car is between (12 m), which passes the creeping car,
+    and offers it."""
+    from driveopt.fallback import FAR_LANE, HOLD, LANE_CENTRE, first_contact, lateral_target
+
+    scene = Scene(ego=EgoState(x=0.0, y=9.3, vx=15.6, vy=0.7), road=Road(num_lanes=4),
+                  neighbours=(Neighbour(x=17.8, y=8.0, vx=0.7),))
+    problem = build_problem(scene, small_config.basis)
+    nodes = problem.obstacle_x.shape[-1]
+    off, on = (small_config.replace(fallback_far_lane=flag, projection={"a_max": 5.0}) for flag in (False, True))  # highway-env's
+    assert not PlannerConfig().fallback_far_lane and from_dict({"fallback_far_lane": True}).fallback_far_lane
+    before, after = (plan(problem, c, key=jax.random.PRNGKey(0)).fallback for c in (off, on))
+    assert int(first_contact(problem, before)) < nodes and float(before.y[-1]) < 9.5
+    assert int(first_contact(problem, after)) == nodes and float(after.y[-1]) > 11.0
+    assert np.all(np.diff(np.asarray(after.speed)) <= 1e-6)  # still a stop
+    # the targets: nearest centre, the position itself, the other centre (the nearest on the road's outer half-lanes;
+    # at a centre, on the course's side)
+    y = jnp.float32(9.3)
+    assert [float(lateral_target(problem, y, k)) for k in (LANE_CENTRE, HOLD, FAR_LANE)] == pytest.approx([8.0, 9.3, 12.0])
+    assert float(lateral_target(problem, jnp.float32(12.6), FAR_LANE)) == 12.0
+    assert float(lateral_target(problem, jnp.float32(4.0), FAR_LANE, -0.1)) == 0.0
+    assert float(lateral_target(problem, jnp.float32(4.0), FAR_LANE, 0.1)) == 8.0

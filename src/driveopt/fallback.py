@@ -4,8 +4,10 @@ The fallback is what a planner offers when no sample is feasible (``PlanResult.f
 not a polynomial and it is never projected: it brakes at a constant deceleration along a path,
 so its speed ``max(v0 - d t, 0)`` [m/s] never increases and never goes below zero, and it never
 turns back (the path's heading stays within 72 degrees of the road). The path eases from the
-current lateral position and heading to a target inside the road: the nearest lane centre
-(comfortable stop) or the current position clipped to the road (emergency stop), over 20 m or more; with
+current lateral position and heading to a target inside the road (:func:`lateral_target`): the nearest lane centre
+(comfortable stop), the current position clipped to the road (emergency stop) or, with ``fallback_far_lane``, the
+centre of the other lane the car is between (an emergency stop that completes or reverses a lane change away from
+the nearest centre), over 20 m or more; with
 ``fallback_straightens`` (planner config) it points along the road by the time the car stops (:func:`easing`). Where the ego
 starts on the road the path stays between the road bounds; an ego off the road never moves
 further away from it. Its residual (how far it is from meeting the constraints) is that of the
@@ -14,7 +16,8 @@ in its status. Of the two stops it offers the one that enters an obstacle's elli
 (:func:`first_contact`; ties, e.g. no contact, by the lower residual): an L2 residual rates a
 stop that drives through a slow car ahead in half a second better than one that ends just
 inside its ellipse, so ranking by residual alone chose the comfortable stop into a car 24 m
-ahead at 20 m/s closing speed (issue 13).
+ahead at 20 m/s closing speed (issue 13). The far-lane stop is for a car between two lane centres when the lane of
+the nearest one is where the obstacle is: both other targets keep it in that lane.
 
 The stop rows of the batches (:func:`stop_setpoints`, :func:`braking_coeffs`) are ordinary
 candidates: projected and ranked like every sample, so a feasible stop can be the chosen plan.
@@ -34,22 +37,45 @@ EASING_DISTANCE_PER_METRE = 6.0  # [m/m] ... and over at least this many metres 
 EASING_CURVATURE = 0.2  # [1/m] ... but over no more than the stopping distance where this curvature allows
 MAX_HEADING_SINE = 0.95  # [-] |sin| of the fallback path's heading relative to the road (72 degrees)
 _FINE_STEPS = 512  # [-] path samples for integrating x along the path
+LANE_CENTRE, HOLD, FAR_LANE = "centre", "hold", "far"  # lateral targets of a stop (:func:`lateral_target`)
 
 
-def stop_setpoints(problem: PlanningProblem, horizon: float, decel: float, to_lane_centre: bool) -> jnp.ndarray:
-    """(8,) set-points describing a stop: speed [m/s] at each quarter's end, lateral target [m]."""
+def lateral_target(problem: PlanningProblem, y: jnp.ndarray, target: str, course: jnp.ndarray = 0.0) -> jnp.ndarray:
+    """[m] where a stop from lateral position ``y`` [m] eases to: ``LANE_CENTRE`` the nearest lane centre, ``HOLD`` y,
+    ``FAR_LANE`` the centre of the other lane y lies between (on y's side of the nearest centre; at a centre, on the
+    side the ``course`` slope [-] points to), the nearest centre itself on the road's outer half-lanes."""
+    if target == HOLD:
+        return y
+    nearest = nearest_lane_center(problem, y)
+    if target == LANE_CENTRE:
+        return nearest
+    if target != FAR_LANE:
+        raise ValueError(f"unknown stop target {target!r}")
+    side = jnp.where(y != nearest, jnp.sign(y - nearest), jnp.where(course < 0.0, -1.0, 1.0))
+    return nearest_lane_center(problem, nearest + side * problem.lane_width)
+
+
+def _course(problem: PlanningProblem) -> jnp.ndarray:
+    """[-] the car's course as a lateral slope dy/ds, within +-0.5."""
+    speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
+    return jnp.clip(jnp.where(speed > 1e-3, problem.init_y[1] / jnp.maximum(speed, 1e-3), 0.0), -0.5, 0.5)
+
+
+def stop_setpoints(problem: PlanningProblem, horizon: float, decel: float, target: str) -> jnp.ndarray:
+    """(8,) set-points describing a stop towards ``target`` (:func:`lateral_target`): speed [m/s] at each quarter's end,
+    lateral target [m]."""
     quarter = horizon / NUM_SEGMENTS
     ends = quarter * jnp.arange(1, NUM_SEGMENTS + 1, dtype=jnp.float32)
     speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
     v = jnp.maximum(speed - decel * ends, 0.0)
-    y = nearest_lane_center(problem, problem.init_y[0]) if to_lane_centre else problem.init_y[0]
+    y = lateral_target(problem, problem.init_y[0], target, _course(problem))
     return jnp.concatenate([v, jnp.full(NUM_SEGMENTS, y)])
 
 
 def braking_coeffs(model: TrajectoryModel, problem: PlanningProblem, decel: float, b_x, b_y,
-                   to_lane_centre: bool = True) -> jnp.ndarray:
-    """(2n,) stop at constant deceleration ``decel`` [m/s^2], easing to the nearest lane centre in
-    :data:`EASING_TIME` (or holding the current lateral position): the batches' stop rows.
+                   target: str = LANE_CENTRE) -> jnp.ndarray:
+    """(2n,) stop at constant deceleration ``decel`` [m/s^2], easing to ``target`` (:func:`lateral_target`) in
+    :data:`EASING_TIME`: the batches' stop rows.
 
     A least-squares fit of that motion (the set-point QP's step set-points would overshoot it).
     """
@@ -57,7 +83,7 @@ def braking_coeffs(model: TrajectoryModel, problem: PlanningProblem, decel: floa
     speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
     moving = jnp.minimum(t, speed / decel)
     x = problem.init_x[0] + speed * moving - 0.5 * decel * moving**2
-    centre = nearest_lane_center(problem, problem.init_y[0]) if to_lane_centre else problem.init_y[0]
+    centre = lateral_target(problem, problem.init_y[0], target, _course(problem))
     tau = jnp.minimum(t / EASING_TIME, 1.0)
     y = problem.init_y[0] + (centre - problem.init_y[0]) * (3 * tau**2 - 2 * tau**3)
     return fit_positions(model, x, y, b_x, b_y)
@@ -87,15 +113,14 @@ def easing(slope0: jnp.ndarray, y0: jnp.ndarray, target: jnp.ndarray,
     return length, jnp.where(length < gentle, y0 + jnp.clip(shift, low, high), target)
 
 
-def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, to_lane_centre: bool, stop_distance: jnp.ndarray):
-    """(y, dy/ds, d2y/ds2) of the fallback path at path lengths s [m] (arc-length parametrised) for a stop within
-    ``stop_distance`` [m]."""
+def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, target: str, stop_distance: jnp.ndarray):
+    """(y, dy/ds, d2y/ds2) of the fallback path towards ``target`` (:func:`lateral_target`) at path lengths s [m]
+    (arc-length parametrised) for a stop within ``stop_distance`` [m]."""
     y0 = problem.init_y[0]
+    slope0 = _course(problem)
     inside = jnp.clip(y0, problem.y_lb, problem.y_ub)
-    target = jnp.clip(nearest_lane_center(problem, inside), problem.y_lb, problem.y_ub) if to_lane_centre else inside
-    speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
-    slope0 = jnp.clip(jnp.where(speed > 1e-3, problem.init_y[1] / jnp.maximum(speed, 1e-3), 0.0), -0.5, 0.5)
-    length, target = easing(slope0, y0, target, stop_distance)
+    length, target = easing(slope0, y0, jnp.clip(lateral_target(problem, inside, target, slope0), problem.y_lb, problem.y_ub),
+                            stop_distance)
     u = jnp.clip(s / length, 0.0, 1.0)
     within = s < length
     # cubic Hermite from (y0, slope0) to (target, 0) over [0, length]; the target beyond
@@ -112,9 +137,10 @@ def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, to_lane_centre: bool
     return y, dy, d2y
 
 
-def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, to_lane_centre: bool,
+def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, target: str,
                     straightens: bool = False) -> Trajectory:
-    """The fallback: brake at ``decel`` [m/s^2] from the current speed along the eased path (planning frame).
+    """The fallback: brake at ``decel`` [m/s^2] from the current speed along the path eased to ``target``
+    (:func:`lateral_target`; planning frame).
 
     t: (K,) [s] node times. Speed max(v0 - decel t, 0), path length s(t) = its integral. ``straightens``: the easing
     is done by the time the car stops where the curvature allows (:func:`easing`); otherwise it takes its full length.
@@ -128,11 +154,11 @@ def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, to_l
     # x along the path: integral of sqrt(1 - (dy/ds)^2) ds, on a fine grid up to the stopping distance
     stop_distance = 0.5 * speed0 * stop_time if straightens else jnp.inf
     fine = jnp.linspace(0.0, 1.0, _FINE_STEPS) * jnp.max(s)
-    _, dy_fine, _ = _lateral_path(problem, fine, to_lane_centre, stop_distance)
+    _, dy_fine, _ = _lateral_path(problem, fine, target, stop_distance)
     cos_fine = jnp.sqrt(1.0 - dy_fine**2)
     x_fine = jnp.concatenate([jnp.zeros(1), jnp.cumsum(0.5 * (cos_fine[1:] + cos_fine[:-1]) * jnp.diff(fine))])
     x = problem.init_x[0] + jnp.interp(s, fine, x_fine)
-    y, dy, d2y = _lateral_path(problem, s, to_lane_centre, stop_distance)
+    y, dy, d2y = _lateral_path(problem, s, target, stop_distance)
     dx = jnp.sqrt(1.0 - dy**2)
     d2x = -dy * d2y / dx
     vx, vy = v * dx, v * dy

@@ -67,7 +67,7 @@ from driveopt.costs import (
     evaluate,
     weighted_cost,
 )
-from driveopt.fallback import braking_coeffs, first_contact, stop_setpoints, stop_trajectory
+from driveopt.fallback import FAR_LANE, HOLD, LANE_CENTRE, braking_coeffs, first_contact, stop_setpoints, stop_trajectory
 from driveopt.priors.base import Prior, clip_setpoints
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import PlanningProblem, check_problem
@@ -236,8 +236,8 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     setpoints = jnp.concatenate([setpoints, *appended])
     qp_coeffs, b_x, b_y = setpoint_batch(model, problem, cfg, setpoints)
     row = (lambda b, i: b if b.ndim == 1 else b[i])  # noqa: E731  (boundary rows are per sample only for goals)
-    for i, (decel, to_centre) in zip(range(-len(stops), 0), stops):
-        qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), to_centre))
+    for i, (decel, target) in zip(range(-len(stops), 0), stops):
+        qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), target))
     proj = project_batch(model, problem, cfg, qp_coeffs, b_x, b_y, safety_filter, unroll)
     lateral = None if previous is None else previous.lateral
     terms = cost_terms(evaluate(model, proj.coeffs), problem, lateral)
@@ -308,9 +308,9 @@ def _refine(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs, b_x,
     return refined, jax.tree_util.tree_map(merge, terms, more_terms)
 
 
-def _stops(cfg: PlannerConfig) -> tuple[tuple[float, bool], tuple[float, bool]]:
-    """(deceleration [m/s^2], to the lane centre) of the comfortable and of the emergency stop."""
-    return (cfg.fallback_deceleration, True), (cfg.projection.a_max, False)
+def _stops(cfg: PlannerConfig) -> tuple[tuple[float, str], tuple[float, str]]:
+    """(deceleration [m/s^2], lateral target) of the comfortable and of the emergency stop."""
+    return (cfg.fallback_deceleration, LANE_CENTRE), (cfg.projection.a_max, HOLD)
 
 
 def _ranking_key(score: jnp.ndarray, residual: jnp.ndarray, feasible: jnp.ndarray, s: SamplerConfig) -> jnp.ndarray:
@@ -321,28 +321,29 @@ def _ranking_key(score: jnp.ndarray, residual: jnp.ndarray, feasible: jnp.ndarra
 
 def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Candidate, jnp.ndarray, Trajectory]:
     """(candidate, emergency, trajectory) of the stop offered as fallback (:mod:`driveopt.fallback`): the one
-    that enters an obstacle's ellipse later; on a tie (neither does, or both at once) the comfortable stop
-    unless the emergency stop is closer to meeting the constraints. Residuals and cost terms of both are
-    measured in one batch, on their closest polynomials and their own paths."""
-    stops = _stops(cfg)
-    paths = [stop_trajectory(problem, jnp.asarray(model.t), decel, to_centre, cfg.fallback_straightens) for decel, to_centre in stops]
-    both = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths)  # (2, K) fields
-    goal = jnp.stack([both.x[:, -1], both.y[:, -1]], axis=-1) if cfg.qp.terminal_position else None
+    that enters an obstacle's ellipse latest; on a tie (none does, or several at once) the one closest to meeting
+    the constraints, the comfortable stop first among equals. The candidates are the comfortable and the emergency
+    stop, and with ``fallback_far_lane`` an emergency stop towards the far lane centre. Residuals and cost terms of
+    all are measured in one batch, on their closest polynomials and their own paths."""
+    stops = _stops(cfg) + (((cfg.projection.a_max, FAR_LANE),) if cfg.fallback_far_lane else ())
+    paths = [stop_trajectory(problem, jnp.asarray(model.t), decel, target, cfg.fallback_straightens) for decel, target in stops]
+    every = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths)  # (stops, K) fields
+    goal = jnp.stack([every.x[:, -1], every.y[:, -1]], axis=-1) if cfg.qp.terminal_position else None
     b_x, b_y = boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
-    coeffs = fit_positions(model, both.x, both.y, jnp.broadcast_to(b_x, (2, b_x.shape[-1])), jnp.broadcast_to(b_y, (2, b_y.shape[-1])))
-    families = jnp.stack(list(constraint_residuals(model, problem, coeffs, cfg.projection)))  # (4, 2)
-    terms = cost_terms(both, problem)
+    n = len(stops)
+    coeffs = fit_positions(model, every.x, every.y, jnp.broadcast_to(b_x, (n, b_x.shape[-1])), jnp.broadcast_to(b_y, (n, b_y.shape[-1])))
+    families = jnp.stack(list(constraint_residuals(model, problem, coeffs, cfg.projection)))  # (4, stops)
+    terms = cost_terms(every, problem)
     cost = weighted_cost(terms, cfg.cost)
     total = jnp.sum(families, axis=0)
     feasible = total <= cfg.sampler.residual_tolerance
     score = _ranking_key(cfg.sampler.ranking_cost_weight * cost + total, total, feasible, cfg.sampler)
     setpoints = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
     contact = jnp.stack([first_contact(problem, path) for path in paths])
-    emergency = jnp.where(contact[0] == contact[1], total[1] < total[0], contact[1] > contact[0])
-    pick = jnp.where(emergency, 1, 0)
-    term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, 2)
+    pick = jnp.argmin(jnp.where(contact == jnp.max(contact), total, jnp.inf))  # the first of equals
+    term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, stops)
     candidate = Candidate(score[pick], feasible[pick], setpoints[pick], coeffs[pick], families[:, pick], term_values[:, pick], cost[pick])
-    return candidate, emergency, jax.tree_util.tree_map(lambda a: a[pick], both)
+    return candidate, pick > 0, jax.tree_util.tree_map(lambda a: a[pick], every)
 
 
 def _better(a: Candidate, b: Candidate) -> Candidate:
