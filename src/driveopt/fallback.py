@@ -12,7 +12,7 @@ the nearest centre), over 20 m or more; with
 starts on the road the path stays between the road bounds; an ego off the road never moves
 further away from it. Its residual (how far it is from meeting the constraints) is that of the
 polynomial closest to it; when that is not zero the planner still offers the stop and says so
-in its status. Of the two stops it offers the one that enters an obstacle's ellipse later
+in its status. Of the stops it weighs it offers the one that enters an obstacle's ellipse latest
 (:func:`first_contact`; ties, e.g. no contact, by the lower residual): an L2 residual rates a
 stop that drives through a slow car ahead in half a second better than one that ends just
 inside its ellipse, so ranking by residual alone chose the comfortable stop into a car 24 m
