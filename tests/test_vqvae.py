@@ -204,6 +204,30 @@ def test_version_1_files_stay_readable_for_the_cvae(tmp_path):
         train_vqvae(old, tmp_path / "vq", VQ_CFG, TCFG, progress=False)
 
 
+def test_demonstrations_table_counts_modes_and_lanes_and_refuses_bad_files(mode_file, tmp_path, capsys):
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "demonstrations_table", Path(__file__).resolve().parents[1] / "benchmarks" / "demonstrations_table.py")
+    table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(table)
+    demo = tmp_path / "demo.h5"
+    collect(demo, ["two-lane-d1.0"], episodes=1, seed=3, samples=40, iterations=1, duration=0.3, workers=1, modes=3,
+            progress=False)
+    assert table.main([str(demo), "--json", str(tmp_path / "t.json")]) == 0
+    summary = json.loads((tmp_path / "t.json").read_text())[str(demo)]
+    data = load_demonstrations(demo)
+    assert summary["modes_per_row"] == describe(data)["modes_per_row"]
+    lanes = mode_lanes(data)
+    assert summary["mode_lanes_per_row"] == {str(k): int(np.sum(lanes == k)) for k in range(int(lanes.max()) + 1)}
+    assert sum(summary["mode_lanes_per_row"].values()) == len(data) and summary["mode_lanes_per_row"]["0"] == int(np.sum(data.modes.counts() == 0))
+    assert table.main([str(write_v1(tmp_path / "v1.h5"))]) == 2
+    assert "no modes" in capsys.readouterr().err
+    assert table.main([str(mode_file)]) == 2  # synthetic rows whose lane bounds fit no road
+    assert "fit no whole number" in capsys.readouterr().err
+
+
 def test_examples_are_every_real_mode_as_a_trajectory(mode_file):
     data = load_demonstrations(mode_file)
     rows, modes = mode_examples(data, np.arange(10))
