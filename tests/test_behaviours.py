@@ -267,25 +267,65 @@ def test_fallback_straightens_is_a_planner_setting(small_config):
 def test_the_far_lane_stop_leaves_the_lane_of_the_car_it_would_meet(small_config):
     """`cvae`'s Fig. 7 episode 12 at 29.4 s: 15.6 m/s, 1.3 m above the centre of a lane in which a car creeps at
     0.7 m/s 17.8 m ahead, and no sample feasible. The comfortable stop eases back to that lane's centre and the
-    emergency stop (5 m/s^2, the simulated car's bound) holds 9.3 m: both enter the car's ellipse. With ``fallback_far_lane`` the fallback also weighs an
-    emergency stop towards the centre of the other lane the car is between (12 m), which passes the creeping car,
-    and offers it."""
-    from driveopt.fallback import FAR_LANE, HOLD, LANE_CENTRE, first_contact, lateral_target
+    emergency stop (5 m/s^2, the simulated car's bound) holds 9.3 m: both enter the car's ellipse. With ``fallback_evasion``
+    the fallback also weighs emergency stops that move sideways, among them the one towards the centre of the other
+    lane the car is between (12 m), which passes the creeping car, and offers one that never meets it."""
+    from driveopt.fallback import FAR_LANE, HOLD, LANE_CENTRE, box_contact, first_contact, lateral_target
 
     scene = Scene(ego=EgoState(x=0.0, y=9.3, vx=15.6, vy=0.7), road=Road(num_lanes=4),
                   neighbours=(Neighbour(x=17.8, y=8.0, vx=0.7),))
     problem = build_problem(scene, small_config.basis)
     nodes = problem.obstacle_x.shape[-1]
-    off, on = (small_config.replace(fallback_far_lane=flag, projection={"a_max": 5.0}) for flag in (False, True))  # highway-env's
-    assert not PlannerConfig().fallback_far_lane and from_dict({"fallback_far_lane": True}).fallback_far_lane
+    off, on = (small_config.replace(fallback_evasion=flag, projection={"a_max": 5.0}) for flag in (False, True))  # highway-env's
+    assert not PlannerConfig().fallback_evasion and from_dict({"fallback_evasion": True}).fallback_evasion
     before, after = (plan(problem, c, key=jax.random.PRNGKey(0)).fallback for c in (off, on))
     assert int(first_contact(problem, before)) < nodes and float(before.y[-1]) < 9.5
-    assert int(first_contact(problem, after)) == nodes and float(after.y[-1]) > 11.0
+    assert int(first_contact(problem, after)) == int(box_contact(problem, after)) == nodes and float(after.y[-1]) > 11.0
     assert np.all(np.diff(np.asarray(after.speed)) <= 1e-6)  # still a stop
     # the targets: nearest centre, the position itself, the other centre (the nearest on the road's outer half-lanes;
-    # at a centre, on the course's side)
+    # at a centre, on the course's side), a shift
     y = jnp.float32(9.3)
-    assert [float(lateral_target(problem, y, k)) for k in (LANE_CENTRE, HOLD, FAR_LANE)] == pytest.approx([8.0, 9.3, 12.0])
+    assert [float(lateral_target(problem, y, k)) for k in (LANE_CENTRE, HOLD, FAR_LANE, -2.0)] == pytest.approx([8.0, 9.3, 12.0, 7.3])
     assert float(lateral_target(problem, jnp.float32(12.6), FAR_LANE)) == 12.0
     assert float(lateral_target(problem, jnp.float32(4.0), FAR_LANE, -0.1)) == 0.0
     assert float(lateral_target(problem, jnp.float32(4.0), FAR_LANE, 0.1)) == 8.0
+
+
+def test_box_contact_is_the_first_node_inside_the_box_the_ellipse_circumscribes(small_config):
+    """Against a direct check of every node: the ego's centre within a / sqrt 2 along and b / sqrt 2 across of a
+    real obstacle's predicted centre; never before the ellipse entry."""
+    from driveopt.fallback import box_contact, first_contact, stop_trajectory
+    from driveopt.problem import ellipse_axes
+
+    scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=12.0), road=Road(num_lanes=4),
+                  neighbours=(Neighbour(x=20.0, y=5.5, vx=2.0), Neighbour(x=-30.0, y=0.0, vx=20.0)))
+    problem = build_problem(scene, small_config.basis, max_obstacles=4)
+    t = jnp.asarray(make_model(small_config.basis).t)
+    a, b = (np.asarray(v) for v in ellipse_axes(problem))
+    for decel, target in ((2.0, 0.0), (3.0, -1.5), (5.0, "hold"), (1.0, 2.0)):
+        path = stop_trajectory(problem, t, decel, target)
+        inside = ((np.abs(np.asarray(path.x) - np.asarray(problem.obstacle_x)) < a / np.sqrt(2))
+                  & (np.abs(np.asarray(path.y) - np.asarray(problem.obstacle_y)) < b / np.sqrt(2))
+                  & (np.asarray(problem.obstacle_mask)[:, None] > 0)).any(axis=0)
+        expected = int(np.argmax(inside)) if inside.any() else len(inside)
+        assert int(box_contact(problem, path)) == expected
+        assert int(first_contact(problem, path)) <= expected
+    assert int(box_contact(problem, stop_trajectory(problem, t, 2.0, 0.0))) < len(t)  # the scene has a contact
+
+
+def test_evasion_offers_a_stop_past_a_car_that_every_stop_in_the_lane_would_touch(small_config):
+    """A car stands 14 m ahead, 1.2 m across (pulling out of the ego's lane, P2's spawn): braking at 5 m/s^2 from
+    10 m/s takes 10 m, so every stop in the lane touches its box; a stop shifted 2 m the other way passes it. Without
+    ``fallback_evasion`` the fallback touches the car; with it the fallback is a stop that does not."""
+    from driveopt.fallback import box_contact
+
+    scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=10.0), road=Road(num_lanes=4),
+                  neighbours=(Neighbour(x=14.0, y=2.8, vx=0.0),))
+    problem = build_problem(scene, small_config.basis)
+    nodes = problem.obstacle_x.shape[-1]
+    off, on = (small_config.replace(fallback_evasion=flag, projection={"a_max": 5.0}) for flag in (False, True))
+    before, after = (plan(problem, c, key=jax.random.PRNGKey(0)).fallback for c in (off, on))
+    assert int(box_contact(problem, before)) < nodes
+    assert int(box_contact(problem, after)) == nodes and float(after.y[-1]) > 5.0
+    speed = np.asarray(after.speed)
+    assert np.all(np.diff(speed) <= 1e-6) and speed[-1] == pytest.approx(0.0, abs=1e-6)  # a stop, done in the horizon

@@ -5,9 +5,9 @@ not a polynomial and it is never projected: it brakes at a constant deceleration
 so its speed ``max(v0 - d t, 0)`` [m/s] never increases and never goes below zero, and it never
 turns back (the path's heading stays within 72 degrees of the road). The path eases from the
 current lateral position and heading to a target inside the road (:func:`lateral_target`): the nearest lane centre
-(comfortable stop), the current position clipped to the road (emergency stop) or, with ``fallback_far_lane``, the
-centre of the other lane the car is between (an emergency stop that completes or reverses a lane change away from
-the nearest centre), over 20 m or more; with
+(comfortable stop), the current position clipped to the road (emergency stop) or, with ``fallback_evasion``, one of
+:data:`EVASIONS` (emergency stops that move sideways: to the centre of the other lane the car is between, completing
+or reversing a lane change, or a metre or two either way), over 20 m or more; with
 ``fallback_straightens`` (planner config) it points along the road by the time the car stops (:func:`easing`). Where the ego
 starts on the road the path stays between the road bounds; an ego off the road never moves
 further away from it. Its residual (how far it is from meeting the constraints) is that of the
@@ -16,8 +16,12 @@ in its status. Of the stops it weighs it offers the one that enters an obstacle'
 (:func:`first_contact`; ties, e.g. no contact, by the lower residual): an L2 residual rates a
 stop that drives through a slow car ahead in half a second better than one that ends just
 inside its ellipse, so ranking by residual alone chose the comfortable stop into a car 24 m
-ahead at 20 m/s closing speed (issue 13). The far-lane stop is for a car between two lane centres when the lane of
-the nearest one is where the obstacle is: both other targets keep it in that lane.
+ahead at 20 m/s closing speed (issue 13). With ``fallback_evasion`` the stops are first ranked by when they would
+touch a car (:func:`box_contact`, the box inside the ellipse), then by ellipse entry: the ellipse circumscribes the
+box around both cars' corners, so all stops may enter it at once while one of them still passes the car. The
+sideways stops are for a car whose nearest lane centre, or whose own position, is in the path of the car it meets
+(traced in P2's dense traffic: a leader braking hard or pulling out at the spawn, a car creeping in the lane the
+fallback eased back into).
 
 The stop rows of the batches (:func:`stop_setpoints`, :func:`braking_coeffs`) are ordinary
 candidates: projected and ranked like every sample, so a feasible stop can be the chosen plan.
@@ -38,12 +42,17 @@ EASING_CURVATURE = 0.2  # [1/m] ... but over no more than the stopping distance 
 MAX_HEADING_SINE = 0.95  # [-] |sin| of the fallback path's heading relative to the road (72 degrees)
 _FINE_STEPS = 512  # [-] path samples for integrating x along the path
 LANE_CENTRE, HOLD, FAR_LANE = "centre", "hold", "far"  # lateral targets of a stop (:func:`lateral_target`)
+EVASIONS = (FAR_LANE, -2.0, -1.0, 1.0, 2.0)  # the sideways targets of ``fallback_evasion``; a number [m]: a shift from y
 
 
-def lateral_target(problem: PlanningProblem, y: jnp.ndarray, target: str, course: jnp.ndarray = 0.0) -> jnp.ndarray:
+def lateral_target(problem: PlanningProblem, y: jnp.ndarray, target: str | float,
+                   course: jnp.ndarray = 0.0) -> jnp.ndarray:
     """[m] where a stop from lateral position ``y`` [m] eases to: ``LANE_CENTRE`` the nearest lane centre, ``HOLD`` y,
     ``FAR_LANE`` the centre of the other lane y lies between (on y's side of the nearest centre; at a centre, on the
-    side the ``course`` slope [-] points to), the nearest centre itself on the road's outer half-lanes."""
+    side the ``course`` slope [-] points to), the nearest centre itself on the road's outer half-lanes; a number, y
+    shifted by that many metres (the stop's path clips every target to the road)."""
+    if isinstance(target, (int, float)):
+        return y + target
     if target == HOLD:
         return y
     nearest = nearest_lane_center(problem, y)
@@ -61,7 +70,7 @@ def _course(problem: PlanningProblem) -> jnp.ndarray:
     return jnp.clip(jnp.where(speed > 1e-3, problem.init_y[1] / jnp.maximum(speed, 1e-3), 0.0), -0.5, 0.5)
 
 
-def stop_setpoints(problem: PlanningProblem, horizon: float, decel: float, target: str) -> jnp.ndarray:
+def stop_setpoints(problem: PlanningProblem, horizon: float, decel: float, target: str | float) -> jnp.ndarray:
     """(8,) set-points describing a stop towards ``target`` (:func:`lateral_target`): speed [m/s] at each quarter's end,
     lateral target [m]."""
     quarter = horizon / NUM_SEGMENTS
@@ -113,7 +122,7 @@ def easing(slope0: jnp.ndarray, y0: jnp.ndarray, target: jnp.ndarray,
     return length, jnp.where(length < gentle, y0 + jnp.clip(shift, low, high), target)
 
 
-def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, target: str, stop_distance: jnp.ndarray):
+def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, target: str | float, stop_distance: jnp.ndarray):
     """(y, dy/ds, d2y/ds2) of the fallback path towards ``target`` (:func:`lateral_target`) at path lengths s [m]
     (arc-length parametrised) for a stop within ``stop_distance`` [m]."""
     y0 = problem.init_y[0]
@@ -137,7 +146,7 @@ def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, target: str, stop_di
     return y, dy, d2y
 
 
-def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, target: str,
+def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, target: str | float,
                     straightens: bool = False) -> Trajectory:
     """The fallback: brake at ``decel`` [m/s^2] from the current speed along the path eased to ``target``
     (:func:`lateral_target`; planning frame).
@@ -168,11 +177,27 @@ def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, targ
     return Trajectory(t, x, y, vx, vy, ax, ay, v, heading, curvature, a)
 
 
+def _first(inside: jnp.ndarray, problem: PlanningProblem) -> jnp.ndarray:
+    """() the first node at which ``inside`` ((N, K): the ego inside obstacle n's region) holds for a real obstacle;
+    K when it never does."""
+    inside = jnp.any(inside & (problem.obstacle_mask[:, None] > 0), axis=0)  # (K,)
+    return jnp.where(jnp.any(inside), jnp.argmax(inside), inside.shape[0])
+
+
 def first_contact(problem: PlanningProblem, trajectory: Trajectory) -> jnp.ndarray:
     """() index of the first node at which ``trajectory`` (planning frame, (K,) fields) is inside a
     real obstacle's collision ellipse; K when it never is."""
     a, b = ellipse_axes(problem)
     dx = (trajectory.x - problem.obstacle_x) / a
     dy = (trajectory.y - problem.obstacle_y) / b
-    inside = jnp.any((dx * dx + dy * dy < 1.0) & (problem.obstacle_mask[:, None] > 0), axis=0)  # (K,)
-    return jnp.where(jnp.any(inside), jnp.argmax(inside), inside.shape[0])
+    return _first(dx * dx + dy * dy < 1.0, problem)
+
+
+def box_contact(problem: PlanningProblem, trajectory: Trajectory) -> jnp.ndarray:
+    """() index of the first node at which ``trajectory``'s centre is inside the box that the collision ellipse
+    circumscribes (half-sides a / sqrt 2, b / sqrt 2: the two cars' boxes touch, with the ellipse's margins scaled
+    alike); K when it never is."""
+    a, b = ellipse_axes(problem)
+    near = (jnp.abs(trajectory.x - problem.obstacle_x) * jnp.sqrt(2.0) < a) & (
+        jnp.abs(trajectory.y - problem.obstacle_y) * jnp.sqrt(2.0) < b)
+    return _first(near, problem)

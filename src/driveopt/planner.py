@@ -67,7 +67,7 @@ from driveopt.costs import (
     evaluate,
     weighted_cost,
 )
-from driveopt.fallback import FAR_LANE, HOLD, LANE_CENTRE, braking_coeffs, first_contact, stop_setpoints, stop_trajectory
+from driveopt.fallback import EVASIONS, HOLD, LANE_CENTRE, box_contact, braking_coeffs, first_contact, stop_setpoints, stop_trajectory
 from driveopt.priors.base import Prior, clip_setpoints
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import PlanningProblem, check_problem
@@ -321,11 +321,12 @@ def _ranking_key(score: jnp.ndarray, residual: jnp.ndarray, feasible: jnp.ndarra
 
 def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Candidate, jnp.ndarray, Trajectory]:
     """(candidate, emergency, trajectory) of the stop offered as fallback (:mod:`driveopt.fallback`): the one
-    that enters an obstacle's ellipse latest; on a tie (none does, or several at once) the one closest to meeting
-    the constraints, the comfortable stop first among equals. The candidates are the comfortable and the emergency
-    stop, and with ``fallback_far_lane`` an emergency stop towards the far lane centre. Residuals and cost terms of
-    all are measured in one batch, on their closest polynomials and their own paths."""
-    stops = _stops(cfg) + (((cfg.projection.a_max, FAR_LANE),) if cfg.fallback_far_lane else ())
+    that enters an obstacle's ellipse latest (with ``fallback_evasion``: that touches a car's box latest, then enters
+    its ellipse latest); on a tie (none does, or several at once) the one closest to meeting the constraints, the
+    comfortable stop first among equals. The candidates are the comfortable and the emergency stop, and with
+    ``fallback_evasion`` the emergency stops towards :data:`~driveopt.fallback.EVASIONS`. Residuals and cost terms
+    of all are measured in one batch, on their closest polynomials and their own paths."""
+    stops = _stops(cfg) + (tuple((cfg.projection.a_max, target) for target in EVASIONS) if cfg.fallback_evasion else ())
     paths = [stop_trajectory(problem, jnp.asarray(model.t), decel, target, cfg.fallback_straightens) for decel, target in stops]
     every = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths)  # (stops, K) fields
     goal = jnp.stack([every.x[:, -1], every.y[:, -1]], axis=-1) if cfg.qp.terminal_position else None
@@ -340,6 +341,8 @@ def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Cand
     score = _ranking_key(cfg.sampler.ranking_cost_weight * cost + total, total, feasible, cfg.sampler)
     setpoints = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
     contact = jnp.stack([first_contact(problem, path) for path in paths])
+    if cfg.fallback_evasion:  # the box first, the ellipse on a tie
+        contact = contact + (model.t.shape[0] + 1) * jnp.stack([box_contact(problem, path) for path in paths])
     pick = jnp.argmin(jnp.where(contact == jnp.max(contact), total, jnp.inf))  # the first of equals
     term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, stops)
     candidate = Candidate(score[pick], feasible[pick], setpoints[pick], coeffs[pick], families[:, pick], term_values[:, pick], cost[pick])
