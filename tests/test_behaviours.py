@@ -268,9 +268,9 @@ def test_the_far_lane_stop_leaves_the_lane_of_the_car_it_would_meet(small_config
     """`cvae`'s Fig. 7 episode 12 at 29.4 s: 15.6 m/s, 1.3 m above the centre of a lane in which a car creeps at
     0.7 m/s 17.8 m ahead, and no sample feasible. The comfortable stop eases back to that lane's centre and the
     emergency stop (5 m/s^2, the simulated car's bound) holds 9.3 m: both enter the car's ellipse. With ``fallback_evasion``
-    the fallback also weighs emergency stops that move sideways, among them the one towards the centre of the other
-    lane the car is between (12 m), which passes the creeping car, and offers one that never meets it."""
-    from driveopt.fallback import FAR_LANE, HOLD, LANE_CENTRE, box_contact, first_contact, lateral_target
+    the fallback also weighs emergency stops that move sideways, among them the one to the lane line above (10 m) and
+    the next centre (12 m), which pass the creeping car, and offers one that never meets it."""
+    from driveopt.fallback import HOLD, LANE_CENTRE, box_contact, first_contact, lateral_target
 
     scene = Scene(ego=EgoState(x=0.0, y=9.3, vx=15.6, vy=0.7), road=Road(num_lanes=4),
                   neighbours=(Neighbour(x=17.8, y=8.0, vx=0.7),))
@@ -282,13 +282,12 @@ def test_the_far_lane_stop_leaves_the_lane_of_the_car_it_would_meet(small_config
     assert int(first_contact(problem, before)) < nodes and float(before.y[-1]) < 9.5
     assert int(first_contact(problem, after)) == int(box_contact(problem, after)) == nodes and float(after.y[-1]) > 11.0
     assert np.all(np.diff(np.asarray(after.speed)) <= 1e-6)  # still a stop
-    # the targets: nearest centre, the position itself, the other centre (the nearest on the road's outer half-lanes;
-    # at a centre, on the course's side), a shift
-    y = jnp.float32(9.3)
-    assert [float(lateral_target(problem, y, k)) for k in (LANE_CENTRE, HOLD, FAR_LANE, -2.0)] == pytest.approx([8.0, 9.3, 12.0, 7.3])
-    assert float(lateral_target(problem, jnp.float32(12.6), FAR_LANE)) == 12.0
-    assert float(lateral_target(problem, jnp.float32(4.0), FAR_LANE, -0.1)) == 0.0
-    assert float(lateral_target(problem, jnp.float32(4.0), FAR_LANE, 0.1)) == 8.0
+    # the targets: nearest centre, the position itself, half-lanes from the nearest centre (fixed places on the road)
+    for y in (9.3, 6.2, 7.9):
+        targets = [float(lateral_target(problem, jnp.float32(y), k)) for k in (LANE_CENTRE, HOLD, -2.0, -1.0, 1.0, 2.0)]
+        assert targets == pytest.approx([8.0, y, 4.0, 6.0, 10.0, 12.0])
+    with pytest.raises(ValueError, match="unknown stop target"):
+        lateral_target(problem, jnp.float32(9.3), "far")
 
 
 def test_box_contact_is_the_first_node_inside_the_box_the_ellipse_circumscribes(small_config):
@@ -329,3 +328,20 @@ def test_evasion_offers_a_stop_past_a_car_that_every_stop_in_the_lane_would_touc
     assert int(box_contact(problem, after)) == nodes and float(after.y[-1]) > 5.0
     speed = np.asarray(after.speed)
     assert np.all(np.diff(speed) <= 1e-6) and speed[-1] == pytest.approx(0.0, abs=1e-6)  # a stop, done in the horizon
+
+
+def test_evasion_leaves_the_fallback_alone_where_no_sideways_stop_meets_cars_later(small_config):
+    """A car creeping at 0.5 m/s 7 m behind a standing car (inside its ellipse from the start, its box out of reach):
+    every stop ties, so the fallback is the same stop with ``fallback_evasion`` as without (the residual alone would
+    pick a sideways one at every step and walk a car in a jam across the lane)."""
+    from driveopt.fallback import box_contact, first_contact
+
+    scene = Scene(ego=EgoState(x=0.0, y=4.3, vx=0.5), road=Road(num_lanes=4),
+                  neighbours=(Neighbour(x=7.0, y=4.0, vx=0.0), Neighbour(x=-9.0, y=8.0, vx=1.0)))
+    problem = build_problem(scene, small_config.basis)
+    nodes = problem.obstacle_x.shape[-1]
+    off, on = (small_config.replace(fallback_evasion=flag, projection={"a_max": 5.0}) for flag in (False, True))
+    before, after = (plan(problem, c, key=jax.random.PRNGKey(0)).fallback for c in (off, on))
+    assert int(first_contact(problem, before)) == 0 and int(box_contact(problem, before)) == nodes
+    np.testing.assert_array_equal(np.asarray(after.y), np.asarray(before.y))
+    np.testing.assert_array_equal(np.asarray(after.speed), np.asarray(before.speed))

@@ -242,9 +242,9 @@ class PlannerConfig:
     cost: CostConfig = field(default_factory=CostConfig)
     fallback_deceleration: float = 3.0  # [m/s^2] comfortable braking of the fallback plan
     fallback_straightens: bool = True  # the fallback points along the road when the car stops (driveopt.fallback.easing)
-    fallback_evasion: bool = False  # the fallback also weighs emergency stops that move sideways (to the centre of the
-    # other lane the car is between, and 1 and 2 m either way) and ranks every stop by its first touch of a car's box
-    # before its entry into the car's ellipse (driveopt.fallback.EVASIONS, box_contact)
+    fallback_evasion: bool = False  # the fallback also weighs emergency stops that move sideways (to the neighbouring
+    # lane lines and centres) and ranks every stop by its first touch of a car's box before its entry into the car's
+    # ellipse (driveopt.fallback.EVASIONS, box_contact)
     contact_guard: bool = True  # closed loop: brake now when a command at crawling speed would take the ego's box
     # within 0.1 m of a car's and braking now would not (driveopt.sim.contact; not for drivers that execute infeasible
     # plans, P1)

@@ -6,8 +6,8 @@ so its speed ``max(v0 - d t, 0)`` [m/s] never increases and never goes below zer
 turns back (the path's heading stays within 72 degrees of the road). The path eases from the
 current lateral position and heading to a target inside the road (:func:`lateral_target`): the nearest lane centre
 (comfortable stop), the current position clipped to the road (emergency stop) or, with ``fallback_evasion``, one of
-:data:`EVASIONS` (emergency stops that move sideways: to the centre of the other lane the car is between, completing
-or reversing a lane change, or a metre or two either way), over 20 m or more; with
+:data:`EVASIONS` (emergency stops that move sideways: to a neighbouring lane line or lane centre, either way), over
+20 m or more; with
 ``fallback_straightens`` (planner config) it points along the road by the time the car stops (:func:`easing`). Where the ego
 starts on the road the path stays between the road bounds; an ego off the road never moves
 further away from it. Its residual (how far it is from meeting the constraints) is that of the
@@ -41,27 +41,24 @@ EASING_DISTANCE_PER_METRE = 6.0  # [m/m] ... and over at least this many metres 
 EASING_CURVATURE = 0.2  # [1/m] ... but over no more than the stopping distance where this curvature allows
 MAX_HEADING_SINE = 0.95  # [-] |sin| of the fallback path's heading relative to the road (72 degrees)
 _FINE_STEPS = 512  # [-] path samples for integrating x along the path
-LANE_CENTRE, HOLD, FAR_LANE = "centre", "hold", "far"  # lateral targets of a stop (:func:`lateral_target`)
-EVASIONS = (FAR_LANE, -2.0, -1.0, 1.0, 2.0)  # the sideways targets of ``fallback_evasion``; a number [m]: a shift from y
+LANE_CENTRE, HOLD = "centre", "hold"  # lateral targets of a stop (:func:`lateral_target`)
+EVASIONS = (-2.0, -1.0, 1.0, 2.0)  # [half-lanes] the sideways targets of ``fallback_evasion``, from the nearest centre
+# (the lane lines and centres on either side: fixed places on the road, so a car that replans its stop every period
+# settles on one instead of turning further at every step, as targets relative to its own position let it)
 
 
-def lateral_target(problem: PlanningProblem, y: jnp.ndarray, target: str | float,
-                   course: jnp.ndarray = 0.0) -> jnp.ndarray:
-    """[m] where a stop from lateral position ``y`` [m] eases to: ``LANE_CENTRE`` the nearest lane centre, ``HOLD`` y,
-    ``FAR_LANE`` the centre of the other lane y lies between (on y's side of the nearest centre; at a centre, on the
-    side the ``course`` slope [-] points to), the nearest centre itself on the road's outer half-lanes; a number, y
-    shifted by that many metres (the stop's path clips every target to the road)."""
-    if isinstance(target, (int, float)):
-        return y + target
+def lateral_target(problem: PlanningProblem, y: jnp.ndarray, target: str | float) -> jnp.ndarray:
+    """[m] where a stop from lateral position ``y`` [m] eases to: ``LANE_CENTRE`` the nearest lane centre, ``HOLD`` y;
+    a number, that many half-lane widths from the nearest lane centre (a lane line at +-1, the next centre at +-2;
+    the stop's path clips every target to the road)."""
     if target == HOLD:
         return y
     nearest = nearest_lane_center(problem, y)
     if target == LANE_CENTRE:
         return nearest
-    if target != FAR_LANE:
+    if not isinstance(target, (int, float)):
         raise ValueError(f"unknown stop target {target!r}")
-    side = jnp.where(y != nearest, jnp.sign(y - nearest), jnp.where(course < 0.0, -1.0, 1.0))
-    return nearest_lane_center(problem, nearest + side * problem.lane_width)
+    return nearest + target * 0.5 * problem.lane_width
 
 
 def _course(problem: PlanningProblem) -> jnp.ndarray:
@@ -77,7 +74,7 @@ def stop_setpoints(problem: PlanningProblem, horizon: float, decel: float, targe
     ends = quarter * jnp.arange(1, NUM_SEGMENTS + 1, dtype=jnp.float32)
     speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
     v = jnp.maximum(speed - decel * ends, 0.0)
-    y = lateral_target(problem, problem.init_y[0], target, _course(problem))
+    y = lateral_target(problem, problem.init_y[0], target)
     return jnp.concatenate([v, jnp.full(NUM_SEGMENTS, y)])
 
 
@@ -92,7 +89,7 @@ def braking_coeffs(model: TrajectoryModel, problem: PlanningProblem, decel: floa
     speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
     moving = jnp.minimum(t, speed / decel)
     x = problem.init_x[0] + speed * moving - 0.5 * decel * moving**2
-    centre = lateral_target(problem, problem.init_y[0], target, _course(problem))
+    centre = lateral_target(problem, problem.init_y[0], target)
     tau = jnp.minimum(t / EASING_TIME, 1.0)
     y = problem.init_y[0] + (centre - problem.init_y[0]) * (3 * tau**2 - 2 * tau**3)
     return fit_positions(model, x, y, b_x, b_y)
@@ -128,7 +125,7 @@ def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, target: str | float,
     y0 = problem.init_y[0]
     slope0 = _course(problem)
     inside = jnp.clip(y0, problem.y_lb, problem.y_ub)
-    length, target = easing(slope0, y0, jnp.clip(lateral_target(problem, inside, target, slope0), problem.y_lb, problem.y_ub),
+    length, target = easing(slope0, y0, jnp.clip(lateral_target(problem, inside, target), problem.y_lb, problem.y_ub),
                             stop_distance)
     u = jnp.clip(s / length, 0.0, 1.0)
     within = s < length
