@@ -330,10 +330,10 @@ def test_evasion_offers_a_stop_past_a_car_that_every_stop_in_the_lane_would_touc
     assert np.all(np.diff(speed) <= 1e-6) and speed[-1] == pytest.approx(0.0, abs=1e-6)  # a stop, done in the horizon
 
 
-def test_evasion_leaves_the_fallback_alone_where_no_sideways_stop_meets_cars_later(small_config):
+def test_evasion_leaves_the_fallback_alone_where_no_stop_in_the_lane_touches_a_car(small_config):
     """A car creeping at 0.5 m/s 7 m behind a standing car (inside its ellipse from the start, its box out of reach):
-    every stop ties, so the fallback is the same stop with ``fallback_evasion`` as without (the residual alone would
-    pick a sideways one at every step and walk a car in a jam across the lane)."""
+    no stop in the lane touches a box, so the fallback is the same stop with ``fallback_evasion`` as without (the
+    residual alone would pick a sideways one at every step and walk a car in a jam across the lane)."""
     from driveopt.fallback import box_contact, first_contact
 
     scene = Scene(ego=EgoState(x=0.0, y=4.3, vx=0.5), road=Road(num_lanes=4),

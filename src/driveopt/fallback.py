@@ -18,8 +18,8 @@ stop that drives through a slow car ahead in half a second better than one that 
 inside its ellipse, so ranking by residual alone chose the comfortable stop into a car 24 m
 ahead at 20 m/s closing speed (issue 13). With ``fallback_evasion`` the stops are first ranked by when they would
 touch a car (:func:`box_contact`, the box inside the ellipse), then by ellipse entry: the ellipse circumscribes the
-box around both cars' corners, so all stops may enter it at once while one of them still passes the car; a sideways
-stop is offered only where it meets cars strictly later than both others. The sideways stops are for a car whose
+box around both cars' corners, so all stops may enter it at once while one of them still passes the car. The
+sideways stops are weighed only where both others would touch a car's box. The sideways stops are for a car whose
 nearest lane centre, or whose own position, is in the path of the car it meets (traced in P2's dense traffic: a
 leader braking hard or pulling out at the spawn, a car creeping in the lane the fallback eased back into).
 

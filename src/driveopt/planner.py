@@ -324,10 +324,10 @@ def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Cand
     that enters an obstacle's ellipse latest (with ``fallback_evasion``: that touches a car's box latest, then enters
     its ellipse latest); on a tie (none does, or several at once) the one closest to meeting the constraints, the
     comfortable stop first among equals. The candidates are the comfortable and the emergency stop, and with
-    ``fallback_evasion`` the emergency stops towards :data:`~driveopt.fallback.EVASIONS`, which are offered only where
-    they meet a car later than both: on a tie the car stops where it is heading (a car creeping in a jam, inside
-    every ellipse, would otherwise be steered sideways by the residual, step after step). Residuals and cost terms
-    of all are measured in one batch, on their closest polynomials and their own paths."""
+    ``fallback_evasion`` the emergency stops towards :data:`~driveopt.fallback.EVASIONS`, weighed only where both
+    of those would touch a car's box (a car creeping in a jam, inside every ellipse but touching no box, would
+    otherwise be steered sideways by the residual, step after step). Residuals and cost terms of all are measured in
+    one batch, on their closest polynomials and their own paths."""
     stops = _stops(cfg) + (tuple((cfg.projection.a_max, target) for target in EVASIONS) if cfg.fallback_evasion else ())
     paths = [stop_trajectory(problem, jnp.asarray(model.t), decel, target, cfg.fallback_straightens) for decel, target in stops]
     every = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths)  # (stops, K) fields
@@ -343,12 +343,12 @@ def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Cand
     score = _ranking_key(cfg.sampler.ranking_cost_weight * cost + total, total, feasible, cfg.sampler)
     setpoints = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
     contact = jnp.stack([first_contact(problem, path) for path in paths])
-    if cfg.fallback_evasion:  # the box first, the ellipse on a tie
-        contact = contact + (model.t.shape[0] + 1) * jnp.stack([box_contact(problem, path) for path in paths])
-    latest = contact == jnp.max(contact)
-    if cfg.fallback_evasion:  # a sideways stop only where it is strictly later than both others
+    if cfg.fallback_evasion:  # the box first, the ellipse on a tie; sideways stops only where both others touch a box
+        nodes = model.t.shape[0]
+        box = jnp.stack([box_contact(problem, path) for path in paths])
         standard = jnp.arange(n) < len(_stops(cfg))
-        latest = jnp.where(jnp.any(latest & standard), latest & standard, latest)
+        contact = jnp.where(standard | jnp.all(jnp.where(standard, box < nodes, True)), contact + (nodes + 1) * box, -1)
+    latest = contact == jnp.max(contact)
     pick = jnp.argmin(jnp.where(latest, total, jnp.inf))  # the first of equals
     term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, stops)
     candidate = Candidate(score[pick], feasible[pick], setpoints[pick], coeffs[pick], families[:, pick], term_values[:, pick], cost[pick])
