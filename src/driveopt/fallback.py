@@ -19,9 +19,9 @@ inside its ellipse, so ranking by residual alone chose the comfortable stop into
 ahead at 20 m/s closing speed (issue 13). With ``fallback_evasion`` the stops are first ranked by when they would
 touch a car (:func:`box_contact`, the box inside the ellipse), then by ellipse entry: the ellipse circumscribes the
 box around both cars' corners, so all stops may enter it at once while one of them still passes the car. The
-sideways stops are weighed only where both others would touch a car's box. The sideways stops are for a car whose
-nearest lane centre, or whose own position, is in the path of the car it meets (traced in P2's dense traffic: a
-leader braking hard or pulling out at the spawn, a car creeping in the lane the fallback eased back into).
+sideways stops are weighed only where both others would touch a car's box: they are for a car whose nearest lane
+centre, or whose own position, is in the path of the car it meets (traced in P2's dense traffic: a leader braking
+hard or pulling out at the spawn, a car creeping in the lane the fallback eased back into).
 
 The stop rows of the batches (:func:`stop_setpoints`, :func:`braking_coeffs`) are ordinary
 candidates: projected and ranked like every sample, so a feasible stop can be the chosen plan.
