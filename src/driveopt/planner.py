@@ -344,10 +344,10 @@ def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Cand
     setpoints = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
     contact = jnp.stack([first_contact(problem, path) for path in paths])
     if cfg.fallback_evasion:  # the box first, the ellipse on a tie; sideways stops only where both others touch a box
-        nodes = model.t.shape[0]
+        nodes, standard = model.t.shape[0], len(_stops(cfg))
         box = jnp.stack([box_contact(problem, path) for path in paths])
-        standard = jnp.arange(n) < len(_stops(cfg))
-        contact = jnp.where(standard | jnp.all(jnp.where(standard, box < nodes, True)), contact + (nodes + 1) * box, -1)
+        sideways_weighed = jnp.all(box[:standard] < nodes)
+        contact = jnp.where((jnp.arange(n) < standard) | sideways_weighed, contact + (nodes + 1) * box, -1)
     latest = contact == jnp.max(contact)
     pick = jnp.argmin(jnp.where(latest, total, jnp.inf))  # the first of equals
     term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, stops)
