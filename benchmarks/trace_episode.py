@@ -8,7 +8,8 @@ Replays bench episode ``--episode`` of ``--seed`` (the traffic of ``driveopt ben
 and prints, for the last ``--last`` seconds (the approach to a collision when there is one): the ego's
 position [m], speed [m/s] and heading [rad], the action sent, and for an optimiser the call's status,
 total residual, chosen set-points (4 speeds [m/s], 4 lateral positions [m]) and the chosen plan's
-lateral position at 0.5, 1, 2 and 3 s; then every car within 25 m along and 6 m across as
+lateral position at 0.5, 1, 2 and 3 s (where the call found no feasible plan, also the stop executed instead: its
+deceleration [m/s^2] and lateral position at those times); then every car within 25 m along and 6 m across as
 (dx, dy) [m] relative to the ego and its speed. ``--weights`` and ``--filter-weights`` are bench's (a learned
 prior's or policy's checkpoint, a learned safety filter's). ``--json`` writes the same rows. How the README's
 traced crashes were read (e.g. bilevel's four-lane-d1.5 episode 38).
@@ -48,6 +49,10 @@ def step_row(step) -> dict:
         row.update(status=result.status.name, residual=round(float(result.residuals["total"]), 4),
                    setpoints=[round(float(s), 2) for s in result.setpoints],
                    plan_y=[round(float(np.interp(t, plan.t, plan.y)), 3) for t in PLAN_TIMES])
+        if result.status.name != "SUCCESS":  # the stop executed instead: its braking and lateral path
+            stop = result.fallback
+            row.update(stop_decel=round(float(result.fallback_deceleration), 1),
+                       stop_y=[round(float(np.interp(t, stop.t, stop.y)), 3) for t in PLAN_TIMES])
     row["near"] = [[round(float(car.position[0] - ego.position[0]), 1), round(float(car.position[1] - ego.position[1]), 1),
                     round(float(car.speed), 1)]
                    for car in env.road.vehicles
@@ -83,6 +88,8 @@ def _line(row: dict) -> str:
     if "status" in row:
         text += (f" {row['status'][:4]} res={row['residual']:.3f} v_set={row['setpoints'][:4]} y_set={row['setpoints'][4:]}"
                  f" plan_y={row['plan_y']}")
+    if "stop_y" in row:
+        text += f" stop a={row['stop_decel']:g} y={row['stop_y']}"
     if row["guarded"]:
         text += " GUARDED"
     return text + " | " + " ".join(f"({dx:+.1f},{dy:+.1f}) v{v:.1f}" for dx, dy, v in row["near"])

@@ -14,6 +14,8 @@ from driveopt.projection import constraint_residuals
 from driveopt.qp import boundary_values, make_model
 from driveopt.scene import ProblemError
 
+from conftest import box_corners
+
 
 def test_same_lane_followers_can_be_left_out():
     ego = EgoState(x=0.0, y=4.0, vx=5.0)
@@ -292,17 +294,22 @@ def test_the_far_lane_stop_leaves_the_lane_of_the_car_it_would_meet(small_config
 
 def test_box_contact_is_the_first_node_inside_the_box_the_ellipse_circumscribes(small_config):
     """Against a direct check of every node: the ego's centre within a / sqrt 2 along and b / sqrt 2 across of a
-    real obstacle's predicted centre; never before the ellipse entry."""
+    real obstacle's predicted centre, the semi-axes grown by sqrt 2 x how far the corners of the ego's box, turned by
+    the largest heading it has had so far (now, then along the stop), reach beyond its box along the road; never
+    before the ellipse entry."""
     from driveopt.fallback import box_contact, first_contact, stop_trajectory
-    from driveopt.problem import ellipse_axes
 
-    scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=12.0), road=Road(num_lanes=4),
+    scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=12.0, vy=0.5, yaw=0.1), road=Road(num_lanes=4),
                   neighbours=(Neighbour(x=20.0, y=5.5, vx=2.0), Neighbour(x=-30.0, y=0.0, vx=20.0)))
     problem = build_problem(scene, small_config.basis, max_obstacles=4)
     t = jnp.asarray(make_model(small_config.basis).t)
-    a, b = (np.asarray(v) for v in ellipse_axes(problem))
+    base_a, base_b = (np.asarray(v)[:, None] for v in (problem.obstacle_a, problem.obstacle_b))
     for decel, target in ((2.0, 0.0), (3.0, -1.5), (5.0, "hold"), (1.0, 2.0)):
         path = stop_trajectory(problem, t, decel, target)
+        held = np.maximum(0.1, np.maximum.accumulate(np.abs(np.asarray(path.heading))))
+        reach = np.array([np.abs(box_corners(0.0, 0.0, h, 5.0, 2.0)).max(axis=0) for h in held]).T - [[2.5], [1.0]]
+        growth = np.maximum(np.sqrt(2) * reach, np.asarray(problem.ellipse_growth))
+        a, b = base_a + growth[0], base_b + growth[1]
         inside = ((np.abs(np.asarray(path.x) - np.asarray(problem.obstacle_x)) < a / np.sqrt(2))
                   & (np.abs(np.asarray(path.y) - np.asarray(problem.obstacle_y)) < b / np.sqrt(2))
                   & (np.asarray(problem.obstacle_mask)[:, None] > 0)).any(axis=0)
@@ -310,6 +317,30 @@ def test_box_contact_is_the_first_node_inside_the_box_the_ellipse_circumscribes(
         assert int(box_contact(problem, path)) == expected
         assert int(first_contact(problem, path)) <= expected
     assert int(box_contact(problem, stop_trajectory(problem, t, 2.0, 0.0))) < len(t)  # the scene has a contact
+
+
+def test_evasion_weighs_the_turned_box_of_a_car_that_stops_beside_standing_cars(small_config):
+    """`vqvae`'s P2 episode 30 at 17.3 s: 6.6 m/s on a course 0.25 rad towards a lane of standing cars (body 0.12
+    rad), a car standing 8.6 m ahead in its own lane. Every stop touches that car's box; the stop towards the lane
+    line beside the standing row passes them with its centre's box, but its body turns further on the way (the path
+    reaches 0.33 rad) and stays turned when it stands: its corner reaches the row. Counting the turned box, that stop
+    touches the row first and the fallback stays in the lane (ranked as the traced car's was not: it took the
+    sideways stop, stood at 0.24 rad and met the standing car beside it)."""
+    from driveopt.fallback import box_contact, held_box_growth, stop_trajectory
+
+    course, speed = 0.25, 6.6
+    row = tuple(Neighbour(x=dx, y=12.0, vx=0.0) for dx in (-1.0, 4.0, 9.0, 14.0))
+    scene = Scene(ego=EgoState(x=0.0, y=8.3, vx=speed * np.cos(course), vy=speed * np.sin(course), yaw=0.12),
+                  road=Road(num_lanes=4), neighbours=(Neighbour(x=8.6, y=8.0, vx=0.0),) + row)
+    problem = build_problem(scene, small_config.basis)
+    config = small_config.replace(fallback_evasion=True, projection={"a_max": 4.5})
+    t = jnp.asarray(make_model(small_config.basis).t)
+    sideways, hold = (stop_trajectory(problem, t, 4.5, target, True) for target in (1.0, "hold"))
+    assert float(sideways.y[-1]) > 9.3 and float(jnp.max(sideways.heading)) > 0.3
+    assert np.all(np.diff(np.asarray(held_box_growth(problem, sideways)), axis=1) >= 0.0)  # never shrinks
+    assert int(box_contact(problem, sideways)) < int(box_contact(problem, hold)) < t.shape[0]
+    fallback = plan(problem, config, key=jax.random.PRNGKey(0)).fallback
+    assert float(fallback.y[-1]) < 8.5
 
 
 def test_evasion_offers_a_stop_past_a_car_that_every_stop_in_the_lane_would_touch(small_config):

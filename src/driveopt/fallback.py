@@ -29,11 +29,14 @@ candidates: projected and ranked like every sample, so a feasible stop can be th
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from driveopt.costs import Trajectory, nearest_lane_center
+from driveopt.prediction import turned_box_growth
 from driveopt.problem import PlanningProblem, ellipse_axes
 from driveopt.qp import NUM_SEGMENTS, TrajectoryModel, fit_positions
+from driveopt.scene import CAR_LENGTH, CAR_WIDTH
 
 EASING_TIME = 3.0  # [s] the stop rows reach their lateral target in this time
 MIN_EASING_DISTANCE = 20.0  # [m] the fallback's lateral change is spread over at least this path length
@@ -193,8 +196,24 @@ def first_contact(problem: PlanningProblem, trajectory: Trajectory) -> jnp.ndarr
 def box_contact(problem: PlanningProblem, trajectory: Trajectory) -> jnp.ndarray:
     """() index of the first node at which ``trajectory``'s centre is inside the box that the collision ellipse
     circumscribes (half-sides a / sqrt 2, b / sqrt 2: the two cars' boxes touch, with the ellipse's margins scaled
-    alike); K when it never is."""
-    a, b = ellipse_axes(problem)
+    alike), the ellipse grown for the ego's box turned by the largest heading it has had so far (its heading now,
+    then the stop's path: :func:`held_box_growth`); K when it never is."""
+    growth = jnp.maximum(held_box_growth(problem, trajectory), problem.ellipse_growth)  # (2, K)
+    a = problem.obstacle_a[:, None] + growth[0]
+    b = problem.obstacle_b[:, None] + growth[1]
     near = (jnp.abs(trajectory.x - problem.obstacle_x) * jnp.sqrt(2.0) < a) & (
         jnp.abs(trajectory.y - problem.obstacle_y) * jnp.sqrt(2.0) < b)
     return _first(near, problem)
+
+
+def held_box_growth(problem: PlanningProblem, trajectory: Trajectory) -> jnp.ndarray:
+    """[m] (2, K) growth of the collision ellipses' semi-axes for an ego (the highway-env car) whose box is turned by
+    the largest of its heading now and the headings of ``trajectory`` (a stop) up to each node.
+
+    The planner's ellipses grow for the ego's heading now and fade over two seconds because a plan turns the car
+    back (:func:`driveopt.prediction.ego_box_growth`); a stop does not: the body heading trails the path's course and
+    stays where it is once the car stands. Traced in P2's dense traffic: a sideways stop towards a lane line beside a
+    row of standing cars turned the car from 0.12 to 0.24 rad, and its corner met the standing car it stopped
+    beside, 0.6 m further across than its centre's box."""
+    heading = jnp.maximum(jnp.abs(problem.ego_heading), jax.lax.cummax(jnp.abs(trajectory.heading), axis=0))
+    return turned_box_growth(heading, CAR_LENGTH, CAR_WIDTH, xp=jnp)

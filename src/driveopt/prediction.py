@@ -37,23 +37,30 @@ def ellipse_semi_axes(ego: EgoState, other: Neighbour, margin: EllipseMargin) ->
 EGO_TURN_FADE = 2.0  # [s] the ego's turned box counts in full at t = 0 and not at all from this time on
 
 
+def turned_box_growth(heading, length: float, width: float, xp=np):
+    """[m] (2, ...) sqrt(2) x how much the axis-aligned box around a car of ``length`` x ``width`` [m] turned by
+    ``heading`` [rad] (any shape) exceeds its box along the road, longitudinally and laterally: what a collision
+    ellipse's semi-axes grow by (:func:`ellipse_semi_axes` circumscribes the boxes with sqrt(2)). ``xp``: the array
+    module (numpy, or jax.numpy inside a traced function)."""
+    c, s = xp.abs(xp.cos(heading)), xp.abs(xp.sin(heading))
+    grow_long = 0.5 * (length * c + width * s) - 0.5 * length
+    grow_lat = 0.5 * (length * s + width * c) - 0.5 * width
+    return math.sqrt(2.0) * xp.maximum(xp.stack([grow_long, grow_lat]), 0.0)
+
+
 def ego_box_growth(ego: EgoState, t: np.ndarray) -> np.ndarray:
     """[m] (2, K) growth of every collision ellipse's longitudinal and lateral semi-axis at times ``t`` [s] because
-    the ego is turned: sqrt(2) x how much the axis-aligned box around the ego at heading theta(t) exceeds its box
-    along the road, with theta fading linearly from its heading now (:attr:`EgoState.box_heading`) to 0 by
-    :data:`EGO_TURN_FADE`.
+    the ego is turned (:func:`turned_box_growth`), with its heading fading linearly from its heading now
+    (:attr:`EgoState.box_heading`) to 0 by :data:`EGO_TURN_FADE`.
 
     At 0.28 rad the ego's front corner reaches 0.65 m further into the next lane than its side does along the
     road: in P2's dense traffic the ego crawling diagonally out of a jam touched the car ahead in the next lane,
     inside no ellipse.
     The growth fades because the plan itself turns the car back (replanning applies it again from the heading the
     car then has); held over the whole horizon it made a turned, stopped car's every plan past a neighbour
-    infeasible."""
+    infeasible. (A stop cannot turn the car back once it stands: :func:`driveopt.fallback.box_contact` holds it.)"""
     heading = ego.box_heading * np.clip(1.0 - np.asarray(t) / EGO_TURN_FADE, 0.0, 1.0)
-    c, s = np.abs(np.cos(heading)), np.abs(np.sin(heading))
-    grow_long = 0.5 * (ego.length * c + ego.width * s) - 0.5 * ego.length
-    grow_lat = 0.5 * (ego.length * s + ego.width * c) - 0.5 * ego.width
-    return math.sqrt(2.0) * np.maximum(np.stack([grow_long, grow_lat]), 0.0)
+    return turned_box_growth(heading, ego.length, ego.width)
 
 
 BRAKING_TIME = 3.0  # [s] how long an observed braking is assumed to last in predictions

@@ -58,6 +58,9 @@ def _number(name: str, value: Any, field: str | None = None) -> float:
 BOX_MIN_SPEED = 0.5  # [m/s] below this speed a car without a given yaw is taken to point along the road
 
 
+CAR_LENGTH, CAR_WIDTH = 5.0, 2.0  # [m] highway-env's default vehicle
+
+
 @dataclass(frozen=True)
 class EgoState:
     """Ego vehicle state in the road frame."""
@@ -68,8 +71,8 @@ class EgoState:
     vy: float = 0.0  # [m/s]
     ax: float = 0.0  # [m/s^2]
     ay: float = 0.0  # [m/s^2]
-    length: float = 5.0  # [m] (highway-env default vehicle)
-    width: float = 2.0  # [m]
+    length: float = CAR_LENGTH  # [m]
+    width: float = CAR_WIDTH  # [m]
     yaw: float | None = None  # [rad] body heading relative to the road; None: the velocity's direction
 
     def __post_init__(self) -> None:
@@ -104,8 +107,8 @@ class Neighbour:
     y: float  # [m]
     vx: float = 0.0  # [m/s]
     vy: float = 0.0  # [m/s]
-    length: float = 5.0  # [m]
-    width: float = 2.0  # [m]
+    length: float = CAR_LENGTH  # [m]
+    width: float = CAR_WIDTH  # [m]
     yaw: float | None = None  # [rad] body heading relative to the road; None: the velocity's direction
     accel: float = 0.0  # [m/s^2] acceleration along the velocity (< 0: braking); only braking is extrapolated
 
