@@ -396,6 +396,9 @@ def test_train_filter_command_resumes_and_reports_bad_input_in_one_line(data_fil
         assert code == 2
         assert message in capsys.readouterr().err
         assert not (tmp_path / "bad").exists()  # nothing written
+    with pytest.raises(SystemExit) as exc:  # a save period of 0 s would write the checkpoint after every step
+        main(["train", "filter", "--data", str(data_file), "--out", str(tmp_path / "bad"), "--save-every", "0"])
+    assert exc.value.code == 2 and "--save-every: expected an integer >= 1, got 0" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------ planners and options

@@ -36,6 +36,8 @@ def register_models(models) -> None:
     p.add_argument("--train-episodes", type=int, default=0,
                    help="learn from only this many of the other episodes (0: all; the held-out ones stay the same)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--save-every", type=positive_int, default=300,
+                   help="seconds between the saves of last.ckpt inside an epoch (what an interruption can lose)")
     p.set_defaults(func=run_filter)
 
 
@@ -50,7 +52,7 @@ def run_filter(args: argparse.Namespace) -> int:
                        residual_weight=args.residual_weight, samples_from=args.samples_from, learning_rate=args.lr,
                        validation_fraction=args.validation, train_episodes=args.train_episodes, seed=args.seed)
     summary = train_filter(args.data, args.out, cfg, tcfg, config=spec.config, prior_weights=args.prior_weights,
-                           validation_paths=args.validation_data)
+                           validation_paths=args.validation_data, save_every=args.save_every)
     last = summary["history"][-1] if summary["history"] else {}
     baseline = summary["baseline"]
     plain = f" (plain filter {baseline['loss']:.2f})" if baseline else ""
