@@ -149,3 +149,25 @@ def test_refining_the_cheapest_rows_only_lowers_their_ranking_keys(small_config)
         kept = np.setdiff1d(np.arange(len(before.residual)), changed)
         np.testing.assert_array_equal(after.residual[kept], before.residual[kept])
         assert more.history.best_score[0] <= plain.history.best_score[0]
+
+
+def test_every_matrix_product_of_the_planner_is_traced_at_float32(small_config):
+    """Accelerators multiply float32 matrices at reduced precision by default (TF32 on NVIDIA GPUs); the projection
+    then leaves far fewer samples feasible, and a filter trained on a GPU learned that other solver. Every product
+    of the solve, the projection and the set-point QP must ask for full float32 (HIGHEST), on any backend."""
+    import re
+
+    from driveopt.planner import setpoint_batch
+    from driveopt.qp import make_model
+
+    problem = build_problem(load_scene("dense-snapshot"), small_config.basis)
+    prior = GaussianPrior.from_config(small_config.sampler, small_config.projection.v_max)
+    lowered = jax.jit(solve, static_argnames=("config", "unroll")).lower(problem, jax.random.PRNGKey(0), small_config, prior)
+    model = make_model(small_config.basis, small_config.qp)
+    setpoints = jnp.zeros((4, 8)).at[:, :4].set(10.0)
+    lowered_qp = jax.jit(lambda s: setpoint_batch(model, problem, small_config, s)).lower(setpoints)
+    for text in (lowered.as_text(), lowered_qp.as_text()):
+        products = [line for line in text.splitlines() if "dot_general" in line]
+        assert products
+        precisions = {m for line in products for m in re.findall(r"precision = \[(\w+), (\w+)\]", line)}
+        assert precisions == {("HIGHEST", "HIGHEST")}, precisions

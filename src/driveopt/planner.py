@@ -68,6 +68,7 @@ from driveopt.costs import (
     weighted_cost,
 )
 from driveopt.fallback import EVASIONS, HOLD, LANE_CENTRE, box_contact, braking_coeffs, first_contact, stop_setpoints, stop_trajectory
+from driveopt.precision import float32_products
 from driveopt.priors.base import Prior, clip_setpoints
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import PlanningProblem, check_problem
@@ -363,6 +364,7 @@ def _all_finite(*arrays) -> jnp.ndarray:
     return functools.reduce(jnp.logical_and, [jnp.all(jnp.isfinite(a)) for a in arrays])
 
 
+@float32_products
 def solve(
     problem: PlanningProblem,
     key: jax.Array,

@@ -40,6 +40,7 @@ import jax
 import jax.numpy as jnp
 
 from driveopt.config import ProjectionConfig
+from driveopt.precision import float32_products
 from driveopt.problem import PlanningProblem, ellipse_axes
 from driveopt.qp import TrajectoryModel, split
 
@@ -492,6 +493,7 @@ def _flat(stacked: jnp.ndarray) -> jnp.ndarray:
     return jnp.concatenate([stacked[0], stacked[1]], axis=1)
 
 
+@float32_products
 def project(
     model: TrajectoryModel,
     problem: PlanningProblem,
@@ -588,6 +590,7 @@ def _per_sample(gamma, B: int, name: str):
     return jnp.reshape(gamma, (B, 1))
 
 
+@float32_products
 def constraint_residuals(
     model: TrajectoryModel, problem: PlanningProblem, coeffs: jnp.ndarray, cfg: ProjectionConfig = ProjectionConfig()
 ) -> Residuals:

@@ -21,6 +21,7 @@ import numpy as np
 
 from driveopt.basis import Basis, make_basis
 from driveopt.config import BasisConfig, QPConfig
+from driveopt.precision import float32_products
 
 NUM_SEGMENTS = 4  # set-points per axis; each holds over a quarter of the horizon
 SETPOINT_DIM = 2 * NUM_SEGMENTS  # p = (v_1..v_4 [m/s], y_1..y_4 [m])
@@ -192,6 +193,7 @@ def boundary_values(
     return jnp.concatenate(parts_x, -1), jnp.concatenate(parts_y, -1)
 
 
+@float32_products
 def solve_setpoint_qp(
     model: TrajectoryModel, setpoints: jnp.ndarray, b_x: jnp.ndarray, b_y: jnp.ndarray,
     acceleration: jnp.ndarray | None = None,
@@ -217,6 +219,7 @@ def split(coeffs: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
     return coeffs[..., :n], coeffs[..., n:]
 
 
+@float32_products
 def qp_layer(model: TrajectoryModel, qp: QPConfig, setpoints, init_x, init_y) -> tuple[jnp.ndarray, jnp.ndarray]:
     """Set-points (B, 8) -> (coefficients (B, 2n), node positions (B, K, 2) [m]): the set-point QP as a
     differentiable layer (the learned priors' decoders end in it)."""
