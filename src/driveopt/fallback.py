@@ -59,7 +59,7 @@ def lateral_target(problem: PlanningProblem, y: jnp.ndarray, target: str | float
     nearest = nearest_lane_center(problem, y)
     if target == LANE_CENTRE:
         return nearest
-    if not isinstance(target, (int, float)):
+    if not isinstance(target, (int, float, jax.Array)):  # a traced number too: the sideways stops are vmapped
         raise ValueError(f"unknown stop target {target!r}")
     return nearest + target * 0.5 * problem.lane_width
 

@@ -329,12 +329,20 @@ def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Cand
     of those would touch a car's box (a car creeping in a jam, inside every ellipse but touching no box, would
     otherwise be steered sideways by the residual, step after step). Residuals and cost terms of all are measured in
     one batch, on their closest polynomials and their own paths."""
-    stops = _stops(cfg) + (tuple((cfg.projection.a_max, target) for target in EVASIONS) if cfg.fallback_evasion else ())
-    paths = [stop_trajectory(problem, jnp.asarray(model.t), decel, target, cfg.fallback_straightens) for decel, target in stops]
-    every = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths)  # (stops, K) fields
+    t = jnp.asarray(model.t)
+    standard = _stops(cfg)
+
+    def stop(decel, target):  # (path, set-points) of one stop
+        return (stop_trajectory(problem, t, decel, target, cfg.fallback_straightens),
+                stop_setpoints(problem, cfg.basis.horizon, decel, target))
+
+    parts = [jax.tree_util.tree_map(lambda a: a[None], stop(*s)) for s in standard]
+    if cfg.fallback_evasion:  # the sideways stops in one traced copy (numeric targets), not one each
+        parts.append(jax.vmap(functools.partial(stop, cfg.projection.a_max))(jnp.asarray(EVASIONS, dtype=jnp.float32)))
+    every, setpoints = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)  # (stops, K) fields, (stops, 8)
     goal = jnp.stack([every.x[:, -1], every.y[:, -1]], axis=-1) if cfg.qp.terminal_position else None
     b_x, b_y = boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
-    n = len(stops)
+    n = every.x.shape[0]
     coeffs = fit_positions(model, every.x, every.y, jnp.broadcast_to(b_x, (n, b_x.shape[-1])), jnp.broadcast_to(b_y, (n, b_y.shape[-1])))
     families = jnp.stack(list(constraint_residuals(model, problem, coeffs, cfg.projection)))  # (4, stops)
     terms = cost_terms(every, problem)
@@ -342,13 +350,12 @@ def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Cand
     total = jnp.sum(families, axis=0)
     feasible = total <= cfg.sampler.residual_tolerance
     score = _ranking_key(cfg.sampler.ranking_cost_weight * cost + total, total, feasible, cfg.sampler)
-    setpoints = jnp.stack([stop_setpoints(problem, cfg.basis.horizon, *stop) for stop in stops])
-    contact = jnp.stack([first_contact(problem, path) for path in paths])
+    contact = jax.vmap(lambda path: first_contact(problem, path))(every)
     if cfg.fallback_evasion:  # the box first, the ellipse on a tie; sideways stops only where both others touch a box
-        nodes, standard = model.t.shape[0], len(_stops(cfg))
-        box = jnp.stack([box_contact(problem, path) for path in paths])
-        sideways_weighed = jnp.all(box[:standard] < nodes)
-        contact = jnp.where((jnp.arange(n) < standard) | sideways_weighed, contact + (nodes + 1) * box, -1)
+        nodes = model.t.shape[0]
+        box = jax.vmap(lambda path: box_contact(problem, path))(every)
+        sideways_weighed = jnp.all(box[:len(standard)] < nodes)
+        contact = jnp.where((jnp.arange(n) < len(standard)) | sideways_weighed, contact + (nodes + 1) * box, -1)
     latest = contact == jnp.max(contact)
     pick = jnp.argmin(jnp.where(latest, total, jnp.inf))  # the first of equals
     term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, stops)
