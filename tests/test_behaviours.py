@@ -279,7 +279,7 @@ def test_the_far_lane_stop_leaves_the_lane_of_the_car_it_would_meet(small_config
     problem = build_problem(scene, small_config.basis)
     nodes = problem.obstacle_x.shape[-1]
     off, on = (small_config.replace(fallback_evasion=flag, projection={"a_max": 5.0}) for flag in (False, True))  # highway-env's
-    assert not PlannerConfig().fallback_evasion and from_dict({"fallback_evasion": True}).fallback_evasion
+    assert PlannerConfig().fallback_evasion and not from_dict({"fallback_evasion": False}).fallback_evasion
     before, after = (plan(problem, c, key=jax.random.PRNGKey(0)).fallback for c in (off, on))
     assert int(first_contact(problem, before)) < nodes and float(before.y[-1]) < 9.5
     assert int(first_contact(problem, after)) == int(box_contact(problem, after)) == nodes and float(after.y[-1]) > 11.0

@@ -45,13 +45,13 @@ def test_baselines_plan_finite_trajectories(name):
 @pytest.mark.parametrize("name", ["random", "grid", "vanilla", "batch"])
 def test_p1_faithful_baselines_differ_only_in_what_p1_did_not_have(name):
     base, p1 = get_optimiser(name), get_optimiser(f"{name}-p1")
-    assert p1.config == base.config.replace(stop_rows=False, fallback_straightens=False, contact_guard=False,
+    assert p1.config == base.config.replace(stop_rows=False, fallback_straightens=False, fallback_evasion=False, contact_guard=False,
                                             sampler={"feasibility_first": False, "structured_fraction": 0.0,
                                                      "ranking_cost_weight": P1_RANKING_COST_WEIGHT},
                                             qp={"initial_lateral_acceleration": True}, cost={"consistency": 0.0},
                                             projection={"course_max": 0.0, "ego_turn_rate": 0.0})
     assert base.config.projection.course_max > 0 and base.config.projection.ego_turn_rate > 0
-    assert base.config.fallback_straightens and base.config.contact_guard
+    assert base.config.fallback_straightens and base.config.fallback_evasion and base.config.contact_guard
     assert p1.make_prior is base.make_prior and p1.fixed_batch == base.fixed_batch and p1.warm_start == base.warm_start
     assert (p1.executes_infeasible, p1.braking_prediction, p1.replan_every) == (True, False, 5)
     assert (base.executes_infeasible, base.braking_prediction, base.replan_every) == (False, True, 1)

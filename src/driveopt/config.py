@@ -242,7 +242,7 @@ class PlannerConfig:
     cost: CostConfig = field(default_factory=CostConfig)
     fallback_deceleration: float = 3.0  # [m/s^2] comfortable braking of the fallback plan
     fallback_straightens: bool = True  # the fallback points along the road when the car stops (driveopt.fallback.easing)
-    fallback_evasion: bool = False  # the fallback also weighs emergency stops that move sideways (to the neighbouring
+    fallback_evasion: bool = True  # the fallback also weighs emergency stops that move sideways (to the neighbouring
     # lane lines and centres) and ranks every stop by its first touch of a car's box before its entry into the car's
     # ellipse (driveopt.fallback.EVASIONS, box_contact)
     contact_guard: bool = True  # closed loop: brake now when a command at crawling speed would take the ego's box

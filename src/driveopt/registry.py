@@ -41,14 +41,14 @@ def _p1_faithful(spec: OptimiserSpec, p1_name: str) -> OptimiserSpec:
     residual leading as in the authors' code (:data:`P1_RANKING_COST_WEIGHT`), no stop rows, independent set-points,
     both initial accelerations imposed, no plan-consistency cost, course bound or per-sample turned box, its plan
     executed feasible or not for five periods, constant-velocity prediction of the nearest neighbours now."""
-    config = spec.config.replace(stop_rows=False, fallback_straightens=False, contact_guard=False,
+    config = spec.config.replace(stop_rows=False, fallback_straightens=False, fallback_evasion=False, contact_guard=False,
                                  sampler={"feasibility_first": False, "structured_fraction": 0.0,
                                           "ranking_cost_weight": P1_RANKING_COST_WEIGHT},
                                  qp={"initial_lateral_acceleration": True}, cost={"consistency": 0.0},
                                  projection={"course_max": 0.0, "ego_turn_rate": 0.0})
     description = (f"P1-faithful {p1_name}: {spec.name} without feasibility-first ranking, stop rows, structured first "
                    "batch, free lateral start, plan consistency, course bound, per-sample turned box, brake-now fallback "
-                   "(nor its straightening), contact guard, braking prediction or approach-ranked neighbours; 5 periods per plan")
+                   "(nor its straightening or sideways stops), contact guard, braking prediction or approach-ranked neighbours; 5 periods per plan")
     return dataclasses.replace(spec, name=f"{spec.name}-p1", description=description, config=config,
                                executes_infeasible=True, braking_prediction=False, approach_selection=False,
                                replan_every=5)
