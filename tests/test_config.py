@@ -25,6 +25,7 @@ def test_round_trip_and_hashable():
         ({"projection": {"v_min": 40.0}}, "v_min"),
         ({"projection": {"course_max": 1.6}}, "course_max must be in"),
         ({"projection": {"course_max": -0.1}}, "course_max must be in"),
+        ({"projection": {"course_min_speed": -1.0}}, "course_min_speed must be in"),
         ({"projection": {"ego_turn_rate": -0.1}}, "ego_turn_rate must be in"),
         ({"cost": {"speed": -1.0}}, "cost.speed"),
         ({"sampler": 5}, "mapping"),

@@ -177,6 +177,24 @@ def test_a_car_turned_across_the_road_plans_its_way_back_within_the_course_bound
     assert float(never_relaxed.residuals.velocity[0]) > 0.5
 
 
+def test_a_crawling_car_is_held_to_the_course_bound_only_above_course_min_speed():
+    """A 2 m lateral move from 0.5 m/s. With the default ``course_min_speed`` (1 m/s, as the curvature bound) the
+    nodes below it have no course bound, and the projection settles on a path that moves sideways, even backwards, at
+    a crawl (course up to about 3 rad) with no residual: the diagonal crawls seen in P2's traffic. With 0.1 m/s every
+    node moving faster than that keeps within the bound, and the move is mostly given up."""
+    problem, target, b_x, b_y = setup(empty_scene(vx=0.5, y=4.0), [[0.5] * 4 + [6.0] * 4])
+    bounded = dataclasses.replace(LOOSE, course_max=0.35)
+    loose = project(MODEL, problem, target, b_x, b_y, bounded)
+    assert float(loose.residuals.velocity[0]) < 0.05 and course(evaluate(MODEL, loose.coeffs)).max() > 1.5
+    held = project(MODEL, problem, target, b_x, b_y, dataclasses.replace(bounded, course_min_speed=0.1))
+    traj = evaluate(MODEL, held.coeffs)
+    moving = np.hypot(np.asarray(traj.vx), np.asarray(traj.vy))[0] > 0.1
+    assert float(held.residuals.velocity[0]) < 0.05
+    assert course(traj)[0][moving].max() < 0.35 + 0.05
+    assert float(traj.y[0, -1]) < 5.0
+    check_boundary(problem, held.coeffs)
+
+
 @pytest.fixture(scope="module")
 def dense_batch():
     problem = build_problem(load_scene("dense-snapshot"))

@@ -147,6 +147,8 @@ class ProjectionConfig:
     recovery_time: float = 3.0  # [s] a car off the lane bounds (or drifting past them), or whose course exceeds
     # ``course_max``, must be back within them by then (0: never relaxed)
     course_max: float = 0.35  # [rad] bound on the angle between the velocity and the road (0: no bound, P1)
+    course_min_speed: float = 1.0  # [m/s] the course bound applies where the speed exceeds this (below it a stopping
+    # car's direction means little; a car that crawls sideways below it is not held to the bound)
     ego_turn_rate: float = 0.179  # [rad/m] > 0: the lateral growth of the ellipses for the ego's turned box lasts, per
     # sample, until its heading has fallen this much per metre the sample travels along the road (a plan that stands keeps
     # it), and at least over the plan's first seconds (problem.ellipse_growth; 0: only those, as before c0f4b76); 0.179 is
@@ -166,6 +168,8 @@ class ProjectionConfig:
         _require(0 <= self.recovery_time <= MAX_HORIZON, f"projection.recovery_time must be in [0, {MAX_HORIZON:g}] s")
         _require(0 <= self.ego_turn_rate <= 10, f"projection.ego_turn_rate must be in [0, 10] rad/m, got {self.ego_turn_rate:g}")
         _require(0 <= self.course_max < math.pi / 2, f"projection.course_max must be in [0, pi/2) rad, got {self.course_max:g}")
+        _require(0 <= self.course_min_speed <= MAX_SPEED,
+                 f"projection.course_min_speed must be in [0, {MAX_SPEED:g}] m/s, got {self.course_min_speed:g}")
         for name in ("gamma_obs", "gamma_lane"):
             value = getattr(self, name)
             _require(0 < value <= 1, f"projection.{name} must be in (0, 1], got {value:g}")

@@ -434,12 +434,12 @@ def _analysis_step(
     v_hi = jnp.minimum(cfg.v_max, jnp.sqrt(cfg.centripetal_max / jnp.maximum(uvx * uvx * road_k, _EPS)))
     # Course bound: a velocity turned further from the road than the bound goes to the nearest point of the
     # bound's ray, of length |v| cos(course - bound) (then the speed bounds apply); no bound (P1): as it is.
-    # Like the curvature bound it applies above CURVATURE_MIN_SPEED: a stopping car's direction means nothing.
+    # It applies above ``course_min_speed`` (by default CURVATURE_MIN_SPEED, as the curvature bound).
     along = speed
     dir_x, dir_y = uvx, uvy
     if cfg.course_max > 0:
         cos_b, sin_b = ops.course[0], ops.course[1]
-        turned = (uvx < cos_b) & turning
+        turned = (uvx < cos_b) & (speed > cfg.course_min_speed)
         dir_x = jnp.where(turned, cos_b, uvx)
         dir_y = jnp.where(turned, jnp.where(uvy < 0, -sin_b, sin_b), uvy)
         along = jnp.where(turned, jnp.maximum(vx * cos_b + jnp.abs(vy) * sin_b, 0.0), speed)
