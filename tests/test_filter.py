@@ -350,6 +350,10 @@ def test_training_resumes_without_repeating_epochs_and_refuses_other_settings(da
         assert a == pytest.approx(b, rel=1e-5)
     again = train_filter(data_file, tmp_path, CFG, TCFG, config=PLANNER.config, progress=False)  # nothing left to do
     assert again["history"] == resumed["history"]
+    meta, state = load_checkpoint(tmp_path / "last.ckpt", fl.CHECKPOINT_KIND)
+    del meta["projection"]["course_min_speed"]  # written before that setting existed, so it ran at its default
+    save_checkpoint(tmp_path / "last.ckpt", fl.CHECKPOINT_KIND, state, meta)
+    assert train_filter(data_file, tmp_path, CFG, TCFG, config=PLANNER.config, progress=False)["history"] == resumed["history"]
     with pytest.raises(CheckpointError, match="other settings"):
         train_filter(data_file, tmp_path, CFG, dataclasses.replace(TCFG, residual_weight=1.0), config=PLANNER.config, progress=False)
     with pytest.raises(CheckpointError, match="another network configuration"):
