@@ -235,11 +235,11 @@ def training_prior(samples_from: str, lanes: list[int], config: PlannerConfig, w
 def _check_resume(path: Path, meta: dict[str, Any], expected: dict[str, Any], tcfg: TrainConfig) -> None:
     """CheckpointError unless ``path``'s meta has ``expected``'s network configuration, prior, projection, data record
     and the same training settings (epochs aside)."""
-    stored = {**meta}
+    recorded = dict(meta)
     if isinstance(meta.get("projection"), dict):  # a setting added since it was written ran at its default, as before
-        stored["projection"] = {**dataclasses.asdict(ProjectionConfig()), **meta["projection"]}
+        recorded["projection"] = {**dataclasses.asdict(ProjectionConfig()), **meta["projection"]}
     for key, what in (("config", "network configuration"), ("prior", "prior"), ("projection", "projection")):
-        if stored.get(key) != json.loads(json.dumps(expected[key])):
+        if recorded.get(key) != json.loads(json.dumps(expected[key])):
             raise CheckpointError(f"{path} was trained with another {what} ({meta.get(key)}, now {expected[key]}); use a new --out")
     stored = dict(meta.get("train_config", {}))
     mismatch = {k: (stored.get(k), v) for k, v in dataclasses.asdict(tcfg).items() if k != "epochs" and stored.get(k) != v}
