@@ -245,9 +245,7 @@ def test_malformed_filters_and_filters_for_another_basis_are_refused(trained):
 # ------------------------------------------------------------------------------------------ the loss and training
 
 
-def training_step(trained, data_file):
-    """(the trained filter, the training step's own compiled loss-and-gradient of a minibatch as a function of the
-    parameters, the residual weight and the residual cap)."""
+def test_grad_of_the_eq9_loss_is_finite_and_matches_finite_differences(trained, data_file):
     learned = load_filter(trained[0] / "filter.ckpt")
     data = load_demonstrations(data_file)
     rows = np.arange(TCFG.batch_size)
@@ -257,16 +255,11 @@ def training_step(trained, data_file):
     problems = jax.tree_util.tree_map(jnp.asarray, problems)
     prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
     setpoints = _draw(prior, problems, jax.random.split(jax.random.PRNGKey(5), len(rows)), TCFG.samples)
+    weight = jnp.float32(TCFG.residual_weight)
 
-    def evaluate(params, weight=TCFG.residual_weight, cap=0.0):
-        return value_and_grad(params, learned.normaliser, problems, setpoints, jnp.float32(weight), learned.config, config,
-                              jnp.float32(cap))
+    def evaluate(params):  # the training step's own compiled function
+        return value_and_grad(params, learned.normaliser, problems, setpoints, weight, learned.config, config)
 
-    return learned, evaluate
-
-
-def test_grad_of_the_eq9_loss_is_finite_and_matches_finite_differences(trained, data_file):
-    learned, evaluate = training_step(trained, data_file)
     (value, terms), grad = evaluate(learned.params)
     leaves = jax.tree_util.tree_leaves(grad)
     assert np.isfinite(float(value)) and all(np.all(np.isfinite(np.asarray(g))) for g in leaves)
@@ -285,25 +278,6 @@ def test_grad_of_the_eq9_loss_is_finite_and_matches_finite_differences(trained, 
     numeric = (float(evaluate(shifted(1.0))[0][0]) - float(evaluate(shifted(-1.0))[0][0])) / (2 * eps)
     assert analytic > 1.0, (analytic, numeric)
     assert analytic == pytest.approx(numeric, rel=3e-2), (analytic, numeric)
-
-
-def test_a_residual_cap_counts_each_sample_up_to_the_cap(trained, data_file):
-    """``residual_cap`` 0 is eq. 9 (penalty = residual); a cap below the infeasible samples' residuals leaves the
-    penalty under the cap and takes the residual out of the gradient: what is left is the correction's."""
-    learned, evaluate = training_step(trained, data_file)
-    (value, terms), grad = evaluate(learned.params)
-    assert float(terms["penalty"]) == float(terms["residual"]) > 0
-    assert float(value) == pytest.approx(float(terms["correction"]) + TCFG.residual_weight * float(terms["residual"]), rel=1e-6)
-    cap = 1e-4 * float(terms["residual"])
-    (_, capped), capped_grad = evaluate(learned.params, cap=cap)
-    assert float(capped["residual"]) == float(terms["residual"])
-    assert 0 < float(capped["penalty"]) <= cap * (1 + 1e-6)
-    (_, _), correction_grad = evaluate(learned.params, weight=0.0)
-    for g, c, full in zip(*(jax.tree_util.tree_leaves(t) for t in (capped_grad, correction_grad, grad))):
-        scale = float(jnp.max(jnp.abs(full)))
-        np.testing.assert_allclose(np.asarray(g), np.asarray(c), atol=1e-3 * scale)
-    assert any(float(jnp.max(jnp.abs(g - c))) > 1e-2 * float(jnp.max(jnp.abs(g)))
-               for g, c in zip(jax.tree_util.tree_leaves(grad), jax.tree_util.tree_leaves(correction_grad)))
 
 
 def test_the_eq9_loss_falls_on_a_small_dataset(trained):
@@ -419,7 +393,6 @@ def test_train_filter_command_resumes_and_reports_bad_input_in_one_line(data_fil
         (["--samples-from", "gaussian", "--prior-weights", str(data_file)], "--prior-weights is for --samples-from vqvae or cvae"),
         (["--lr", "-1"], "learning_rate must be a finite number > 0"),
         (["--residual-weight", "nan"], "residual_weight must be a finite number"),
-        (["--residual-cap", "-0.5"], "residual_cap must be a finite number >= 0, got -0.5"),
         (["--gamma-min", "1.5"], "gamma_min must be a finite number > 0 and < 1, got 1.5"),
         (["--planner", "idm"], "does not plan with the optimiser"),
     ):

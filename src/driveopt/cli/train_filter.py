@@ -27,8 +27,6 @@ def register_models(models) -> None:
     p.add_argument("--unroll", type=positive_int, default=25,
                    help="projection iterations unrolled (the authors: 5; 25: the planner's iterations the filter is meant for)")
     p.add_argument("--residual-weight", type=float, default=1000.0, help="s of P2 eq. 9 [m^2 per unit of residual]")
-    p.add_argument("--residual-cap", type=float, default=0.0,
-                   help="count each sample's residual in the loss up to this at most (0: no cap, P2's eq. 9)")
     p.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate (x0.1 every 20 epochs)")
     p.add_argument("--hidden", type=positive_int, nargs="+", default=[256, 256, 256, 256], help="MLP widths")
     p.add_argument("--gamma-min", type=float, default=0.5,
@@ -51,8 +49,8 @@ def run_filter(args: argparse.Namespace) -> int:
     spec = get_optimiser(args.planner)
     cfg = FilterConfig(hidden=tuple(args.hidden), gamma_min=args.gamma_min, basis=spec.config.basis)
     tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, samples=args.samples, unroll=args.unroll,
-                       residual_weight=args.residual_weight, residual_cap=args.residual_cap,
-                       samples_from=args.samples_from, learning_rate=args.lr, validation_fraction=args.validation, train_episodes=args.train_episodes, seed=args.seed)
+                       residual_weight=args.residual_weight, samples_from=args.samples_from, learning_rate=args.lr,
+                       validation_fraction=args.validation, train_episodes=args.train_episodes, seed=args.seed)
     summary = train_filter(args.data, args.out, cfg, tcfg, config=spec.config, prior_weights=args.prior_weights,
                            validation_paths=args.validation_data, save_every=args.save_every)
     last = summary["history"][-1] if summary["history"] else {}

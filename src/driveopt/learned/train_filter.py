@@ -84,7 +84,6 @@ class TrainConfig:
     samples: int = 64  # [-] trajectories drawn from the prior per observation
     unroll: int = 25  # [-] projection iterations unrolled (the authors': 5; 25 is what the planner runs in P2 Fig. 8's target)
     residual_weight: float = 1000.0  # [m^2] s of eq. 9, per unit of total residual (m, m/s, m/s^2 summed, as ranked)
-    residual_cap: float = 0.0  # [-] a sample's residual counts in the loss up to this at most (0: no cap, P2's eq. 9)
     samples_from: str = "vqvae"  # [-] the prior the samples come from: vqvae | cvae | gaussian
     learning_rate: float = 1e-3  # [-] AdamW initial rate
     weight_decay: float = 6e-5  # [-]
@@ -100,7 +99,6 @@ class TrainConfig:
                               ("train_episodes", 0), ("seed", 0)):
             check_count(f"TrainConfig.{name}", getattr(self, name), minimum)
         check_number("TrainConfig.residual_weight", self.residual_weight, 0.0, unit="m^2")
-        check_number("TrainConfig.residual_cap", self.residual_cap, 0.0)
         check_number("TrainConfig.learning_rate", self.learning_rate, 0.0, low_open=True)
         check_number("TrainConfig.weight_decay", self.weight_decay, 0.0)
         check_number("TrainConfig.decay_factor", self.decay_factor, 0.0, 1.0, low_open=True)
@@ -114,31 +112,28 @@ class TrainConfig:
 
 
 def eq9_terms(params, cfg: fl.FilterConfig, norm: fl.Normaliser, problem: PlanningProblem, setpoints: jnp.ndarray,
-              config: PlannerConfig, residual_cap=0.0) -> dict[str, jnp.ndarray]:
-    """For one observation and its samples (S, 8): the mean over samples of the correction |xi_bar* - xi|^2 [m^2], of
-    the plain-constraint residual of xi_bar* and of that residual capped at ``residual_cap`` (the loss's ``penalty``;
-    a cap of 0 caps nothing), and the share of samples within the residual tolerance."""
+              config: PlannerConfig) -> dict[str, jnp.ndarray]:
+    """For one observation and its samples (S, 8): the mean over samples of the correction |xi_bar* - xi|^2 [m^2] and
+    of the plain-constraint residual of xi_bar*, and the share of samples within the residual tolerance."""
     model = make_model(config.basis, config.qp)
     qp_coeffs, b_x, b_y = setpoint_batch(model, problem, config, setpoints)
     proj = project_batch(model, problem, config, qp_coeffs, b_x, b_y, LearnedFilter(params, norm, cfg), unroll=True)
     residual = constraint_residuals(model, problem, proj.coeffs, config.projection).total
-    counted = jnp.where(residual_cap > 0, jnp.minimum(residual, residual_cap), residual)
     return {"correction": jnp.mean(jnp.sum((proj.coeffs - qp_coeffs) ** 2, axis=-1)), "residual": jnp.mean(residual),
-            "penalty": jnp.mean(counted), "feasible": jnp.mean(residual <= config.sampler.residual_tolerance)}
+            "feasible": jnp.mean(residual <= config.sampler.residual_tolerance)}
 
 
 def batch_terms(params, cfg: fl.FilterConfig, norm: fl.Normaliser, problems: PlanningProblem, setpoints: jnp.ndarray,
-                config: PlannerConfig, residual_cap=0.0) -> dict[str, jnp.ndarray]:
+                config: PlannerConfig) -> dict[str, jnp.ndarray]:
     """:func:`eq9_terms` of R observations (``problems`` stacked, ``setpoints`` (R, S, 8)), each (R,)."""
-    return jax.vmap(lambda p, s: eq9_terms(params, cfg, norm, p, s, config, residual_cap))(problems, setpoints)
+    return jax.vmap(lambda p, s: eq9_terms(params, cfg, norm, p, s, config))(problems, setpoints)
 
 
 def loss(params, cfg: fl.FilterConfig, norm: fl.Normaliser, problems: PlanningProblem, setpoints: jnp.ndarray,
-         config: PlannerConfig, residual_weight, residual_cap=0.0) -> tuple[jnp.ndarray, dict[str, jnp.ndarray]]:
-    """P2 eq. 9 (with ``residual_cap``: each sample's residual capped), the mean over observations and samples:
-    (loss, terms means)."""
-    terms = {k: jnp.mean(v) for k, v in batch_terms(params, cfg, norm, problems, setpoints, config, residual_cap).items()}
-    return terms["correction"] + residual_weight * terms["penalty"], terms
+         config: PlannerConfig, residual_weight) -> tuple[jnp.ndarray, dict[str, jnp.ndarray]]:
+    """P2 eq. 9, the mean over observations and samples: (loss, terms means)."""
+    terms = {k: jnp.mean(v) for k, v in batch_terms(params, cfg, norm, problems, setpoints, config).items()}
+    return terms["correction"] + residual_weight * terms["residual"], terms
 
 
 # Jitted at module level, configurations static: trainings with equal settings share their compilations.
@@ -151,10 +146,9 @@ def _draw(prior: Any, problems: PlanningProblem, keys: jax.Array, num: int) -> j
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "config"))
-def value_and_grad(params, norm, problems, setpoints, residual_weight, cfg, config, residual_cap=0.0):
+def value_and_grad(params, norm, problems, setpoints, residual_weight, cfg, config):
     """((loss, terms), gradient with respect to ``params``) of :func:`loss`, jitted (the training step's)."""
-    return jax.value_and_grad(loss, has_aux=True)(params, cfg, norm, problems, setpoints, config, residual_weight,
-                                                  residual_cap)
+    return jax.value_and_grad(loss, has_aux=True)(params, cfg, norm, problems, setpoints, config, residual_weight)
 
 
 @functools.partial(jax.jit, static_argnames=("optimiser",))
@@ -164,8 +158,8 @@ def _update(params, grads, opt_state, optimiser):
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "config"))
-def _terms(params, norm, problems, setpoints, cfg, config, residual_cap):
-    return batch_terms(params, cfg, norm, problems, setpoints, config, residual_cap)
+def _terms(params, norm, problems, setpoints, cfg, config):
+    return batch_terms(params, cfg, norm, problems, setpoints, config)
 
 
 @functools.lru_cache(maxsize=16)  # one object per setting: the jitted step takes it as a static argument
@@ -247,7 +241,7 @@ def _check_resume(path: Path, meta: dict[str, Any], expected: dict[str, Any], tc
     for key, what in (("config", "network configuration"), ("prior", "prior"), ("projection", "projection")):
         if recorded.get(key) != json.loads(json.dumps(expected[key])):
             raise CheckpointError(f"{path} was trained with another {what} ({meta.get(key)}, now {expected[key]}); use a new --out")
-    stored = {**dataclasses.asdict(TrainConfig()), **meta.get("train_config", {})}  # a setting added since: its default
+    stored = dict(meta.get("train_config", {}))
     mismatch = {k: (stored.get(k), v) for k, v in dataclasses.asdict(tcfg).items() if k != "epochs" and stored.get(k) != v}
     if mismatch:
         raise CheckpointError(f"{path} was trained with other settings {mismatch} (stored, now); use a new --out")
@@ -320,7 +314,6 @@ def train_filter(
         partial = meta.get("partial")
     _make_folder(out)
 
-    weight, cap = jnp.float32(tcfg.residual_weight), jnp.float32(tcfg.residual_cap)
     validate, baseline = None, None
     if val_problems is not None:  # the same samples every epoch
         val_keys = jax.random.split(jax.random.fold_in(key, 2**30), len(val_rows))
@@ -330,32 +323,32 @@ def train_filter(
 
         def validate(p):
             parts = _chunks([*leaves, val_setpoints], lambda *a: _terms(
-                p, normaliser, jax.tree_util.tree_unflatten(treedef, a[:-1]), a[-1], cfg, run_config, cap), batch_size)
+                p, normaliser, jax.tree_util.tree_unflatten(treedef, a[:-1]), a[-1], cfg, run_config), batch_size)
             terms = {k: float(np.mean(np.concatenate([part[k] for part in parts]))) for k in parts[0]}
-            return {**terms, "loss": terms["correction"] + tcfg.residual_weight * terms["penalty"]}
+            return {**terms, "loss": terms["correction"] + tcfg.residual_weight * terms["residual"]}
 
         baseline = validate(fl.plain_params(params, cfg, run_config.projection.gamma_obs, run_config.projection.gamma_lane))
 
+    weight = jnp.float32(tcfg.residual_weight)
     bar = epoch_bar(len(history), tcfg, stop_after, "train filter", progress)
     start = saved = time.perf_counter()
     steps_run, stopped = 0, False
     for epoch in bar:
         epoch_key = jax.random.fold_in(key, epoch + 1)
-        sums = {"loss": 0.0, "correction": 0.0, "residual": 0.0, "penalty": 0.0, "feasible": 0.0}
+        sums = {"loss": 0.0, "correction": 0.0, "residual": 0.0, "feasible": 0.0}
         done = 0
         if partial is not None and partial.get("epoch") == epoch + 1:  # resume inside this epoch
-            stored = {"penalty": partial["sums"]["residual"], **partial["sums"]}  # before the cap, penalty = residual
-            done, sums = int(partial["steps"]), {k: float(stored[k]) for k in sums}
+            done, sums = int(partial["steps"]), {k: float(partial["sums"][k]) for k in sums}
         partial = None
         for i, idx in enumerate(minibatches(epoch_key, len(train_rows), batch_size, steps_per_epoch)):
             if i < done:
                 continue
             problems = _take(train_problems, idx)
             setpoints = _draw(prior, problems, jax.random.split(jax.random.fold_in(epoch_key, i + 1), len(idx)), tcfg.samples)
-            (value, terms), grads = value_and_grad(params, normaliser, problems, setpoints, weight, cfg, run_config, cap)
+            (value, terms), grads = value_and_grad(params, normaliser, problems, setpoints, weight, cfg, run_config)
             params, opt_state = _update(params, grads, opt_state, optimiser)
             sums["loss"] += float(value)
-            for k in ("correction", "residual", "penalty", "feasible"):
+            for k in ("correction", "residual", "feasible"):
                 sums[k] += float(terms[k])
             bar.set_postfix_str(f"step {i + 1}/{steps_per_epoch} train {sums['loss'] / (i + 1):.2f}")
             steps_run += 1
