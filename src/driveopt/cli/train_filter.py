@@ -53,10 +53,15 @@ def run_filter(args: argparse.Namespace) -> int:
                        validation_fraction=args.validation, train_episodes=args.train_episodes, seed=args.seed)
     summary = train_filter(args.data, args.out, cfg, tcfg, config=spec.config, prior_weights=args.prior_weights,
                            validation_paths=args.validation_data, save_every=args.save_every)
-    last = summary["history"][-1] if summary["history"] else {}
-    baseline = summary["baseline"]
-    plain = f" (plain filter {baseline['loss']:.2f})" if baseline else ""
+    last, kept, baseline = (summary["history"] or [{}])[-1], summary["kept"], summary["baseline"]
+    if kept and "val_feasible" in kept:
+        plain = f" (plain filter {baseline['feasible']:.1%}, {baseline['loss']:.2f})"
+        chosen = f"kept epoch {kept['epoch']}: {kept['val_feasible']:.1%} of validation samples feasible, loss {kept['val_loss']:.2f}{plain}"
+    elif kept:
+        chosen = f"kept epoch {kept['epoch']}: {kept['train_feasible']:.1%} of training samples feasible"
+    else:
+        chosen = "no epoch finished yet"
     print(f"trained {summary['epochs']} epochs on {summary['rows']['train']} observations ({summary['rows']['validation']} "
-          f"validation) in {summary['seconds']:.0f} s; last train loss {last.get('train_loss', float('nan')):.2f}, "
-          f"best validation loss {summary['best_val_loss']:.2f}{plain}; weights: {summary['weights'] or 'none written yet'}")
+          f"validation) in {summary['seconds']:.0f} s; last train loss {last.get('train_loss', float('nan')):.2f}; "
+          f"{chosen}; weights: {summary['weights'] or 'none written yet'}")
     return 0

@@ -25,9 +25,9 @@ the samples as first iterate, zero multipliers; ``val_feasible``: share of sampl
 planner's residual tolerance).
 
 Optimiser: AdamW with a step decay. Output folder, as the other trainers: ``last.ckpt`` (resume
-state), ``filter.ckpt`` (lowest validation loss: what ``--filter-weights`` and the ``vqvae-filter``
-planner load) and ``history.json``, written atomically after every epoch; ``last.ckpt`` also every ``save_every``
-seconds within an epoch (the steps done and their running sums: an epoch of 20 000 observations takes about an hour
+state), ``filter.ckpt`` (the best epoch by :func:`selection_key`: the most validation samples feasible, then
+the lowest validation loss; what ``--filter-weights`` and the ``vqvae-filter`` planner load) and ``history.json``,
+written atomically after every epoch; ``last.ckpt`` also every ``save_every`` seconds within an epoch (the steps done and their running sums: an epoch of 20 000 observations takes about an hour
 on 2 cores). Rerunning resumes, mid-epoch too: each step's minibatch and samples follow from the seed, the epoch and
 the step, so a resumed run takes the same steps as an uninterrupted one. A
 checkpoint from other data, another split, other settings, another prior or projection is refused
@@ -251,6 +251,15 @@ def _check_resume(path: Path, meta: dict[str, Any], expected: dict[str, Any], tc
 # ------------------------------------------------------------------------------------------- training
 
 
+def selection_key(record: dict[str, Any]) -> tuple[float, float]:
+    """How an epoch's history record ranks for ``filter.ckpt`` (higher is better): the share of validation samples
+    feasible after the unrolled iterations, then the lower validation loss (without validation rows: the same on the
+    training epoch). Eq. 9's loss can fall while that share falls (README, the filter's fifth round), and the share
+    is what the planner's pick needs."""
+    split = "val" if "val_feasible" in record else "train"
+    return record[f"{split}_feasible"], -record[f"{split}_loss"]
+
+
 def train_filter(
     data_paths: str | Path | Sequence[str | Path],
     out_dir: str | Path,
@@ -301,7 +310,6 @@ def train_filter(
     normaliser = fl.fit_normaliser(data.observation[train_rows], data.init_y[train_rows, 0], data.coeffs[train_rows], cfg)
     opt_state = optimiser.init(params)
     history: list[dict[str, Any]] = []
-    best = float("inf")
     partial = None  # {"epoch", "steps", "sums"} of an epoch that a mid-epoch save left unfinished
     last = out / "last.ckpt"
     if last.exists():
@@ -310,7 +318,7 @@ def train_filter(
         target = {"params": params, "normaliser": normaliser, "opt_state": opt_state}
         restored = restore(target, {k: state.get(k) for k in target}, last, "the training state")
         params, normaliser, opt_state = restored["params"], fl.Normaliser(*restored["normaliser"]), restored["opt_state"]
-        history, best = list(meta.get("history", [])), float(meta.get("best", float("inf")))
+        history = list(meta.get("history", []))
         partial = meta.get("partial")
     _make_folder(out)
 
@@ -330,6 +338,7 @@ def train_filter(
         baseline = validate(fl.plain_params(params, cfg, run_config.projection.gamma_obs, run_config.projection.gamma_lane))
 
     weight = jnp.float32(tcfg.residual_weight)
+    best = max(map(selection_key, history), default=None)
     bar = epoch_bar(len(history), tcfg, stop_after, "train filter", progress)
     start = saved = time.perf_counter()
     steps_run, stopped = 0, False
@@ -355,7 +364,7 @@ def train_filter(
             stopped = stop_after_steps is not None and steps_run >= stop_after_steps
             if i + 1 < steps_per_epoch and (stopped or time.perf_counter() - saved >= save_every):
                 save_checkpoint(last, fl.CHECKPOINT_KIND, {"params": params, "normaliser": normaliser, "opt_state": opt_state},
-                                {**meta_base, "epoch": epoch, "history": history, "baseline": baseline, "best": best,
+                                {**meta_base, "epoch": epoch, "history": history, "baseline": baseline,
                                  "partial": {"epoch": epoch + 1, "steps": i + 1, "sums": sums}})
                 saved = time.perf_counter()
                 if stopped:
@@ -369,13 +378,11 @@ def train_filter(
         if validate is not None:
             record.update({f"val_{k}": v for k, v in validate(params).items()})
         history.append(record)
-        score = record.get("val_loss", record["train_loss"])
         meta = {**meta_base, "epoch": epoch + 1, "history": history, "baseline": baseline}
-        if score < best:
-            best = score
+        if best is None or selection_key(record) > best:
+            best = selection_key(record)
             save_checkpoint(out / "filter.ckpt", fl.CHECKPOINT_KIND, {"params": params, "normaliser": normaliser}, meta)
-        save_checkpoint(last, fl.CHECKPOINT_KIND, {"params": params, "normaliser": normaliser, "opt_state": opt_state},
-                        {**meta, "best": best})
+        save_checkpoint(last, fl.CHECKPOINT_KIND, {"params": params, "normaliser": normaliser, "opt_state": opt_state}, meta)
         saved = time.perf_counter()
         (out / "history.json").write_text(json.dumps(history, indent=1))
         bar.set_postfix_str(f"train {record['train_loss']:.2f} val {record.get('val_loss', float('nan')):.2f}")
@@ -383,5 +390,6 @@ def train_filter(
             break
     bar.close()
     weights = out / "filter.ckpt"
-    return {"epochs": len(history), "history": history, "best_val_loss": best, "baseline": baseline, "rows": meta_base["rows"],
+    kept = next((r for r in history if selection_key(r) == best), None)
+    return {"epochs": len(history), "history": history, "kept": kept, "baseline": baseline, "rows": meta_base["rows"],
             "seconds": time.perf_counter() - start, "out": str(out), "weights": str(weights) if weights.exists() else None}
