@@ -56,7 +56,8 @@ def run_filter(args: argparse.Namespace) -> int:
     last, kept, baseline = (summary["history"] or [{}])[-1], summary["kept"], summary["baseline"]
     if kept and "val_feasible" in kept:
         plain = f" (plain filter {baseline['feasible']:.1%}, {baseline['loss']:.2f})"
-        chosen = f"kept epoch {kept['epoch']}: {kept['val_feasible']:.1%} of validation samples feasible, loss {kept['val_loss']:.2f}{plain}"
+        chosen = (f"kept epoch {kept['epoch']}: {kept['val_feasible']:.1%} of validation samples feasible, "
+                  f"loss {kept['val_loss']:.2f}{plain}")
     elif kept:
         chosen = f"kept epoch {kept['epoch']}: {kept['train_feasible']:.1%} of training samples feasible"
     else:

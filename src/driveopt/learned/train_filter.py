@@ -27,12 +27,12 @@ planner's residual tolerance).
 Optimiser: AdamW with a step decay. Output folder, as the other trainers: ``last.ckpt`` (resume
 state), ``filter.ckpt`` (the best epoch by :func:`selection_key`: the most validation samples feasible, then
 the lowest validation loss; what ``--filter-weights`` and the ``vqvae-filter`` planner load) and ``history.json``,
-written atomically after every epoch; ``last.ckpt`` also every ``save_every`` seconds within an epoch (the steps done and their running sums: an epoch of 20 000 observations takes about an hour
-on 2 cores). Rerunning resumes, mid-epoch too: each step's minibatch and samples follow from the seed, the epoch and
-the step, so a resumed run takes the same steps as an uninterrupted one. A
-checkpoint from other data, another split, other settings, another prior or projection is refused
-with the reason; settings are checked before the data is read, and a non-finite training loss stops
-with :class:`~driveopt.learned.train_cvae.TrainingError`.
+written atomically after every epoch; ``last.ckpt`` also every ``save_every`` seconds within an epoch (the steps
+done and their running sums: an epoch of 20 000 observations takes about an hour on 2 cores). Rerunning resumes,
+mid-epoch too: each step's minibatch and samples follow from the seed, the epoch and the step, so a resumed run
+takes the same steps as an uninterrupted one. A checkpoint from other data, another split, other settings, another
+prior or projection is refused with the reason; settings are checked before the data is read, and a non-finite
+training loss stops with :class:`~driveopt.learned.train_cvae.TrainingError`.
 """
 
 from __future__ import annotations
