@@ -390,6 +390,5 @@ def train_filter(
             break
     bar.close()
     weights = out / "filter.ckpt"
-    kept = next((r for r in history if selection_key(r) == best), None)
-    return {"epochs": len(history), "history": history, "kept": kept, "baseline": baseline, "rows": meta_base["rows"],
+    return {"epochs": len(history), "history": history, "kept": max(history, key=selection_key, default=None), "baseline": baseline, "rows": meta_base["rows"],
             "seconds": time.perf_counter() - start, "out": str(out), "weights": str(weights) if weights.exists() else None}
