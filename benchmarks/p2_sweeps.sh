@@ -19,7 +19,7 @@ sweep() {
 }
 
 # Issue 15's target pair: the learned filter at 25 iterations against the plain filter at 100.
-sweep --figure fig8a --planners vqvae-filter vqvae --x 25 100
+sweep --figure fig8a --planners vqvae vqvae-filter --x 25 100
 # Issue 14: P2 Fig. 7, dense traffic (the references first), then slow traffic.
 sweep --figure fig7 --scenarios p2-four-lane-d3.0 --planners bilevel-p1 idm cvae-filter vqvae-cem
 sweep --figure fig7 --scenarios p2-four-lane-d1.5-slow
