@@ -1,7 +1,7 @@
 """Planning time of P2's one-pass pipeline against its filter iterations: learned filter against plain (issue 15).
 
     python benchmarks/filter_timing.py --json out/filter_timing.json [--iterations 0 10 25 50 100] [--calls 30]
-        [--samples 1000] [--problem dense-snapshot] [--filter-weights FILE] [--vqvae-weights FILE]
+        [--samples 1000] [--problem dense-snapshot] [--filter-weights FILE] [--vqvae-weights FILE] [--learned-config overrides.json]
 
 For each filter iteration count k (``projection.max_iterations``) the plain barrier filter (``vqvae``) and the learned
 one (``vqvae-filter``) are compiled on one problem (the built-in 10-neighbour ``dense-snapshot`` by default), each with
@@ -10,7 +10,10 @@ round, round-robin, ``--calls`` rounds with fresh PRNG keys, so that drift of th
 Reported per case: compile time (first call minus the steady-state median) and the steady-state median and p90 of a
 full ``plan()`` call [ms]; and for each k, the learned filter's median as a share of the plain filter's at
 ``--reference`` iterations (100: issue 15's target is the learned filter at 25 under 40% of the plain one at 100).
-The JSON is written once the compile phase ends and again at the end.
+``--learned-config`` applies planner-config overrides (the JSON of ``driveopt plan --config``) to the learned filter's
+cases only, before the iteration count (e.g. ``{"sampler": {"refine_samples": 20}}``: a variant of the learned
+pipeline against the plain filter as it is). The JSON is written once the compile phase ends and
+again at the end.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import jax
 import numpy as np
 from tqdm import tqdm
 
+from driveopt.cli.common import config_overrides
 from driveopt.errors import DriveoptError
 from driveopt.planner import plan
 from driveopt.problem import build_problem
@@ -53,6 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--problem", default="dense-snapshot", help="built-in problem or problem JSON file")
     parser.add_argument("--filter-weights", help="learned-filter checkpoint (default: shipped for the road)")
     parser.add_argument("--vqvae-weights", help="PixelCNN checkpoint (default: shipped for the road)")
+    parser.add_argument("--learned-config", help="planner-config overrides (JSON) for the learned filter's cases")
     args = parser.parse_args(argv)
     try:
         if args.calls < 1 or args.samples < 1 or min(args.iterations) < 0:
@@ -74,16 +79,17 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> dict:
+    overrides = config_overrides(args.learned_config)
     scene = load_scene(args.problem)
     lanes = scene.road.num_lanes
     cases = {}
     for k in args.iterations:
         for variant, name in PLANNERS:
             spec = get_optimiser(name).with_weights(args.vqvae_weights).with_samples(args.samples)
-            overrides = {"projection": {"max_iterations": k}}
-            if variant == "learned" and args.filter_weights:
-                overrides["safety_filter"] = {"weights": args.filter_weights}
-            spec = spec.with_overrides(**overrides)
+            if variant == "learned":
+                spec = spec.with_overrides(**overrides, **({"safety_filter": {"weights": args.filter_weights}}
+                                                           if args.filter_weights else {}))
+            spec = spec.with_overrides(projection={"max_iterations": k})
             problem = build_problem(scene, spec.config.basis, braking_time=spec.braking_time,
                                     selection_time=spec.selection_time)
             cases[f"{variant}-{k}"] = dict(config=spec.config, prior=spec.prior(lanes),
@@ -96,7 +102,7 @@ def run(args: argparse.Namespace) -> dict:
         return time.perf_counter() - start
 
     first = {name: call(case, 0) for name, case in tqdm(cases.items(), desc="compile", unit="case")}
-    report = {"problem": scene.name, "samples": args.samples, "calls": args.calls, "reference": args.reference,
+    report = {"problem": scene.name, "samples": args.samples, "learned_config": overrides, "calls": args.calls, "reference": args.reference,
               "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "jax": jax.__version__,
                           "backend": jax.default_backend()},
               "cases": {name: {"first_call_s": t} for name, t in first.items()}}

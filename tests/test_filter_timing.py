@@ -14,22 +14,26 @@ def timing():
     return benchmark_scripts.load("filter_timing")
 
 
-def test_each_case_plans_with_its_iterations_and_only_the_learned_ones_with_a_filter(timing, tmp_path, monkeypatch):
+def test_each_case_plans_with_its_iterations_and_only_the_learned_ones_with_a_filter_and_their_overrides(timing, tmp_path, monkeypatch):
     seen = []
     real = timing.plan
 
     def recording_plan(problem, config, **kwargs):
-        seen.append((config.projection.max_iterations, config.sampler.num_samples, kwargs["safety_filter"] is not None))
+        seen.append((config.projection.max_iterations, config.sampler.num_samples, config.sampler.refine_samples,
+                     kwargs["safety_filter"] is not None))
         return real(problem, config, **kwargs)
 
     monkeypatch.setattr(timing, "plan", recording_plan)
     out = tmp_path / "t.json"
+    learned_config = tmp_path / "learned.json"
+    learned_config.write_text(json.dumps({"sampler": {"refine_samples": 3}, "projection": {"max_iterations": 50}}))
     assert timing.main(["--json", str(out), "--iterations", "2", "--reference", "2", "--calls", "2",
-                        "--samples", "16"]) == 0
+                        "--samples", "16", "--learned-config", str(learned_config)]) == 0
     report = json.loads(out.read_text())
     assert set(report["cases"]) == {"plain-2", "learned-2"}
-    # one compile call and two round-robin calls per case, each with its own settings
-    assert sorted(set(seen)) == [(2, 16, False), (2, 16, True)]
+    # one compile call and two round-robin calls per case, each with its own settings: the iteration count wins over
+    # the learned cases' overrides, which the plain ones do not get
+    assert sorted(set(seen)) == [(2, 16, 0, False), (2, 16, 3, True)]
     assert all(seen.count(case) == 3 for case in set(seen))
     for name, case in report["cases"].items():
         assert case["median_ms"] > 0 and case["p90_ms"] >= case["median_ms"] and case["compile_s"] >= 0
@@ -42,6 +46,7 @@ def test_each_case_plans_with_its_iterations_and_only_the_learned_ones_with_a_fi
     (["--iterations", "25", "--reference", "100"], "--reference 100"),
     (["--iterations", "-1", "100"], "--iterations"),
     (["--filter-weights", "no-such.ckpt"], "no-such.ckpt"),
+    (["--learned-config", "no-such.json"], "no-such.json"),
 ])
 def test_bad_options_are_one_line_errors_and_write_nothing(timing, tmp_path, capsys, argv, needle):
     out = tmp_path / "t.json"
