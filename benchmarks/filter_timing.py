@@ -87,8 +87,8 @@ def run(args: argparse.Namespace) -> dict:
         for variant, name in PLANNERS:
             spec = get_optimiser(name).with_weights(args.vqvae_weights).with_samples(args.samples)
             if variant == "learned":
-                spec = spec.with_overrides(**overrides, **({"safety_filter": {"weights": args.filter_weights}}
-                                                           if args.filter_weights else {}))
+                weights = {"safety_filter": {"weights": args.filter_weights}} if args.filter_weights else {}
+                spec = spec.with_overrides(**{**overrides, **weights})  # --filter-weights wins over the overrides'
             spec = spec.with_overrides(projection={"max_iterations": k})
             problem = build_problem(scene, spec.config.basis, braking_time=spec.braking_time,
                                     selection_time=spec.selection_time)
@@ -102,7 +102,8 @@ def run(args: argparse.Namespace) -> dict:
         return time.perf_counter() - start
 
     first = {name: call(case, 0) for name, case in tqdm(cases.items(), desc="compile", unit="case")}
-    report = {"problem": scene.name, "samples": args.samples, "learned_config": overrides, "calls": args.calls, "reference": args.reference,
+    report = {"problem": scene.name, "samples": args.samples, "learned_config": overrides, "calls": args.calls,
+              "reference": args.reference,
               "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "jax": jax.__version__,
                           "backend": jax.default_backend()},
               "cases": {name: {"first_call_s": t} for name, t in first.items()}}
