@@ -254,7 +254,7 @@ def _check_resume(path: Path, meta: dict[str, Any], expected: dict[str, Any], tc
 def selection_key(record: dict[str, Any]) -> tuple[float, float]:
     """How an epoch's history record ranks for ``filter.ckpt`` (higher is better): the share of validation samples
     feasible after the unrolled iterations, then the lower validation loss (without validation rows: the same on the
-    training epoch). Eq. 9's loss can fall while that share falls (README, the filter's fifth round), and the share
+    training epoch). Eq. 9's loss can fall while that share falls (docs/findings/learned-filter.md, fifth round), and the share
     is what the planner's pick needs."""
     split = "val" if "val_feasible" in record else "train"
     return record[f"{split}_feasible"], -record[f"{split}_loss"]
@@ -390,5 +390,6 @@ def train_filter(
             break
     bar.close()
     weights = out / "filter.ckpt"
-    return {"epochs": len(history), "history": history, "kept": max(history, key=selection_key, default=None), "baseline": baseline, "rows": meta_base["rows"],
+    return {"epochs": len(history), "history": history, "kept": max(history, key=selection_key, default=None),
+            "baseline": baseline, "rows": meta_base["rows"],
             "seconds": time.perf_counter() - start, "out": str(out), "weights": str(weights) if weights.exists() else None}
