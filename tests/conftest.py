@@ -1,9 +1,10 @@
+import gc
 import os
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-# JAX's persistent compilation cache stays off: with jaxlib 0.10.2 an xdist worker crashed (SIGSEGV) inside the
-# cache's executable serialisation, which hangs the whole run, and the cache saved under 10% of the suite's time.
+# JAX's persistent compilation cache stays off: it saved under 10% of the suite's time (CI starts from a clean clone).
 
+import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
@@ -19,6 +20,35 @@ SMALL = PlannerConfig().replace(
 @pytest.fixture(scope="session")
 def small_config() -> PlannerConfig:
     return SMALL
+
+
+def mapped_regions() -> int:
+    """Memory mappings of this process (Linux; 0 where /proc is missing)."""
+    try:
+        with open("/proc/self/maps") as maps:
+            return sum(1 for _ in maps)
+    except OSError:
+        return 0
+
+
+def map_limit() -> int:
+    try:
+        with open("/proc/sys/vm/max_map_count") as limit:
+            return int(limit.read())
+    except (OSError, ValueError):
+        return 65530  # Linux's default
+
+
+@pytest.fixture(autouse=True)
+def release_compiled_code_before_the_map_limit():
+    """jaxlib >= 0.10 JITs every fused kernel of a CPU executable into its own three memory mappings (~1200 for one
+    planner), and JAX keeps every executable it compiled. An xdist worker reached ~60000 mappings by the end of the
+    suite; at Linux's limit (vm.max_map_count, 65530 by default) the next compile's mmap fails and the worker
+    segfaults, which hangs the run. Past half the limit, the compiled code is dropped (later tests recompile)."""
+    yield
+    if mapped_regions() > map_limit() // 2:
+        jax.clear_caches()
+        gc.collect()
 
 
 def box_corners(x: float, y: float, heading: float, length: float, width: float) -> np.ndarray:
