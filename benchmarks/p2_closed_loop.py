@@ -39,6 +39,7 @@ import sys
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from driveopt.cli import stop_cleanly_on_signals
 from driveopt.errors import DriveoptError
 from driveopt.experiments.bench import BenchSpec, run_bench
 
@@ -254,6 +255,7 @@ def main(argv: list[str] | None = None) -> int:
                         "missing from --out resumes from there, and is copied back when it ends or is interrupted")
     parser.add_argument("--list", action="store_true", help="print the points and exit")
     args = parser.parse_args(argv)
+    stop_cleanly_on_signals()  # SIGTERM, and Ctrl-C under a script's `&`, still copy the points to --records
     try:
         if args.episodes is not None and args.episodes < 1:
             raise DriveoptError(f"--episodes must be at least 1, got {args.episodes}")

@@ -36,9 +36,8 @@ def _exit_on_sigterm(signum, frame) -> None:
     raise SystemExit(128 + signum)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+def stop_cleanly_on_signals() -> None:
+    """For a long job's entry point (the CLI, the benchmark scripts); only in the main thread."""
     if threading.current_thread() is threading.main_thread():
         # A terminated long job (collect, train, bench) unwinds like Ctrl-C: files are closed, the
         # finished work is kept, and a rerun resumes.
@@ -46,6 +45,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Ctrl-C interrupts even where the shell that started us ignored SIGINT (a background job of a
         # script, which Python would otherwise inherit): the long jobs stop cleanly either way.
         signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    stop_cleanly_on_signals()
     try:
         return args.func(args)
     except DriveoptError as exc:
