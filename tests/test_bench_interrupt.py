@@ -134,3 +134,48 @@ def test_interrupted_bench_stops_at_once_keeps_episodes_and_resumes(tmp_path, ho
     keys = [(r["planner"], r["episode"]) for r in records]
     assert records[: len(kept)] == kept and len(keys) == len(set(keys)) == 16
     assert (out / "summary.csv").exists()
+
+
+P2_CHILD = Path(__file__).with_name("p2_sweep_child.py")
+P2_FIRST = "two-lane-d1.0--idm--n20--kdefault"  # p2_sweep_child.py's first point of two, 8 episodes each
+
+
+def start_p2_sweep(out: Path, records: Path, marks: Path, *, slow: float) -> subprocess.Popen:
+    marks.mkdir(exist_ok=True)
+    env = {**os.environ, "BENCH_CHILD_SLOW": str(slow), "BENCH_CHILD_FAST": str(FAST), "BENCH_CHILD_MARKS": str(marks)}
+    args = [sys.executable, str(P2_CHILD), "--figure", "fig8a", "--out", str(out), "--records", str(records), "--workers", "2"]
+    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True, preexec_fn=_ignore_sigint)
+
+
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+def test_a_stopped_p2_sweep_copies_its_episodes_to_the_records_and_resumes_from_them_elsewhere(tmp_path, how):
+    out, records, marks = tmp_path / "out", tmp_path / "records", tmp_path / "marks"
+    proc = start_p2_sweep(out, records, marks, slow=60)
+    pids: list[int] = []
+    try:
+        wait_for(lambda: len(load_records(out / P2_FIRST / "episodes.jsonl")) == FAST, STARTUP_S, proc)
+        wait_for(lambda: len(busy_workers(marks, proc.pid)) == 2, STARTUP_S, proc)
+        time.sleep(0.5)
+        pids = workers(proc.pid)
+        if how == "ctrl-c":
+            os.killpg(proc.pid, signal.SIGINT)
+        else:
+            proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=PROMPT_S)
+        wait_for(lambda: not any(alive(pid) for pid in pids), PROMPT_S)
+    finally:
+        reap(proc, pids)
+    assert "Traceback" not in stderr
+    assert proc.returncode == (130 if how == "ctrl-c" else 128 + signal.SIGTERM)
+    kept = (records / P2_FIRST / "episodes.jsonl").read_text()
+    assert kept == (out / P2_FIRST / "episodes.jsonl").read_text() and len(kept.splitlines()) == FAST
+    assert (records / P2_FIRST / "spec.json").exists()
+
+    elsewhere = start_p2_sweep(tmp_path / "elsewhere", records, marks, slow=0)  # a new machine: only the records
+    _, stderr = elsewhere.communicate(timeout=STARTUP_S)
+    assert elsewhere.returncode == 0, stderr[-2000:]
+    finished = (records / P2_FIRST / "episodes.jsonl").read_text()
+    episodes = [r["episode"] for r in load_records(records / P2_FIRST / "episodes.jsonl")]
+    assert finished.startswith(kept) and sorted(episodes) == list(range(8))
+    assert len(load_records(records / "two-lane-d1.0--idm--n20--k2" / "episodes.jsonl")) == 8
