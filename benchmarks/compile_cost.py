@@ -32,6 +32,7 @@ CASES: dict[str, dict] = {
     "no-fusion-emitters": {"xla_cpu_use_fusion_emitters": False},
     "codegen-in-one-part": {"xla_cpu_parallel_codegen_split_count": 1},
     "backend-o1": {"xla_backend_optimization_level": 1},
+    "region-analysis-and-o1": {"xla_cpu_copy_insertion_use_region_analysis": True, "xla_backend_optimization_level": 1},
 }
 
 
