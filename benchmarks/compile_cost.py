@@ -98,10 +98,10 @@ def run_case(name: str, calls: int, samples: int) -> dict:
     if proc.returncode != 0:
         raise SystemExit(f"compile_cost: case {name} failed:\n{proc.stderr[-3000:]}")
     record = json.loads(proc.stdout.strip().splitlines()[-1])
-    limit = map_limit()
-    per_compile = (record["maps_after_compile"] or 0) - (record["maps_before"] or 0)
-    record["maps_per_compilation"] = per_compile if record["maps_before"] is not None else None
-    record["compilations_to_the_limit"] = limit // per_compile if limit and per_compile > 0 else None
+    limit, before = map_limit(), record["maps_before"]
+    per_compile = None if before is None else record["maps_after_compile"] - before
+    record["maps_per_compilation"] = per_compile
+    record["compilations_to_the_limit"] = limit // per_compile if limit and per_compile else None
     return {"case": name, **record}
 
 

@@ -21,15 +21,26 @@ PROMPT_S = 10  # a stop or a worker's end, once asked for
 FAST = 3  # episodes 0..2 of each planner take 0.1 s, the others a minute: 6 finish, then both workers are busy
 
 
-def start_bench(out: Path, marks: Path, *, slow: float, episodes: int = 8) -> subprocess.Popen:
+def start_child(script: Path, argv: list[str], marks: Path, slow: float) -> subprocess.Popen:
+    """``script`` (a job with bench_child.py's fake episodes) started as a script's background job would be."""
     marks.mkdir(exist_ok=True)
     env = {**os.environ, "BENCH_CHILD_SLOW": str(slow), "BENCH_CHILD_FAST": str(FAST), "BENCH_CHILD_MARKS": str(marks)}
-    args = [sys.executable, str(CHILD), "--scenarios", "two-lane-d1.0", "--planners", "idm", "grid",
-            "--episodes", str(episodes), "--workers", "2", "--out", str(out)]
     # Its own session, so that a signal to its process group is a Ctrl-C in its terminal; started with
     # SIGINT ignored, as a script's background job (CI's, say) would start it: Ctrl-C must stop it all the same.
-    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            start_new_session=True, preexec_fn=_ignore_sigint)
+    return subprocess.Popen([sys.executable, str(script), *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env, start_new_session=True, preexec_fn=_ignore_sigint)
+
+
+def start_bench(out: Path, marks: Path, *, slow: float, episodes: int = 8) -> subprocess.Popen:
+    return start_child(CHILD, ["--scenarios", "two-lane-d1.0", "--planners", "idm", "grid", "--episodes", str(episodes),
+                               "--workers", "2", "--out", str(out)], marks, slow)
+
+
+def interrupt(proc: subprocess.Popen, how: str) -> None:
+    if how == "ctrl-c":
+        os.killpg(proc.pid, signal.SIGINT)  # the terminal sends it to every process of the group
+    else:
+        proc.send_signal(signal.SIGTERM)
 
 
 def _ignore_sigint() -> None:
@@ -108,10 +119,7 @@ def test_interrupted_bench_stops_at_once_keeps_episodes_and_resumes(tmp_path, ho
         time.sleep(0.5)
         pids = workers(proc.pid)
         start = time.monotonic()
-        if how == "ctrl-c":
-            os.killpg(proc.pid, signal.SIGINT)  # the terminal sends it to every process of the group
-        else:
-            proc.send_signal(signal.SIGTERM)
+        interrupt(proc, how)
         _, stderr = proc.communicate(timeout=PROMPT_S)
         assert time.monotonic() - start < PROMPT_S
         wait_for(lambda: not any(alive(pid) for pid in pids), PROMPT_S)
@@ -141,11 +149,8 @@ P2_FIRST = "two-lane-d1.0--idm--n20--kdefault"  # p2_sweep_child.py's first poin
 
 
 def start_p2_sweep(out: Path, records: Path, marks: Path, *, slow: float) -> subprocess.Popen:
-    marks.mkdir(exist_ok=True)
-    env = {**os.environ, "BENCH_CHILD_SLOW": str(slow), "BENCH_CHILD_FAST": str(FAST), "BENCH_CHILD_MARKS": str(marks)}
-    args = [sys.executable, str(P2_CHILD), "--figure", "fig8a", "--out", str(out), "--records", str(records), "--workers", "2"]
-    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            start_new_session=True, preexec_fn=_ignore_sigint)
+    return start_child(P2_CHILD, ["--figure", "fig8a", "--out", str(out), "--records", str(records), "--workers", "2"],
+                       marks, slow)
 
 
 @pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
@@ -158,10 +163,7 @@ def test_a_stopped_p2_sweep_copies_its_episodes_to_the_records_and_resumes_from_
         wait_for(lambda: len(busy_workers(marks, proc.pid)) == 2, STARTUP_S, proc)
         time.sleep(0.5)
         pids = workers(proc.pid)
-        if how == "ctrl-c":
-            os.killpg(proc.pid, signal.SIGINT)
-        else:
-            proc.send_signal(signal.SIGTERM)
+        interrupt(proc, how)
         _, stderr = proc.communicate(timeout=PROMPT_S)
         wait_for(lambda: not any(alive(pid) for pid in pids), PROMPT_S)
     finally:
