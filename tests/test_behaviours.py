@@ -169,6 +169,9 @@ def test_malformed_previous_plan_is_rejected(small_config):
         plan(problem, small_config, key=jax.random.PRNGKey(0), previous=bad)
     with pytest.raises(ProblemError, match="previous plan"):
         plan(problem, small_config, key=jax.random.PRNGKey(0), previous=PreviousPlan(np.zeros(8), np.zeros(7)))
+    with pytest.raises(ProblemError, match="previous.present must be a boolean"):
+        plan(problem, small_config, key=jax.random.PRNGKey(0),
+             previous=PreviousPlan(np.zeros(8), np.zeros(small_config.basis.num_nodes), np.array([True, False])))
 
 
 def test_p1_baselines_rank_by_residual_first_as_the_authors_code():

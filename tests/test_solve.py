@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from driveopt.config import PlannerConfig
-from driveopt.planner import PlanStatus, RowKind, compiled_solve, plan, previous_plan, solve
+from driveopt.planner import PlanStatus, PreviousPlan, RowKind, WarmStart, compiled_solve, plan, previous_plan, solve
 from driveopt.priors.base import Proposal
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import build_problem
@@ -171,3 +171,57 @@ def test_every_matrix_product_of_the_planner_is_traced_at_float32(small_config):
         assert products
         precisions = {m for line in products for m in re.findall(r"precision = \[(\w+), (\w+)\]", line)}
         assert precisions == {("HIGHEST", "HIGHEST")}, precisions
+
+
+def _arrays(result):
+    return jax.tree_util.tree_leaves((result.setpoints, result.coeffs, result.mean, result.history, result.first, result.last,
+                                      result.trajectory, result.fallback, result.costs, result.residuals))
+
+
+def test_absent_warm_start_and_previous_plan_give_the_result_of_a_call_without_them(small_config):
+    """A closed loop's first call passes placeholders (one compilation for all its calls): the placeholder row copies
+    the first sample, so the projection's batch-wide stop is unchanged, but it is never ranked, counted, refined or
+    shown; every number of the result equals the plain call's, bit for bit. With refined rows, and with P1's ranking
+    (residual-only constraint elites), where a copy of a cheap or feasible row would otherwise take another's place."""
+    configs = [small_config.replace(**TINY),
+               small_config.replace(**TINY).replace(sampler={"refine_samples": 4, "refine_iterations": 10}),
+               small_config.replace(**TINY).replace(sampler={"feasibility_first": False}, stop_rows=False)]
+    for config in configs:
+        prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
+        for scene in ("static-blockage", "dense-snapshot"):
+            problem = build_problem(load_scene(scene), config.basis)
+            plain = plan(problem, config, key=jax.random.PRNGKey(2), prior=prior)
+            placeheld = plan(problem, config, key=jax.random.PRNGKey(2), prior=prior, warm_start=WarmStart.absent(),
+                             previous=PreviousPlan.absent(config.basis.num_nodes))
+            assert placeheld.status == plain.status
+            for a, b in zip(_arrays(plain), _arrays(placeheld), strict=True):
+                np.testing.assert_array_equal(a, b)
+            assert RowKind.PLACEHOLDER not in placeheld.first.kind
+
+
+def test_the_placeholder_row_is_in_solve_s_batch_but_never_ranked(small_config):
+    """Row 0 of a fixed batch is the only feasible sample; its copy (the placeholder) is neither picked nor counted."""
+    problem, prior = _blockage_rows()
+    prior = FixedPrior(prior.samples[::-1])  # row 0 stops (feasible), row 1 runs into the blockage
+    plain = compiled_solve()(problem, jax.random.PRNGKey(0), P1_BATCH, prior)
+    placeheld = compiled_solve()(problem, jax.random.PRNGKey(0), P1_BATCH, prior, previous=PreviousPlan.absent(P1_BATCH.basis.num_nodes))
+    assert list(placeheld.first.kind) == [RowKind.SAMPLE, RowKind.SAMPLE, RowKind.PLACEHOLDER]
+    np.testing.assert_array_equal(placeheld.first.setpoints[2], placeheld.first.setpoints[0])
+    assert int(plain.history.num_feasible[0]) == int(placeheld.history.num_feasible[0]) == 1
+    assert sorted(placeheld.first.elite_index.tolist()) == [0, 1]  # both elite places go to the samples
+    assert float(placeheld.best.setpoints[0]) == 0.0 and float(placeheld.best.terms[-1]) == 0.0  # the stop; no consistency
+
+
+def test_a_warm_start_and_a_previous_plan_reach_the_result_whichever_way_they_are_passed(small_config):
+    """An array and a present WarmStart are the same warm start; a present previous plan is a ranked row."""
+    config = small_config.replace(**TINY)
+    problem = build_problem(load_scene("dense-snapshot"), config.basis)
+    first = plan(problem, config, key=jax.random.PRNGKey(0))
+    previous = previous_plan(first, 0.1)
+    as_array = plan(problem, config, key=jax.random.PRNGKey(1), warm_start=first.mean, previous=previous)
+    as_tuple = plan(problem, config, key=jax.random.PRNGKey(1), warm_start=WarmStart(first.mean, True), previous=previous)
+    for a, b in zip(_arrays(as_array), _arrays(as_tuple), strict=True):
+        np.testing.assert_array_equal(a, b)
+    absent = plan(problem, config, key=jax.random.PRNGKey(1), warm_start=WarmStart.absent(), previous=previous)
+    assert not np.array_equal(absent.first.setpoints, as_array.first.setpoints)  # the warm start moved the proposal
+    assert RowKind.PREVIOUS_PLAN in as_array.first.kind and as_array.costs["consistency"] > 0.0

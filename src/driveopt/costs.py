@@ -55,7 +55,7 @@ def nearest_lane_center(problem: PlanningProblem, y: jnp.ndarray) -> jnp.ndarray
 def cost_terms(traj: Trajectory, problem: PlanningProblem, previous_y: jnp.ndarray | None = None) -> dict[str, jnp.ndarray]:
     """Unweighted cost terms, each (...,): means over the nodes.
 
-    previous_y: (K,) [m] lateral positions of the previous replan's plan at these nodes' times; the
+    previous_y: (K,) or per row (..., K) [m] lateral positions of the previous replan's plan at these nodes' times; the
     ``consistency`` term is zero without it.
     """
     lane_offset = traj.y - nearest_lane_center(problem, traj.y)

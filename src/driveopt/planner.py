@@ -69,7 +69,7 @@ from driveopt.costs import (
 )
 from driveopt.fallback import EVASIONS, HOLD, LANE_CENTRE, box_contact, braking_coeffs, first_contact, stop_setpoints, stop_trajectory
 from driveopt.precision import float32_products
-from driveopt.priors.base import Prior, clip_setpoints
+from driveopt.priors.base import Prior, clip_setpoints, default_mean
 from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import PlanningProblem, check_problem
 from driveopt.projection import (
@@ -118,6 +118,7 @@ class RowKind(enum.IntEnum):
     PREVIOUS_PLAN = 1  # the previous replan's set-points (only when ``previous`` is given)
     COMFORTABLE_STOP = 2  # brake at ``fallback_deceleration`` towards the nearest lane centre
     EMERGENCY_STOP = 3  # brake at ``projection.a_max`` holding the current lateral position
+    PLACEHOLDER = 4  # stands in for an absent previous plan (``PreviousPlan.absent``): a copy of the first sample, never ranked
 
 
 class Snapshot(NamedTuple):
@@ -147,10 +148,32 @@ class History(NamedTuple):
 
 
 class PreviousPlan(NamedTuple):
-    """The plan chosen by the previous replan, seen from this one."""
+    """The plan chosen by the previous replan, seen from this one.
+
+    ``present`` False (:meth:`absent`) stands for "no previous plan" with the same array structure as a real one, so
+    a closed loop's first call and its later calls are one compilation: the row it adds to the batch is a copy of the
+    first sample that is never ranked, counted or refined, and the ``consistency`` term is zero, as without one."""
 
     setpoints: jnp.ndarray  # (8,) its set-points (re-solved from the current state as a candidate)
     lateral: jnp.ndarray  # (K,) [m] its lateral positions at this call's node times
+    present: Any = True  # () bool: False for the placeholder of an absent plan
+
+    @classmethod
+    def absent(cls, num_nodes: int) -> "PreviousPlan":
+        """The placeholder of a call without a previous plan (``num_nodes``: ``config.basis.num_nodes``)."""
+        return cls(np.zeros(SETPOINT_DIM, np.float32), np.zeros(num_nodes, np.float32), np.False_)
+
+
+class WarmStart(NamedTuple):
+    """A warm start that may be absent (:meth:`absent`: the prior's own centre, ``default_mean``) with the array
+    structure of a present one, so that a closed loop's first call and its later calls are one compilation."""
+
+    mean: jnp.ndarray  # (8,) centre of the first proposal
+    present: Any = True  # () bool
+
+    @classmethod
+    def absent(cls) -> "WarmStart":
+        return cls(np.zeros(SETPOINT_DIM, np.float32), np.False_)
 
 
 def previous_plan(result: "PlanResult", elapsed: float) -> PreviousPlan:
@@ -159,7 +182,7 @@ def previous_plan(result: "PlanResult", elapsed: float) -> PreviousPlan:
     traj = result.safe_trajectory
     t = np.asarray(traj.t)
     lateral = np.interp(t + elapsed, t, np.asarray(traj.y)).astype(np.float32)
-    return PreviousPlan(np.asarray(result.setpoints, dtype=np.float32), lateral)
+    return PreviousPlan(np.asarray(result.setpoints, dtype=np.float32), lateral, np.True_)
 
 
 class Candidate(NamedTuple):
@@ -230,25 +253,46 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     """
     s = cfg.sampler
     stops = _stops(cfg) if cfg.stop_rows else ()
-    appended = [] if previous is None else [previous.setpoints[None]]
+    num_samples = setpoints.shape[0]
+    # An absent previous plan's row copies the first sample (the projection's batch-wide stop is unchanged) and is
+    # excluded below wherever rows are ranked, counted or refined.
+    appended = [] if previous is None else [jnp.where(previous.present, previous.setpoints, setpoints[0])[None]]
     appended += [stop_setpoints(problem, cfg.basis.horizon, *stop)[None] for stop in stops]
-    kinds = [RowKind.SAMPLE] * setpoints.shape[0] + [RowKind.PREVIOUS_PLAN] * (previous is not None)
+    kinds = [RowKind.SAMPLE] * num_samples + [RowKind.PREVIOUS_PLAN] * (previous is not None)
     kind = jnp.asarray(kinds + [RowKind.COMFORTABLE_STOP, RowKind.EMERGENCY_STOP][:len(stops)], jnp.int32)
     setpoints = jnp.concatenate([setpoints, *appended])
+    placeholder = None
+    if previous is not None:
+        placeholder = (jnp.arange(setpoints.shape[0]) == num_samples) & ~previous.present
+        kind = jnp.where(placeholder, RowKind.PLACEHOLDER, kind)
     qp_coeffs, b_x, b_y = setpoint_batch(model, problem, cfg, setpoints)
     row = (lambda b, i: b if b.ndim == 1 else b[i])  # noqa: E731  (boundary rows are per sample only for goals)
     for i, (decel, target) in zip(range(-len(stops), 0), stops):
         qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), target))
     proj = project_batch(model, problem, cfg, qp_coeffs, b_x, b_y, safety_filter, unroll)
     lateral = None if previous is None else previous.lateral
-    terms = cost_terms(evaluate(model, proj.coeffs), problem, lateral)
+
+    def terms_of(coeffs):
+        traj = evaluate(model, coeffs)
+        # without a previous plan every row is its own reference: consistency exactly 0 (selecting the reference,
+        # not the term, leaves the arithmetic of a present plan's term as it was)
+        return cost_terms(traj, problem, lateral if previous is None else jnp.where(previous.present, lateral, traj.y))
+
+    terms = terms_of(proj.coeffs)
     if s.refine_samples and cfg.projection.max_iterations:
-        proj, terms = _refine(model, problem, cfg, qp_coeffs, b_x, b_y, proj, terms, safety_filter, unroll, lateral)
+        proj, terms = _refine(model, problem, cfg, qp_coeffs, b_x, b_y, proj, terms, safety_filter, unroll, terms_of, placeholder)
     cost = weighted_cost(terms, cfg.cost)
     residual = proj.residuals.total
     score = s.ranking_cost_weight * cost + residual
     feasible = residual <= s.residual_tolerance
     key_score = _ranking_key(score, residual, feasible, s)
+    if placeholder is not None:  # never ranked
+        key_score, residual_key = jnp.where(placeholder, jnp.inf, key_score), jnp.where(placeholder, jnp.inf, residual)
+        feasible_rows = feasible & ~placeholder
+        # the median over the rows a call without the placeholder has
+        median_residual = jnp.where(previous.present, jnp.median(residual), jnp.median(jnp.delete(residual, num_samples)))
+    else:
+        residual_key, feasible_rows, median_residual = residual, feasible, jnp.median(residual)
     if s.feasibility_first:
         # ConstraintEliteSet: lowest residuals, where every feasible sample ties, so feasible samples come
         # first ordered by score, then infeasible ones by residual.
@@ -256,7 +300,7 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
         # EliteSet: lowest cost + residual of those (P1), feasible samples always ahead of infeasible ones.
         elite_key = jnp.where(feasible, score - INFEASIBLE_PENALTY, score)
     else:  # P1: the n lowest residuals, then the q lowest cost + residual of those
-        constraint_elites = select_lowest(residual, s.num_constraint_elites)
+        constraint_elites = select_lowest(residual_key, s.num_constraint_elites)
         elite_key = score
     ranked = constraint_elites[select_lowest(elite_key[constraint_elites], s.num_elites)]
 
@@ -269,7 +313,7 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
 
     stats = History(
         best_score=key_score[pick], best_feasible=feasible[pick], elite_cost=jnp.mean(score[ranked]),
-        min_residual=jnp.min(residual), median_residual=jnp.median(residual), num_feasible=jnp.sum(feasible),
+        min_residual=jnp.min(residual), median_residual=median_residual, num_feasible=jnp.sum(feasible_rows),
         projection_iterations=proj.iterations, projection_status=proj.status,
     )
     snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked, kind, cost)
@@ -277,19 +321,20 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
 
 
 def _refine(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs, b_x, b_y, proj: ProjectionResult, terms,
-            safety_filter, unroll: bool, lateral) -> tuple[ProjectionResult, dict[str, jnp.ndarray]]:
+            safety_filter, unroll: bool, terms_of, placeholder) -> tuple[ProjectionResult, dict[str, jnp.ndarray]]:
     """``proj`` and its cost ``terms`` with the ``sampler.refine_samples`` lowest-cost rows (whatever their residual)
     projected ``sampler.refine_iterations`` more from where they stopped (iterate and multipliers; a filter's gammas),
     each row replaced only where that lowers its ranking key. The fast plans are the lowest-cost ones and the ones that
     need the most iterations to become feasible; a few more iterations for a few rows buy most of what more
-    iterations for the whole batch would."""
+    iterations for the whole batch would. ``terms_of``: cost terms of coefficients; ``placeholder``: rows never
+    refined (or None)."""
     s = cfg.sampler
 
     def key(cost, residual):
         return _ranking_key(s.ranking_cost_weight * cost + residual, residual, residual <= s.residual_tolerance, s)
 
     cost = weighted_cost(terms, cfg.cost)
-    rows = select_lowest(cost, s.refine_samples)
+    rows = select_lowest(cost if placeholder is None else jnp.where(placeholder, jnp.inf, cost), s.refine_samples)
     gamma_obs = gamma_lane = None
     if safety_filter is not None:
         init = check_filter_init(safety_filter.initialise(problem, qp_coeffs[rows]), qp_coeffs[rows].shape)
@@ -298,7 +343,7 @@ def _refine(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs, b_x,
     more = project(model, problem, qp_coeffs[rows], pick(b_x), pick(b_y),
                    dataclasses.replace(cfg.projection, max_iterations=s.refine_iterations), gamma_obs=gamma_obs,
                    gamma_lane=gamma_lane, init_coeffs=proj.coeffs[rows], init_multipliers=proj.multipliers[rows], unroll=unroll)
-    more_terms = cost_terms(evaluate(model, more.coeffs), problem, lateral)
+    more_terms = terms_of(more.coeffs)
     better = key(weighted_cost(more_terms, cfg.cost), more.residuals.total) < key(cost[rows], proj.residuals.total[rows])
 
     def merge(old, new):
@@ -377,7 +422,7 @@ def solve(
     key: jax.Array,
     config: PlannerConfig,
     prior: Prior,
-    warm_start: jnp.ndarray | None = None,
+    warm_start: jnp.ndarray | WarmStart | None = None,
     previous: PreviousPlan | None = None,
     safety_filter: SafetyFilter | None = None,
     unroll: bool = False,
@@ -386,7 +431,8 @@ def solve(
 
     problem: a checked PlanningProblem (planning frame, ego at x = 0). key: PRNG key.
     prior: first-iteration proposal (any pytree with ``propose``, :mod:`driveopt.priors`).
-    warm_start: (8,) centre of the first proposal, or None. previous: the previous replan's plan, or None.
+    warm_start: (8,) centre of the first proposal, a WarmStart, or None (the prior's ``default_mean``).
+    previous: the previous replan's plan, or None (or its placeholder: ``PreviousPlan.absent``).
     safety_filter: pytree with ``initialise(problem, coeffs) -> FilterInit``, or None (the projection as configured).
     unroll: project with exactly ``projection.max_iterations`` steps (differentiable in reverse mode).
     No validation happens here: :func:`plan` checks its input first.
@@ -394,6 +440,8 @@ def solve(
     model = make_model(config.basis, config.qp)
     s = config.sampler
     key_prior, key_loop = jax.random.split(key)
+    if isinstance(warm_start, WarmStart):
+        warm_start = jnp.where(warm_start.present, warm_start.mean, default_mean(problem))
     proposal = prior.propose(problem, key_prior, s.num_samples, warm_start)
 
     def iteration(setpoints):
@@ -496,7 +544,7 @@ def plan(
     *,
     key: jax.Array,
     prior: Prior | None = None,
-    warm_start: np.ndarray | None = None,
+    warm_start: np.ndarray | WarmStart | None = None,
     previous: PreviousPlan | None = None,
     safety_filter: SafetyFilter | None = None,
     x_offset: float = 0.0,
@@ -509,6 +557,9 @@ def plan(
     warm_start: (8,) mean from a previous result (``result.mean``) to centre the first proposal.
     previous: the previous replan's plan (``previous_plan``): a candidate row and the reference of the
         ``consistency`` cost term (weighted by ``config.cost.consistency``).
+    A closed loop passes ``WarmStart.absent()`` and ``PreviousPlan.absent(num_nodes)`` on its first call instead of
+    None: the result is the same, and every call of the loop runs one compiled function (a call with None and one
+    with an array are two compilations).
     safety_filter: sets the projection's barrier parameters and initialisation (:mod:`driveopt.safety`).
     x_offset: [m] added to x of the returned trajectories (the ego's road-frame x).
     """
@@ -516,17 +567,40 @@ def plan(
     if prior is None:
         prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
     if warm_start is not None:
-        warm_start = np.asarray(warm_start, dtype=np.float32)
-        if warm_start.shape != (SETPOINT_DIM,) or not np.all(np.isfinite(warm_start)):
-            raise ProblemError(f"warm_start must be {SETPOINT_DIM} finite numbers, got shape {warm_start.shape}")
-        warm_start = jnp.asarray(warm_start)
+        warm_start = warm_start if isinstance(warm_start, WarmStart) else WarmStart(warm_start)
+        mean = np.asarray(warm_start.mean, dtype=np.float32)
+        if mean.shape != (SETPOINT_DIM,) or not np.all(np.isfinite(mean)):
+            raise ProblemError(f"warm_start must be {SETPOINT_DIM} finite numbers, got shape {mean.shape}")
+        warm_start = WarmStart(mean, _flag(warm_start.present, "warm_start.present"))
+    placeholder = False
     if previous is not None:
-        previous = PreviousPlan(*(np.asarray(a, dtype=np.float32) for a in previous))
+        present = _flag(previous.present, "previous.present")
+        previous = PreviousPlan(*(np.asarray(a, dtype=np.float32) for a in previous[:2]), present)
         shapes = (previous.setpoints.shape, previous.lateral.shape)
-        if shapes != ((SETPOINT_DIM,), (config.basis.num_nodes,)) or not all(np.all(np.isfinite(a)) for a in previous):
+        if shapes != ((SETPOINT_DIM,), (config.basis.num_nodes,)) or not all(np.all(np.isfinite(a)) for a in previous[:2]):
             raise ProblemError(f"previous plan must be finite with shapes (8,) and ({config.basis.num_nodes},), got {shapes}")
+        placeholder = not present
     solution = jax.device_get(compiled_solve()(problem, key, config, prior, warm_start, previous, safety_filter))
+    if placeholder:  # the result as without a previous plan
+        row = config.sampler.num_samples
+        solution = solution._replace(first=_without_row(solution.first, row), last=_without_row(solution.last, row))
     return _to_result(solution, config, float(x_offset))
+
+
+def _flag(value: Any, name: str) -> np.ndarray:
+    """``value`` as a 0-d bool array (one compiled trace for Python and numpy booleans); ProblemError otherwise."""
+    flag = np.asarray(value)
+    if flag.shape != () or flag.dtype != np.bool_:
+        raise ProblemError(f"{name} must be a boolean, got {value!r}")
+    return flag
+
+
+def _without_row(snapshot: Snapshot, row: int) -> Snapshot:
+    """``snapshot`` with batch row ``row`` removed (a placeholder: never in the elite set) and the elite indices after it
+    shifted down."""
+    rows = {f: np.delete(getattr(snapshot, f), row, axis=0) for f in Snapshot._fields if f != "elite_index"}
+    elite = np.asarray(snapshot.elite_index)
+    return Snapshot(**rows, elite_index=np.where(elite > row, elite - 1, elite))
 
 
 def _shift(traj: Trajectory, dx: float) -> Trajectory:

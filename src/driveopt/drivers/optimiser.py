@@ -33,7 +33,7 @@ import jax
 from driveopt.config import PlannerConfig, _check_types, check_count
 from driveopt.drivers.base import Decision, DriverSpec
 from driveopt.learned.checkpoint import pytree_digest
-from driveopt.planner import PlanResult, PlanStatus, plan, previous_plan
+from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, WarmStart, plan, previous_plan
 from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
 from driveopt.sim.contact import guard
@@ -180,16 +180,16 @@ class OptimiserDriver:
         self.period = 1.0 / scenario.policy_frequency  # [s] one policy period
         self.replan_period = self.spec.replan_every * self.period  # [s] between replans
         self.carries_plan = self.config.cost.consistency > 0
-        # Compile outside the timed loop (the first call's trace and the later calls'); results are discarded.
+        # The first call passes absent placeholders for what later calls carry: every call runs one compilation,
+        # made here, outside the timed loop (the result is discarded).
+        self.warm = WarmStart.absent() if self.spec.warm_start else None
+        self.previous = PreviousPlan.absent(self.config.basis.num_nodes) if self.carries_plan else None
         start = time.perf_counter()
         problem = self._problem(perceive(env, scenario))
-        warmup = plan(problem, self.config, key=jax.random.fold_in(self.key, 1), prior=self.prior, safety_filter=self.safety_filter)
-        if self.spec.warm_start or self.carries_plan:
-            warm, previous = self._carried(warmup)
-            plan(problem, self.config, key=jax.random.fold_in(self.key, 2), prior=self.prior, warm_start=warm, previous=previous,
-                 safety_filter=self.safety_filter)
+        plan(problem, self.config, key=jax.random.fold_in(self.key, 1), prior=self.prior, warm_start=self.warm,
+             previous=self.previous, safety_filter=self.safety_filter)
         self.compile_seconds = time.perf_counter() - start
-        self.warm = self.previous = self.executing = None
+        self.executing = None
         self.executed_periods = 0
 
     def _problem(self, perception: Perception):

@@ -26,6 +26,8 @@ class Proposal(NamedTuple):
 
 class Prior(Protocol):
     def propose(self, problem: PlanningProblem, key: jax.Array, num: int, warm_mean: jnp.ndarray | None) -> Proposal:
+        """``num`` set-points; ``warm_mean`` None means :func:`default_mean` (a prior centred on the warm start
+        centres on it; the planner passes that value for an absent ``WarmStart``)."""
         ...
 
 
