@@ -181,11 +181,11 @@ def _arrays(result):
 def test_absent_warm_start_and_previous_plan_give_the_result_of_a_call_without_them(small_config):
     """A closed loop's first call passes placeholders (one compilation for all its calls): the placeholder row copies
     the first sample, so the projection's batch-wide stop is unchanged, but it is never ranked, counted, refined or
-    shown; every number of the result equals the plain call's, bit for bit. With refined rows, and with P1's ranking
+    shown; every number of the result equals the plain call's, bit for bit. Also with refined rows and P1's ranking
     (residual-only constraint elites), where a copy of a cheap or feasible row would otherwise take another's place."""
     configs = [small_config.replace(**TINY),
-               small_config.replace(**TINY).replace(sampler={"refine_samples": 4, "refine_iterations": 10}),
-               small_config.replace(**TINY).replace(sampler={"feasibility_first": False}, stop_rows=False)]
+               small_config.replace(**TINY).replace(sampler={"refine_samples": 4, "refine_iterations": 10, "feasibility_first": False},
+                                                    stop_rows=False)]
     for config in configs:
         prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
         for scene in ("static-blockage", "dense-snapshot"):
