@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # P2's closed-loop figures (issues 14 and 15) at today's defaults, in priority order, on the shipped weights.
 # Resumable: rerun the same command and every point continues where it stopped. Every point's episodes are
-# kept in benchmarks/results/p2-3147746 (the planning code of 3147746, unchanged since), so a new machine
+# kept in benchmarks/results/p2-3147746 (the planning code of 3147746; f315557's compile-once change keeps the
+# closed loops bit for bit, benchmarks/closed_loop_ab.py), so a new machine
 # resumes from them; benchmarks/p2_closed_loop.py writes OUT/<figure>.json and .png after every point.
 #
 #   nohup bash benchmarks/p2_sweeps.sh OUT_DIR [WORKERS] > OUT_DIR.log 2>&1 &
