@@ -13,6 +13,12 @@ deceleration [m/s^2] and lateral position at those times); then every car within
 (dx, dy) [m] relative to the ego and its speed. ``--weights`` and ``--filter-weights`` are bench's (a learned
 prior's or policy's checkpoint, a learned safety filter's). ``--json`` writes the same rows. How the README's
 traced crashes were read (e.g. bilevel's four-lane-d1.5 episode 38).
+
+Replay on the CPUs the bench episode had: bench binds each local worker to its share of the CPUs (2 workers on 2
+CPUs: one each), and a process with another number of CPUs runs XLA's CPU code on another number of threads, which
+can round differently; a closed loop amplifies that, and steps later drives another episode. ``taskset -c 1 python
+benchmarks/trace_episode.py ...`` replays an episode of a 2-worker bench on 2 CPUs (``vqvae-filter`` at 750 samples,
+``p2-four-lane-d3.0`` episode 9: bound, its collision at 17.2 s step for step; unbound, 50 s without one).
 """
 
 from __future__ import annotations
