@@ -166,7 +166,9 @@ def figure_rows(pts: list[Point], rows: dict[Point, dict[str, Any]], out: Path |
 
 def plot(figure: str, table: list[dict[str, Any]], path: Path) -> Path:
     """Collision rate (95% interval), speed (sd over collision-free episodes) and median plan time per call against
-    the swept value, one line per variant (fig7: one group per scenario)."""
+    the swept value, one line per variant. On a categorical axis (fig7: scenario, fig9: density) each variant's
+    markers sit side by side, so overlapping intervals stay readable; plan times spanning more than a factor of 20
+    are drawn on a log axis."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -174,22 +176,37 @@ def plot(figure: str, table: list[dict[str, Any]], path: Path) -> Path:
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     xlabel = {"fig7": "scenario", "fig8a": "filter iterations", "fig8b": "samples", "fig9": "density [vehicles/km/lane]"}[figure]
-    for variant in dict.fromkeys(r["variant"] for r in table):
+    categorical = figure in ("fig7", "fig9")
+    categories = list(dict.fromkeys(str(r["x"]) for r in table))
+    variants = list(dict.fromkeys(r["variant"] for r in table))
+    width = 0.7 / len(variants)
+    for i, variant in enumerate(variants):
         rs = [r for r in table if r["variant"] == variant]
-        xs = [str(r["x"]) for r in rs] if figure in ("fig7", "fig9") else [r["x"] for r in rs]
+        if categorical:
+            xs = [categories.index(str(r["x"])) + (i - (len(variants) - 1) / 2) * width for r in rs]
+        else:
+            xs = [r["x"] for r in rs]
         rate = [r["collision_rate"] for r in rs]
         err = [[r["collision_rate"] - r["collision_ci_low"] for r in rs], [r["collision_ci_high"] - r["collision_rate"] for r in rs]]
-        axes[0].errorbar(xs, rate, yerr=err, marker="o", capsize=3, label=variant)
+        style = {"marker": "o", "capsize": 3, "label": variant, "linestyle": "none" if categorical else "-"}
+        axes[0].errorbar(xs, rate, yerr=err, **style)
         axes[1].errorbar(xs, [r["mean_speed_collision_free"] for r in rs], yerr=[r["speed_std_collision_free"] for r in rs],
-                         marker="o", capsize=3, label=variant)
-        axes[2].plot(xs, [r["plan_ms_median"] for r in rs], marker="o", label=variant)
+                         **style)
+        axes[2].plot(xs, [r["plan_ms_median"] for r in rs], marker="o", label=variant, linestyle=style["linestyle"])
     for ax, ylabel in zip(axes, ("collision rate", "speed, collision-free [m/s]", "plan time per call, median [ms]")):
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
+        if categorical:
+            ax.set_xticks(range(len(categories)), categories)
+            ax.set_xlim(-0.5, len(categories) - 0.5)
+    plan_ms = [r["plan_ms_median"] for r in table if r["plan_ms_median"]]
+    if plan_ms and max(plan_ms) > 20 * min(plan_ms):
+        axes[2].set_yscale("log")
     axes[0].set_ylim(bottom=0)
     axes[0].legend(fontsize=8)
-    fig.suptitle(f"P2 {figure}: {len(table)} points")
+    episodes = sorted({r["episodes"] for r in table})
+    fig.suptitle(f"P2 {figure}: {len(table)} points, {'/'.join(map(str, episodes))} episodes each")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
