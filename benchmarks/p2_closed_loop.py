@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shutil
 import sys
@@ -200,7 +201,7 @@ def plot(figure: str, table: list[dict[str, Any]], path: Path) -> Path:
         if categorical:
             ax.set_xticks(range(len(categories)), categories)
             ax.set_xlim(-0.5, len(categories) - 0.5)
-    plan_ms = [r["plan_ms_median"] for r in table if r["plan_ms_median"]]
+    plan_ms = [r["plan_ms_median"] for r in table if r["plan_ms_median"] and math.isfinite(r["plan_ms_median"])]  # idm: none
     if plan_ms and max(plan_ms) > 20 * min(plan_ms):
         axes[2].set_yscale("log")
     axes[0].set_ylim(bottom=0)
