@@ -8,7 +8,7 @@ steady-state median), the steady-state median of ``--calls`` further calls, and 
 (lines of ``/proc/self/maps``) before the first call, after it, and after ``jax.clear_caches()``. jaxlib 0.10
 maps each fused kernel of a CPU executable separately, and a process that reaches Linux's ``vm.max_map_count``
 dies at its next compilation: ``compilations_to_the_limit`` is how many such compilations fit. A case's options
-are merged over the planner's own (``driveopt.projection.XLA_CPU_COMPILER_OPTIONS``). Every finished case is
+are merged over the planner's own (``driveopt.xla.XLA_CPU_COMPILER_OPTIONS``). Every finished case is
 written at once; a rerun skips the cases already in the file.
 """
 
@@ -60,8 +60,8 @@ def measure(options: dict, calls: int, samples: int) -> dict:
     from driveopt import planner
     from driveopt.config import PlannerConfig
     from driveopt.problem import build_problem
-    from driveopt.projection import supported_compiler_options
     from driveopt.scene import load_scene
+    from driveopt.xla import supported_compiler_options
 
     merged = {**planner.XLA_CPU_COMPILER_OPTIONS, **options}
     unsupported = sorted(set(merged) - set(supported_compiler_options(merged)))

@@ -12,7 +12,7 @@ observation (:mod:`driveopt.data.replay`), as the trainer does.
 
 Planning configuration: ``--planner``'s (default ``vqvae-filter``: barrier projection, gammas 1),
 capped at the simulated car's acceleration and curvature as in closed loop
-(:func:`driveopt.learned.train_filter.scenario_config`), with ``--samples`` samples (250).
+(:func:`driveopt.training.filter.scenario_config`), with ``--samples`` samples (250).
 
 For every row, ``--samples`` set-points are drawn from the prior (``--samples-from``, by default the
 one the filter was trained on as its checkpoint records it, else ``vqvae``; ``--prior-weights`` or
@@ -65,19 +65,20 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from driveopt.costs import cost_terms, evaluate, weighted_cost
+from driveopt.costs import cost_terms, weighted_cost
 from driveopt.data.demonstrations import load_demonstrations
 from driveopt.errors import DriveoptError
 from driveopt.experiments.rows_file import resume_rows
+from driveopt.files import atomic_write, file_digest
 from driveopt.learned import filter as fl
-from driveopt.learned.checkpoint import atomic_write, file_digest
-from driveopt.learned.train_cvae import evaluation_road_rows
-from driveopt.learned.train_filter import SAMPLE_SOURCES, _draw, row_problems, scenario_config, training_prior
 from driveopt.planner import project_batch, setpoint_batch
 from driveopt.projection import constraint_residuals
 from driveopt.qp import make_model
 from driveopt.registry import get_optimiser
 from driveopt.safety.learned import LearnedFilter
+from driveopt.training.cvae import evaluation_road_rows
+from driveopt.training.filter import SAMPLE_SOURCES, _draw, row_problems, scenario_config, training_prior
+from driveopt.trajectory import evaluate
 
 ITERATIONS = (1, 5, 10, 25, 50, 100)  # [-] projection iterations measured by default
 SAMPLES = 250  # [-] set-points drawn per row

@@ -24,11 +24,11 @@ import numpy as np
 
 from driveopt.drivers.optimiser import adapt_to_vehicle
 from driveopt.errors import DriveoptError
+from driveopt.experiments.rollout import Rollout
 from driveopt.experiments.store import JobKey
 from driveopt.planner import PlanStatus, RowKind, plan
 from driveopt.registry import get_planner
 from driveopt.sim import BicycleModel, get_scenario, make_env
-from driveopt.sim.rollout import Rollout
 
 MOVING_SPEED = 1.0  # [m/s] last speed set-point above which a chosen plan counts as moving
 def state_at(scenario, drive: str, env_seed: int, samples: int, time_s: float):

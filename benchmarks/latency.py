@@ -30,8 +30,8 @@ from driveopt.config import PlannerConfig
 from driveopt.errors import DriveoptError
 from driveopt.planner import plan
 from driveopt.problem import build_problem
-from driveopt.projection import XLA_CPU_COMPILER_OPTIONS, supported_compiler_options
 from driveopt.scene import load_scene
+from driveopt.xla import XLA_CPU_COMPILER_OPTIONS, supported_compiler_options
 
 BATCHES = (250, 500, 1000)
 SCHEDULES = ((5, 20), (1, 100))

@@ -24,9 +24,9 @@ import numpy as np
 from driveopt.data.demonstrations import DatasetError, load_demonstrations
 from driveopt.learned.checkpoint import CheckpointError
 from driveopt.learned.cvae import load_cvae, sample_setpoints
-from driveopt.learned.train_cvae import TrainConfig, training_rows
 from driveopt.priors.cvae import shipped_weights
 from driveopt.sim import get_scenario
+from driveopt.training.cvae import TrainConfig, training_rows
 
 SPEED_BANDS = ((0.0, 1.0), (1.0, 3.0), (3.0, 6.0), (6.0, 9.0), (9.0, np.inf))  # [m/s] of the ego
 

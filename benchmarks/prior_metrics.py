@@ -7,7 +7,7 @@
 For every usable row (the rows ``driveopt train`` learns from: feasible plan, more than 3 s before a
 collision; with ``--validation F`` only the episodes that ``train`` with the same ``--validation`` and
 ``--seed`` holds out, otherwise all rows of ``--data``, a held-out file) and every prior, the metrics of
-:mod:`driveopt.priors.metrics`: best of ``--best-of`` (16) [m^2] against the executed expert plan,
+:mod:`driveopt.experiments.prior_metrics`: best of ``--best-of`` (16) [m^2] against the executed expert plan,
 how many of ``--samples`` (250) samples project feasibly through ``--planner``'s projection (default
 ``vqvae``: P2's barrier projection, 100 iterations; the configuration capped at the simulated car's
 acceleration and curvature as in closed loop), and how many distinct target lanes they reach. The
@@ -19,7 +19,7 @@ coherent behaviours), ``cvae`` and ``vqvae`` (a PixelCNN checkpoint); a learned 
 weights (given, or shipped for the data's lane count) is left out with a notice.
 
 Output: one JSON line per (row, prior) in ``<json>.rows.jsonl``, appended as it goes, and the summary
-(:func:`driveopt.priors.metrics.summarise` per prior) in ``--json``, rewritten after every row. A rerun
+(:func:`driveopt.experiments.prior_metrics.summarise` per prior) in ``--json``, rewritten after every row. A rerun
 of the same command skips what is done; a rerun with other settings or data is refused.
 """
 
@@ -39,15 +39,22 @@ from driveopt.data.demonstrations import load_demonstrations
 from driveopt.data.replay import problem_from_row
 from driveopt.drivers.optimiser import adapt_to_vehicle
 from driveopt.errors import DriveoptError
+from driveopt.experiments.prior_metrics import (
+    BEST_OF,
+    FEASIBILITY_SAMPLES,
+    RowMetrics,
+    evaluation_config,
+    row_metrics,
+    summarise,
+)
 from driveopt.experiments.rows_file import resume_rows
-from driveopt.learned.checkpoint import file_digest
-from driveopt.learned.train_cvae import evaluation_road_rows
+from driveopt.files import file_digest
 from driveopt.priors import cvae, vqvae
-from driveopt.priors.gaussian import GaussianPrior
-from driveopt.priors.metrics import BEST_OF, FEASIBILITY_SAMPLES, RowMetrics, evaluation_config, row_metrics, summarise
 from driveopt.registry import get_optimiser
+from driveopt.sampler import GaussianPrior
 from driveopt.sim.control import BicycleModel
 from driveopt.sim.scenarios import get_scenario
+from driveopt.training.cvae import evaluation_road_rows
 
 PRIORS = ("gaussian-p1", "gaussian", "cvae", "vqvae")
 

@@ -22,8 +22,8 @@ import numpy as np
 from driveopt.config import PlannerConfig
 from driveopt.planner import plan
 from driveopt.priors.cvae import load_prior, shipped_weights
-from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import build_problem
+from driveopt.sampler import GaussianPrior
 from driveopt.scene import load_scene
 
 

@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
+from driveopt.experiments.rollout import Rollout
 from driveopt.registry import get_planner
 from driveopt.sim.fast_road import FastRoad
-from driveopt.sim.rollout import Rollout
 
 UPSTREAM_LIKE = FastRoad.like
 

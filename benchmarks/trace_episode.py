@@ -33,10 +33,10 @@ import numpy as np
 from driveopt.cli.common import config_overrides
 from driveopt.errors import DriveoptError
 from driveopt.experiments.bench import check_options
+from driveopt.experiments.rollout import Rollout
 from driveopt.experiments.store import JobKey
 from driveopt.registry import get_planner
 from driveopt.sim import get_scenario
-from driveopt.sim.rollout import Rollout
 
 PLAN_TIMES = (0.5, 1.0, 2.0, 3.0)  # [s] after the call: where the chosen plan's lateral position is shown
 NEAR = (25.0, 6.0)  # [m] along, across: cars listed around the ego

@@ -8,7 +8,7 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from driveopt.config import PlannerConfig  # noqa: E402
+from driveopt.config import PlannerConfig
 
 # One small configuration shared by the tests, so that it compiles once per session.
 SMALL = PlannerConfig().replace(

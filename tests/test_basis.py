@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 from driveopt.basis import basis_at, make_basis
-from driveopt.config import BasisConfig, ConfigError
+from driveopt.checks import ConfigError
+from driveopt.config import BasisConfig
 
 
 def test_partition_of_unity_and_derivative_sums():

@@ -4,17 +4,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import box_corners
 
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, build_problem, plan
 from driveopt.config import PlannerConfig, ProjectionConfig, QPConfig, from_dict
 from driveopt.planner import PreviousPlan, braking_coeffs, previous_plan
 from driveopt.prediction import is_follower, predict_neighbour, relevant_neighbours
-from driveopt.priors.gaussian import GaussianPrior
 from driveopt.projection import constraint_residuals
 from driveopt.qp import boundary_values, make_model
+from driveopt.sampler import GaussianPrior
 from driveopt.scene import ProblemError
-
-from conftest import box_corners
 
 
 def test_same_lane_followers_can_be_left_out():

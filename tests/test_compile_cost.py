@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import json
 
+import benchmark_scripts
 import jax
 import pytest
 
-import benchmark_scripts
-from driveopt.projection import XLA_CPU_COMPILER_OPTIONS, supported_compiler_options
+from driveopt.xla import XLA_CPU_COMPILER_OPTIONS, supported_compiler_options
 
 
 @pytest.fixture(scope="module")

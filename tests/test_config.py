@@ -1,12 +1,7 @@
 import pytest
 
-from driveopt.config import (
-    ConfigError,
-    PlannerConfig,
-    SamplerConfig,
-    from_dict,
-    to_dict,
-)
+from driveopt.checks import ConfigError
+from driveopt.config import PlannerConfig, SamplerConfig, from_dict, to_dict
 
 
 def test_round_trip_and_hashable():

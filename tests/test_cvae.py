@@ -11,31 +11,17 @@ import numpy as np
 import pytest
 from learned_data import LANES, write_synthetic
 
+from driveopt.checks import ConfigError
 from driveopt.cli import main
-from driveopt.config import ConfigError
 from driveopt.data.demonstrations import DatasetError, load_demonstrations
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint
-from driveopt.learned.cvae import (
-    CVAEConfig,
-    decode_setpoints,
-    fit_normaliser,
-    init_params,
-    load_cvae,
-    trajectory_model,
-)
-from driveopt.learned.train_cvae import (
-    TrainConfig,
-    TrainingError,
-    make_batch,
-    road_lanes,
-    train_cvae,
-    training_rows,
-)
+from driveopt.learned.cvae import CVAEConfig, decode_setpoints, fit_normaliser, init_params, load_cvae, trajectory_model
 from driveopt.planner import PlanStatus, plan
 from driveopt.priors.cvae import CVAEPrior, load_prior, prior_for, shipped_weights
 from driveopt.problem import build_problem
 from driveopt.qp import qp_layer
 from driveopt.scene import load_scene
+from driveopt.training.cvae import TrainConfig, TrainingError, make_batch, road_lanes, train_cvae, training_rows
 
 CFG = CVAEConfig(hidden=(32, 32))
 TCFG = TrainConfig(epochs=10, batch_size=32, learning_rate=3e-3, anneal_epochs=2, decay_every=8)
@@ -208,7 +194,7 @@ def test_mixed_prior_keeps_gaussian_share_around_the_warm_start(trained):
     import dataclasses
 
     from driveopt.config import PlannerConfig
-    from driveopt.priors.gaussian import GaussianPrior
+    from driveopt.sampler import GaussianPrior
 
     cfg = PlannerConfig()
     gaussian = dataclasses.replace(GaussianPrior.from_config(cfg.sampler, 30.0), speed_std=0.1, lateral_std=0.1, structured_fraction=0.0)

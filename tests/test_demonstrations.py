@@ -8,13 +8,8 @@ import pytest
 from learned_data import SCENARIO, synthetic_rows, write_synthetic
 
 from driveopt.cli import main
-from driveopt.data.collect import collect
-from driveopt.data.demonstrations import (
-    DatasetError,
-    DemonstrationWriter,
-    EpisodeKey,
-    load_demonstrations,
-)
+from driveopt.data.demonstrations import DatasetError, DemonstrationWriter, EpisodeKey, load_demonstrations
+from driveopt.experiments.collect import collect
 
 
 def _entry(episode: int, rows: int = 8, seed: int = 0) -> dict:

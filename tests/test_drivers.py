@@ -6,8 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from driveopt.config import ConfigError
-from driveopt.costs import Trajectory
+from driveopt.checks import ConfigError
 from driveopt.drivers.optimiser import OptimiserSpec, adapt_to_vehicle
 from driveopt.planner import PlanResult, PlanStatus
 from driveopt.prediction import BRAKING_TIME
@@ -18,6 +17,7 @@ from driveopt.sim.control import BicycleModel, EgoKinematics, brake_at_least, tr
 from driveopt.sim.env import make_env
 from driveopt.sim.perception import Perception
 from driveopt.sim.scenarios import get_scenario
+from driveopt.trajectory import Trajectory
 
 
 def test_planner_bounds_fit_the_simulated_car():
@@ -60,7 +60,7 @@ def test_idm_driver_takes_over_the_ego(env_and_scenario):
 
 def test_replan_every_executes_each_plan_for_several_periods():
     """P1's protocol: plan, track the same plan open-loop for the next periods, plan again."""
-    from driveopt.sim.rollout import Rollout
+    from driveopt.experiments.rollout import Rollout
 
     spec = get_planner("grid").with_replan_every(5)
     rollout = Rollout("two-lane-d1.0", spec.driver(), seed=2, duration=1.0)

@@ -6,9 +6,9 @@ from highway_env.road.lane import StraightLane
 from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 
+from driveopt.experiments.rollout import Rollout
 from driveopt.registry import get_planner
 from driveopt.sim.fast_road import FastRoad, along_x
-from driveopt.sim.rollout import Rollout
 
 
 def _roads(positions, speeds, lanes=4):

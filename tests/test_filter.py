@@ -15,13 +15,24 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from driveopt.checks import ConfigError
 from driveopt.cli import main
 from driveopt.cli.common import config_overrides
-from driveopt.config import BasisConfig, ConfigError, ProjectionConfig, QPConfig
+from driveopt.config import BasisConfig, ProjectionConfig, QPConfig
 from driveopt.data.demonstrations import DemonstrationWriter, load_demonstrations
 from driveopt.learned import filter as fl
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from driveopt.learned.train_filter import (
+from driveopt.observation import OBSERVATION_DIM, observation_vector
+from driveopt.planner import PlanStatus, plan, project_batch, setpoint_batch
+from driveopt.problem import build_problem
+from driveopt.projection import constraint_residuals, project
+from driveopt.qp import boundary_values, make_model, qp_layer, solve_setpoint_qp
+from driveopt.registry import get_optimiser, list_planners
+from driveopt.safety import FilterError, FilterInit, LearnedFilter, check_filter_init, load_filter
+from driveopt.sampler import GaussianPrior
+from driveopt.scene import EgoState, Neighbour, Road, Scene, load_scene
+from driveopt.sim.scenarios import get_scenario
+from driveopt.training.filter import (
     TrainConfig,
     _draw,
     row_problems,
@@ -31,16 +42,6 @@ from driveopt.learned.train_filter import (
     training_config,
     value_and_grad,
 )
-from driveopt.observation import OBSERVATION_DIM, observation_vector
-from driveopt.planner import PlanStatus, plan, project_batch, setpoint_batch
-from driveopt.priors.gaussian import GaussianPrior
-from driveopt.problem import build_problem
-from driveopt.projection import constraint_residuals, project
-from driveopt.qp import boundary_values, make_model, qp_layer, solve_setpoint_qp
-from driveopt.registry import get_optimiser, list_planners
-from driveopt.safety import FilterError, FilterInit, LearnedFilter, check_filter_init, load_filter
-from driveopt.scene import EgoState, Neighbour, Road, Scene, load_scene
-from driveopt.sim.scenarios import get_scenario
 
 CFG = fl.FilterConfig(hidden=(16, 16))
 TCFG = TrainConfig(epochs=4, batch_size=4, samples=8, unroll=2, samples_from="gaussian", learning_rate=1e-2,

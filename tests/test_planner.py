@@ -9,17 +9,7 @@ from conftest import box_corners, boxes_overlap
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from driveopt import (
-    EgoState,
-    Neighbour,
-    PlanStatus,
-    ProblemError,
-    Road,
-    Scene,
-    build_problem,
-    load_scene,
-    plan,
-)
+from driveopt import EgoState, Neighbour, PlanStatus, ProblemError, Road, Scene, build_problem, load_scene, plan
 
 
 def collides(traj, scene: Scene) -> bool:

@@ -11,7 +11,7 @@ import pytest
 from driveopt.cli import main
 from driveopt.viz.curves import COLUMNS, read_curve
 
-HEADER = "step,collision_rate,mean_return,mean_speed,episodes,wall_s,train_steps_per_s"  # driveopt.rl.train.CURVE_FIELDS
+HEADER = "step,collision_rate,mean_return,mean_speed,episodes,wall_s,train_steps_per_s"  # driveopt.training.rl.CURVE_FIELDS
 ROWS = ("200,1.0,-0.36,8.66,2,108.7,1.87", "1000,0.5,3.25,17.5,2,300.1,4.2", "2000,0.0,12.5,21.25,2,512.0,4.9")
 
 

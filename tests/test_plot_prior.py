@@ -75,8 +75,8 @@ def test_plot_prior_draws_one_column_per_prior_with_densities(weights, tmp_path,
 
 def test_plot_priors_returns_its_panels(weights, tmp_path):
     from driveopt.config import PlannerConfig
-    from driveopt.priors.gaussian import GaussianPrior
     from driveopt.priors.vqvae import load_prior
+    from driveopt.sampler import GaussianPrior
     from driveopt.viz.prior_plot import plot_priors
 
     config = PlannerConfig()

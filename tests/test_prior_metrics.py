@@ -17,10 +17,7 @@ from learned_data import synthetic_rows
 from driveopt.config import PlannerConfig
 from driveopt.data.demonstrations import DatasetError, DemonstrationWriter
 from driveopt.data.replay import road_from_bounds, scene_from_observation
-from driveopt.observation import observation_vector
-from driveopt.planner import RowKind
-from driveopt.priors.base import Proposal, moments
-from driveopt.priors.metrics import (
+from driveopt.experiments.prior_metrics import (
     MetricError,
     RowMetrics,
     best_of_n,
@@ -31,7 +28,10 @@ from driveopt.priors.metrics import (
     row_metrics,
     summarise,
 )
+from driveopt.observation import observation_vector
+from driveopt.planner import RowKind
 from driveopt.problem import build_problem
+from driveopt.sampler import Proposal, moments
 from driveopt.scene import EgoState, Road, Scene, load_scene
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"

@@ -8,20 +8,19 @@ import numpy as np
 import pytest
 
 from driveopt.config import ProjectionConfig, QPConfig
-from driveopt.costs import evaluate
 from driveopt.problem import build_problem
 from driveopt.projection import (
-    XLA_CPU_COMPILER_OPTIONS,
     _fast_rsqrt,
     constraint_residuals,
     lane_constraint,
     obstacle_floor,
     project,
     quasi_definite_inverse,
-    supported_compiler_options,
 )
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
 from driveopt.scene import EgoState, Neighbour, Road, Scene, load_scene
+from driveopt.trajectory import evaluate
+from driveopt.xla import XLA_CPU_COMPILER_OPTIONS, supported_compiler_options
 
 MODEL = make_model()
 # Everything "off" except what a test turns on.

@@ -7,13 +7,7 @@ import pytest
 
 from driveopt.basis import make_basis
 from driveopt.config import BasisConfig, QPConfig
-from driveopt.qp import (
-    boundary_values,
-    make_model,
-    segment_matrix,
-    solve_setpoint_qp,
-    split,
-)
+from driveopt.qp import boundary_values, make_model, segment_matrix, solve_setpoint_qp, split
 
 
 def reference_solution(qp: QPConfig, p: np.ndarray, init_x, init_y, goal=None) -> np.ndarray:

@@ -10,12 +10,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from driveopt.checks import ConfigError
 from driveopt.cli import main
-from driveopt.config import ConfigError, from_dict
+from driveopt.config import from_dict
+from driveopt.experiments.rollout import Rollout
 from driveopt.planner import PlanStatus, plan
 from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, ProblemError, Road, Scene, load_scene, scene_from_dict
-from driveopt.sim.rollout import Rollout
 
 TOLERANCE = 1e-3  # [m/s], [m] float32 slack of the checks below
 

@@ -17,6 +17,7 @@ from gymnasium.utils.env_checker import check_env
 
 from driveopt.cli import main
 from driveopt.drivers import rl as rl_driver
+from driveopt.experiments.rollout import Rollout, run_episode
 from driveopt.observation import observation_vector
 from driveopt.registry import get_planner
 from driveopt.rl import policy as rl_policy
@@ -35,7 +36,6 @@ from driveopt.rl.env import (
 )
 from driveopt.rl.policy import MissingExtraError, PolicyError, read_record
 from driveopt.sim.perception import perceive
-from driveopt.sim.rollout import Rollout, run_episode
 from driveopt.sim.scenarios import get_scenario
 
 SMALL = get_scenario("two-lane-d1.0").replace(vehicles_count=5, duration=10.0)
@@ -45,7 +45,7 @@ PPO_FAST = {"n_steps": 32, "batch_size": 16, "n_epochs": 2}
 
 
 def _train(*args, **kwargs):
-    from driveopt.rl.train import train_agent
+    from driveopt.training.rl import train_agent
 
     return train_agent(*args, progress=False, eval_episodes=1, **kwargs)
 
@@ -268,7 +268,7 @@ def test_shipped_policies_are_what_their_names_say_and_drive(algo, lanes):
     """Each shipped file is a checksummed driveopt policy of its algorithm, trained on a road of its lane
     count with the training env's current reward and settings, and the planner drives with it."""
     pytest.importorskip("stable_baselines3")
-    from driveopt.rl.train import settings_for
+    from driveopt.training.rl import settings_for
 
     path = rl_policy.shipped_policy(algo, lanes)
     assert path is not None and path.name == f"{algo}-{rl_policy.lane_word(lanes)}-lane.zip"

@@ -9,10 +9,9 @@ import numpy as np
 
 from driveopt.config import PlannerConfig
 from driveopt.planner import PlanStatus, PreviousPlan, RowKind, WarmStart, compiled_solve, plan, previous_plan, solve
-from driveopt.priors.base import Proposal
-from driveopt.priors.gaussian import GaussianPrior
 from driveopt.problem import build_problem
 from driveopt.safety import FilterInit
+from driveopt.sampler import GaussianPrior, Proposal
 from driveopt.scene import load_scene
 
 TINY = dict(sampler=dict(num_samples=24, num_iterations=2, num_constraint_elites=12, num_elites=6),

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import json
 
+import benchmark_scripts
 import pytest
 
 from driveopt.errors import DriveoptError
+from driveopt.experiments.rollout import run_episode
 from driveopt.experiments.store import JobKey
 from driveopt.registry import get_planner
-from driveopt.sim.rollout import run_episode
-
-import benchmark_scripts
 
 
 @pytest.fixture(scope="module")

@@ -10,9 +10,9 @@ import pytest
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
-from driveopt.sim.env import make_env  # noqa: E402
-from driveopt.sim.scenarios import get_scenario  # noqa: E402
-from driveopt.viz.video import (  # noqa: E402
+from driveopt.sim.env import make_env
+from driveopt.sim.scenarios import get_scenario
+from driveopt.viz.video import (
     CHOSEN_RGBA,
     ELITE_RGBA,
     FALLBACK_RGBA,

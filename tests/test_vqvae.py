@@ -17,7 +17,6 @@ from learned_data import SCENARIO, synthetic_rows
 from driveopt.basis import make_basis
 from driveopt.cli import main
 from driveopt.config import BasisConfig, QPConfig
-from driveopt.data.collect import collect
 from driveopt.data.demonstrations import (
     EPISODE_FIELDS,
     ROW_FIELDS,
@@ -28,17 +27,18 @@ from driveopt.data.demonstrations import (
 )
 from driveopt.data.modes import SPEED_GAP, lanes_per_row, plan_features, select_modes
 from driveopt.data.replay import mode_lanes
+from driveopt.experiments.collect import collect
 from driveopt.learned import pixelcnn as px
 from driveopt.learned import vqvae as vq
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from driveopt.learned.train_cvae import make_batch, training_rows
-from driveopt.learned.train_vqvae import TrainConfig, mode_batch, mode_examples, train_pixelcnn, train_vqvae
 from driveopt.planner import PlanStatus, RowKind, Snapshot, plan
 from driveopt.priors.vqvae import VQVAEPrior, load_prior, prior_for
 from driveopt.problem import build_problem
 from driveopt.qp import make_model, qp_layer
 from driveopt.registry import get_optimiser
 from driveopt.scene import load_scene
+from driveopt.training.cvae import make_batch, training_rows
+from driveopt.training.vqvae import TrainConfig, mode_batch, mode_examples, train_pixelcnn, train_vqvae
 
 M = 4  # mode slots of the synthetic files
 # What the `trained` fixture's commands train (the tests' own calls with these settings reuse its compilations).

@@ -12,15 +12,8 @@ learned components' features), ``problem`` (arrays for the planner); the numeric
 ``viz/``, ``cli/``; ``errors`` (the base error).
 """
 
-from driveopt.config import (
-    BasisConfig,
-    ConfigError,
-    CostConfig,
-    PlannerConfig,
-    ProjectionConfig,
-    QPConfig,
-    SamplerConfig,
-)
+from driveopt.checks import ConfigError
+from driveopt.config import BasisConfig, CostConfig, PlannerConfig, ProjectionConfig, QPConfig, SamplerConfig
 from driveopt.errors import DriveoptError
 from driveopt.planner import PlanResult, PlanStatus, Solution, plan, solve
 from driveopt.priors import GaussianPrior, Prior, Proposal

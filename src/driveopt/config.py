@@ -9,69 +9,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-from driveopt.errors import DriveoptError
-
-
-class ConfigError(DriveoptError):
-    """A configuration value is malformed or out of range."""
-
-
-def _require(cond: bool, message: str) -> None:
-    if not cond:
-        raise ConfigError(message)
-
+from driveopt.checks import ConfigError, check_types, require
 
 MAX_HORIZON = 120.0  # [s] longest planning horizon
 MAX_SPEED = 100.0  # [m/s] highest speed bound
 MAX_ACCELERATION = 100.0  # [m/s^2] highest acceleration bound
 MAX_WEIGHT = 1e6  # [-] highest cost weight, gain or penalty weight
-
-_EXPECTED = {"bool": "true or false", "int": "an integer", "float": "a number"}
-
-
-def _check_types(config: Any, section: str) -> None:
-    """Every field of the dataclass ``config`` has its declared type (a bool is a bool, an int an int
-    and not a bool, a float a real number and not a bool) and every float is finite; an int given for
-    a float field becomes a float. JSON values are never coerced (``"false"`` is not false)."""
-    for f in dataclasses.fields(config):
-        if f.type not in _EXPECTED:
-            continue  # nested sections check themselves
-        value = getattr(config, f.name)
-        name = f"{section}.{f.name}" if section else f.name
-        if f.type == "bool":
-            ok = isinstance(value, bool)
-        elif f.type == "int":
-            ok = isinstance(value, int) and not isinstance(value, bool)
-        else:
-            ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
-        _require(ok, f"{name} must be {_EXPECTED[f.type]}, got {value!r}")
-        if f.type == "float":
-            _require(math.isfinite(value), f"{name} must be finite, got {value!r}")
-            object.__setattr__(config, f.name, float(value))
-
-
-def check_number(name: str, value: Any, low: float, high: float = math.inf, *, low_open: bool = False,
-                 high_open: bool = False, unit: str = "") -> None:
-    """ConfigError naming ``name`` unless ``value`` is a finite real number (not a bool) between ``low``
-    and ``high``, each bound included unless ``low_open`` / ``high_open``; ``unit`` goes into the message."""
-    real = isinstance(value, numbers.Real) and not isinstance(value, bool)
-    ok = real and math.isfinite(value) and (low < value if low_open else low <= value) and (
-        value < high if high_open else value <= high)
-    if not ok:
-        lower = f"> {low:g}" if low_open else f">= {low:g}"
-        upper = "" if high == math.inf else f" and {'<' if high_open else '<='} {high:g}"
-        raise ConfigError(f"{name} must be a finite number {lower}{upper}{' ' + unit if unit else ''}, got {value!r}")
-
-
-def check_count(name: str, value: Any, minimum: int = 1) -> None:
-    """ConfigError naming ``name`` unless ``value`` is an integer (not a bool) >= ``minimum``."""
-    if not (isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= minimum):
-        raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
-
 
 
 @dataclass(frozen=True)
@@ -83,11 +29,11 @@ class BasisConfig:
     num_nodes: int = 100  # time nodes on [0, T], both ends included
 
     def __post_init__(self) -> None:
-        _check_types(self, "basis")
-        _require(3 <= self.order <= 20, f"basis.order must be in [3, 20], got {self.order}")
-        _require(0 < self.horizon <= MAX_HORIZON, f"basis.horizon must be in (0, {MAX_HORIZON:g}] s, got {self.horizon:g}")
-        _require(8 <= self.num_nodes <= 2000, f"basis.num_nodes must be in [8, 2000], got {self.num_nodes}")
-        _require(self.num_nodes % 4 == 0, "basis.num_nodes must be divisible by 4 (one segment per set-point)")
+        check_types(self, "basis")
+        require(3 <= self.order <= 20, f"basis.order must be in [3, 20], got {self.order}")
+        require(0 < self.horizon <= MAX_HORIZON, f"basis.horizon must be in (0, {MAX_HORIZON:g}] s, got {self.horizon:g}")
+        require(8 <= self.num_nodes <= 2000, f"basis.num_nodes must be in [8, 2000], got {self.num_nodes}")
+        require(self.num_nodes % 4 == 0, "basis.num_nodes must be divisible by 4 (one segment per set-point)")
 
     @property
     def num_coeffs(self) -> int:
@@ -117,11 +63,11 @@ class QPConfig:
     terminal_position: bool = False  # also impose x(T) = x_f, y(T) = y_f (goal-sampling baseline)
 
     def __post_init__(self) -> None:
-        _check_types(self, "qp")
+        check_types(self, "qp")
         for name in ("w_smooth", "w_speed", "w_lateral", "k_pv", "k_p", "k_d", "initial_acceleration_weight"):
             value = getattr(self, name)
-            _require(0 <= value <= MAX_WEIGHT, f"qp.{name} must be in [0, {MAX_WEIGHT:g}], got {value:g}")
-        _require(self.w_smooth > 0, "qp.w_smooth must be > 0 (it keeps the QP strictly convex)")
+            require(0 <= value <= MAX_WEIGHT, f"qp.{name} must be in [0, {MAX_WEIGHT:g}], got {value:g}")
+        require(self.w_smooth > 0, "qp.w_smooth must be > 0 (it keeps the QP strictly convex)")
 
 
 @dataclass(frozen=True)
@@ -151,29 +97,29 @@ class ProjectionConfig:
     # car's direction means little; a car that crawls sideways below it is not held to the bound)
     ego_turn_rate: float = 0.179  # [rad/m] > 0: the lateral growth of the ellipses for the ego's turned box lasts, per
     # sample, until its heading has fallen this much per metre the sample travels along the road (a plan that stands keeps
-    # it), and at least over the plan's first seconds (problem.ellipse_growth; 0: only those, as before c0f4b76); 0.179 is
+    # it), and at least over the plan's first seconds (problem.ellipse_growth; 0: only those); 0.179 is
     # highway-env's bicycle at full lock
 
     def __post_init__(self) -> None:
-        _check_types(self, "projection")
-        _require(0 <= self.max_iterations <= 10_000, f"projection.max_iterations must be in [0, 10000], got {self.max_iterations}")
-        _require(self.tolerance >= 0, "projection.tolerance must be >= 0")
+        check_types(self, "projection")
+        require(0 <= self.max_iterations <= 10_000, f"projection.max_iterations must be in [0, 10000], got {self.max_iterations}")
+        require(self.tolerance >= 0, "projection.tolerance must be >= 0")
         for name in ("rho_obstacle", "rho_velocity", "rho_acceleration", "rho_lane"):
             value = getattr(self, name)
-            _require(0 < value <= MAX_WEIGHT, f"projection.{name} must be in (0, {MAX_WEIGHT:g}], got {value:g}")
-        _require(0 <= self.v_min < self.v_max <= MAX_SPEED, f"projection needs 0 <= v_min < v_max <= {MAX_SPEED:g} m/s")
-        _require(0 < self.a_max <= MAX_ACCELERATION, f"projection.a_max must be in (0, {MAX_ACCELERATION:g}] m/s^2")
-        _require(0 <= self.kappa_max <= 10, "projection.kappa_max must be in [0, 10] 1/m")
-        _require(0 < self.centripetal_max <= MAX_ACCELERATION, f"projection.centripetal_max must be in (0, {MAX_ACCELERATION:g}] m/s^2")
-        _require(0 <= self.recovery_time <= MAX_HORIZON, f"projection.recovery_time must be in [0, {MAX_HORIZON:g}] s")
-        _require(0 <= self.ego_turn_rate <= 10, f"projection.ego_turn_rate must be in [0, 10] rad/m, got {self.ego_turn_rate:g}")
-        _require(0 <= self.course_max < math.pi / 2, f"projection.course_max must be in [0, pi/2) rad, got {self.course_max:g}")
-        _require(0 <= self.course_min_speed <= MAX_SPEED,
+            require(0 < value <= MAX_WEIGHT, f"projection.{name} must be in (0, {MAX_WEIGHT:g}], got {value:g}")
+        require(0 <= self.v_min < self.v_max <= MAX_SPEED, f"projection needs 0 <= v_min < v_max <= {MAX_SPEED:g} m/s")
+        require(0 < self.a_max <= MAX_ACCELERATION, f"projection.a_max must be in (0, {MAX_ACCELERATION:g}] m/s^2")
+        require(0 <= self.kappa_max <= 10, "projection.kappa_max must be in [0, 10] 1/m")
+        require(0 < self.centripetal_max <= MAX_ACCELERATION, f"projection.centripetal_max must be in (0, {MAX_ACCELERATION:g}] m/s^2")
+        require(0 <= self.recovery_time <= MAX_HORIZON, f"projection.recovery_time must be in [0, {MAX_HORIZON:g}] s")
+        require(0 <= self.ego_turn_rate <= 10, f"projection.ego_turn_rate must be in [0, 10] rad/m, got {self.ego_turn_rate:g}")
+        require(0 <= self.course_max < math.pi / 2, f"projection.course_max must be in [0, pi/2) rad, got {self.course_max:g}")
+        require(0 <= self.course_min_speed <= MAX_SPEED,
                  f"projection.course_min_speed must be in [0, {MAX_SPEED:g}] m/s, got {self.course_min_speed:g}")
         for name in ("gamma_obs", "gamma_lane"):
             value = getattr(self, name)
-            _require(0 < value <= 1, f"projection.{name} must be in (0, 1], got {value:g}")
-            _require(self.barrier or value == 1, f"projection.{name} = {value:g} needs projection.barrier = true "
+            require(0 < value <= 1, f"projection.{name} must be in (0, 1], got {value:g}")
+            require(self.barrier or value == 1, f"projection.{name} = {value:g} needs projection.barrier = true "
                                                  "(the plain constraints have no barrier parameter)")
 
 
@@ -189,10 +135,10 @@ class CostConfig:
     consistency: float = 0.1  # [1/m^2] (y(t) - y_previous(t))^2 against the previous replan's plan (0: not used, P1)
 
     def __post_init__(self) -> None:
-        _check_types(self, "cost")
+        check_types(self, "cost")
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            _require(0 <= value <= MAX_WEIGHT, f"cost.{f.name} must be in [0, {MAX_WEIGHT:g}], got {value:g}")
+            require(0 <= value <= MAX_WEIGHT, f"cost.{f.name} must be in [0, {MAX_WEIGHT:g}], got {value:g}")
 
 
 @dataclass(frozen=True)
@@ -216,23 +162,23 @@ class SamplerConfig:
     refine_iterations: int = 75  # [-] projection iterations added to each refined sample
 
     def __post_init__(self) -> None:
-        _check_types(self, "sampler")
-        _require(1 <= self.num_samples <= 100_000, f"sampler.num_samples must be in [1, 100000], got {self.num_samples}")
-        _require(1 <= self.num_iterations <= 1000, f"sampler.num_iterations must be in [1, 1000], got {self.num_iterations}")
-        _require(
+        check_types(self, "sampler")
+        require(1 <= self.num_samples <= 100_000, f"sampler.num_samples must be in [1, 100000], got {self.num_samples}")
+        require(1 <= self.num_iterations <= 1000, f"sampler.num_iterations must be in [1, 1000], got {self.num_iterations}")
+        require(
             1 <= self.num_elites <= self.num_constraint_elites <= self.num_samples,
             "sampler needs 1 <= num_elites <= num_constraint_elites <= num_samples",
         )
-        _require(0 < self.temperature <= MAX_WEIGHT, f"sampler.temperature must be in (0, {MAX_WEIGHT:g}]")
-        _require(0 < self.learning_rate <= 1, "sampler.learning_rate must be in (0, 1]")
-        _require(0 <= self.covariance_jitter <= 1e3, "sampler.covariance_jitter must be in [0, 1000]")
-        _require(0 < self.speed_std <= MAX_SPEED and 0 < self.lateral_std <= 100, "sampler needs speed_std in (0, 100] m/s and lateral_std in (0, 100] m")
-        _require(0 <= self.residual_tolerance <= 1e3, "sampler.residual_tolerance must be in [0, 1000]")
-        _require(0 <= self.structured_fraction <= 1, "sampler.structured_fraction must be in [0, 1]")
-        _require(0 < self.ranking_cost_weight <= MAX_WEIGHT, f"sampler.ranking_cost_weight must be in (0, {MAX_WEIGHT:g}]")
-        _require(0 <= self.refine_samples <= self.num_samples,
+        require(0 < self.temperature <= MAX_WEIGHT, f"sampler.temperature must be in (0, {MAX_WEIGHT:g}]")
+        require(0 < self.learning_rate <= 1, "sampler.learning_rate must be in (0, 1]")
+        require(0 <= self.covariance_jitter <= 1e3, "sampler.covariance_jitter must be in [0, 1000]")
+        require(0 < self.speed_std <= MAX_SPEED and 0 < self.lateral_std <= 100, "sampler needs speed_std in (0, 100] m/s and lateral_std in (0, 100] m")
+        require(0 <= self.residual_tolerance <= 1e3, "sampler.residual_tolerance must be in [0, 1000]")
+        require(0 <= self.structured_fraction <= 1, "sampler.structured_fraction must be in [0, 1]")
+        require(0 < self.ranking_cost_weight <= MAX_WEIGHT, f"sampler.ranking_cost_weight must be in (0, {MAX_WEIGHT:g}]")
+        require(0 <= self.refine_samples <= self.num_samples,
                  f"sampler.refine_samples must be in [0, num_samples = {self.num_samples}], got {self.refine_samples}")
-        _require(1 <= self.refine_iterations <= 10_000, f"sampler.refine_iterations must be in [1, 10000], got {self.refine_iterations}")
+        require(1 <= self.refine_iterations <= 10_000, f"sampler.refine_iterations must be in [1, 10000], got {self.refine_iterations}")
 
 
 @dataclass(frozen=True)
@@ -255,8 +201,8 @@ class PlannerConfig:
     stop_rows: bool = True  # append the comfortable and the emergency stop to every batch (False: P1)
 
     def __post_init__(self) -> None:
-        _check_types(self, "")
-        _require(0 < self.fallback_deceleration <= MAX_ACCELERATION, f"fallback_deceleration must be in (0, {MAX_ACCELERATION:g}] m/s^2")
+        check_types(self, "")
+        require(0 < self.fallback_deceleration <= MAX_ACCELERATION, f"fallback_deceleration must be in (0, {MAX_ACCELERATION:g}] m/s^2")
 
     def replace(self, **sections: Mapping[str, Any] | Any) -> "PlannerConfig":
         """Copy with sections replaced; a mapping value updates fields of that section.

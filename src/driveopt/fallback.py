@@ -16,7 +16,7 @@ in its status. Of the stops it weighs it offers the one that enters an obstacle'
 (:func:`first_contact`; ties, e.g. no contact, by the lower residual): an L2 residual rates a
 stop that drives through a slow car ahead in half a second better than one that ends just
 inside its ellipse, so ranking by residual alone chose the comfortable stop into a car 24 m
-ahead at 20 m/s closing speed (issue 13). With ``fallback_evasion`` the stops are first ranked by when they would
+ahead at 20 m/s closing speed. With ``fallback_evasion`` the stops are first ranked by when they would
 touch a car (:func:`box_contact`, the box inside the ellipse), then by ellipse entry: the ellipse circumscribes the
 box around both cars' corners, so all stops may enter it at once while one of them still passes the car. The
 sideways stops are weighed only where both others would touch a car's box: they are for a car whose nearest lane
@@ -32,11 +32,12 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from driveopt.costs import Trajectory, nearest_lane_center
+from driveopt.costs import nearest_lane_center
 from driveopt.prediction import turned_box_growth
 from driveopt.problem import PlanningProblem, ellipse_axes
 from driveopt.qp import NUM_SEGMENTS, TrajectoryModel, fit_positions
 from driveopt.scene import CAR_LENGTH, CAR_WIDTH
+from driveopt.trajectory import Trajectory
 
 EASING_TIME = 3.0  # [s] the stop rows reach their lateral target in this time
 MIN_EASING_DISTANCE = 20.0  # [m] the fallback's lateral change is spread over at least this path length

@@ -60,26 +60,20 @@ import jax.numpy as jnp
 import numpy as np
 
 from driveopt.config import PlannerConfig, SamplerConfig
-from driveopt.costs import (
-    COST_TERMS,
-    Trajectory,
-    cost_terms,
-    evaluate,
-    weighted_cost,
+from driveopt.costs import COST_TERMS, cost_terms, weighted_cost
+from driveopt.fallback import (
+    EVASIONS,
+    HOLD,
+    LANE_CENTRE,
+    box_contact,
+    braking_coeffs,
+    first_contact,
+    stop_setpoints,
+    stop_trajectory,
 )
-from driveopt.fallback import EVASIONS, HOLD, LANE_CENTRE, box_contact, braking_coeffs, first_contact, stop_setpoints, stop_trajectory
-from driveopt.precision import float32_products
-from driveopt.priors.base import Prior, clip_setpoints, default_mean
-from driveopt.priors.gaussian import GaussianPrior
+from driveopt.filtering import SafetyFilter, check_filter_init
 from driveopt.problem import PlanningProblem, check_problem
-from driveopt.projection import (
-    FAMILIES,
-    XLA_CPU_COMPILER_OPTIONS,
-    ProjectionResult,
-    constraint_residuals,
-    project,
-    supported_compiler_options,
-)
+from driveopt.projection import FAMILIES, ProjectionResult, constraint_residuals, project
 from driveopt.qp import (
     NUM_SEGMENTS,
     SETPOINT_DIM,
@@ -89,9 +83,10 @@ from driveopt.qp import (
     make_model,
     solve_setpoint_qp,
 )
-from driveopt.safety.base import SafetyFilter, check_filter_init
-from driveopt.sampler import cem_update, sample_gaussian, select_lowest
+from driveopt.sampler import GaussianPrior, Prior, cem_update, clip_setpoints, default_mean, sample_gaussian, select_lowest
 from driveopt.scene import ProblemError
+from driveopt.trajectory import Trajectory, evaluate
+from driveopt.xla import XLA_CPU_COMPILER_OPTIONS, float32_products, supported_compiler_options
 
 INFEASIBLE_PENALTY = 1e6  # [-] added to the ranking key of an infeasible sample (feasibility_first): feasible ones rank first
 

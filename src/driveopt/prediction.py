@@ -5,8 +5,8 @@ Neighbours are predicted with constant velocity, except that a braking one keeps
 that come closest to the ego within :data:`SELECTION_TIME` (the ego holding its velocity) are
 planned against, each inside a collision ellipse that circumscribes the Minkowski sum of the two
 vehicle boxes. Ranking by distance now instead (P1) drops a stopped car 45 m ahead of an ego at
-20 m/s whenever ten cars are nearer, in dense traffic often until braking no longer avoids it
-(issue 13). Positions and times in the road frame: metres, seconds.
+20 m/s whenever ten cars are nearer, in dense traffic often until braking no longer avoids it.
+Positions and times in the road frame: metres, seconds.
 """
 
 from __future__ import annotations

@@ -40,36 +40,12 @@ import jax
 import jax.numpy as jnp
 
 from driveopt.config import ProjectionConfig
-from driveopt.precision import float32_products
 from driveopt.problem import PlanningProblem, ellipse_axes
 from driveopt.qp import TrajectoryModel, split
+from driveopt.xla import float32_products
 
 _EPS = 1e-6
 CURVATURE_MIN_SPEED = 1.0  # [m/s] below this speed the curvature bound is not applied
-
-# Compiler options for the jit that runs the projection on CPU (jax.jit(..., compiler_options=...)); per-jit
-# settings rather than XLA_FLAGS, so nothing else in the user's process changes. Each one only changes how
-# the same HLO is emitted, never the maths:
-# - 512-bit vectors: the projection is arithmetic-bound in its elementwise loops; ~10% of a planning call
-#   on AVX-512 machines (LLVM treats the width as a preference, so other CPUs are unaffected).
-# - no YNNPACK fusions: recent jaxlibs hand dots and elementwise/reduce fusions to the YNNPACK library. For
-#   this problem's small (B, K) arrays its fusions are much slower than XLA's own loops: the per-sample
-#   residual sums alone took ~3 ms of each sampler iteration. 250 x 5 x 20 goes from ~57 to ~48 ms.
-XLA_CPU_COMPILER_OPTIONS = {"xla_cpu_prefer_vector_width": 512, "xla_cpu_experimental_ynn_fusion_type": ""}
-
-
-def supported_compiler_options(options: dict) -> dict:
-    """The entries of ``options`` that this jaxlib's compiler accepts (an unknown name is an error at
-    compile time, and option names come and go between releases)."""
-    supported = {}
-    for name, value in options.items():
-        try:
-            jax.jit(lambda x: x + 1, compiler_options={name: value}).lower(jnp.float32(0)).compile()
-        except Exception:  # jaxlib's error type has moved between releases; any failure means "not supported"
-            continue
-        supported[name] = value
-    return supported
-
 
 class ProjectionStatus(enum.IntEnum):
     CONVERGED = 0
@@ -183,7 +159,7 @@ def course_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: Project
 
     The bound keeps the projection from turning a blocked plan into a sideways swerve: in dense traffic a plan
     pushed around a stopped car by the obstacle rows alone crossed three lanes in 3 s at 6 m/s (course up to
-    0.95 rad), and the lateral speed it built up could not be undone before the next car (issue 13)."""
+    0.95 rad), and the lateral speed it built up could not be undone before the next car."""
     t = jnp.asarray(model.t)
     vx0, vy0 = problem.init_x[1], problem.init_y[1]
     moving = vx0 * vx0 + vy0 * vy0 > CURVATURE_MIN_SPEED ** 2

@@ -21,7 +21,7 @@ import numpy as np
 
 from driveopt.basis import Basis, make_basis
 from driveopt.config import BasisConfig, QPConfig
-from driveopt.precision import float32_products
+from driveopt.xla import float32_products
 
 NUM_SEGMENTS = 4  # set-points per axis; each holds over a quarter of the horizon
 SETPOINT_DIM = 2 * NUM_SEGMENTS  # p = (v_1..v_4 [m/s], y_1..y_4 [m])

@@ -10,12 +10,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from driveopt.config import PlannerConfig
-from driveopt.costs import Trajectory
 from driveopt.planner import PlanResult, PlanStatus
 from driveopt.registry import get_planner
 from driveopt.scene import EgoState, Neighbour, Road, Scene
 from driveopt.sim.contact import CONTACT_MARGIN, GUARD_SPEED, MIN_HORIZON, Boxes, clearance, guard, rollout, separation
 from driveopt.sim.control import BicycleModel, Command, EgoKinematics, predict, to_action
+from driveopt.trajectory import Trajectory
 
 MODEL = BicycleModel()
 coordinate = st.floats(-6.0, 6.0)

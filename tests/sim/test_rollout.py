@@ -7,10 +7,10 @@ import pytest
 
 from driveopt.cli import main
 from driveopt.drivers.rl import RLSpec
+from driveopt.experiments.rollout import Rollout, run_episode
 from driveopt.planner import compiled_solve
 from driveopt.registry import get_planner, list_planners
 from driveopt.rl.policy import PolicyError, shipped_policy
-from driveopt.sim.rollout import Rollout, run_episode
 from driveopt.sim.scenarios import get_scenario, list_scenarios
 
 

@@ -12,7 +12,6 @@ import pytest
 from highway_env.vehicle.kinematics import Vehicle
 
 from driveopt.config import BasisConfig, PlannerConfig, QPConfig
-from driveopt.costs import Trajectory, evaluate
 from driveopt.planner import PlanStatus, plan
 from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
@@ -34,6 +33,7 @@ from driveopt.sim.env import make_env, step_env
 from driveopt.sim.perception import scene_from_env
 from driveopt.sim.road_frame import slip_angle
 from driveopt.sim.scenarios import get_scenario
+from driveopt.trajectory import Trajectory, evaluate
 
 # ----------------------------------------------------------------------------- the model and the action map
 

@@ -1,6 +1,6 @@
 """``driveopt collect``: expert demonstrations into an HDF5 file, resumable.
 
-The options are checked (:func:`driveopt.data.collect.check_options`) before the file is created or opened.
+The options are checked (:func:`driveopt.experiments.collect.check_options`) before the file is created or opened.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from driveopt.data.collect import collect, summary_json
+    from driveopt.experiments.collect import collect, summary_json
 
     summary = collect(args.out, args.scenarios, seed=args.seed, episodes=args.episodes, samples=args.samples,
                       iterations=args.iterations, duration=args.duration, workers=args.workers, modes=args.modes)

@@ -28,9 +28,9 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from driveopt.experiments.rollout import Rollout
     from driveopt.planner import PlanStatus
     from driveopt.registry import get_planner
-    from driveopt.sim.rollout import Rollout
     from driveopt.sim.scenarios import resolve_scenario
 
     writable_file(args.json, "--json")

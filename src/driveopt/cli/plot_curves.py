@@ -1,4 +1,4 @@
-"""``driveopt plot-curves``: training curves of the RL baselines against env steps (issue 16).
+"""``driveopt plot-curves``: training curves of the RL baselines against env steps.
 
 Reads ``curve.csv`` (and ``summary.json`` for the label) of each ``driveopt train dqn|ppo`` output
 folder and draws mean evaluation return, evaluation collision rate [%] and mean speed [m/s] against

@@ -70,7 +70,7 @@ def _learned(label: str, option: str, given: str | None, shipped: Path | None, l
 def run(args: argparse.Namespace) -> int:
     from driveopt.config import PlannerConfig
     from driveopt.priors import cvae, vqvae
-    from driveopt.priors.gaussian import GaussianPrior
+    from driveopt.sampler import GaussianPrior
     from driveopt.viz.prior_plot import ROWS, plot_priors
 
     writable_file(args.out, "--out")

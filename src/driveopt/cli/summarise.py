@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 
 from driveopt.cli.common import UsageError
-from driveopt.folders import make_output_folder
+from driveopt.files import make_output_folder
 
 
 def register(sub) -> None:

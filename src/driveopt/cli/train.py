@@ -1,6 +1,6 @@
 """``driveopt train MODEL``: fit a learned component to demonstrations, resumable (cvae, vqvae, pixelcnn, filter, dqn, ppo).
 
-The settings are checked (:class:`~driveopt.learned.train_cvae.TrainConfig`,
+The settings are checked (:class:`~driveopt.training.cvae.TrainConfig`,
 :class:`~driveopt.learned.cvae.CVAEConfig`: NaN, infinite and out-of-range values are refused) before
 any data is read or output written.
 """
@@ -40,7 +40,7 @@ def register(sub) -> None:
 
 def run_cvae(args: argparse.Namespace) -> int:
     from driveopt.learned.cvae import CVAEConfig
-    from driveopt.learned.train_cvae import TrainConfig, train_cvae
+    from driveopt.training.cvae import TrainConfig, train_cvae
 
     cfg = CVAEConfig(latent_dim=args.latent, hidden=tuple(args.hidden))
     tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, beta=args.beta,

@@ -1,6 +1,6 @@
 """``driveopt train filter`` (P2's learned safety filter), registered by :mod:`driveopt.cli.train`.
 
-The settings are checked (:class:`~driveopt.learned.train_filter.TrainConfig`,
+The settings are checked (:class:`~driveopt.training.filter.TrainConfig`,
 :class:`~driveopt.learned.filter.FilterConfig`) and the planner looked up before any data is read or
 output written.
 """
@@ -43,8 +43,8 @@ def register_models(models) -> None:
 
 def run_filter(args: argparse.Namespace) -> int:
     from driveopt.learned.filter import FilterConfig
-    from driveopt.learned.train_filter import TrainConfig, train_filter
     from driveopt.registry import get_optimiser
+    from driveopt.training.filter import TrainConfig, train_filter
 
     spec = get_optimiser(args.planner)
     cfg = FilterConfig(hidden=tuple(args.hidden), gamma_min=args.gamma_min, basis=spec.config.basis)

@@ -28,8 +28,8 @@ def register_models(models) -> None:
 
 
 def run_rl(args: argparse.Namespace) -> int:
-    from driveopt.rl.train import train_agent
     from driveopt.sim.scenarios import resolve_scenario
+    from driveopt.training.rl import train_agent
 
     scenario = resolve_scenario(args.scenario, config_file=args.scenario_config)
     summary = train_agent(args.algo, scenario, args.steps, args.out, envs=args.envs, eval_every=args.eval_every,

@@ -1,6 +1,6 @@
 """``driveopt train vqvae`` and ``driveopt train pixelcnn`` (P2's learned sampler), registered by :mod:`driveopt.cli.train`.
 
-The settings are checked (:class:`~driveopt.learned.train_vqvae.TrainConfig`,
+The settings are checked (:class:`~driveopt.training.vqvae.TrainConfig`,
 :class:`~driveopt.learned.vqvae.VQVAEConfig`, :class:`~driveopt.learned.pixelcnn.PixelCNNConfig`)
 before any data is read or output written.
 """
@@ -45,7 +45,7 @@ def register_models(models) -> None:
 
 
 def _train_config(args: argparse.Namespace, **extra):
-    from driveopt.learned.train_vqvae import TrainConfig
+    from driveopt.training.vqvae import TrainConfig
 
     return TrainConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, validation_fraction=args.validation,
                        train_episodes=args.train_episodes, seed=args.seed, **extra)
@@ -61,8 +61,8 @@ def _report(summary: dict, unit: str) -> None:
 
 
 def run_vqvae(args: argparse.Namespace) -> int:
-    from driveopt.learned.train_vqvae import train_vqvae
     from driveopt.learned.vqvae import VQVAEConfig
+    from driveopt.training.vqvae import train_vqvae
 
     cfg = VQVAEConfig(beta=args.beta, codebook_size=args.codes, latent_dim=args.latent_dim, decoder_hidden=tuple(args.hidden))
     tcfg = _train_config(args, reseed_dead_codes=not args.no_reseed)
@@ -77,8 +77,8 @@ def run_vqvae(args: argparse.Namespace) -> int:
 
 def run_pixelcnn(args: argparse.Namespace) -> int:
     from driveopt.learned.pixelcnn import PixelCNNConfig
-    from driveopt.learned.train_vqvae import train_pixelcnn
     from driveopt.learned.vqvae import load_vqvae
+    from driveopt.training.vqvae import train_pixelcnn
 
     tcfg = _train_config(args)
     vq_cfg = load_vqvae(args.vqvae)[0]

@@ -1,4 +1,4 @@
-"""Multi-modal demonstrations: the distinct feasible plans of the expert's first and final batches (issue 14, P2 §V-A1).
+"""Multi-modal demonstrations: the distinct feasible plans of the expert's first and final batches (P2 §V-A1).
 
 A CVAE trained on the executed plan alone imitates the expert's pick, not its search (README, CVAE
 section). P2 trains its VQ-VAE on *several* good plans per observation. ``driveopt collect`` stores,

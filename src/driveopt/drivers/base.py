@@ -2,7 +2,7 @@
 
 A driver is reset once per episode (``reset(env, scenario, seed)``: it may swap the ego vehicle,
 compile, draw its PRNG key from the seed) and then asked for one action per policy step
-(``act(env) -> Decision``). The rollout (:mod:`driveopt.sim.rollout`) owns the simulator; a driver
+(``act(env) -> Decision``). The rollout (:mod:`driveopt.experiments.rollout`) owns the simulator; a driver
 only reads it and answers. A :class:`DriverSpec` is the registered, immutable description of a
 planner (``driveopt planners``) and makes a fresh driver for each episode.
 """

@@ -30,9 +30,10 @@ from typing import Any, Callable
 
 import jax
 
-from driveopt.config import PlannerConfig, _check_types, check_count
+from driveopt.checks import check_count, check_types
+from driveopt.config import PlannerConfig
 from driveopt.drivers.base import Decision, DriverSpec
-from driveopt.learned.checkpoint import pytree_digest
+from driveopt.files import pytree_digest
 from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, WarmStart, plan, previous_plan
 from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
@@ -80,7 +81,7 @@ class OptimiserSpec(DriverSpec):
     filter_weights: str | None = None  # learned safety filter checkpoint for any optimiser (default: none, or the shipped one)
 
     def __post_init__(self) -> None:
-        _check_types(self, "")
+        check_types(self, "")
         check_count("replan_every", self.replan_every)
 
     @property
@@ -100,7 +101,7 @@ class OptimiserSpec(DriverSpec):
     def prior(self, lanes: int = 4) -> Any:
         """The first-iteration proposal for a road with ``lanes`` lanes (learned priors pick weights by it)."""
         if self.make_prior is None:
-            from driveopt.priors.gaussian import GaussianPrior
+            from driveopt.sampler import GaussianPrior
 
             return GaussianPrior.from_config(self.config.sampler, self.config.projection.v_max)
         return self.make_prior(self.config, lanes, self.weights)

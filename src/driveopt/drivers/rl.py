@@ -24,7 +24,7 @@ from typing import Any
 
 from driveopt.drivers.base import Decision, DriverSpec
 from driveopt.drivers.idm import IDLE_ACTION
-from driveopt.learned.checkpoint import file_digest
+from driveopt.files import file_digest
 from driveopt.rl.env import ACTIONS, POLICY_PERIOD, apply_behaviour, hand_ego_to_behaviours, policy_observation
 from driveopt.rl.policy import PolicyError, cached_policy, check_algo, lane_word, shipped_policy
 from driveopt.sim.perception import perceive

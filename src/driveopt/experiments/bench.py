@@ -4,7 +4,7 @@ Jobs run through :mod:`driveopt.experiments.runner` (worker processes or Ray); t
 only writer of ``episodes.jsonl`` and appends each record as soon as its episode finishes. A
 rerun with the same output directory skips every finished job, so an interrupted sweep resumes
 with no episode lost or repeated. The episode function (:func:`episode_record` by default: one
-simulated episode, :mod:`driveopt.sim.rollout`) receives the job key and the options and derives
+simulated episode, :mod:`driveopt.experiments.rollout`) receives the job key and the options and derives
 every random choice from them: same seeds, same results.
 
 Everything a user can get wrong (names, options, backend) is checked before the output folder is
@@ -26,28 +26,15 @@ from typing import Any
 import jax
 from tqdm import tqdm
 
-from driveopt.config import check_count, check_number
+from driveopt.checks import check_count, check_number
 from driveopt.drivers.base import DriverSpec
 from driveopt.errors import DriveoptError
+from driveopt.experiments.rollout import run_episode
 from driveopt.experiments.runner import EpisodeFn, check_backend, execute, usable_cpus
-from driveopt.experiments.store import (
-    JobKey,
-    StoreError,
-    append_record,
-    key_of,
-    load_records,
-    pending,
-    repair,
-)
-from driveopt.experiments.summary import (
-    markdown_table,
-    plot_summary,
-    summarise,
-    write_csv,
-)
-from driveopt.folders import make_output_folder
+from driveopt.experiments.store import JobKey, StoreError, append_record, key_of, load_records, pending, repair
+from driveopt.experiments.summary import markdown_table, plot_summary, summarise, write_csv
+from driveopt.files import make_output_folder
 from driveopt.registry import get_planner
-from driveopt.sim.rollout import run_episode
 from driveopt.sim.scenarios import resolve_scenario
 
 

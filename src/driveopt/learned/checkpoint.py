@@ -5,7 +5,7 @@
 
 ``meta`` is the writer's (for the CVAE: configuration, training settings, the data record with the
 validation split, the lane counts of the training roads, history; see
-:mod:`driveopt.learned.train_cvae`). Adding a field to the header changes neither the body nor its
+:mod:`driveopt.training.cvae`). Adding a field to the header changes neither the body nor its
 checksum, so the weights stay byte-identical.
 
 Writes are atomic (a temporary file in the same folder, fsynced, then renamed), so an interrupted
@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 from flax import serialization
 
 from driveopt.errors import DriveoptError
+from driveopt.files import atomic_write
 
 FORMAT = "driveopt-checkpoint"
 SCHEMA_VERSION = 1
@@ -32,25 +31,6 @@ SCHEMA_VERSION = 1
 
 class CheckpointError(DriveoptError):
     """A checkpoint is missing, corrupted, of another kind or version, or does not match its use."""
-
-
-def file_digest(path: str | Path) -> str:
-    """The first 16 hex digits of the SHA-256 of a file: how results and checkpoints name the weights they used."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
-
-
-def pytree_digest(tree: Any) -> str:
-    """The first 16 hex digits of the SHA-256 over the shapes, dtypes and bytes of a pytree's array leaves (loaded
-    weights), in leaf order."""
-    import jax
-    import numpy as np
-
-    sha = hashlib.sha256()
-    for leaf in jax.tree_util.tree_leaves(tree):
-        array = np.asarray(leaf)
-        sha.update(f"{array.shape}{array.dtype}".encode())
-        sha.update(np.ascontiguousarray(array).tobytes())
-    return sha.hexdigest()[:16]
 
 
 def save_checkpoint(path: str | Path, kind: str, state: Any, meta: dict[str, Any]) -> Path:
@@ -61,24 +41,6 @@ def save_checkpoint(path: str | Path, kind: str, state: Any, meta: dict[str, Any
     header = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "kind": kind,
               "sha256": hashlib.sha256(body).hexdigest(), "meta": meta}
     return atomic_write(path, json.dumps(header).encode() + b"\n" + body)
-
-
-def atomic_write(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (temporary file in the same folder, fsynced, renamed)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp makes it owner-only
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def load_checkpoint(path: str | Path, kind: str, lanes: int | None = None) -> tuple[dict[str, Any], dict[str, Any]]:

@@ -31,22 +31,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.config import BasisConfig, ConfigError, ProjectionConfig, QPConfig, check_count, check_number
+from driveopt.checks import ConfigError, check_count, check_number
+from driveopt.config import BasisConfig, ProjectionConfig, QPConfig
 from driveopt.learned.checkpoint import header_config, load_checkpoint, restore
-from driveopt.observation import (
-    EGO_FEATURES,
-    NEIGHBOUR_FEATURES,
-    NUM_NEIGHBOURS,
-    OBSERVATION_DIM,
-    neighbour_mask,
-)
-from driveopt.qp import (
-    NUM_SEGMENTS,
-    SETPOINT_DIM,
-    TrajectoryModel,
-    make_model,
-    qp_layer,
-)
+from driveopt.observation import EGO_FEATURES, NEIGHBOUR_FEATURES, NUM_NEIGHBOURS, OBSERVATION_DIM, neighbour_mask
+from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, TrajectoryModel, make_model, qp_layer
 
 CHECKPOINT_KIND = "cvae"
 FEATURE_DIM = OBSERVATION_DIM + NUM_NEIGHBOURS  # observation + a presence flag per neighbour

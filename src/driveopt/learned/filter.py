@@ -19,7 +19,7 @@ in coefficient units, metres). The output layer starts with zero weights and its
 gammas, started from the sample with zero multipliers, and training moves away from it.
 
 The pytree the planner takes is :class:`driveopt.safety.learned.LearnedFilter`; training is
-:mod:`driveopt.learned.train_filter`.
+:mod:`driveopt.training.filter`.
 """
 
 from __future__ import annotations
@@ -34,11 +34,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.config import BasisConfig, ConfigError, check_count, check_number
+from driveopt.checks import ConfigError, check_count, check_number
+from driveopt.config import BasisConfig
+from driveopt.filtering import FilterError, FilterInit
 from driveopt.learned.checkpoint import CheckpointError, header_config, load_checkpoint, restore
 from driveopt.observation import EGO_FEATURES, NEIGHBOUR_FEATURES, OBSERVATION_DIM
 from driveopt.problem import PlanningProblem
-from driveopt.safety.base import FilterError, FilterInit
 
 CHECKPOINT_KIND = "safety-filter"
 GAMMA_OUTPUTS = 2  # gamma_obs, gamma_lane

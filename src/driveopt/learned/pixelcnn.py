@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from driveopt.config import ConfigError, check_count
+from driveopt.checks import ConfigError, check_count
 from driveopt.learned.checkpoint import CheckpointError, header_config, load_checkpoint, restore
 from driveopt.learned.cvae import FEATURE_DIM, MLP
 from driveopt.learned.vqvae import Normaliser, VQVAEConfig, empty_state

@@ -34,7 +34,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.config import BasisConfig, ConfigError, ProjectionConfig, QPConfig, check_count, check_number
+from driveopt.checks import ConfigError, check_count, check_number
+from driveopt.config import BasisConfig, ProjectionConfig, QPConfig
 from driveopt.learned.checkpoint import header_config, load_checkpoint, restore
 from driveopt.learned.cvae import FEATURE_DIM, MLP, Batch, observation_features
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, TrajectoryModel, make_model, qp_layer

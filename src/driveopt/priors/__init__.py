@@ -1,16 +1,15 @@
 """Priors: where the first batch of set-points of a planning call comes from.
 
-One module per family: :mod:`~driveopt.priors.base` (the ``Prior`` protocol, ``Proposal``,
-``moments``), :mod:`~driveopt.priors.gaussian` (P1's Gaussian and driveopt's coherent behaviours),
+One module per family: :mod:`~driveopt.sampler` (the ``Prior`` protocol, ``Proposal``,
+``moments``), :mod:`~driveopt.sampler` (P1's Gaussian and driveopt's coherent behaviours),
 :mod:`~driveopt.priors.grids` (the MPC baselines' grids), :mod:`~driveopt.priors.cvae` (the
 learned CVAE) and :mod:`~driveopt.priors.vqvae` (P2's VQ-VAE + PixelCNN); the learned ones are
-imported on demand (they need Flax). :mod:`~driveopt.priors.metrics` measures any prior's first batch
+imported on demand (they need Flax). :mod:`~driveopt.experiments.prior_metrics` measures any prior's first batch
 offline (coverage of the expert, feasible samples, distinct lanes).
 """
 
-from driveopt.priors.base import Prior, Proposal, clip_setpoints, default_mean, moments
-from driveopt.priors.gaussian import GaussianPrior, coherent_behaviours
 from driveopt.priors.grids import GoalGridPrior, GridPrior, VanillaPrior
+from driveopt.sampler import GaussianPrior, Prior, Proposal, clip_setpoints, coherent_behaviours, default_mean, moments
 
 __all__ = ["Prior", "Proposal", "clip_setpoints", "default_mean", "moments", "GaussianPrior", "coherent_behaviours",
            "GoalGridPrior", "GridPrior", "VanillaPrior"]

@@ -23,9 +23,8 @@ import jax
 import jax.numpy as jnp
 
 from driveopt.config import PlannerConfig, ProjectionConfig
-from driveopt.priors.base import Proposal, clip_setpoints, moments
-from driveopt.priors.gaussian import GaussianPrior
-from driveopt.shipped import shipped_weights_file
+from driveopt.files import shipped_weights_file
+from driveopt.sampler import GaussianPrior, Proposal, clip_setpoints, moments
 
 COVARIANCE_JITTER = 0.01  # [-] added to the diagonal of the proposal's covariance
 SHIPPED = {2: "cvae-two-lane.ckpt", 4: "cvae-four-lane.ckpt"}  # lanes -> file in driveopt/weights

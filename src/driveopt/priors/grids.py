@@ -21,9 +21,9 @@ import numpy as np
 
 from driveopt.config import ProjectionConfig
 from driveopt.costs import nearest_lane_center
-from driveopt.priors.base import Proposal, clip_setpoints, moments
 from driveopt.problem import PlanningProblem
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM
+from driveopt.sampler import Proposal, clip_setpoints, moments
 
 MAX_LANES = 8  # lanes considered by the grids (masked beyond the road's lane count)
 GRID_COVARIANCE_JITTER = 1e-3  # [-] added to the diagonal of a grid's sample covariance

@@ -5,7 +5,7 @@
   and the behaviour controller the closed-loop driver shares with it;
 - :mod:`driveopt.rl.policy`: policy files (Stable-Baselines3 zips with a driveopt record), loading,
   checks, the shipped policies, and the one-line error when the ``rl`` extra is missing;
-- :mod:`driveopt.rl.train`: ``driveopt train dqn|ppo`` (P1 Table II settings, vectorised envs,
+- :mod:`driveopt.training.rl`: ``driveopt train dqn|ppo`` (P1 Table II settings, vectorised envs,
   periodic evaluation, resumable checkpoints).
 
 Stable-Baselines3 and PyTorch (``pip install 'driveopt[rl]'``) are imported only inside the code paths

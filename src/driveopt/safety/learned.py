@@ -24,10 +24,10 @@ from typing import Any, Mapping
 
 import jax
 
-from driveopt.config import ConfigError
+from driveopt.checks import ConfigError
+from driveopt.files import shipped_weights_file
+from driveopt.filtering import FilterInit
 from driveopt.problem import PlanningProblem
-from driveopt.safety.base import FilterInit
-from driveopt.shipped import shipped_weights_file
 
 SHIPPED = {2: "filter-two-lane.ckpt", 4: "filter-four-lane.ckpt"}  # lanes -> file in driveopt/weights
 FILTER_SECTION = "safety_filter"  # --config section naming a filter checkpoint: {"safety_filter": {"weights": FILE}}
@@ -36,7 +36,7 @@ FILTER_SECTION = "safety_filter"  # --config section naming a filter checkpoint:
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class LearnedFilter:
-    """The learned safety filter (P2 §III-C): a :class:`~driveopt.safety.base.SafetyFilter`."""
+    """The learned safety filter (P2 §III-C): a :class:`~driveopt.filtering.SafetyFilter`."""
 
     params: Any
     normaliser: Any  # driveopt.learned.filter.Normaliser

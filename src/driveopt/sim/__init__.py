@@ -9,7 +9,7 @@
     command = track(result.trajectory, 0.0, perception.kinematics, BicycleModel.from_env(env))
     outcome = step_env(env, command.action)
 
-The episode loop, :mod:`driveopt.sim.rollout` (``Rollout``, ``run_episode``), runs a driver
+The episode loop, :mod:`driveopt.experiments.rollout` (``Rollout``, ``run_episode``), runs a driver
 (:mod:`driveopt.drivers`) and is imported from there: drivers build on this package.
 """
 
@@ -23,15 +23,7 @@ from driveopt.sim.control import (
     sample_trajectory,
     track,
 )
-from driveopt.sim.env import (
-    ENV_IDS,
-    StepOutcome,
-    env_config,
-    is_off_road,
-    make_env,
-    sim_time,
-    step_env,
-)
+from driveopt.sim.env import ENV_IDS, StepOutcome, env_config, is_off_road, make_env, sim_time, step_env
 from driveopt.sim.perception import Perception, perceive, scene_from_env
 from driveopt.sim.road_frame import RoadFrameError
 from driveopt.sim.scenarios import (

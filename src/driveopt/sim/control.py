@@ -33,9 +33,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from driveopt.costs import Trajectory
 from driveopt.errors import DriveoptError
 from driveopt.sim.road_frame import driving_lanes, slip_angle, vehicle_motion
+from driveopt.trajectory import Trajectory
 
 _BISECTION_STEPS = 60  # halves the slip-angle bracket (< 1 rad) down to ~1e-18 rad
 

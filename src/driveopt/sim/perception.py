@@ -10,7 +10,7 @@ steering applied now), as the simulator integrates it, so a plan starts with the
 the car has; the plans leave their lateral acceleration free (``qp.initial_lateral_acceleration``)
 because the slip angle is a command that can jump every period. With the velocity along the body
 heading instead, the lateral motion of the last command was forgotten at every replan and the car
-followed only the slow start of each plan (issue 13: sideways at about a quarter of the planned
+followed only the slow start of each plan (sideways at about a quarter of the planned
 rate, and slow drifts across lanes).
 """
 

@@ -1,6 +1,6 @@
 """``driveopt plot-curves``: training curves of the RL baselines (``driveopt train dqn|ppo``) against env steps.
 
-A training folder holds ``curve.csv``, one row per evaluation (:data:`driveopt.rl.train.CURVE_FIELDS`):
+A training folder holds ``curve.csv``, one row per evaluation (:data:`driveopt.training.rl.CURVE_FIELDS`):
 ``step`` [env steps], ``collision_rate`` [-, fraction of the evaluation episodes that collided],
 ``mean_return`` [-, undiscounted episode return], ``mean_speed`` [m/s], ... and, once a run has
 finished, ``summary.json`` with its ``algo`` and ``scenario`` (the curve's label; the folder's name
@@ -21,11 +21,11 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from driveopt.errors import DriveoptError
-from driveopt.folders import make_output_folder
+from driveopt.files import make_output_folder
 
 CURVE_FILE = "curve.csv"
 SUMMARY_FILE = "summary.json"
-# The columns plotted (a subset of driveopt.rl.train.CURVE_FIELDS, not imported: that module loads the RL stack).
+# The columns plotted (a subset of driveopt.training.rl.CURVE_FIELDS, not imported: that module loads the RL stack).
 COLUMNS = ("step", "collision_rate", "mean_return", "mean_speed")
 PANELS = (  # (column, y label, scale), top to bottom
     ("mean_return", "mean evaluation return [-]", 1.0),

@@ -17,10 +17,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
-from driveopt.config import PlannerConfig  # noqa: E402
-from driveopt.planner import PlanResult, Snapshot  # noqa: E402
-from driveopt.qp import make_model  # noqa: E402
-from driveopt.scene import Scene  # noqa: E402
+from driveopt.config import PlannerConfig
+from driveopt.planner import PlanResult, Snapshot
+from driveopt.qp import make_model
+from driveopt.scene import Scene
 
 MAX_DRAWN = 150  # trajectories per panel
 

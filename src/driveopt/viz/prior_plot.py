@@ -21,7 +21,7 @@ import jax
 import numpy as np
 
 from driveopt.config import PlannerConfig
-from driveopt.priors.metrics import proposal_positions
+from driveopt.experiments.prior_metrics import proposal_positions
 from driveopt.problem import build_problem
 from driveopt.qp import NUM_SEGMENTS
 from driveopt.scene import Scene

@@ -48,8 +48,7 @@ from typing import Any
 import numpy as np
 
 from driveopt.errors import DriveoptError
-from driveopt.folders import make_output_folder
-from driveopt.learned.checkpoint import atomic_write
+from driveopt.files import atomic_write, make_output_folder
 from driveopt.rl.env import DrivingEnv, RewardWeights, policy_scenario
 from driveopt.rl.policy import (
     ALGORITHMS,

@@ -20,7 +20,8 @@ import numpy as np
 from tqdm import tqdm
 
 from driveopt.basis import make_basis
-from driveopt.config import BasisConfig, ConfigError, check_count, check_number
+from driveopt.checks import ConfigError, check_count, check_number
+from driveopt.config import BasisConfig
 from driveopt.data.demonstrations import (
     MAX_MODES,
     MODE_FIELDS,
@@ -31,11 +32,11 @@ from driveopt.data.demonstrations import (
 )
 from driveopt.data.modes import select_modes
 from driveopt.drivers.optimiser import OptimiserSpec
+from driveopt.experiments.rollout import Rollout
 from driveopt.experiments.runner import execute
 from driveopt.experiments.store import JobKey
 from driveopt.observation import OBSERVATION_DIM
 from driveopt.registry import get_optimiser
-from driveopt.sim.rollout import Rollout
 from driveopt.sim.scenarios import get_scenario
 
 EXPERT = "expert"  # planner field of the jobs

@@ -1,4 +1,4 @@
-"""Offline metrics of a prior's first batch on held-out demonstrations (issue 14): coverage, feasibility, diversity.
+"""Offline metrics of a prior's first batch on held-out demonstrations: coverage, feasibility, diversity.
 
 For one observation (a demonstration row, :func:`driveopt.data.replay.problem_from_row`):
 

@@ -42,20 +42,11 @@ import numpy as np
 import optax
 from tqdm import tqdm
 
-from driveopt import folders
-from driveopt.config import check_count, check_number
-from driveopt.data.demonstrations import (
-    DatasetError,
-    Demonstrations,
-    load_demonstrations,
-)
+from driveopt import files
+from driveopt.checks import check_count, check_number
+from driveopt.data.demonstrations import DatasetError, Demonstrations, load_demonstrations
 from driveopt.errors import DriveoptError
-from driveopt.learned.checkpoint import (
-    CheckpointError,
-    load_checkpoint,
-    restore,
-    save_checkpoint,
-)
+from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore, save_checkpoint
 from driveopt.learned.cvae import (
     CHECKPOINT_KIND,
     Batch,
@@ -305,11 +296,11 @@ def _rows(data_paths, validation_paths, tcfg: TrainConfig) -> tuple[Demonstratio
 def check_output_folder(out_dir: str | Path, weights: str) -> Path:
     """``out_dir`` as a Path; CheckpointError, before anything is read or written, when it is an existing file
     (a trainer writes last.ckpt, ``weights`` and history.json there)."""
-    return folders.check_output_folder(out_dir, CheckpointError, f"last.ckpt, {weights}, history.json")
+    return files.check_output_folder(out_dir, CheckpointError, f"last.ckpt, {weights}, history.json")
 
 
 def _make_folder(out: Path) -> None:
-    folders.make_output_folder(out, CheckpointError, "last.ckpt and history.json")
+    files.make_output_folder(out, CheckpointError, "last.ckpt and history.json")
 
 
 def _paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:

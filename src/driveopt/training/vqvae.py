@@ -3,7 +3,7 @@
 Examples: every stored mode (:mod:`driveopt.data.modes`, schema version 2) of the rows the CVAE would
 learn from (status SUCCESS, not within ``crash_margin`` seconds of a collision), so one observation
 brings up to M distinct plans, not only the executed one. Rows and the validation split are those
-of :mod:`driveopt.learned.train_cvae` (canonical episode order; whole episodes held out, drawn by
+of :mod:`driveopt.training.cvae` (canonical episode order; whole episodes held out, drawn by
 the seed, or separate validation files), and checkpoints record the same data fingerprints, so
 the file order changes nothing and resuming on other data is refused. Files without modes (schema
 version 1) hold nothing to learn from and are refused; a mode's trajectory is ``W @ coeffs`` with
@@ -28,7 +28,7 @@ VQ-VAE trained for roads whose lane counts do not cover the PixelCNN's data.
 Both write their checkpoints atomically after every epoch (:mod:`driveopt.learned.checkpoint`), so
 an interruption loses at most the epoch in flight and rerunning the same command resumes;
 settings are checked before the data is read, and a non-finite training loss stops with
-:class:`~driveopt.learned.train_cvae.TrainingError`.
+:class:`~driveopt.training.cvae.TrainingError`.
 """
 
 from __future__ import annotations
@@ -49,13 +49,14 @@ import optax
 from flax import serialization
 
 from driveopt.basis import make_basis
-from driveopt.config import BasisConfig, ConfigError, check_count, check_number
+from driveopt.checks import ConfigError, check_count, check_number
+from driveopt.config import BasisConfig
 from driveopt.data.demonstrations import DatasetError, Demonstrations
 from driveopt.learned import pixelcnn as px
 from driveopt.learned import vqvae as vq
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore, save_checkpoint
 from driveopt.learned.cvae import Batch
-from driveopt.learned.train_cvae import (
+from driveopt.training.cvae import (
     TrainingError,
     _check_same_data,
     _make_folder,

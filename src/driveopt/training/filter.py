@@ -2,7 +2,7 @@
 
 Examples: the observations of the demonstration rows the CVAE learns from (status SUCCESS, not within
 ``crash_margin`` seconds of a collision; rows, canonical order and validation split of
-:mod:`driveopt.learned.train_cvae`), each rebuilt into its planning problem
+:mod:`driveopt.training.cvae`), each rebuilt into its planning problem
 (:func:`driveopt.data.replay.problem_from_row`). For every observation ``samples`` set-points are drawn
 from the chosen prior (``samples_from``: the VQ-VAE as P2, the CVAE, or the planner's Gaussian) and
 turned into trajectories xi by the planner's own set-point QP (:func:`driveopt.planner.setpoint_batch`);
@@ -32,7 +32,7 @@ done and their running sums: an epoch of 20 000 observations takes about an hour
 mid-epoch too: each step's minibatch and samples follow from the seed, the epoch and the step, so a resumed run
 takes the same steps as an uninterrupted one. A checkpoint from other data, another split, other settings, another
 prior or projection is refused with the reason; settings are checked before the data is read, and a non-finite
-training loss stops with :class:`~driveopt.learned.train_cvae.TrainingError`.
+training loss stops with :class:`~driveopt.training.cvae.TrainingError`.
 """
 
 from __future__ import annotations
@@ -50,12 +50,20 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from driveopt.config import ConfigError, PlannerConfig, ProjectionConfig, check_count, check_number
+from driveopt.checks import ConfigError, check_count, check_number
+from driveopt.config import PlannerConfig, ProjectionConfig
 from driveopt.data.demonstrations import DatasetError, Demonstrations
 from driveopt.data.replay import problem_from_row
+from driveopt.files import file_digest
 from driveopt.learned import filter as fl
-from driveopt.learned.checkpoint import CheckpointError, file_digest, load_checkpoint, restore, save_checkpoint
-from driveopt.learned.train_cvae import (
+from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore, save_checkpoint
+from driveopt.planner import project_batch, setpoint_batch
+from driveopt.problem import PlanningProblem
+from driveopt.projection import constraint_residuals
+from driveopt.qp import make_model
+from driveopt.safety.learned import LearnedFilter
+from driveopt.sim.scenarios import ScenarioError, get_scenario
+from driveopt.training.cvae import (
     TrainingError,
     _check_same_data,
     _make_folder,
@@ -66,13 +74,7 @@ from driveopt.learned.train_cvae import (
     minibatches,
     road_lanes,
 )
-from driveopt.learned.train_vqvae import _chunks
-from driveopt.planner import project_batch, setpoint_batch
-from driveopt.problem import PlanningProblem
-from driveopt.projection import constraint_residuals
-from driveopt.qp import make_model
-from driveopt.safety.learned import LearnedFilter
-from driveopt.sim.scenarios import ScenarioError, get_scenario
+from driveopt.training.vqvae import _chunks
 
 SAMPLE_SOURCES = ("vqvae", "cvae", "gaussian")  # --samples-from
 
@@ -210,7 +212,7 @@ def training_prior(samples_from: str, lanes: list[int], config: PlannerConfig, w
     default the ones shipped for the road, or the planner's Gaussian. The record names it for resumption (a digest of
     the weights file). DatasetError when the rows span several lane counts (learned priors are per road),
     CheckpointError when there are no weights or they are unusable or for another road."""
-    from driveopt.priors.gaussian import GaussianPrior
+    from driveopt.sampler import GaussianPrior
 
     v_max = config.projection.v_max
     if samples_from == "gaussian":
