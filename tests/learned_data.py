@@ -43,3 +43,17 @@ def write_synthetic(path: str | Path, episodes: int = 4, rows: int = 64, seed: i
         entry = {"scenario": scenario, "seed": seed, "episode": e, "env_seed": e, "collided": False, "duration": rows / 10.0}
         writer.append_episode(entry, synthetic_rows(rng, rows))
     return Path(path)
+
+
+def write_demonstrations(path: Path, episodes: int = 2, rows: int = 6) -> Path:
+    """Synthetic rows on a four-lane road whose lane bounds are the ego centre's (-1, 13) m, as collect writes them."""
+    rng = np.random.default_rng(0)
+    writer = DemonstrationWriter(path, {"expert": "synthetic"}, BasisConfig().num_nodes, 22, OBSERVATION_DIM)
+    for e in range(episodes):
+        data = synthetic_rows(rng, rows)
+        y0 = data["init_y"][:, 0]
+        data["lane_bounds"][:] = (-1.0, 13.0)
+        data["observation"][:, 0], data["observation"][:, 1] = 13.0 - y0, -1.0 - y0
+        writer.append_episode({"scenario": "four-lane-d3.0", "seed": 0, "episode": e, "env_seed": e, "collided": False,
+                               "duration": rows / 10.0}, data)
+    return path

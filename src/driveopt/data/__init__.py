@@ -1,4 +1,4 @@
 """Expert demonstrations: ``demonstrations`` (the HDF5 format: schema, append, load, fingerprint),
-``modes`` (the distinct feasible plans of the expert's first and final batches stored with every step),
-``collect`` (``driveopt collect``: the expert in closed loop, resumable) and ``replay`` (the planning
-problem of a stored row, for offline evaluation)."""
+``modes`` (the distinct feasible plans of the expert's first and final batches stored with every step) and
+``replay`` (the planning problem of a stored row, for offline evaluation). They are written by
+:mod:`driveopt.experiments.collect` (``driveopt collect``) and read by :mod:`driveopt.training`."""

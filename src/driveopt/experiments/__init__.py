@@ -1,3 +1,5 @@
-"""Experiments: many closed-loop episodes, resumably. ``store`` (append-only JSONL records and the
-job key), ``runner`` (jobs in this process, spawned workers or Ray, one writer), ``bench``
-(``driveopt bench``) and ``summary`` (rates with Wilson intervals, speeds, times; CSV, Markdown, plot)."""
+"""Experiments: closed-loop episodes and what is measured over many of them, resumably. ``rollout`` (the episode
+loop, given a driver spec), ``store`` (append-only JSONL records and the job key), ``runner`` (jobs in this process,
+spawned workers or Ray, one writer), ``bench`` (``driveopt bench``), ``summary`` (rates with Wilson intervals,
+speeds, times; CSV, Markdown, plot), ``collect`` (``driveopt collect``: the expert's demonstrations) and
+``prior_metrics`` (offline metrics of a prior's first batch on held-out demonstrations)."""

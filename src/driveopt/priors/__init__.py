@@ -1,11 +1,10 @@
 """Priors: where the first batch of set-points of a planning call comes from.
 
-One module per family: :mod:`~driveopt.sampler` (the ``Prior`` protocol, ``Proposal``,
-``moments``), :mod:`~driveopt.sampler` (P1's Gaussian and driveopt's coherent behaviours),
-:mod:`~driveopt.priors.grids` (the MPC baselines' grids), :mod:`~driveopt.priors.cvae` (the
-learned CVAE) and :mod:`~driveopt.priors.vqvae` (P2's VQ-VAE + PixelCNN); the learned ones are
-imported on demand (they need Flax). :mod:`~driveopt.experiments.prior_metrics` measures any prior's first batch
-offline (coverage of the expert, feasible samples, distinct lanes).
+The contract (``Prior``, ``Proposal``, ``moments``) and the default, P1's Gaussian with driveopt's coherent
+behaviours (``GaussianPrior``), sit with the sampler in :mod:`driveopt.sampler` and are re-exported here. This
+package holds the others: :mod:`~driveopt.priors.grids` (the MPC baselines' grids), :mod:`~driveopt.priors.cvae`
+(the learned CVAE) and :mod:`~driveopt.priors.vqvae` (P2's VQ-VAE + PixelCNN); the learned ones are imported on
+demand (they need Flax). :mod:`driveopt.experiments.prior_metrics` measures any prior's first batch offline.
 """
 
 from driveopt.priors.grids import GoalGridPrior, GridPrior, VanillaPrior

@@ -1,4 +1,4 @@
-"""Closed-loop simulation in upstream highway-env: scenarios, env adapter, road frame, perception, control, rollout.
+"""Closed-loop simulation in upstream highway-env: scenarios, env adapter, road frame, perception, control.
 
     from driveopt.sim import BicycleModel, get_scenario, make_env, perceive, step_env, track
 
@@ -9,8 +9,7 @@
     command = track(result.trajectory, 0.0, perception.kinematics, BicycleModel.from_env(env))
     outcome = step_env(env, command.action)
 
-The episode loop, :mod:`driveopt.experiments.rollout` (``Rollout``, ``run_episode``), runs a driver
-(:mod:`driveopt.drivers`) and is imported from there: drivers build on this package.
+This package knows no planner. The episode loop that runs a driver in it is :mod:`driveopt.experiments.rollout`.
 """
 
 from driveopt.sim.control import (

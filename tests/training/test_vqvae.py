@@ -209,7 +209,7 @@ def test_demonstrations_table_counts_modes_and_lanes_and_refuses_bad_files(mode_
     from pathlib import Path
 
     spec = importlib.util.spec_from_file_location(
-        "demonstrations_table", Path(__file__).resolve().parents[1] / "benchmarks" / "demonstrations_table.py")
+        "demonstrations_table", Path(__file__).resolve().parents[2] / "benchmarks" / "demonstrations_table.py")
     table = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(table)
     demo = tmp_path / "demo.h5"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 spec = importlib.util.spec_from_file_location("p2_closed_loop", BENCHMARKS / "p2_closed_loop.py")
 SCRIPT = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(SCRIPT)

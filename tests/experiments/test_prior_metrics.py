@@ -1,4 +1,4 @@
-"""Offline prior metrics (issue 14): best of N, feasible share, distinct lanes; the problem of a demonstration row;
+"""Offline prior metrics: best of N, feasible share, distinct lanes; the problem of a demonstration row;
 the resumable benchmark script."""
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from learned_data import synthetic_rows
+from learned_data import write_demonstrations
 
 from driveopt.config import PlannerConfig
-from driveopt.data.demonstrations import DatasetError, DemonstrationWriter
+from driveopt.data.demonstrations import DatasetError
 from driveopt.data.replay import road_from_bounds, scene_from_observation
 from driveopt.experiments.prior_metrics import (
     MetricError,
@@ -34,7 +34,7 @@ from driveopt.problem import build_problem
 from driveopt.sampler import Proposal, moments
 from driveopt.scene import EgoState, Road, Scene, load_scene
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
 
 @jax.tree_util.register_dataclass
@@ -128,20 +128,6 @@ def _script():
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
-
-
-def write_demonstrations(path: Path, episodes: int = 2, rows: int = 6) -> Path:
-    """Synthetic rows on a four-lane road whose lane bounds are the ego centre's (-1, 13) m, as collect writes them."""
-    rng = np.random.default_rng(0)
-    writer = DemonstrationWriter(path, {"expert": "synthetic"}, 100, 22, 55)
-    for e in range(episodes):
-        data = synthetic_rows(rng, rows)
-        y0 = data["init_y"][:, 0]
-        data["lane_bounds"][:] = (-1.0, 13.0)
-        data["observation"][:, 0], data["observation"][:, 1] = 13.0 - y0, -1.0 - y0
-        writer.append_episode({"scenario": "four-lane-d3.0", "seed": 0, "episode": e, "env_seed": e, "collided": False,
-                               "duration": rows / 10.0}, data)
-    return path
 
 
 def test_the_script_writes_json_resumes_and_refuses_other_settings(tmp_path, capsys):

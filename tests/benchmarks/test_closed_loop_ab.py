@@ -9,7 +9,7 @@ import pytest
 
 import benchmark_scripts
 
-SRC = Path(__file__).resolve().parents[1] / "src"
+SRC = Path(__file__).resolve().parents[2] / "src"
 
 
 @pytest.fixture(scope="module")

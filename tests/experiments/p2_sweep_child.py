@@ -12,7 +12,7 @@ from pathlib import Path
 
 from bench_child import slow_episode
 
-SCRIPT_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "p2_closed_loop.py"
+SCRIPT_PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "p2_closed_loop.py"
 
 
 def main(argv: list[str]) -> int:

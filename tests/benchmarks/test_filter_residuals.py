@@ -13,14 +13,14 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_prior_metrics import write_demonstrations
+from learned_data import write_demonstrations
 from tiny_models import _random_params, tiny_pixelcnn
 
 from driveopt.learned import filter as fl
 from driveopt.learned.checkpoint import save_checkpoint
 from driveopt.registry import get_optimiser
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 CFG = fl.FilterConfig(hidden=(16, 16))
 ITERATIONS = [1, 25]
 ROWS = 3
