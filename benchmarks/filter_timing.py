@@ -1,4 +1,4 @@
-"""Planning time of P2's one-pass pipeline against its filter iterations: learned filter against plain (issue 15).
+"""Planning time of P2's one-pass pipeline against its filter iterations: learned filter against plain.
 
     python benchmarks/filter_timing.py --json out/filter_timing.json [--iterations 0 10 25 50 100] [--calls 30]
         [--samples 1000] [--problem dense-snapshot] [--filter-weights FILE] [--vqvae-weights FILE] [--learned-config overrides.json]
@@ -9,9 +9,9 @@ the planners' own settings otherwise (so their early stop too, as in closed loop
 round, round-robin, ``--calls`` rounds with fresh PRNG keys, so that drift of the machine's speed hits all cases alike.
 Reported per case: compile time (first call minus the steady-state median) and the steady-state median and p90 of a
 full ``plan()`` call [ms]; and for each k, the learned filter's median as a share of the plain filter's at
-``--reference`` iterations (100: issue 15's target is the learned filter at 25 under 40% of the plain one at 100).
+``--reference`` iterations (100).
 ``--learned-config`` applies planner-config overrides (the JSON of ``driveopt plan --config``) to the learned filter's
-cases only, before the iteration count (e.g. ``{"sampler": {"refine_samples": 20}}``: a variant of the learned
+cases only, before the iteration count (e.g. ``{"projection": {"tolerance": 0.01}}``: a variant of the learned
 pipeline against the plain filter as it is). The JSON is written once the compile phase ends and
 again at the end.
 """
@@ -92,13 +92,13 @@ def run(args: argparse.Namespace) -> dict:
             spec = spec.with_overrides(projection={"max_iterations": k})
             problem = build_problem(scene, spec.config.basis, braking_time=spec.braking_time,
                                     selection_time=spec.selection_time)
-            cases[f"{variant}-{k}"] = dict(config=spec.config, prior=spec.prior(lanes),
-                                           safety_filter=spec.safety_filter(lanes), problem=problem)
+            cases[f"{variant}-{k}"] = dict(config=spec.config, prior=spec.prior(lanes), safety_filter=spec.safety_filter(lanes),
+                                           problem=problem, strategies=spec.strategies)
 
     def call(case: dict, key: int) -> float:
         start = time.perf_counter()
         plan(case["problem"], case["config"], key=jax.random.PRNGKey(key), prior=case["prior"],
-             safety_filter=case["safety_filter"], x_offset=scene.ego.x)
+             safety_filter=case["safety_filter"], x_offset=scene.ego.x, **case["strategies"])
         return time.perf_counter() - start
 
     first = {name: call(case, 0) for name, case in tqdm(cases.items(), desc="compile", unit="case")}

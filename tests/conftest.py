@@ -51,6 +51,17 @@ def release_compiled_code_before_the_map_limit():
         gc.collect()
 
 
+def reset_env(scenario, seed: int, **make_kwargs):
+    """A driveopt env (:func:`driveopt.sim.env.make_env`) of ``scenario`` (a Scenario or a registered name), reset
+    with ``seed``."""
+    from driveopt.sim.env import make_env
+    from driveopt.sim.scenarios import get_scenario
+
+    env = make_env(get_scenario(scenario) if isinstance(scenario, str) else scenario, **make_kwargs)
+    env.reset(seed=seed)
+    return env
+
+
 def box_corners(x: float, y: float, heading: float, length: float, width: float) -> np.ndarray:
     """(4, 2) corners of an oriented rectangle centred at (x, y)."""
     c, s = np.cos(heading), np.sin(heading)

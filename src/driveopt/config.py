@@ -57,17 +57,28 @@ class QPConfig:
     k_d: float = 2.0 * math.sqrt(20.0)  # [1/s] D gain of lateral tracking
     initial_acceleration: bool = True  # impose x''(0), y''(0); False when acceleration is a control input that can jump
     initial_lateral_acceleration: bool = False  # with initial_acceleration, also impose y''(0) (P1); the steering can jump
-    initial_acceleration_weight: float = 0.0  # [-] with initial_acceleration False: weight of (x''(0) - a_x0)^2 + (y''(0) - a_y0)^2
-    terminal_lateral_acceleration: bool = False  # also impose y''(T) = 0
-
     terminal_position: bool = False  # also impose x(T) = x_f, y(T) = y_f (goal-sampling baseline)
 
     def __post_init__(self) -> None:
         check_types(self, "qp")
-        for name in ("w_smooth", "w_speed", "w_lateral", "k_pv", "k_p", "k_d", "initial_acceleration_weight"):
+        for name in ("w_smooth", "w_speed", "w_lateral", "k_pv", "k_p", "k_d"):
             value = getattr(self, name)
             require(0 <= value <= MAX_WEIGHT, f"qp.{name} must be in [0, {MAX_WEIGHT:g}], got {value:g}")
         require(self.w_smooth > 0, "qp.w_smooth must be > 0 (it keeps the QP strictly convex)")
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "QPConfig":
+        """The QP section recorded in a checkpoint's header. Checkpoints of the learned priors record every field of
+        the QP inside their decoder; two terms the QP no longer has are accepted while they are off (as in every
+        shipped checkpoint) and refused when on, since that decoder solved another QP."""
+        data = dict(data)
+        for name, off in _DROPPED_QP_TERMS.items():
+            if name in data and data.pop(name) != off:
+                raise ConfigError(f"qp.{name} is on in this checkpoint's QP; driveopt's set-point QP has no such term")
+        return cls(**data)
+
+
+_DROPPED_QP_TERMS = {"initial_acceleration_weight": 0.0, "terminal_lateral_acceleration": False}  # name -> "off"
 
 
 @dataclass(frozen=True)
@@ -156,10 +167,6 @@ class SamplerConfig:
     lateral_std: float = math.sqrt(46.0)  # [m] initial std of every lateral set-point
     residual_tolerance: float = 0.05  # [-] total residual under which a sample counts as feasible
     structured_fraction: float = 0.5  # [-] share of the first batch drawn as whole-horizon behaviours (0: P1)
-    feasibility_first: bool = True  # rank feasible samples ahead of infeasible ones (False: P1's cost + residual ranking)
-    ranking_cost_weight: float = 1.0  # [-] w of the ranking score w * cost + residual (P1's authors' code: residual-led)
-    refine_samples: int = 0  # [-] lowest-cost samples projected refine_iterations more after each batch (0: none, P1/P2)
-    refine_iterations: int = 75  # [-] projection iterations added to each refined sample
 
     def __post_init__(self) -> None:
         check_types(self, "sampler")
@@ -175,34 +182,23 @@ class SamplerConfig:
         require(0 < self.speed_std <= MAX_SPEED and 0 < self.lateral_std <= 100, "sampler needs speed_std in (0, 100] m/s and lateral_std in (0, 100] m")
         require(0 <= self.residual_tolerance <= 1e3, "sampler.residual_tolerance must be in [0, 1000]")
         require(0 <= self.structured_fraction <= 1, "sampler.structured_fraction must be in [0, 1]")
-        require(0 < self.ranking_cost_weight <= MAX_WEIGHT, f"sampler.ranking_cost_weight must be in (0, {MAX_WEIGHT:g}]")
-        require(0 <= self.refine_samples <= self.num_samples,
-                 f"sampler.refine_samples must be in [0, num_samples = {self.num_samples}], got {self.refine_samples}")
-        require(1 <= self.refine_iterations <= 10_000, f"sampler.refine_iterations must be in [1, 10000], got {self.refine_iterations}")
 
 
 @dataclass(frozen=True)
 class PlannerConfig:
-    """Everything static about one planner. Hashable: used as a jit static argument."""
+    """The planner's maths: basis, set-point QP, projection, sampler and cost. Hashable: a jit static argument.
+
+    What is not maths lives elsewhere: how rows are ranked, what rides in a batch and which stops the fallback weighs
+    are strategies passed to the planner (:mod:`driveopt.ranking`, :mod:`driveopt.batch_rows`,
+    :class:`driveopt.fallback.Fallback`); what only a closed-loop driver reads is in its spec
+    (:class:`driveopt.drivers.optimiser.OptimiserSpec`).
+    """
 
     basis: BasisConfig = field(default_factory=BasisConfig)
     qp: QPConfig = field(default_factory=QPConfig)
     projection: ProjectionConfig = field(default_factory=ProjectionConfig)
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     cost: CostConfig = field(default_factory=CostConfig)
-    fallback_deceleration: float = 3.0  # [m/s^2] comfortable braking of the fallback plan
-    fallback_straightens: bool = True  # the fallback points along the road when the car stops (driveopt.fallback.easing)
-    fallback_evasion: bool = True  # the fallback also weighs emergency stops that move sideways (to the neighbouring
-    # lane lines and centres) and ranks every stop by its first touch of a car's box before its entry into the car's
-    # ellipse (driveopt.fallback.EVASIONS, box_contact)
-    contact_guard: bool = True  # closed loop: brake now when a command at crawling speed would take the ego's box
-    # within 0.1 m of a car's and braking now would not (driveopt.sim.contact; not for drivers that execute infeasible
-    # plans, P1)
-    stop_rows: bool = True  # append the comfortable and the emergency stop to every batch (False: P1)
-
-    def __post_init__(self) -> None:
-        check_types(self, "")
-        require(0 < self.fallback_deceleration <= MAX_ACCELERATION, f"fallback_deceleration must be in (0, {MAX_ACCELERATION:g}] m/s^2")
 
     def replace(self, **sections: Mapping[str, Any] | Any) -> "PlannerConfig":
         """Copy with sections replaced; a mapping value updates fields of that section.
@@ -216,8 +212,7 @@ class PlannerConfig:
         """Copy with ``samples`` per sampler iteration, the elite counts capped at it."""
         elites = min(self.sampler.num_constraint_elites, samples)
         return self.replace(sampler={"num_samples": samples, "num_constraint_elites": elites,
-                                     "num_elites": min(self.sampler.num_elites, elites),
-                                     "refine_samples": min(self.sampler.refine_samples, samples)})
+                                     "num_elites": min(self.sampler.num_elites, elites)})
 
 
 _SECTIONS = {
@@ -227,7 +222,6 @@ _SECTIONS = {
     "sampler": SamplerConfig,
     "cost": CostConfig,
 }
-_SCALARS = tuple(f.name for f in dataclasses.fields(PlannerConfig) if f.name not in _SECTIONS)  # top-level fields
 
 
 def from_dict(data: Mapping[str, Any], base: PlannerConfig | None = None) -> PlannerConfig:
@@ -252,10 +246,8 @@ def from_dict(data: Mapping[str, Any], base: PlannerConfig | None = None) -> Pla
                 updates[key] = dataclasses.replace(section, **value)
             except TypeError as exc:
                 raise ConfigError(f"bad value in '{key}': {exc}") from None
-        elif key in _SCALARS:
-            updates[key] = value  # type and range: PlannerConfig checks them
         else:
-            raise ConfigError(f"unknown config section '{key}'; valid: {sorted([*_SECTIONS, *_SCALARS])}")
+            raise ConfigError(f"unknown config section '{key}'; valid: {sorted(_SECTIONS)}")
     return dataclasses.replace(base, **updates)
 
 

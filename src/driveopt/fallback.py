@@ -5,10 +5,9 @@ not a polynomial and it is never projected: it brakes at a constant deceleration
 so its speed ``max(v0 - d t, 0)`` [m/s] never increases and never goes below zero, and it never
 turns back (the path's heading stays within 72 degrees of the road). The path eases from the
 current lateral position and heading to a target inside the road (:func:`lateral_target`): the nearest lane centre
-(comfortable stop), the current position clipped to the road (emergency stop) or, with ``fallback_evasion``, one of
-:data:`EVASIONS` (emergency stops that move sideways: to a neighbouring lane line or lane centre, either way), over
-20 m or more; with
-``fallback_straightens`` (planner config) it points along the road by the time the car stops (:func:`easing`). Where the ego
+(comfortable stop), the current position clipped to the road (emergency stop) or, with :attr:`Fallback.evasion`, one
+of :data:`EVASIONS` (emergency stops that move sideways: to a neighbouring lane line or lane centre, either way), over
+20 m or more; with :attr:`Fallback.straightens` it points along the road by the time the car stops (:func:`easing`). Where the ego
 starts on the road the path stays between the road bounds; an ego off the road never moves
 further away from it. Its residual (how far it is from meeting the constraints) is that of the
 polynomial closest to it; when that is not zero the planner still offers the stop and says so
@@ -16,7 +15,7 @@ in its status. Of the stops it weighs it offers the one that enters an obstacle'
 (:func:`first_contact`; ties, e.g. no contact, by the lower residual): an L2 residual rates a
 stop that drives through a slow car ahead in half a second better than one that ends just
 inside its ellipse, so ranking by residual alone chose the comfortable stop into a car 24 m
-ahead at 20 m/s closing speed. With ``fallback_evasion`` the stops are first ranked by when they would
+ahead at 20 m/s closing speed. With :attr:`Fallback.evasion` the stops are first ranked by when they would
 touch a car (:func:`box_contact`, the box inside the ellipse), then by ellipse entry: the ellipse circumscribes the
 box around both cars' corners, so all stops may enter it at once while one of them still passes the car. The
 sideways stops are weighed only where both others would touch a car's box: they are for a car whose nearest lane
@@ -29,13 +28,20 @@ candidates: projected and ranked like every sample, so a feasible stop can be th
 
 from __future__ import annotations
 
+import functools
+from dataclasses import dataclass
+
 import jax
 import jax.numpy as jnp
 
-from driveopt.costs import nearest_lane_center
+from driveopt.checks import check_number, check_types
+from driveopt.config import MAX_ACCELERATION, PlannerConfig
+from driveopt.costs import COST_TERMS, cost_terms, nearest_lane_center, weighted_cost
 from driveopt.prediction import turned_box_growth
 from driveopt.problem import PlanningProblem, ellipse_axes
-from driveopt.qp import NUM_SEGMENTS, TrajectoryModel, fit_positions
+from driveopt.projection import constraint_residuals
+from driveopt.qp import NUM_SEGMENTS, TrajectoryModel, boundary_values, fit_positions
+from driveopt.ranking import Candidate, Ranking
 from driveopt.scene import CAR_LENGTH, CAR_WIDTH
 from driveopt.trajectory import Trajectory
 
@@ -46,7 +52,7 @@ EASING_CURVATURE = 0.2  # [1/m] ... but over no more than the stopping distance 
 MAX_HEADING_SINE = 0.95  # [-] |sin| of the fallback path's heading relative to the road (72 degrees)
 _FINE_STEPS = 512  # [-] path samples for integrating x along the path
 LANE_CENTRE, HOLD = "centre", "hold"  # lateral targets of a stop (:func:`lateral_target`)
-EVASIONS = (-2.0, -1.0, 1.0, 2.0)  # [half-lanes] the sideways targets of ``fallback_evasion``, from the nearest centre
+EVASIONS = (-2.0, -1.0, 1.0, 2.0)  # [half-lanes] the sideways targets of ``Fallback.evasion``, from the nearest centre
 # (the lane lines and centres on either side: fixed places on the road, so a car that replans its stop every period
 # settles on one instead of turning further at every step, as targets relative to its own position let it)
 
@@ -218,3 +224,74 @@ def held_box_growth(problem: PlanningProblem, trajectory: Trajectory) -> jnp.nda
     beside, 0.6 m further across than its centre's box."""
     heading = jnp.maximum(jnp.abs(problem.ego_heading), jax.lax.cummax(jnp.abs(trajectory.heading), axis=0))
     return turned_box_growth(heading, CAR_LENGTH, CAR_WIDTH, xp=jnp)
+
+
+@dataclass(frozen=True)
+class Fallback:
+    """The stops a planner weighs as its fallback, and how it chooses one (:meth:`choose`).
+
+    The comfortable stop brakes at ``deceleration`` easing to the nearest lane centre, the emergency stop at the
+    projection's ``a_max`` holding the current lateral position; with ``evasion`` the emergency stops towards
+    :data:`EVASIONS` are weighed too. A frozen dataclass: :func:`driveopt.planner.solve` takes it as a static argument.
+    """
+
+    deceleration: float = 3.0  # [m/s^2] comfortable braking of the fallback plan
+    straightens: bool = True  # the stop points along the road by the time the car stops (:func:`easing`)
+    evasion: bool = True  # also weigh emergency stops that move sideways (to the neighbouring lane lines and centres)
+    # and rank every stop by its first touch of a car's box before its entry into the car's ellipse (:func:`box_contact`)
+
+    def __post_init__(self) -> None:
+        check_types(self, "fallback")
+        check_number("fallback.deceleration", self.deceleration, 0.0, MAX_ACCELERATION, low_open=True, unit="m/s^2")
+
+    def stops(self, a_max: float) -> tuple[tuple[float, str], tuple[float, str]]:
+        """(deceleration [m/s^2], lateral target) of the comfortable and of the emergency stop (``a_max`` [m/s^2])."""
+        return (self.deceleration, LANE_CENTRE), (a_max, HOLD)
+
+    def braking(self, emergency: bool, a_max: float) -> float:
+        """[m/s^2] the deceleration of the chosen stop: ``a_max`` for the emergency stop and its sideways variants."""
+        return a_max if emergency else self.deceleration
+
+    def choose(self, model: TrajectoryModel, problem: PlanningProblem, cfg: PlannerConfig,
+               ranking: Ranking) -> tuple[Candidate, jnp.ndarray, Trajectory]:
+        """(candidate, emergency, trajectory) of the stop offered as fallback: the one that enters an obstacle's
+        ellipse latest (with ``evasion``: that touches a car's box latest, then enters its ellipse latest); on a tie
+        (none does, or several at once) the one closest to meeting the constraints, the comfortable stop first among
+        equals. The sideways stops are weighed only where both standard stops would touch a car's box (a car creeping
+        in a jam, inside every ellipse but touching no box, would otherwise be steered sideways by the residual, step
+        after step). Residuals and cost terms of all are measured in one batch, on their closest polynomials and their
+        own paths; the candidate's key is ``ranking``'s."""
+        t = jnp.asarray(model.t)
+        standard = self.stops(cfg.projection.a_max)
+
+        def stop(decel, target):  # (path, set-points) of one stop
+            return (stop_trajectory(problem, t, decel, target, self.straightens),
+                    stop_setpoints(problem, cfg.basis.horizon, decel, target))
+
+        parts = [jax.tree_util.tree_map(lambda a: a[None], stop(*s)) for s in standard]
+        if self.evasion:  # the sideways stops in one traced copy (numeric targets), not one each
+            parts.append(jax.vmap(functools.partial(stop, cfg.projection.a_max))(jnp.asarray(EVASIONS, dtype=jnp.float32)))
+        every, setpoints = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)  # (stops, K) fields, (stops, 8)
+        goal = jnp.stack([every.x[:, -1], every.y[:, -1]], axis=-1) if cfg.qp.terminal_position else None
+        b_x, b_y = boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
+        n = every.x.shape[0]
+        coeffs = fit_positions(model, every.x, every.y, jnp.broadcast_to(b_x, (n, b_x.shape[-1])),
+                               jnp.broadcast_to(b_y, (n, b_y.shape[-1])))
+        families = jnp.stack(list(constraint_residuals(model, problem, coeffs, cfg.projection)))  # (4, stops)
+        terms = cost_terms(every, problem)
+        cost = weighted_cost(terms, cfg.cost)
+        total = jnp.sum(families, axis=0)
+        feasible = total <= cfg.sampler.residual_tolerance
+        key = ranking.key(ranking.score(cost, total), total, feasible)
+        contact = jax.vmap(lambda path: first_contact(problem, path))(every)
+        if self.evasion:  # the box first, the ellipse on a tie; sideways stops only where both others touch a box
+            nodes = model.t.shape[0]
+            box = jax.vmap(lambda path: box_contact(problem, path))(every)
+            sideways_weighed = jnp.all(box[:len(standard)] < nodes)
+            contact = jnp.where((jnp.arange(n) < len(standard)) | sideways_weighed, contact + (nodes + 1) * box, -1)
+        latest = contact == jnp.max(contact)
+        pick = jnp.argmin(jnp.where(latest, total, jnp.inf))  # the first of equals
+        term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, stops)
+        candidate = Candidate(key[pick], feasible[pick], setpoints[pick], coeffs[pick], families[:, pick],
+                              term_values[:, pick], cost[pick])
+        return candidate, pick > 0, jax.tree_util.tree_map(lambda a: a[pick], every)

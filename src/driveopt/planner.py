@@ -13,28 +13,17 @@ reverse-mode differentiation needs). :func:`plan` validates the input, runs the 
 
 Per sampler iteration: draw set-points (the prior's proposal first, then the adapted Gaussian),
 solve the set-point QP for the batch, project the batch onto the constraints, rank, and update the
-Gaussian with P1 eq. 6 over the elite set. Ranking (``sampler.feasibility_first``, the default) puts
-feasible samples (total residual within ``sampler.residual_tolerance``) first, by cost + residual;
-infeasible ones follow, by residual for the constraint-elite set and by cost + residual within it,
-as in P1. With ``feasibility_first`` False it is P1's ranking alone: the ``num_constraint_elites``
-lowest residuals, the ``num_elites`` lowest cost + residual of those, and the lowest cost + residual
-is picked, feasible or not. "cost" is ``sampler.ranking_cost_weight`` (default 1) times the driving cost
-throughout: the ``-p1`` baselines weigh it 1e-5, as P1's authors' code lets the residual lead.
+Gaussian with P1 eq. 6 over the elite set. Three strategies, frozen dataclasses passed as static
+arguments, decide what differs between driveopt's planner and P1's: ``ranking`` (:mod:`driveopt.ranking`:
+feasible rows first, or P1's cost + residual), ``batch_rows`` (:mod:`driveopt.batch_rows`: the
+comfortable and emergency stops ride in every batch, or the samples alone) and ``fallback``
+(:class:`driveopt.fallback.Fallback`: the stops weighed when nothing is feasible, and how one is chosen).
 
-Rows appended to every batch (their :class:`RowKind` is in ``Snapshot.kind``) are ranked like any
-sample: the previous replan's set-points when given, and, unless ``stop_rows`` is False (P1), a
-comfortable stop at ``fallback_deceleration`` easing to the nearest lane centre and an emergency
-stop at ``projection.a_max`` holding the current lateral position. The chosen trajectory is the
-best candidate over all iterations by the same key (cost + residual, infeasible ones last when
-feasibility comes first). The status is SUCCESS only when it is feasible; otherwise it is
-INFEASIBLE, the chosen candidate (with feasibility first: the lowest-residual one) is reported, and
-``result.fallback`` offers the stop that enters an obstacle's ellipse later, by the lower residual
-when that ties (computed whether or not the stops ride in the batch; :mod:`driveopt.fallback`).
-
-With ``sampler.refine_samples`` M > 0, each batch's M lowest-cost rows (whatever their residual) are projected
-``sampler.refine_iterations`` more, from their iterate and multipliers, and a row takes its refined trajectory only
-where that lowers its ranking key: the fast plans are the cheap ones and the ones that need the most iterations, so a
-short projection of the whole batch plus a long one of a few rows recovers most of what a long projection of all buys.
+Rows appended to a batch (their :class:`RowKind` is in ``Snapshot.kind``) are ranked like any sample:
+the previous replan's set-points when given, and the stops of ``batch_rows``. The chosen trajectory is
+the best candidate over all iterations by the ranking's key. The status is SUCCESS only when it is
+feasible; otherwise it is INFEASIBLE, the chosen candidate is reported, and ``result.fallback`` offers
+the stop that ``fallback`` chooses (computed whether or not the stops ride in the batch).
 
 Given the previous replan's plan (``previous``), the ``consistency`` cost term measures each
 sample's lateral deviation from that plan: between two near-equal manoeuvres (pass left or right)
@@ -50,7 +39,6 @@ ranked as the set-point QP made it (P2 Fig. 9's "no filter").
 
 from __future__ import annotations
 
-import dataclasses
 import enum
 import functools
 from typing import Any, NamedTuple
@@ -59,36 +47,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.config import PlannerConfig, SamplerConfig
+from driveopt.batch_rows import BatchRows, StopRows
+from driveopt.config import PlannerConfig
 from driveopt.costs import COST_TERMS, cost_terms, weighted_cost
-from driveopt.fallback import (
-    EVASIONS,
-    HOLD,
-    LANE_CENTRE,
-    box_contact,
-    braking_coeffs,
-    first_contact,
-    stop_setpoints,
-    stop_trajectory,
-)
+from driveopt.fallback import Fallback, braking_coeffs, stop_setpoints
 from driveopt.filtering import SafetyFilter, check_filter_init
 from driveopt.problem import PlanningProblem, check_problem
-from driveopt.projection import FAMILIES, ProjectionResult, constraint_residuals, project
-from driveopt.qp import (
-    NUM_SEGMENTS,
-    SETPOINT_DIM,
-    boundary_values,
-    fit_positions,
-    initial_acceleration,
-    make_model,
-    solve_setpoint_qp,
-)
-from driveopt.sampler import GaussianPrior, Prior, cem_update, clip_setpoints, default_mean, sample_gaussian, select_lowest
+from driveopt.projection import FAMILIES, ProjectionResult, project
+from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, boundary_values, make_model, solve_setpoint_qp
+from driveopt.ranking import Candidate, FeasibilityFirst, Ranking
+from driveopt.sampler import GaussianPrior, Prior, cem_update, clip_setpoints, default_mean, sample_gaussian
 from driveopt.scene import ProblemError
 from driveopt.trajectory import Trajectory, evaluate
 from driveopt.xla import XLA_CPU_COMPILER_OPTIONS, float32_products, supported_compiler_options
-
-INFEASIBLE_PENALTY = 1e6  # [-] added to the ranking key of an infeasible sample (feasibility_first): feasible ones rank first
 
 
 class PlanStatus(enum.IntEnum):
@@ -111,7 +82,7 @@ class RowKind(enum.IntEnum):
 
     SAMPLE = 0  # drawn from the prior or the adapted Gaussian
     PREVIOUS_PLAN = 1  # the previous replan's set-points (only when ``previous`` is given)
-    COMFORTABLE_STOP = 2  # brake at ``fallback_deceleration`` towards the nearest lane centre
+    COMFORTABLE_STOP = 2  # brake at ``Fallback.deceleration`` towards the nearest lane centre
     EMERGENCY_STOP = 3  # brake at ``projection.a_max`` holding the current lateral position
     PLACEHOLDER = 4  # stands in for an absent previous plan (``PreviousPlan.absent``): a copy of the first sample, never ranked
 
@@ -147,7 +118,7 @@ class PreviousPlan(NamedTuple):
 
     ``present`` False (:meth:`absent`) stands for "no previous plan" with the same array structure as a real one, so
     a closed loop's first call and its later calls are one compilation: the row it adds to the batch is a copy of the
-    first sample that is never ranked, counted or refined, and the ``consistency`` term is zero, as without one."""
+    first sample that is never ranked or counted, and the ``consistency`` term is zero, as without one."""
 
     setpoints: jnp.ndarray  # (8,) its set-points (re-solved from the current state as a candidate)
     lateral: jnp.ndarray  # (K,) [m] its lateral positions at this call's node times
@@ -178,18 +149,6 @@ def previous_plan(result: "PlanResult", elapsed: float) -> PreviousPlan:
     t = np.asarray(traj.t)
     lateral = np.interp(t + elapsed, t, np.asarray(traj.y)).astype(np.float32)
     return PreviousPlan(np.asarray(result.setpoints, dtype=np.float32), lateral, np.True_)
-
-
-class Candidate(NamedTuple):
-    """One ranked row of a batch."""
-
-    score: jnp.ndarray  # () ranking key: cost + residual; with feasibility_first INFEASIBLE_PENALTY + residual when infeasible
-    feasible: jnp.ndarray  # () bool: total residual within sampler.residual_tolerance
-    setpoints: jnp.ndarray  # (8,)
-    coeffs: jnp.ndarray  # (2n,)
-    residuals: jnp.ndarray  # (4,) per family (driveopt.projection.FAMILIES)
-    terms: jnp.ndarray  # (len(COST_TERMS),) unweighted cost terms
-    cost: jnp.ndarray  # () weighted cost
 
 
 class Solution(NamedTuple):
@@ -225,7 +184,7 @@ def setpoint_batch(model, problem: PlanningProblem, cfg: PlannerConfig, setpoint
     """(coefficients (B, 2n), b_x, b_y) of the set-point QP for ``setpoints`` (B, 8), as every sampler batch solves it
     (the current state imposed; per-sample boundary rows only when the QP imposes a terminal position)."""
     b_x, b_y = _boundary(problem, cfg, setpoints)
-    return solve_setpoint_qp(model, setpoints, b_x, b_y, initial_acceleration(problem.init_x, problem.init_y)), b_x, b_y
+    return solve_setpoint_qp(model, setpoints, b_x, b_y), b_x, b_y
 
 
 def project_batch(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs: jnp.ndarray, b_x, b_y,
@@ -240,17 +199,17 @@ def project_batch(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs
                    init_coeffs=init.coeffs, init_multipliers=init.multipliers, unroll=unroll)
 
 
-def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: PreviousPlan | None, safety_filter, unroll: bool):
+def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: PreviousPlan | None, safety_filter, unroll: bool,
+               ranking: Ranking, stops: tuple[tuple[float, str], ...]):
     """QP + projection + ranking for one batch of set-points (the appended rows: see the module docstring).
 
     Returns (pick, snapshot, score, stats): the best row, the batch, every row's cost + residual, and
     the iteration's History entries.
     """
     s = cfg.sampler
-    stops = _stops(cfg) if cfg.stop_rows else ()
     num_samples = setpoints.shape[0]
     # An absent previous plan's row copies the first sample (the projection's batch-wide stop is unchanged) and is
-    # excluded below wherever rows are ranked, counted or refined.
+    # excluded below wherever rows are ranked or counted.
     appended = [] if previous is None else [jnp.where(previous.present, previous.setpoints, setpoints[0])[None]]
     appended += [stop_setpoints(problem, cfg.basis.horizon, *stop)[None] for stop in stops]
     kinds = [RowKind.SAMPLE] * num_samples + [RowKind.PREVIOUS_PLAN] * (previous is not None)
@@ -267,20 +226,15 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     proj = project_batch(model, problem, cfg, qp_coeffs, b_x, b_y, safety_filter, unroll)
     lateral = None if previous is None else previous.lateral
 
-    def terms_of(coeffs):
-        traj = evaluate(model, coeffs)
-        # without a previous plan every row is its own reference: consistency exactly 0 (selecting the reference,
-        # not the term, leaves the arithmetic of a present plan's term as it was)
-        return cost_terms(traj, problem, lateral if previous is None else jnp.where(previous.present, lateral, traj.y))
-
-    terms = terms_of(proj.coeffs)
-    if s.refine_samples and cfg.projection.max_iterations:
-        proj, terms = _refine(model, problem, cfg, qp_coeffs, b_x, b_y, proj, terms, safety_filter, unroll, terms_of, placeholder)
+    traj = evaluate(model, proj.coeffs)
+    # without a previous plan every row is its own reference: consistency exactly 0 (selecting the reference, not the
+    # term, leaves the arithmetic of a present plan's term as it was)
+    terms = cost_terms(traj, problem, lateral if previous is None else jnp.where(previous.present, lateral, traj.y))
     cost = weighted_cost(terms, cfg.cost)
     residual = proj.residuals.total
-    score = s.ranking_cost_weight * cost + residual
+    score = ranking.score(cost, residual)
     feasible = residual <= s.residual_tolerance
-    key_score = _ranking_key(score, residual, feasible, s)
+    key_score = ranking.key(score, residual, feasible)
     if placeholder is not None:  # never ranked
         key_score, residual_key = jnp.where(placeholder, jnp.inf, key_score), jnp.where(placeholder, jnp.inf, residual)
         feasible_rows = feasible & ~placeholder
@@ -288,16 +242,7 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
         median_residual = jnp.where(previous.present, jnp.median(residual), jnp.median(jnp.delete(residual, num_samples)))
     else:
         residual_key, feasible_rows, median_residual = residual, feasible, jnp.median(residual)
-    if s.feasibility_first:
-        # ConstraintEliteSet: lowest residuals, where every feasible sample ties, so feasible samples come
-        # first ordered by score, then infeasible ones by residual.
-        constraint_elites = select_lowest(key_score, s.num_constraint_elites)
-        # EliteSet: lowest cost + residual of those (P1), feasible samples always ahead of infeasible ones.
-        elite_key = jnp.where(feasible, score - INFEASIBLE_PENALTY, score)
-    else:  # P1: the n lowest residuals, then the q lowest cost + residual of those
-        constraint_elites = select_lowest(residual_key, s.num_constraint_elites)
-        elite_key = score
-    ranked = constraint_elites[select_lowest(elite_key[constraint_elites], s.num_elites)]
+    ranked = ranking.elites(key_score, residual_key, score, feasible, s.num_constraint_elites, s.num_elites)
 
     pick = ranked[jnp.argmin(key_score[ranked])]
     families = jnp.stack(list(proj.residuals))  # (4, rows)
@@ -313,94 +258,6 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     )
     snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked, kind, cost)
     return candidate(pick), snapshot, score, stats
-
-
-def _refine(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs, b_x, b_y, proj: ProjectionResult, terms,
-            safety_filter, unroll: bool, terms_of, placeholder) -> tuple[ProjectionResult, dict[str, jnp.ndarray]]:
-    """``proj`` and its cost ``terms`` with the ``sampler.refine_samples`` lowest-cost rows (whatever their residual)
-    projected ``sampler.refine_iterations`` more from where they stopped (iterate and multipliers; a filter's gammas),
-    each row replaced only where that lowers its ranking key. The fast plans are the lowest-cost ones and the ones that
-    need the most iterations to become feasible; a few more iterations for a few rows buy most of what more
-    iterations for the whole batch would. ``terms_of``: cost terms of coefficients; ``placeholder``: rows never
-    refined (or None)."""
-    s = cfg.sampler
-
-    def key(cost, residual):
-        return _ranking_key(s.ranking_cost_weight * cost + residual, residual, residual <= s.residual_tolerance, s)
-
-    cost = weighted_cost(terms, cfg.cost)
-    rows = select_lowest(cost if placeholder is None else jnp.where(placeholder, jnp.inf, cost), s.refine_samples)
-    gamma_obs = gamma_lane = None
-    if safety_filter is not None:
-        init = check_filter_init(safety_filter.initialise(problem, qp_coeffs[rows]), qp_coeffs[rows].shape)
-        gamma_obs, gamma_lane = init.gamma_obs, init.gamma_lane
-    pick = lambda b: b if b.ndim == 1 else b[rows]  # noqa: E731  (boundary rows are per sample only for goals)
-    more = project(model, problem, qp_coeffs[rows], pick(b_x), pick(b_y),
-                   dataclasses.replace(cfg.projection, max_iterations=s.refine_iterations), gamma_obs=gamma_obs,
-                   gamma_lane=gamma_lane, init_coeffs=proj.coeffs[rows], init_multipliers=proj.multipliers[rows], unroll=unroll)
-    more_terms = terms_of(more.coeffs)
-    better = key(weighted_cost(more_terms, cfg.cost), more.residuals.total) < key(cost[rows], proj.residuals.total[rows])
-
-    def merge(old, new):
-        return old.at[rows].set(jnp.where(better.reshape((-1,) + (1,) * (new.ndim - 1)), new, old[rows]))
-
-    refined = proj._replace(coeffs=merge(proj.coeffs, more.coeffs), multipliers=merge(proj.multipliers, more.multipliers),
-                            residuals=jax.tree_util.tree_map(merge, proj.residuals, more.residuals))
-    return refined, jax.tree_util.tree_map(merge, terms, more_terms)
-
-
-def _stops(cfg: PlannerConfig) -> tuple[tuple[float, str], tuple[float, str]]:
-    """(deceleration [m/s^2], lateral target) of the comfortable and of the emergency stop."""
-    return (cfg.fallback_deceleration, LANE_CENTRE), (cfg.projection.a_max, HOLD)
-
-
-def _ranking_key(score: jnp.ndarray, residual: jnp.ndarray, feasible: jnp.ndarray, s: SamplerConfig) -> jnp.ndarray:
-    """What the pick and the best over iterations minimise: cost + residual (``score``, P1), with
-    ``feasibility_first`` every infeasible row behind every feasible one (INFEASIBLE_PENALTY + residual)."""
-    return jnp.where(feasible, score, INFEASIBLE_PENALTY + residual) if s.feasibility_first else score
-
-
-def _fallback(model, problem: PlanningProblem, cfg: PlannerConfig) -> tuple[Candidate, jnp.ndarray, Trajectory]:
-    """(candidate, emergency, trajectory) of the stop offered as fallback (:mod:`driveopt.fallback`): the one
-    that enters an obstacle's ellipse latest (with ``fallback_evasion``: that touches a car's box latest, then enters
-    its ellipse latest); on a tie (none does, or several at once) the one closest to meeting the constraints, the
-    comfortable stop first among equals. The candidates are the comfortable and the emergency stop, and with
-    ``fallback_evasion`` the emergency stops towards :data:`~driveopt.fallback.EVASIONS`, weighed only where both
-    of those would touch a car's box (a car creeping in a jam, inside every ellipse but touching no box, would
-    otherwise be steered sideways by the residual, step after step). Residuals and cost terms of all are measured in
-    one batch, on their closest polynomials and their own paths."""
-    t = jnp.asarray(model.t)
-    standard = _stops(cfg)
-
-    def stop(decel, target):  # (path, set-points) of one stop
-        return (stop_trajectory(problem, t, decel, target, cfg.fallback_straightens),
-                stop_setpoints(problem, cfg.basis.horizon, decel, target))
-
-    parts = [jax.tree_util.tree_map(lambda a: a[None], stop(*s)) for s in standard]
-    if cfg.fallback_evasion:  # the sideways stops in one traced copy (numeric targets), not one each
-        parts.append(jax.vmap(functools.partial(stop, cfg.projection.a_max))(jnp.asarray(EVASIONS, dtype=jnp.float32)))
-    every, setpoints = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)  # (stops, K) fields, (stops, 8)
-    goal = jnp.stack([every.x[:, -1], every.y[:, -1]], axis=-1) if cfg.qp.terminal_position else None
-    b_x, b_y = boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
-    n = every.x.shape[0]
-    coeffs = fit_positions(model, every.x, every.y, jnp.broadcast_to(b_x, (n, b_x.shape[-1])), jnp.broadcast_to(b_y, (n, b_y.shape[-1])))
-    families = jnp.stack(list(constraint_residuals(model, problem, coeffs, cfg.projection)))  # (4, stops)
-    terms = cost_terms(every, problem)
-    cost = weighted_cost(terms, cfg.cost)
-    total = jnp.sum(families, axis=0)
-    feasible = total <= cfg.sampler.residual_tolerance
-    score = _ranking_key(cfg.sampler.ranking_cost_weight * cost + total, total, feasible, cfg.sampler)
-    contact = jax.vmap(lambda path: first_contact(problem, path))(every)
-    if cfg.fallback_evasion:  # the box first, the ellipse on a tie; sideways stops only where both others touch a box
-        nodes = model.t.shape[0]
-        box = jax.vmap(lambda path: box_contact(problem, path))(every)
-        sideways_weighed = jnp.all(box[:len(standard)] < nodes)
-        contact = jnp.where((jnp.arange(n) < len(standard)) | sideways_weighed, contact + (nodes + 1) * box, -1)
-    latest = contact == jnp.max(contact)
-    pick = jnp.argmin(jnp.where(latest, total, jnp.inf))  # the first of equals
-    term_values = jnp.stack([terms[k] for k in COST_TERMS])  # (terms, stops)
-    candidate = Candidate(score[pick], feasible[pick], setpoints[pick], coeffs[pick], families[:, pick], term_values[:, pick], cost[pick])
-    return candidate, pick > 0, jax.tree_util.tree_map(lambda a: a[pick], every)
 
 
 def _better(a: Candidate, b: Candidate) -> Candidate:
@@ -421,8 +278,12 @@ def solve(
     previous: PreviousPlan | None = None,
     safety_filter: SafetyFilter | None = None,
     unroll: bool = False,
+    ranking: Ranking = FeasibilityFirst(),
+    fallback: Fallback = Fallback(),
+    batch_rows: BatchRows = StopRows(),
 ) -> Solution:
-    """The bi-level optimiser as a pure function; jit it with ``config`` and ``unroll`` static.
+    """The bi-level optimiser as a pure function; jit it with ``config``, ``unroll``, ``ranking``, ``fallback`` and
+    ``batch_rows`` static.
 
     problem: a checked PlanningProblem (planning frame, ego at x = 0). key: PRNG key.
     prior: first-iteration proposal (any pytree with ``propose``, :mod:`driveopt.priors`).
@@ -430,6 +291,9 @@ def solve(
     previous: the previous replan's plan, or None (or its placeholder: ``PreviousPlan.absent``).
     safety_filter: pytree with ``initialise(problem, coeffs) -> FilterInit``, or None (the projection as configured).
     unroll: project with exactly ``projection.max_iterations`` steps (differentiable in reverse mode).
+    ranking: how rows are ranked (:mod:`driveopt.ranking`); fallback: the stops weighed as fallback
+    (:class:`driveopt.fallback.Fallback`); batch_rows: what rides in every batch besides the samples
+    (:mod:`driveopt.batch_rows`).
     No validation happens here: :func:`plan` checks its input first.
     """
     model = make_model(config.basis, config.qp)
@@ -439,8 +303,10 @@ def solve(
         warm_start = jnp.where(warm_start.present, warm_start.mean, default_mean(problem))
     proposal = prior.propose(problem, key_prior, s.num_samples, warm_start)
 
+    stops = batch_rows.stops(fallback, config.projection.a_max)
+
     def iteration(setpoints):
-        return _iteration(model, problem, config, setpoints, previous, safety_filter, unroll)
+        return _iteration(model, problem, config, setpoints, previous, safety_filter, unroll, ranking, stops)
 
     def adapt(mean, cov, snapshot, score):
         elites = snapshot.setpoints[snapshot.elite_index]
@@ -466,8 +332,8 @@ def solve(
         PlanStatus.NUMERICAL_ERROR,
         jnp.where(best.feasible, PlanStatus.SUCCESS, PlanStatus.INFEASIBLE),
     ).astype(jnp.int32)
-    fallback, emergency, fallback_trajectory = _fallback(model, problem, config)
-    return Solution(status, best, mean, cov, history, first, last, evaluate(model, best.coeffs), fallback,
+    offered, emergency, fallback_trajectory = fallback.choose(model, problem, config, ranking)
+    return Solution(status, best, mean, cov, history, first, last, evaluate(model, best.coeffs), offered,
                     fallback_trajectory, emergency)
 
 
@@ -475,7 +341,7 @@ def solve(
 def compiled_solve():
     """:func:`solve`, jitted; on the CPU with the projection's compiler options (a per-jit setting)."""
     options = supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else None
-    return jax.jit(solve, static_argnames=("config", "unroll"), compiler_options=options)
+    return jax.jit(solve, static_argnames=("config", "unroll", "ranking", "fallback", "batch_rows"), compiler_options=options)
 
 
 _TRAJECTORY_KEYS = ("t", "x", "y", "speed", "heading", "curvature", "acceleration", "vx", "vy")
@@ -503,7 +369,7 @@ class PlanResult(NamedTuple):
     last: Snapshot
     x_offset: float  # [m] road-frame x of the planning-frame origin
     fallback_residual: float  # total residual of the fallback
-    fallback_deceleration: float  # [m/s^2] the fallback's braking: fallback_deceleration, or a_max (emergency)
+    fallback_deceleration: float  # [m/s^2] the fallback's braking: Fallback.deceleration, or a_max (emergency)
 
     @property
     def message(self) -> str:
@@ -542,6 +408,9 @@ def plan(
     warm_start: np.ndarray | WarmStart | None = None,
     previous: PreviousPlan | None = None,
     safety_filter: SafetyFilter | None = None,
+    ranking: Ranking = FeasibilityFirst(),
+    fallback: Fallback = Fallback(),
+    batch_rows: BatchRows = StopRows(),
     x_offset: float = 0.0,
 ) -> PlanResult:
     """Plan one trajectory. Raises ProblemError on malformed or non-finite input; never returns NaN.
@@ -556,6 +425,7 @@ def plan(
     None: the result is the same, and every call of the loop runs one compiled function (a call with None and one
     with an array are two compilations).
     safety_filter: sets the projection's barrier parameters and initialisation (:mod:`driveopt.safety`).
+    ranking, fallback, batch_rows: the strategies of :func:`solve` (driveopt's by default; P1's baselines swap them).
     x_offset: [m] added to x of the returned trajectories (the ego's road-frame x).
     """
     check_problem(problem, config.basis)
@@ -575,11 +445,12 @@ def plan(
         if shapes != ((SETPOINT_DIM,), (config.basis.num_nodes,)) or not all(np.all(np.isfinite(a)) for a in previous[:2]):
             raise ProblemError(f"previous plan must be finite with shapes (8,) and ({config.basis.num_nodes},), got {shapes}")
         placeholder = not present
-    solution = jax.device_get(compiled_solve()(problem, key, config, prior, warm_start, previous, safety_filter))
+    solution = jax.device_get(compiled_solve()(problem, key, config, prior, warm_start, previous, safety_filter,
+                                               ranking=ranking, fallback=fallback, batch_rows=batch_rows))
     if placeholder:  # the result as without a previous plan
         row = config.sampler.num_samples
         solution = solution._replace(first=_without_row(solution.first, row), last=_without_row(solution.last, row))
-    return _to_result(solution, config, float(x_offset))
+    return _to_result(solution, config, fallback, float(x_offset))
 
 
 def _flag(value: Any, name: str) -> np.ndarray:
@@ -602,12 +473,12 @@ def _shift(traj: Trajectory, dx: float) -> Trajectory:
     return traj._replace(x=traj.x + dx)
 
 
-def _to_result(solution: Solution, config: PlannerConfig, x_offset: float) -> PlanResult:
+def _to_result(solution: Solution, config: PlannerConfig, fallback: Fallback, x_offset: float) -> PlanResult:
     """Numpy PlanResult in the road frame; on NUMERICAL_ERROR the fallback is reported as the choice."""
     status = PlanStatus(int(solution.status))
-    fallback = _shift(solution.fallback_trajectory, x_offset)
+    stop = _shift(solution.fallback_trajectory, x_offset)
     if status == PlanStatus.NUMERICAL_ERROR:
-        chosen, trajectory, mean = solution.fallback, fallback, np.asarray(solution.fallback.setpoints)
+        chosen, trajectory, mean = solution.fallback, stop, np.asarray(solution.fallback.setpoints)
     else:
         chosen, trajectory, mean = solution.best, _shift(solution.trajectory, x_offset), np.asarray(solution.mean)
     residuals = {f: float(v) for f, v in zip(FAMILIES, chosen.residuals)}
@@ -617,7 +488,7 @@ def _to_result(solution: Solution, config: PlannerConfig, x_offset: float) -> Pl
         setpoints=np.asarray(chosen.setpoints),
         coeffs=np.asarray(chosen.coeffs),
         trajectory=trajectory,
-        fallback=fallback,
+        fallback=stop,
         costs={"total": float(chosen.cost), **{k: float(v) for k, v in zip(COST_TERMS, chosen.terms)}},
         residuals=residuals,
         iterations=config.sampler.num_iterations,
@@ -627,5 +498,5 @@ def _to_result(solution: Solution, config: PlannerConfig, x_offset: float) -> Pl
         last=jax.tree_util.tree_map(np.asarray, solution.last),
         x_offset=x_offset,
         fallback_residual=float(np.sum(solution.fallback.residuals)),
-        fallback_deceleration=config.projection.a_max if bool(solution.fallback_emergency) else config.fallback_deceleration,
+        fallback_deceleration=fallback.braking(bool(solution.fallback_emergency), config.projection.a_max),
     )

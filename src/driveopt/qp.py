@@ -48,8 +48,6 @@ class TrajectoryModel(NamedTuple):
     fit_bx: jnp.ndarray  # (n, mx) ... plus this times b_x
     fit_y: jnp.ndarray  # (n, K) same for y
     fit_by: jnp.ndarray  # (n, my)
-    accel_map_x: jnp.ndarray  # (n,) d c_x / d x''(0) of the soft initial-acceleration term (zeros without it)
-    accel_map_y: jnp.ndarray  # (n,) d c_y / d y''(0)
 
 
 def segment_matrix(num_nodes: int) -> np.ndarray:
@@ -62,7 +60,7 @@ def segment_matrix(num_nodes: int) -> np.ndarray:
 
 
 def equality_rows(basis: Basis, qp: QPConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Equality rows (A_x, A_y): initial x, x', x'' (and x(T)); initial y, y', y'', y'(T) (and y''(T), y(T)).
+    """Equality rows (A_x, A_y): initial x, x', x'' (and x(T)); initial y, y', y'', y'(T) (and y(T)).
 
     The initial accelerations are left out when ``qp.initial_acceleration`` is False, the lateral one
     also when ``qp.initial_lateral_acceleration`` is False (:func:`imposed_accelerations`).
@@ -70,8 +68,6 @@ def equality_rows(basis: Basis, qp: QPConfig) -> tuple[np.ndarray, np.ndarray]:
     impose_x, impose_y = imposed_accelerations(qp)
     rows_x = [basis.W[0], basis.Wd[0]] + ([basis.Wdd[0]] if impose_x else [])
     rows_y = [basis.W[0], basis.Wd[0]] + ([basis.Wdd[0]] if impose_y else []) + [basis.Wd[-1]]
-    if qp.terminal_lateral_acceleration:
-        rows_y.append(basis.Wdd[-1])
     if qp.terminal_position:
         rows_x.append(basis.W[-1])
         rows_y.append(basis.W[-1])
@@ -86,35 +82,18 @@ def imposed_accelerations(qp: QPConfig) -> tuple[bool, bool]:
 def quadratic_costs(basis: Basis, qp: QPConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Hessians and set-point gradient maps of the two axes, for cost 0.5 c'Hc + (G s)'c.
 
-    x: w_s |W''c|^2 + w_v |W''c + k_pv (W'c - v_d)|^2  [+ w_a (x''(0) - a_x0)^2]
-    y: w_s |W''c|^2 + w_y |W''c + k_p (W c - y_d) + k_d W'c|^2  [+ w_a (y''(0) - a_y0)^2]
-
-    The bracketed soft initial-acceleration term (``qp.initial_acceleration_weight`` w_a, used when the
-    initial acceleration is not an equality row) adds 2 w_a W''_0' W''_0 to each Hessian; its linear part
-    depends on the current acceleration (:func:`initial_acceleration_maps`).
+    x: w_s |W''c|^2 + w_v |W''c + k_pv (W'c - v_d)|^2
+    y: w_s |W''c|^2 + w_y |W''c + k_p (W c - y_d) + k_d W'c|^2
     """
     R = segment_matrix(len(basis.t))
     M = basis.Wdd + qp.k_pv * basis.Wd
     N = basis.Wdd + qp.k_p * basis.W + qp.k_d * basis.Wd
     smooth = basis.Wdd.T @ basis.Wdd
-    start = _soft_start_weight(qp) * np.outer(basis.Wdd[0], basis.Wdd[0])
-    H_x = 2.0 * (qp.w_smooth * smooth + qp.w_speed * M.T @ M + start)
-    H_y = 2.0 * (qp.w_smooth * smooth + qp.w_lateral * N.T @ N + start)
+    H_x = 2.0 * (qp.w_smooth * smooth + qp.w_speed * M.T @ M)
+    H_y = 2.0 * (qp.w_smooth * smooth + qp.w_lateral * N.T @ N)
     G_x = -2.0 * qp.w_speed * qp.k_pv * M.T @ R
     G_y = -2.0 * qp.w_lateral * qp.k_p * N.T @ R
     return H_x, G_x, H_y, G_y
-
-
-def _soft_start_weight(qp: QPConfig) -> float:
-    """[-] weight of the soft initial-acceleration term: 0 when the acceleration is an equality row."""
-    return 0.0 if qp.initial_acceleration else qp.initial_acceleration_weight
-
-
-def initial_acceleration_maps(basis: Basis, qp: QPConfig, H: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """(n,) d c / d a_0 of one axis: the soft term's linear part -2 w_a a_0 W''_0' c through the KKT inverse."""
-    n, m = H.shape[0], A.shape[0]
-    inv = np.linalg.inv(np.block([[H, A.T], [A, np.zeros((m, m))]]))
-    return inv[:n, :n] @ (2.0 * _soft_start_weight(qp) * basis.Wdd[0])
 
 
 def _affine_solution(H: np.ndarray, G: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -142,7 +121,6 @@ def make_model(basis_config: BasisConfig = BasisConfig(), qp: QPConfig = QPConfi
         f32(basis.t), f32(basis.W), f32(basis.Wd), f32(basis.Wdd), f32(A_x), f32(A_y),
         f32(speed_map), f32(lateral_map), f32(init_map_x), f32(init_map_y), f32(free_nodes),
         *(f32(a) for a in (*_fit_maps(basis, A_x), *_fit_maps(basis, A_y))),
-        f32(initial_acceleration_maps(basis, qp, H_x, A_x)), f32(initial_acceleration_maps(basis, qp, H_y, A_y)),
     )
 
 
@@ -185,8 +163,6 @@ def boundary_values(
     zero = jnp.zeros(init_y.shape[:-1] + (1,), init_y.dtype)
     used_x, used_y = (3 if imposed else 2 for imposed in imposed_accelerations(qp))
     parts_x, parts_y = [init_x[..., :used_x]], [init_y[..., :used_y], zero]
-    if qp.terminal_lateral_acceleration:
-        parts_y.append(zero)
     if goal is not None:
         parts_x.append(goal[..., :1])
         parts_y.append(goal[..., 1:2])
@@ -194,22 +170,10 @@ def boundary_values(
 
 
 @float32_products
-def solve_setpoint_qp(
-    model: TrajectoryModel, setpoints: jnp.ndarray, b_x: jnp.ndarray, b_y: jnp.ndarray,
-    acceleration: jnp.ndarray | None = None,
-) -> jnp.ndarray:
-    """Batch set-point QP. setpoints (B, 8) = (v_1..v_4 [m/s], y_1..y_4 [m]) -> coefficients (B, 2n).
-
-    acceleration: (..., 2) [m/s^2] current (x'', y''), the target of the soft initial-acceleration term
-    (``qp.initial_acceleration_weight``); unused (and may be None) without that term.
-    """
+def solve_setpoint_qp(model: TrajectoryModel, setpoints: jnp.ndarray, b_x: jnp.ndarray, b_y: jnp.ndarray) -> jnp.ndarray:
+    """Batch set-point QP. setpoints (B, 8) = (v_1..v_4 [m/s], y_1..y_4 [m]) -> coefficients (B, 2n)."""
     c_x = setpoints[..., :NUM_SEGMENTS] @ model.speed_map.T + b_x @ model.init_map_x.T
     c_y = setpoints[..., NUM_SEGMENTS:] @ model.lateral_map.T + b_y @ model.init_map_y.T
-    if np.any(model.accel_map_x) or np.any(model.accel_map_y):  # a static (numpy) property of the model
-        if acceleration is None:
-            raise ValueError("this QP has a soft initial-acceleration term: pass the current acceleration")
-        c_x = c_x + acceleration[..., :1] * model.accel_map_x
-        c_y = c_y + acceleration[..., 1:2] * model.accel_map_y
     return jnp.concatenate([c_x, c_y], axis=-1)
 
 
@@ -224,11 +188,7 @@ def qp_layer(model: TrajectoryModel, qp: QPConfig, setpoints, init_x, init_y) ->
     """Set-points (B, 8) -> (coefficients (B, 2n), node positions (B, K, 2) [m]): the set-point QP as a
     differentiable layer (the learned priors' decoders end in it)."""
     b_x, b_y = boundary_values(init_x, init_y, qp)
-    coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y, initial_acceleration(init_x, init_y))
+    coeffs = solve_setpoint_qp(model, setpoints, b_x, b_y)
     c_x, c_y = split(coeffs)
     return coeffs, jnp.stack([c_x @ model.W.T, c_y @ model.W.T], axis=-1)
 
-
-def initial_acceleration(init_x: jnp.ndarray, init_y: jnp.ndarray) -> jnp.ndarray:
-    """(..., 2) [m/s^2] (x''(0), y''(0)) of initial states (..., 3)."""
-    return jnp.stack([jnp.asarray(init_x)[..., 2], jnp.asarray(init_y)[..., 2]], axis=-1)

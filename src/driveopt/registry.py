@@ -12,15 +12,18 @@ from __future__ import annotations
 
 import dataclasses
 
+from driveopt.batch_rows import SamplesOnly
 from driveopt.config import PlannerConfig
 from driveopt.drivers.base import DriverSpec
 from driveopt.drivers.idm import IDMSpec
 from driveopt.drivers.optimiser import OptimiserSpec
 from driveopt.drivers.rl import RLSpec
 from driveopt.errors import UnknownNameError
+from driveopt.fallback import Fallback
 from driveopt.priors.cvae import cvae_prior
 from driveopt.priors.grids import GoalGridPrior, GridPrior, VanillaPrior
 from driveopt.priors.vqvae import vqvae_prior
+from driveopt.ranking import CostPlusResidual
 
 
 class UnknownPlannerError(UnknownNameError):
@@ -36,20 +39,23 @@ P1_RANKING_COST_WEIGHT = 1e-5  # [-] P1's authors' code ranks by residual + 1e-5
 # 1e-5 gives the driving cost the same small share, so the residual leads and the cost separates equal residuals.
 
 
+P1_MATHS = {"sampler": {"structured_fraction": 0.0}, "qp": {"initial_lateral_acceleration": True},
+            "cost": {"consistency": 0.0}, "projection": {"course_max": 0.0, "ego_turn_rate": 0.0}}
+# P1's planner maths where driveopt's differs: independent set-points, both initial accelerations imposed, no
+# plan-consistency cost, course bound or per-sample turned box.
+
+
 def _p1_faithful(spec: OptimiserSpec, p1_name: str) -> OptimiserSpec:
-    """``spec`` (same prior, samples and iterations) as P1 ran its ``p1_name``: cost + residual ranking with the
-    residual leading as in the authors' code (:data:`P1_RANKING_COST_WEIGHT`), no stop rows, independent set-points,
-    both initial accelerations imposed, no plan-consistency cost, course bound or per-sample turned box, its plan
-    executed feasible or not for five periods, constant-velocity prediction of the nearest neighbours now."""
-    config = spec.config.replace(stop_rows=False, fallback_straightens=False, fallback_evasion=False, contact_guard=False,
-                                 sampler={"feasibility_first": False, "structured_fraction": 0.0,
-                                          "ranking_cost_weight": P1_RANKING_COST_WEIGHT},
-                                 qp={"initial_lateral_acceleration": True}, cost={"consistency": 0.0},
-                                 projection={"course_max": 0.0, "ego_turn_rate": 0.0})
+    """``spec`` (same prior, samples and iterations) as P1 ran its ``p1_name``: P1's ranking (cost + residual, the
+    residual leading as in the authors' code: :data:`P1_RANKING_COST_WEIGHT`), P1's batch (no stop rows), a fallback
+    without straightening or sideways stops, no contact guard, :data:`P1_MATHS`, its plan executed feasible or not for
+    five periods, constant-velocity prediction of the nearest neighbours now."""
     description = (f"P1-faithful {p1_name}: {spec.name} without feasibility-first ranking, stop rows, structured first "
                    "batch, free lateral start, plan consistency, course bound, per-sample turned box, brake-now fallback "
                    "(nor its straightening or sideways stops), contact guard, braking prediction or approach-ranked neighbours; 5 periods per plan")
-    return dataclasses.replace(spec, name=f"{spec.name}-p1", description=description, config=config,
+    return dataclasses.replace(spec, name=f"{spec.name}-p1", description=description, config=spec.config.replace(**P1_MATHS),
+                               ranking=CostPlusResidual(P1_RANKING_COST_WEIGHT), batch_rows=SamplesOnly(),
+                               fallback=Fallback(straightens=False, evasion=False), contact_guard=False,
                                executes_infeasible=True, braking_prediction=False, approach_selection=False,
                                replan_every=5)
 

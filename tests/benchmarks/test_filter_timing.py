@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import json
 
-import pytest
-
 import benchmark_scripts
+import pytest
 
 
 @pytest.fixture(scope="module")
@@ -19,21 +18,21 @@ def test_each_case_plans_with_its_iterations_and_only_the_learned_ones_with_a_fi
     real = timing.plan
 
     def recording_plan(problem, config, **kwargs):
-        seen.append((config.projection.max_iterations, config.sampler.num_samples, config.sampler.refine_samples,
+        seen.append((config.projection.max_iterations, config.sampler.num_samples, config.projection.tolerance,
                      kwargs["safety_filter"] is not None))
         return real(problem, config, **kwargs)
 
     monkeypatch.setattr(timing, "plan", recording_plan)
     out = tmp_path / "t.json"
     learned_config = tmp_path / "learned.json"
-    learned_config.write_text(json.dumps({"sampler": {"refine_samples": 3}, "projection": {"max_iterations": 50}}))
+    learned_config.write_text(json.dumps({"projection": {"tolerance": 0.01, "max_iterations": 50}}))
     assert timing.main(["--json", str(out), "--iterations", "2", "--reference", "2", "--calls", "2",
                         "--samples", "16", "--learned-config", str(learned_config)]) == 0
     report = json.loads(out.read_text())
     assert set(report["cases"]) == {"plain-2", "learned-2"}
     # one compile call and two round-robin calls per case, each with its own settings: the iteration count wins over
     # the learned cases' overrides, which the plain ones do not get
-    assert sorted(set(seen)) == [(2, 16, 0, False), (2, 16, 3, True)]
+    assert sorted(set(seen)) == [(2, 16, 0.001, False), (2, 16, 0.01, True)]
     assert all(seen.count(case) == 3 for case in set(seen))
     for name, case in report["cases"].items():
         assert case["median_ms"] > 0 and case["p90_ms"] >= case["median_ms"] and case["compile_s"] >= 0

@@ -14,6 +14,7 @@ from driveopt.checks import ConfigError
 from driveopt.cli import main
 from driveopt.config import from_dict
 from driveopt.experiments.rollout import Rollout
+from driveopt.fallback import Fallback
 from driveopt.planner import PlanStatus, plan
 from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, ProblemError, Road, Scene, load_scene, scene_from_dict
@@ -78,10 +79,10 @@ def test_any_accepted_problem_gives_finite_results_and_a_stopping_fallback(
     neighbours=st.lists(neighbour, max_size=8),
 )
 def test_a_straightening_fallback_is_a_stop_too(small_config, ego_y, ego_v, ego_vy, neighbours):
-    """``fallback_straightens``: the same promises, and the path points along the road once the car stands."""
+    """``Fallback.straightens``: the same promises, and the path points along the road once the car stands."""
     scene = Scene(ego=EgoState(x=0.0, y=ego_y, vx=ego_v, vy=ego_vy), road=Road(num_lanes=3), neighbours=tuple(neighbours))
-    config = small_config.replace(fallback_straightens=True)
-    result = plan(build_problem(scene, config.basis), config, key=jax.random.PRNGKey(0))
+    result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0),
+                  fallback=Fallback(straightens=True))
     assert_finite(result)
     assert_fallback_is_a_stop(result, scene)
     fb = result.fallback
@@ -158,7 +159,8 @@ def test_a_negative_edge_margin_no_longer_widens_the_road():
     ({"projection": {"a_max": "abc"}}, "projection.a_max must be a number, got 'abc'"),
     ({"projection": {"rho_obstacle": float("inf")}}, "projection.rho_obstacle must be finite"),
     ({"basis": {"horizon": 1e30}}, "basis.horizon must be in (0, 120] s"),
-    ({"fallback_deceleration": None}, "fallback_deceleration must be a number, got None"),
+    ({"sampler": {"temperature": None}}, "sampler.temperature must be a number, got None"),
+    ({"stop_rows": False}, "unknown config section 'stop_rows'"),
     ({"sampler": {"num_samples": 250.0}}, "sampler.num_samples must be an integer"),
 ])
 def test_config_values_are_typed_and_in_range(data, needle):
@@ -176,8 +178,8 @@ def _one_line_error(capsys, argv) -> str:
 
 def test_bad_inputs_on_the_command_line_are_one_line_errors(tmp_path, capsys):
     cfg = tmp_path / "c.json"
-    cfg.write_text(json.dumps({"fallback_deceleration": None}))
-    assert "fallback_deceleration" in _one_line_error(capsys, ["plan", "--config", str(cfg)])
+    cfg.write_text(json.dumps({"cost": {"speed": None}}))
+    assert "cost.speed" in _one_line_error(capsys, ["plan", "--config", str(cfg)])
     cfg.write_text(json.dumps({"projection": {"rho_obstacle": 1e400}}))  # parses to inf
     assert "finite" in _one_line_error(capsys, ["plan", "--config", str(cfg)])
     problem = tmp_path / "p.json"

@@ -7,11 +7,13 @@ import pytest
 from conftest import box_corners
 
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, build_problem, plan
-from driveopt.config import PlannerConfig, ProjectionConfig, QPConfig, from_dict
-from driveopt.planner import PreviousPlan, braking_coeffs, previous_plan
+from driveopt.config import ProjectionConfig, QPConfig
+from driveopt.fallback import Fallback, braking_coeffs
+from driveopt.planner import PreviousPlan, previous_plan
 from driveopt.prediction import is_follower, predict_neighbour, relevant_neighbours
 from driveopt.projection import constraint_residuals
 from driveopt.qp import boundary_values, make_model
+from driveopt.ranking import CostPlusResidual
 from driveopt.sampler import GaussianPrior
 from driveopt.scene import ProblemError
 
@@ -57,7 +59,7 @@ def test_the_fallback_is_the_stop_that_reaches_an_obstacle_later(small_config):
     assert np.interp(1.5, result.fallback.t, result.fallback.speed) < 20.0 - 6.0
     clear = Scene(ego=scene.ego, road=scene.road, neighbours=scene.neighbours[1:])
     result = plan(build_problem(clear, config.basis), config, key=jax.random.PRNGKey(0))
-    assert result.fallback_deceleration == config.fallback_deceleration
+    assert result.fallback_deceleration == Fallback().deceleration
 
 
 def test_structured_prior_draws_whole_horizon_behaviours():
@@ -180,14 +182,14 @@ def test_p1_baselines_rank_by_residual_first_as_the_authors_code():
     the residual leads and a feasible stop is chosen."""
     from driveopt.registry import P1_RANKING_COST_WEIGHT, get_optimiser
 
-    assert all(get_optimiser(f"{name}-p1").config.sampler.ranking_cost_weight == P1_RANKING_COST_WEIGHT
+    assert all(get_optimiser(f"{name}-p1").ranking == CostPlusResidual(P1_RANKING_COST_WEIGHT)
                for name in ("random", "grid", "vanilla", "batch"))
     spec = get_optimiser("grid-p1")
     scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=10.0), road=Road(num_lanes=3),
                   neighbours=(Neighbour(x=35.0, y=4.0, vx=0.0), Neighbour(x=2.0, y=0.0, vx=10.0), Neighbour(x=2.0, y=8.0, vx=10.0)))
     problem = build_problem(scene, spec.config.basis, ignore_followers=True, braking_time=0.0, selection_time=0.0)
     prior = spec.prior(3)
-    p1 = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=prior)
+    p1 = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=prior, **spec.strategies)
     assert p1.status == PlanStatus.SUCCESS and p1.residuals["total"] <= spec.config.sampler.residual_tolerance
 
 
@@ -223,7 +225,7 @@ def test_a_fallback_from_a_swerve_points_along_the_road_when_the_car_stops(targe
     t = jnp.linspace(0.0, 5.0, 501)
     stop = stop_trajectory(problem, t, 3.0, target, straightens=True)
     stopped = np.asarray(stop.speed) <= 1e-6
-    # without straightening (fallback_straightens = false) the easing takes its 20 m: the emergency stop points 0.06 rad off
+    # without straightening (Fallback.straightens false) the easing takes its 20 m: the emergency stop points 0.06 rad off
     before = stop_trajectory(problem, t, 3.0, target)
     assert target == "centre" or float(jnp.abs(before.heading[-1])) > 0.05
     assert stopped.any() and abs(float(stop.heading[0]) + 0.21) < 0.01
@@ -259,19 +261,19 @@ def test_a_short_stop_on_a_course_towards_its_target_does_not_swing_back(target)
 
 
 def test_fallback_straightens_is_a_planner_setting(small_config):
-    """``fallback_straightens`` reaches the fallback that plan() offers (set from --config like any field)."""
+    """``Fallback.straightens`` (on by default) reaches the fallback that plan() offers."""
     scene = Scene(ego=EgoState(x=0.0, y=8.0, vx=4.99, vy=-1.07), road=Road(num_lanes=4))  # on a lane centre
-    off, on = (small_config.replace(fallback_straightens=flag) for flag in (False, True))
-    assert not from_dict({"fallback_straightens": False}).fallback_straightens and PlannerConfig().fallback_straightens
-    ends = [abs(float(plan(build_problem(scene, c.basis), c, key=jax.random.PRNGKey(0)).fallback.heading[-1]))
-            for c in (off, on)]
+    assert Fallback().straightens
+    problem = build_problem(scene, small_config.basis)
+    ends = [abs(float(plan(problem, small_config, key=jax.random.PRNGKey(0), fallback=Fallback(straightens=flag)).fallback.heading[-1]))
+            for flag in (False, True)]
     assert ends[1] < 0.01 < ends[0]
 
 
 def test_the_far_lane_stop_leaves_the_lane_of_the_car_it_would_meet(small_config):
     """`cvae`'s Fig. 7 episode 12 at 29.4 s: 15.6 m/s, 1.3 m above the centre of a lane in which a car creeps at
     0.7 m/s 17.8 m ahead, and no sample feasible. The comfortable stop eases back to that lane's centre and the
-    emergency stop (5 m/s^2, the simulated car's bound) holds 9.3 m: both enter the car's ellipse. With ``fallback_evasion``
+    emergency stop (5 m/s^2, the simulated car's bound) holds 9.3 m: both enter the car's ellipse. With ``Fallback.evasion``
     the fallback also weighs emergency stops that move sideways, among them the one to the lane line above (10 m) and
     the next centre (12 m), which pass the creeping car, and offers one that never meets it."""
     from driveopt.fallback import HOLD, LANE_CENTRE, box_contact, first_contact, lateral_target
@@ -280,9 +282,9 @@ def test_the_far_lane_stop_leaves_the_lane_of_the_car_it_would_meet(small_config
                   neighbours=(Neighbour(x=17.8, y=8.0, vx=0.7),))
     problem = build_problem(scene, small_config.basis)
     nodes = problem.obstacle_x.shape[-1]
-    off, on = (small_config.replace(fallback_evasion=flag, projection={"a_max": 5.0}) for flag in (False, True))  # highway-env's
-    assert PlannerConfig().fallback_evasion and not from_dict({"fallback_evasion": False}).fallback_evasion
-    before, after = (plan(problem, c, key=jax.random.PRNGKey(0)).fallback for c in (off, on))
+    config = small_config.replace(projection={"a_max": 5.0})  # highway-env's
+    assert Fallback().evasion
+    before, after = (plan(problem, config, key=jax.random.PRNGKey(0), fallback=Fallback(evasion=flag)).fallback for flag in (False, True))
     assert int(first_contact(problem, before)) < nodes and float(before.y[-1]) < 9.5
     assert int(first_contact(problem, after)) == int(box_contact(problem, after)) == nodes and float(after.y[-1]) > 11.0
     assert np.all(np.diff(np.asarray(after.speed)) <= 1e-6)  # still a stop
@@ -335,7 +337,7 @@ def test_evasion_weighs_the_turned_box_of_a_car_that_stops_beside_standing_cars(
     scene = Scene(ego=EgoState(x=0.0, y=8.3, vx=speed * np.cos(course), vy=speed * np.sin(course), yaw=0.12),
                   road=Road(num_lanes=4), neighbours=(Neighbour(x=8.6, y=8.0, vx=0.0),) + row)
     problem = build_problem(scene, small_config.basis)
-    config = small_config.replace(fallback_evasion=True, projection={"a_max": 4.5})
+    config = small_config.replace(projection={"a_max": 4.5})
     t = jnp.asarray(make_model(small_config.basis).t)
     sideways, hold = (stop_trajectory(problem, t, 4.5, target, True) for target in (1.0, "hold"))
     assert float(sideways.y[-1]) > 9.3 and float(jnp.max(sideways.heading)) > 0.3
@@ -348,15 +350,15 @@ def test_evasion_weighs_the_turned_box_of_a_car_that_stops_beside_standing_cars(
 def test_evasion_offers_a_stop_past_a_car_that_every_stop_in_the_lane_would_touch(small_config):
     """A car stands 14 m ahead, 1.2 m across (pulling out of the ego's lane, P2's spawn): braking at 5 m/s^2 from
     10 m/s takes 10 m, so every stop in the lane touches its box; a stop shifted 2 m the other way passes it. Without
-    ``fallback_evasion`` the fallback touches the car; with it the fallback is a stop that does not."""
+    ``Fallback.evasion`` the fallback touches the car; with it the fallback is a stop that does not."""
     from driveopt.fallback import box_contact
 
     scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=10.0), road=Road(num_lanes=4),
                   neighbours=(Neighbour(x=14.0, y=2.8, vx=0.0),))
     problem = build_problem(scene, small_config.basis)
     nodes = problem.obstacle_x.shape[-1]
-    off, on = (small_config.replace(fallback_evasion=flag, projection={"a_max": 5.0}) for flag in (False, True))
-    before, after = (plan(problem, c, key=jax.random.PRNGKey(0)).fallback for c in (off, on))
+    config = small_config.replace(projection={"a_max": 5.0})
+    before, after = (plan(problem, config, key=jax.random.PRNGKey(0), fallback=Fallback(evasion=flag)).fallback for flag in (False, True))
     assert int(box_contact(problem, before)) < nodes
     assert int(box_contact(problem, after)) == nodes and float(after.y[-1]) > 5.0
     speed = np.asarray(after.speed)
@@ -365,7 +367,7 @@ def test_evasion_offers_a_stop_past_a_car_that_every_stop_in_the_lane_would_touc
 
 def test_evasion_leaves_the_fallback_alone_where_no_stop_in_the_lane_touches_a_car(small_config):
     """A car creeping at 0.5 m/s 7 m behind a standing car (inside its ellipse from the start, its box out of reach):
-    no stop in the lane touches a box, so the fallback is the same stop with ``fallback_evasion`` as without (the
+    no stop in the lane touches a box, so the fallback is the same stop with ``Fallback.evasion`` as without (the
     residual alone would pick a sideways one at every step and walk a car in a jam across the lane)."""
     from driveopt.fallback import box_contact, first_contact
 
@@ -373,8 +375,8 @@ def test_evasion_leaves_the_fallback_alone_where_no_stop_in_the_lane_touches_a_c
                   neighbours=(Neighbour(x=7.0, y=4.0, vx=0.0), Neighbour(x=-9.0, y=8.0, vx=1.0)))
     problem = build_problem(scene, small_config.basis)
     nodes = problem.obstacle_x.shape[-1]
-    off, on = (small_config.replace(fallback_evasion=flag, projection={"a_max": 5.0}) for flag in (False, True))
-    before, after = (plan(problem, c, key=jax.random.PRNGKey(0)).fallback for c in (off, on))
+    config = small_config.replace(projection={"a_max": 5.0})
+    before, after = (plan(problem, config, key=jax.random.PRNGKey(0), fallback=Fallback(evasion=flag)).fallback for flag in (False, True))
     assert int(first_contact(problem, before)) == 0 and int(box_contact(problem, before)) == nodes
     np.testing.assert_array_equal(np.asarray(after.y), np.asarray(before.y))
     np.testing.assert_array_equal(np.asarray(after.speed), np.asarray(before.speed))

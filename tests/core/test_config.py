@@ -2,11 +2,13 @@ import pytest
 
 from driveopt.checks import ConfigError
 from driveopt.config import PlannerConfig, SamplerConfig, from_dict, to_dict
+from driveopt.fallback import Fallback
+from driveopt.ranking import CostPlusResidual, FeasibilityFirst
 
 
 def test_round_trip_and_hashable():
-    cfg = PlannerConfig().replace(sampler={"num_samples": 250, "feasibility_first": False}, projection={"max_iterations": 100},
-                                  stop_rows=False)
+    cfg = PlannerConfig().replace(sampler={"num_samples": 250, "structured_fraction": 0.0}, projection={"max_iterations": 100},
+                                  qp={"initial_lateral_acceleration": True})
     assert from_dict(to_dict(cfg)) == cfg
     assert hash(cfg) == hash(from_dict(to_dict(cfg)))
 
@@ -24,11 +26,9 @@ def test_round_trip_and_hashable():
         ({"projection": {"ego_turn_rate": -0.1}}, "ego_turn_rate must be in"),
         ({"cost": {"speed": -1.0}}, "cost.speed"),
         ({"sampler": 5}, "mapping"),
-        ({"sampler": {"feasibility_first": "false"}}, "sampler.feasibility_first must be true or false"),
-        ({"stop_rows": 0}, "stop_rows must be true or false"),
-        ({"stop_rowz": False}, "valid: .*stop_rows"),
-        ({"sampler": {"num_samples": 10, "num_constraint_elites": 10, "num_elites": 5, "refine_samples": 11}}, "refine_samples"),
-        ({"sampler": {"refine_iterations": 0}}, "refine_iterations"),
+        ({"projection": {"barrier": "false"}}, "projection.barrier must be true or false"),
+        ({"stop_rows": False}, "unknown config section 'stop_rows'; valid: .*sampler"),
+        ({"sampler": {"feasibility_first": False}}, "unknown key"),
     ],
 )
 def test_bad_config_is_rejected(data, needle):
@@ -41,6 +41,15 @@ def test_sampler_rejects_bad_learning_rate():
         SamplerConfig(learning_rate=0.0)
 
 
-def test_fewer_samples_cap_the_refined_ones():
-    cfg = PlannerConfig().replace(sampler={"refine_samples": 50})
-    assert cfg.with_samples(20).sampler.refine_samples == 20 and cfg.with_samples(250).sampler.refine_samples == 50
+def test_fewer_samples_cap_the_elites():
+    cfg = PlannerConfig().with_samples(20).sampler
+    assert (cfg.num_samples, cfg.num_constraint_elites, cfg.num_elites) == (20, 20, 20)
+    cfg = PlannerConfig().with_samples(250).sampler
+    assert (cfg.num_samples, cfg.num_constraint_elites, cfg.num_elites) == (250, 100, 40)
+
+
+@pytest.mark.parametrize("make", [lambda: FeasibilityFirst(0.0), lambda: CostPlusResidual(float("nan")),
+                                  lambda: Fallback(deceleration=0.0), lambda: Fallback(evasion="yes")])
+def test_bad_strategies_are_rejected(make):
+    with pytest.raises(ConfigError):
+        make()

@@ -5,11 +5,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from driveopt.batch_rows import SamplesOnly, StopRows
 from driveopt.errors import UnknownNameError
+from driveopt.fallback import Fallback
 from driveopt.planner import goal_from_setpoints, plan
 from driveopt.priors.grids import GoalGridPrior, GridPrior
 from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
+from driveopt.ranking import CostPlusResidual, FeasibilityFirst
 from driveopt.registry import P1_RANKING_COST_WEIGHT, get_optimiser, get_planner, list_planners
 from driveopt.scene import load_scene
 
@@ -45,13 +48,14 @@ def test_baselines_plan_finite_trajectories(name):
 @pytest.mark.parametrize("name", ["random", "grid", "vanilla", "batch"])
 def test_p1_faithful_baselines_differ_only_in_what_p1_did_not_have(name):
     base, p1 = get_optimiser(name), get_optimiser(f"{name}-p1")
-    assert p1.config == base.config.replace(stop_rows=False, fallback_straightens=False, fallback_evasion=False, contact_guard=False,
-                                            sampler={"feasibility_first": False, "structured_fraction": 0.0,
-                                                     "ranking_cost_weight": P1_RANKING_COST_WEIGHT},
-                                            qp={"initial_lateral_acceleration": True}, cost={"consistency": 0.0},
-                                            projection={"course_max": 0.0, "ego_turn_rate": 0.0})
+    assert p1.config == base.config.replace(sampler={"structured_fraction": 0.0}, qp={"initial_lateral_acceleration": True},
+                                            cost={"consistency": 0.0}, projection={"course_max": 0.0, "ego_turn_rate": 0.0})
     assert base.config.projection.course_max > 0 and base.config.projection.ego_turn_rate > 0
-    assert base.config.fallback_straightens and base.config.fallback_evasion and base.config.contact_guard
+    # three strategies swapped, and the driver's contact guard off
+    assert (p1.ranking, p1.batch_rows, p1.fallback) == (CostPlusResidual(P1_RANKING_COST_WEIGHT), SamplesOnly(),
+                                                         Fallback(straightens=False, evasion=False))
+    assert (base.ranking, base.batch_rows, base.fallback) == (FeasibilityFirst(), StopRows(), Fallback())
+    assert base.contact_guard and not p1.contact_guard
     assert p1.make_prior is base.make_prior and p1.fixed_batch == base.fixed_batch and p1.warm_start == base.warm_start
     assert (p1.executes_infeasible, p1.braking_prediction, p1.replan_every) == (True, False, 5)
     assert (base.executes_infeasible, base.braking_prediction, base.replan_every) == (False, True, 1)

@@ -1,5 +1,5 @@
 """solve(): the pure, jittable, differentiable optimiser behind plan(); status decided inside; row kinds;
-P1's ranking and batch (``sampler.feasibility_first``, ``stop_rows``)."""
+the ranking and batch-row strategies (driveopt's and P1's)."""
 
 import dataclasses
 
@@ -7,9 +7,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from driveopt.batch_rows import SamplesOnly
 from driveopt.config import PlannerConfig
 from driveopt.planner import PlanStatus, PreviousPlan, RowKind, WarmStart, compiled_solve, plan, previous_plan, solve
 from driveopt.problem import build_problem
+from driveopt.ranking import CostPlusResidual, FeasibilityFirst
 from driveopt.safety import FilterInit
 from driveopt.sampler import GaussianPrior, Proposal
 from driveopt.scene import load_scene
@@ -80,9 +82,8 @@ class FixedPrior:
         return Proposal(self.samples, self.samples[0], jnp.eye(self.samples.shape[1], dtype=self.samples.dtype))
 
 
-# Two rows, one iteration, no stops: every row is in both elite sets, so only the ranking decides.
-P1_BATCH = PlannerConfig().replace(sampler={"num_samples": 2, "num_iterations": 1, "num_constraint_elites": 2, "num_elites": 2},
-                                   stop_rows=False)
+# Two rows, one iteration, no stops (SamplesOnly): every row is in both elite sets, so only the ranking decides.
+P1_BATCH = PlannerConfig().replace(sampler={"num_samples": 2, "num_iterations": 1, "num_constraint_elites": 2, "num_elites": 2})
 
 
 def _blockage_rows():
@@ -97,9 +98,8 @@ def _blockage_rows():
 def test_p1_ranking_picks_the_lowest_cost_plus_residual_even_when_infeasible():
     problem, prior = _blockage_rows()
     results = {}
-    for first in (True, False):
-        config = P1_BATCH.replace(sampler={"feasibility_first": first})
-        results[first] = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior)
+    for first, ranking in ((True, FeasibilityFirst()), (False, CostPlusResidual())):
+        results[first] = plan(problem, P1_BATCH, key=jax.random.PRNGKey(0), prior=prior, ranking=ranking, batch_rows=SamplesOnly())
     residual = results[True].first.residual
     assert residual[0] > P1_BATCH.sampler.residual_tolerance >= residual[1]  # the case is what it claims
 
@@ -115,39 +115,12 @@ def test_p1_ranking_picks_the_lowest_cost_plus_residual_even_when_infeasible():
 
 def test_without_stop_rows_the_batch_is_the_samples_alone():
     problem, prior = _blockage_rows()
-    config = P1_BATCH.replace(sampler={"feasibility_first": False})
-    result = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior)
+    config = P1_BATCH
+    result = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior, ranking=CostPlusResidual(), batch_rows=SamplesOnly())
     for snapshot in (result.first, result.last):
         assert list(snapshot.kind) == [RowKind.SAMPLE] * config.sampler.num_samples
         assert snapshot.setpoints.shape[0] == len(snapshot.residual) == config.sampler.num_samples
     assert np.all(np.isfinite(result.fallback.x)) and np.all(np.diff(result.fallback.speed) <= 1e-5)  # still offered
-
-
-def test_refining_the_cheapest_rows_only_lowers_their_ranking_keys(small_config):
-    """``sampler.refine_samples``: the same batch, but its lowest-cost rows projected further; a row changes only where
-    its key (cost + residual, infeasible behind feasible) falls, every other row is untouched, so the pick can only
-    improve. With a safety filter the refined rows take its gammas."""
-    config = small_config.replace(sampler=dict(num_samples=64, num_iterations=1, num_constraint_elites=16, num_elites=8),
-                                  projection=dict(max_iterations=2))
-    refined = config.replace(sampler={"refine_samples": 8, "refine_iterations": 60})
-    problem = build_problem(load_scene("dense-snapshot"), config.basis)
-    prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
-    n = 2 * (config.basis.order + 1)
-    for safety_filter in (None, OffsetFilter(jnp.zeros(n, jnp.float32))):
-        plain, more = (plan(problem, c, key=jax.random.PRNGKey(0), prior=prior, safety_filter=safety_filter) for c in (config, refined))
-        before, after = plain.first, more.first
-        np.testing.assert_array_equal(before.setpoints, after.setpoints)
-
-        def key(snapshot):
-            feasible = snapshot.residual <= config.sampler.residual_tolerance
-            return np.where(feasible, snapshot.cost + snapshot.residual, 1e6 + snapshot.residual)
-
-        changed = np.flatnonzero(np.any(before.projected_coeffs != after.projected_coeffs, axis=1))
-        assert 0 < len(changed) <= 8  # two iterations leave room: some of the 8 improve
-        assert np.all(key(after)[changed] < key(before)[changed])
-        kept = np.setdiff1d(np.arange(len(before.residual)), changed)
-        np.testing.assert_array_equal(after.residual[kept], before.residual[kept])
-        assert more.history.best_score[0] <= plain.history.best_score[0]
 
 
 def test_every_matrix_product_of_the_planner_is_traced_at_float32(small_config):
@@ -179,19 +152,17 @@ def _arrays(result):
 
 def test_absent_warm_start_and_previous_plan_give_the_result_of_a_call_without_them(small_config):
     """A closed loop's first call passes placeholders (one compilation for all its calls): the placeholder row copies
-    the first sample, so the projection's batch-wide stop is unchanged, but it is never ranked, counted, refined or
-    shown; every number of the result equals the plain call's, bit for bit. Also with refined rows and P1's ranking
-    (residual-only constraint elites), where a copy of a cheap or feasible row would otherwise take another's place."""
-    configs = [small_config.replace(**TINY),
-               small_config.replace(**TINY).replace(sampler={"refine_samples": 4, "refine_iterations": 10, "feasibility_first": False},
-                                                    stop_rows=False)]
-    for config in configs:
-        prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
+    the first sample, so the projection's batch-wide stop is unchanged, but it is never ranked, counted or
+    shown; every number of the result equals the plain call's, bit for bit. Also with P1's ranking (residual-only
+    constraint elites) and batch, where a copy of a cheap or feasible row would otherwise take another's place."""
+    config = small_config.replace(**TINY)
+    prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
+    for strategies in ({}, {"ranking": CostPlusResidual(), "batch_rows": SamplesOnly()}):
         for scene in ("static-blockage", "dense-snapshot"):
             problem = build_problem(load_scene(scene), config.basis)
-            plain = plan(problem, config, key=jax.random.PRNGKey(2), prior=prior)
+            plain = plan(problem, config, key=jax.random.PRNGKey(2), prior=prior, **strategies)
             placeheld = plan(problem, config, key=jax.random.PRNGKey(2), prior=prior, warm_start=WarmStart.absent(),
-                             previous=PreviousPlan.absent(config.basis.num_nodes))
+                             previous=PreviousPlan.absent(config.basis.num_nodes), **strategies)
             assert placeheld.status == plain.status
             for a, b in zip(_arrays(plain), _arrays(placeheld), strict=True):
                 np.testing.assert_array_equal(a, b)
@@ -202,8 +173,9 @@ def test_the_placeholder_row_is_in_solve_s_batch_but_never_ranked(small_config):
     """Row 0 of a fixed batch is the only feasible sample; its copy (the placeholder) is neither picked nor counted."""
     problem, prior = _blockage_rows()
     prior = FixedPrior(prior.samples[::-1])  # row 0 stops (feasible), row 1 runs into the blockage
-    plain = compiled_solve()(problem, jax.random.PRNGKey(0), P1_BATCH, prior)
-    placeheld = compiled_solve()(problem, jax.random.PRNGKey(0), P1_BATCH, prior, previous=PreviousPlan.absent(P1_BATCH.basis.num_nodes))
+    plain = compiled_solve()(problem, jax.random.PRNGKey(0), P1_BATCH, prior, batch_rows=SamplesOnly())
+    placeheld = compiled_solve()(problem, jax.random.PRNGKey(0), P1_BATCH, prior, previous=PreviousPlan.absent(P1_BATCH.basis.num_nodes),
+                                 batch_rows=SamplesOnly())
     assert list(placeheld.first.kind) == [RowKind.SAMPLE, RowKind.SAMPLE, RowKind.PLACEHOLDER]
     np.testing.assert_array_equal(placeheld.first.setpoints[2], placeheld.first.setpoints[0])
     assert int(plain.history.num_feasible[0]) == int(placeheld.history.num_feasible[0]) == 1

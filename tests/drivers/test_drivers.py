@@ -5,6 +5,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import reset_env
 
 from driveopt.checks import ConfigError
 from driveopt.drivers.optimiser import OptimiserSpec, adapt_to_vehicle
@@ -14,7 +15,6 @@ from driveopt.problem import build_problem
 from driveopt.registry import get_planner
 from driveopt.scene import EgoState, Neighbour, Road, Scene
 from driveopt.sim.control import BicycleModel, EgoKinematics, brake_at_least, track
-from driveopt.sim.env import make_env
 from driveopt.sim.perception import Perception
 from driveopt.sim.scenarios import get_scenario
 from driveopt.trajectory import Trajectory
@@ -30,8 +30,7 @@ def test_planner_bounds_fit_the_simulated_car():
 @pytest.fixture
 def env_and_scenario():
     scenario = get_scenario("two-lane-d1.0")
-    env = make_env(scenario)
-    env.reset(seed=4)
+    env = reset_env(scenario, seed=4)
     yield env, scenario
     env.close()
 

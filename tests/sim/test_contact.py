@@ -1,5 +1,6 @@
 """The contact guard: exact rectangle contact, rollouts with upstream's model, and when it brakes."""
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -9,7 +10,6 @@ from conftest import box_corners, boxes_overlap
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from driveopt.config import PlannerConfig
 from driveopt.planner import PlanResult, PlanStatus
 from driveopt.registry import get_planner
 from driveopt.scene import EgoState, Neighbour, Road, Scene
@@ -115,8 +115,8 @@ def test_the_driver_guards_only_when_configured(contact_guard):
     plan_ = _accelerating_plan()
     result = PlanResult(**dict.fromkeys(PlanResult._fields))._replace(
         status=PlanStatus.SUCCESS, trajectory=plan_, fallback=plan_, fallback_deceleration=3.0)
-    spec = get_planner("grid").with_overrides(contact_guard=contact_guard)
-    assert spec.config.contact_guard == contact_guard and PlannerConfig().contact_guard
+    spec = dataclasses.replace(get_planner("grid"), contact_guard=contact_guard)
+    assert get_planner("grid").contact_guard and not get_planner("grid-p1").contact_guard
     driver = spec.driver()
     driver.model = MODEL
     env = SimpleNamespace(unwrapped=SimpleNamespace(vehicle=SimpleNamespace(speed=0.0)))

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import reset_env
 from highway_env.vehicle.kinematics import Vehicle
 
 from driveopt.config import BasisConfig, PlannerConfig, QPConfig
@@ -29,7 +30,7 @@ from driveopt.sim.control import (
     to_action,
     track,
 )
-from driveopt.sim.env import make_env, step_env
+from driveopt.sim.env import step_env
 from driveopt.sim.perception import scene_from_env
 from driveopt.sim.road_frame import slip_angle
 from driveopt.sim.scenarios import get_scenario
@@ -41,8 +42,7 @@ from driveopt.trajectory import Trajectory, evaluate
 @pytest.fixture(scope="module")
 def empty_env():
     scenario = get_scenario("two-lane-d1.0").replace(vehicles_count=0, ego_speed=15.0)
-    env = make_env(scenario)
-    env.reset(seed=0)
+    env = reset_env(scenario, seed=0)
     return scenario, env
 
 
@@ -198,8 +198,7 @@ def _follow(env, scenario, trajectory, seconds=1.0):
 
 def test_open_loop_lane_change_and_speed_change_tracks_within_6_cm():
     scenario = get_scenario("two-lane-d1.0").replace(vehicles_count=0, ego_speed=15.0)
-    env = make_env(scenario)
-    env.reset(seed=0)
+    env = reset_env(scenario, seed=0)
     ego = scene_from_env(env, scenario).ego
     target_lane = 4.0 if ego.y < 2.0 else 0.0
     qp = QPConfig()
@@ -223,8 +222,7 @@ def test_open_loop_lane_change_and_speed_change_tracks_within_6_cm():
 
 def test_open_loop_tracking_of_a_planner_result():
     scenario = get_scenario("two-lane-d1.0").replace(vehicles_count=0, ego_speed=10.0)
-    env = make_env(scenario)
-    env.reset(seed=1)
+    env = reset_env(scenario, seed=1)
     scene = scene_from_env(env, scenario)
     config = PlannerConfig().replace(sampler={"num_samples": 250}, projection={"a_max": 4.5})  # inside the 5 m/s^2 action range
     problem = build_problem(scene, config.basis)

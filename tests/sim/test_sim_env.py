@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import reset_env
 from highway_env.vehicle.objects import Obstacle
 
 from driveopt.sim.env import StepOutcome, make_env, sim_time, step_env
@@ -20,8 +21,7 @@ def _neighbours(env):
 @pytest.mark.parametrize("name", list_scenarios())
 def test_every_scenario_builds_and_steps(name):
     scenario = get_scenario(name)
-    env = make_env(scenario)
-    env.reset(seed=3)
+    env = reset_env(scenario, seed=3)
     sim = env.unwrapped
     assert type(sim.action_type).__name__ == "ContinuousAction"
     assert sim.vehicle.speed == pytest.approx(scenario.ego_speed)
@@ -43,8 +43,7 @@ def test_every_scenario_builds_and_steps(name):
 
 def test_highway_counts_and_lanes():
     scenario = get_scenario("four-lane-d2.0")
-    env = make_env(scenario)
-    env.reset(seed=0)
+    env = reset_env(scenario, seed=0)
     sim = env.unwrapped
     assert len(_neighbours(env)) == scenario.vehicles_count
     assert len(sim.road.network.graph["0"]["1"]) == 4
@@ -73,8 +72,7 @@ def test_same_seed_same_traffic_and_same_rollout():
 @pytest.mark.parametrize("seed", range(4))
 def test_neighbours_spawn_clear_of_the_ego(seed):
     scenario = get_scenario("four-lane-d3.0")
-    env = make_env(scenario)
-    env.reset(seed=seed)
+    env = reset_env(scenario, seed=seed)
     ego = env.unwrapped.vehicle
     ahead = [v.position[0] - ego.position[0] for v in _neighbours(env)]
     assert min(ahead) >= scenario.min_initial_gap - 1e-9
@@ -82,8 +80,7 @@ def test_neighbours_spawn_clear_of_the_ego(seed):
 
 def test_same_lane_vehicles_spawn_with_bumper_gaps():
     scenario = get_scenario("four-lane-d3.0")
-    env = make_env(scenario)
-    env.reset(seed=0)
+    env = reset_env(scenario, seed=0)
     sim = env.unwrapped
     by_lane = {}
     for v in sim.road.vehicles:
@@ -99,8 +96,7 @@ def test_same_lane_vehicles_spawn_with_bumper_gaps():
 
 def test_truncates_after_duration_in_whole_steps():
     scenario = get_scenario("two-way").replace(duration=0.5)
-    env = make_env(scenario)
-    env.reset(seed=0)
+    env = reset_env(scenario, seed=0)
     flags = [step_env(env, STRAIGHT).truncated for _ in range(5)]
     assert flags == [False, False, False, False, True]
     assert sim_time(env) == pytest.approx(0.5)
@@ -108,8 +104,7 @@ def test_truncates_after_duration_in_whole_steps():
 
 def _empty_road(**changes):
     scenario = get_scenario("two-lane-d1.0").replace(vehicles_count=0, **changes)
-    env = make_env(scenario)
-    env.reset(seed=0)
+    env = reset_env(scenario, seed=0)
     return env
 
 
@@ -135,8 +130,7 @@ def test_off_road_is_reported():
 
 
 def test_headless_render_is_not_black():
-    env = make_env(get_scenario("two-lane-d1.0"), render_mode="rgb_array")
-    env.reset(seed=0)
+    env = reset_env(get_scenario("two-lane-d1.0"), render_mode="rgb_array", seed=0)
     frame = env.render()
     assert frame.ndim == 3 and frame.shape[2] == 3 and frame.mean() > 10
     env.close()

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import reset_env
 
 from driveopt.observation import (
     DUMMY_DX,
@@ -20,7 +21,7 @@ from driveopt.observation import (
 from driveopt.prediction import ellipse_semi_axes
 from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, Road, Scene
-from driveopt.sim.env import make_env, step_env
+from driveopt.sim.env import step_env
 from driveopt.sim.perception import perceive, scene_from_env
 from driveopt.sim.road_frame import RoadFrameError, driving_lanes, road_geometry
 from driveopt.sim.scenarios import get_scenario
@@ -114,8 +115,7 @@ def test_observation_needs_a_scene():
 @pytest.fixture(scope="module")
 def dense():
     scenario = get_scenario("four-lane-d3.0")
-    env = make_env(scenario)
-    env.reset(seed=7)
+    env = reset_env(scenario, seed=7)
     for _ in range(3):
         step_env(env, np.array([0.1, 0.0]))
     return scenario, env
@@ -155,8 +155,7 @@ def test_perceived_scene_fills_every_observation_row(dense):
 
 def test_actual_vehicle_sizes_reach_the_collision_ellipses():
     scenario = get_scenario("two-lane-d1.0")
-    env = make_env(scenario)
-    env.reset(seed=1)
+    env = reset_env(scenario, seed=1)
     sim = env.unwrapped
     truck = min((v for v in sim.road.vehicles if v is not sim.vehicle), key=lambda v: abs(v.position[0] - sim.vehicle.position[0]))
     truck.LENGTH, truck.WIDTH = 12.0, 2.5  # instance attributes, as upstream's parking env sets them
@@ -170,8 +169,7 @@ def test_actual_vehicle_sizes_reach_the_collision_ellipses():
 
 def _empty(ego_speed=12.0):
     scenario = get_scenario("two-lane-d1.0").replace(vehicles_count=0, ego_speed=ego_speed)
-    env = make_env(scenario)
-    env.reset(seed=0)
+    env = reset_env(scenario, seed=0)
     return scenario, env
 
 
@@ -202,8 +200,7 @@ def test_ego_acceleration_matches_finite_differences_of_the_simulation():
 def test_two_way_and_merge_roads_exclude_oncoming_and_ramp_lanes():
     for name in ("two-way", "merge"):
         scenario = get_scenario(name)
-        env = make_env(scenario)
-        env.reset(seed=0)
+        env = reset_env(scenario, seed=0)
         scene = scene_from_env(env, scenario)
         assert scene.road == Road(num_lanes=2, lane_width=4.0, first_lane_center=0.0, curvature=0.0)
         network = env.unwrapped.road.network
@@ -213,8 +210,7 @@ def test_two_way_and_merge_roads_exclude_oncoming_and_ramp_lanes():
 
 def test_merge_obstacle_is_a_neighbour():
     scenario = get_scenario("merge")
-    env = make_env(scenario)
-    env.reset(seed=0)
+    env = reset_env(scenario, seed=0)
     scene = scene_from_env(env, scenario)
     sim = env.unwrapped
     assert len(scene.neighbours) == len(sim.road.vehicles) - 1 + len(sim.road.objects)

@@ -7,10 +7,10 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import reset_env
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
-from driveopt.sim.env import make_env
 from driveopt.sim.scenarios import get_scenario
 from driveopt.viz.video import (
     CHOSEN_RGBA,
@@ -27,8 +27,7 @@ from driveopt.viz.video import (
 
 @pytest.fixture(scope="module")
 def rendered():
-    env = make_env(get_scenario("four-lane-d1.0"), render_mode="rgb_array")
-    env.reset(seed=3)
+    env = reset_env(get_scenario("four-lane-d1.0"), render_mode="rgb_array", seed=3)
     frame = env.render()
     yield env, frame
     env.close()

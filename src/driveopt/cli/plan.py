@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 import numpy as np
@@ -65,12 +66,12 @@ def run(args: argparse.Namespace) -> int:
                             selection_time=spec.selection_time)
     key = jax.random.PRNGKey(args.seed)
     start = time.perf_counter()
-    result = plan(problem, config, key=key, prior=prior, safety_filter=safety_filter, x_offset=scene.ego.x)
+    result = plan(problem, config, key=key, prior=prior, safety_filter=safety_filter, x_offset=scene.ego.x, **spec.strategies)
     first = time.perf_counter() - start
     solves = []
     for _ in range(args.repeats):
         start = time.perf_counter()
-        plan(problem, config, key=key, prior=prior, safety_filter=safety_filter, x_offset=scene.ego.x)
+        plan(problem, config, key=key, prior=prior, safety_filter=safety_filter, x_offset=scene.ego.x, **spec.strategies)
         solves.append(time.perf_counter() - start)
     solve = float(np.median(solves)) if solves else None
     timing = {"compile_s": None if solve is None else max(first - solve, 0.0), "solve_s": solve, "first_call_s": first}
@@ -84,8 +85,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"  timing: compile {timing['compile_s']:.2f} s, solve {1e3 * solve:.1f} ms (median of {len(solves)})")
     if args.json:
+        strategies = {name: {"type": type(s).__name__, **dataclasses.asdict(s)} for name, s in spec.strategies.items()}
         report = {**result.to_json(), "timing": timing, "problem": scene_to_dict(scene), "planner": spec.name,
-                  "config": to_dict(config)}
+                  "config": to_dict(config), "strategies": strategies}
         print(f"  wrote {write_json(args.json, report)}")
     if args.plot:
         from driveopt.viz.plan_plot import plot_plan

@@ -15,9 +15,10 @@ now). With ``replan_every`` N > 1 (P1 §V executes five control periods per plan
 plans every N-th step and tracks the same plan open-loop in between. Its PRNG key derives from the
 episode seed: same seed, same episode. A learned safety filter (P2 §III-C; ``filter_weights``, or the
 shipped weights for a spec with ``learned_filter``) sets up every batch's projection
-(:mod:`driveopt.safety.learned`). With ``contact_guard`` in its configuration, a command at crawling speed that
-would take the ego's box within 0.1 m of a car's, where braking now would keep it further, is replaced by braking
-now (:mod:`driveopt.sim.contact`).
+(:mod:`driveopt.safety.learned`). With the spec's ``contact_guard``, a command at crawling speed that would take
+the ego's box within 0.1 m of a car's, where braking now would keep it further, is replaced by braking now
+(:mod:`driveopt.sim.contact`). The spec's ``ranking``, ``batch_rows`` and ``fallback`` are the planner's strategies
+(:func:`driveopt.planner.solve`): P1's baselines swap them for P1's.
 """
 
 from __future__ import annotations
@@ -30,13 +31,16 @@ from typing import Any, Callable
 
 import jax
 
+from driveopt.batch_rows import BatchRows, StopRows
 from driveopt.checks import check_count, check_types
 from driveopt.config import PlannerConfig
 from driveopt.drivers.base import Decision, DriverSpec
+from driveopt.fallback import Fallback
 from driveopt.files import pytree_digest
 from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, WarmStart, plan, previous_plan
 from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
+from driveopt.ranking import FeasibilityFirst, Ranking
 from driveopt.sim.contact import guard
 from driveopt.sim.control import BicycleModel, brake_at_least, ego_kinematics, track
 from driveopt.sim.perception import Perception, perceive
@@ -47,13 +51,18 @@ SAFETY_FACTOR = 0.9  # [-] plans use at most this fraction of the simulator's ac
 PriorFactory = Callable[[PlannerConfig, int, "str | None"], Any]  # (config, lanes, weights file) -> prior
 
 
+def vehicle_acceleration(scenario: Scenario) -> float:
+    """[m/s^2] the acceleration plans may use: SAFETY_FACTOR of the smaller end of the car's ``acceleration_range``."""
+    return SAFETY_FACTOR * min(abs(scenario.acceleration_range[0]), abs(scenario.acceleration_range[1]))
+
+
 def adapt_to_vehicle(config: PlannerConfig, scenario: Scenario, model: BicycleModel) -> PlannerConfig:
     """Cap the planner's acceleration and curvature bounds at what the simulated car can do.
 
     Upstream's ego accelerates within ``acceleration_range`` and turns at most with curvature
     2 sin(beta_max) / L, beta_max = arctan(tan(delta_max) / 2).
     """
-    a_max = SAFETY_FACTOR * min(abs(scenario.acceleration_range[0]), abs(scenario.acceleration_range[1]))
+    a_max = vehicle_acceleration(scenario)
     beta_max = math.atan(0.5 * math.tan(max(abs(s) for s in scenario.steering_range)))
     kappa_max = SAFETY_FACTOR * 2.0 * math.sin(beta_max) / model.length
     projection = dataclasses.replace(
@@ -61,7 +70,12 @@ def adapt_to_vehicle(config: PlannerConfig, scenario: Scenario, model: BicycleMo
         a_max=min(config.projection.a_max, a_max),
         kappa_max=min(config.projection.kappa_max, kappa_max) if config.projection.kappa_max > 0 else kappa_max,
     )
-    return dataclasses.replace(config, projection=projection, fallback_deceleration=min(config.fallback_deceleration, a_max))
+    return dataclasses.replace(config, projection=projection)
+
+
+def adapt_fallback(fallback: Fallback, scenario: Scenario) -> Fallback:
+    """``fallback`` braking comfortably at no more than the car can (:func:`vehicle_acceleration`)."""
+    return dataclasses.replace(fallback, deceleration=min(fallback.deceleration, vehicle_acceleration(scenario)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +93,11 @@ class OptimiserSpec(DriverSpec):
     approach_selection: bool = True  # plan against the neighbours closest within SELECTION_TIME (False: nearest now, P1)
     learned_filter: bool = False  # project with the learned safety filter shipped for the road (none: the plain filter, warned)
     filter_weights: str | None = None  # learned safety filter checkpoint for any optimiser (default: none, or the shipped one)
+    ranking: Ranking = FeasibilityFirst()  # how the planner ranks a batch's rows (P1: CostPlusResidual)
+    batch_rows: BatchRows = StopRows()  # what rides in every batch besides the samples (P1: SamplesOnly)
+    fallback: Fallback = Fallback()  # the stops weighed when nothing is feasible
+    contact_guard: bool = True  # brake now when a command at crawling speed would take the ego's box within 0.1 m of a
+    # car's and braking now would not (driveopt.sim.contact; not for drivers that execute infeasible plans, P1)
 
     def __post_init__(self) -> None:
         check_types(self, "")
@@ -93,6 +112,11 @@ class OptimiserSpec(DriverSpec):
     def selection_time(self) -> float:
         """[s] look-ahead of the obstacle selection (0: the nearest neighbours now)."""
         return SELECTION_TIME if self.approach_selection else 0.0
+
+    @property
+    def strategies(self) -> dict[str, Any]:
+        """The planner's strategies of this spec, as keyword arguments of :func:`driveopt.planner.plan`."""
+        return {"ranking": self.ranking, "batch_rows": self.batch_rows, "fallback": self.fallback}
 
     @property
     def is_optimiser(self) -> bool:
@@ -175,6 +199,7 @@ class OptimiserDriver:
         self.scenario = scenario
         self.model = BicycleModel.from_env(env)
         self.config = adapt_to_vehicle(self.spec.config, scenario, self.model)
+        self.strategies = {**self.spec.strategies, "fallback": adapt_fallback(self.spec.fallback, scenario)}
         self.prior = self.spec.prior(scenario.lanes)
         self.safety_filter = self.spec.safety_filter(scenario.lanes)
         self.key = jax.random.PRNGKey(seed)
@@ -188,7 +213,7 @@ class OptimiserDriver:
         start = time.perf_counter()
         problem = self._problem(perceive(env, scenario))
         plan(problem, self.config, key=jax.random.fold_in(self.key, 1), prior=self.prior, warm_start=self.warm,
-             previous=self.previous, safety_filter=self.safety_filter)
+             previous=self.previous, safety_filter=self.safety_filter, **self.strategies)
         self.compile_seconds = time.perf_counter() - start
         self.executing = None
         self.executed_periods = 0
@@ -204,7 +229,7 @@ class OptimiserDriver:
 
     def act(self, env: Any) -> Decision:
         if self.executing is not None and self.executed_periods < self.spec.replan_every:  # P1's open-loop periods
-            perception = perceive(env, self.scenario) if self.spec.config.contact_guard else None
+            perception = perceive(env, self.scenario) if self.spec.contact_guard else None
             kinematics = perception.kinematics if perception else ego_kinematics(env)
             action, guarded = self._command(self.executing, self.executed_periods * self.period, kinematics, env,
                                             perception and perception.scene)
@@ -216,7 +241,7 @@ class OptimiserDriver:
         self.key, sub = jax.random.split(self.key)
         start = time.perf_counter()
         result = plan(problem, self.config, key=sub, prior=self.prior, warm_start=self.warm, previous=self.previous,
-                      safety_filter=self.safety_filter, x_offset=scene.ego.x)
+                      safety_filter=self.safety_filter, x_offset=scene.ego.x, **self.strategies)
         elapsed = time.perf_counter() - start
         self.warm, self.previous = self._carried(result)
         self.executing, self.executed_periods = result, 1
@@ -232,6 +257,6 @@ class OptimiserDriver:
         if result.status != PlanStatus.SUCCESS:  # executing the fallback: brake now, not after a ramp
             command = brake_at_least(command, result.fallback_deceleration, self.model, float(env.unwrapped.vehicle.speed))
         guarded = False
-        if self.spec.config.contact_guard:
+        if self.spec.contact_guard:
             command, guarded = guard(command, kinematics, scene, self.model)
         return command.action, guarded

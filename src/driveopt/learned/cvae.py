@@ -72,7 +72,7 @@ class CVAEConfig:
     def from_dict(cls, data: dict[str, Any]) -> "CVAEConfig":
         data = dict(data)
         basis = BasisConfig(**data.pop("basis", {}))
-        qp = QPConfig(**data.pop("qp", {}))
+        qp = QPConfig.from_dict(data.pop("qp", {}))
         if "hidden" in data:
             data["hidden"] = tuple(int(w) for w in data["hidden"])
         return cls(**data, basis=basis, qp=qp)

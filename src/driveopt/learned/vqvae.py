@@ -82,7 +82,7 @@ class VQVAEConfig:
     def from_dict(cls, data: dict[str, Any]) -> "VQVAEConfig":
         data = dict(data)
         basis = BasisConfig(**data.pop("basis", {}))
-        qp = QPConfig(**data.pop("qp", {}))
+        qp = QPConfig.from_dict(data.pop("qp", {}))
         for name in ("encoder_channels", "encoder_strides", "decoder_hidden"):
             if name in data:
                 data[name] = tuple(int(w) for w in data[name])

@@ -1,0 +1,97 @@
+"""How the rows of a sampler batch are ranked: the key that picks the plan, and the elite sets the sampler adapts to.
+
+Every row of a batch has a weighted driving cost ``c`` and a total constraint residual ``r`` after projection; it is
+*feasible* when ``r`` is within ``sampler.residual_tolerance``. A ranking turns them into
+
+- a **score** ``w c + r`` (``cost_weight`` w): what the cross-entropy update weighs the elites by (P1 eq. 6);
+- a **key**: what the pick of a batch, the best over the iterations and the fallback's choice minimise;
+- the **elite set** of ``sampler.num_elites`` rows out of the ``sampler.num_constraint_elites`` constraint elites.
+
+Two rankings exist. :class:`FeasibilityFirst` (driveopt's default) puts every feasible row ahead of every infeasible
+one. :class:`CostPlusResidual` is P1's: the lowest residuals, then the lowest score among them, feasible or not.
+Rankings are frozen dataclasses: :func:`driveopt.planner.solve` takes one as a static argument, so each is one
+compilation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple, Protocol
+
+import jax.numpy as jnp
+
+from driveopt.checks import check_number
+from driveopt.config import MAX_WEIGHT
+from driveopt.sampler import select_lowest
+
+INFEASIBLE_PENALTY = 1e6  # [-] added to the key of an infeasible row (FeasibilityFirst): feasible ones rank first
+
+
+class Candidate(NamedTuple):
+    """One ranked row of a batch."""
+
+    score: jnp.ndarray  # () the ranking key (Ranking.key) of the row
+    feasible: jnp.ndarray  # () bool: total residual within sampler.residual_tolerance
+    setpoints: jnp.ndarray  # (8,)
+    coeffs: jnp.ndarray  # (2n,)
+    residuals: jnp.ndarray  # (4,) per family (driveopt.projection.FAMILIES)
+    terms: jnp.ndarray  # (len(COST_TERMS),) unweighted cost terms
+    cost: jnp.ndarray  # () weighted cost
+
+
+class Ranking(Protocol):
+    def score(self, cost: jnp.ndarray, residual: jnp.ndarray) -> jnp.ndarray:
+        """(B,) the score of rows with weighted driving ``cost`` and total ``residual``."""
+        ...
+
+    def key(self, score: jnp.ndarray, residual: jnp.ndarray, feasible: jnp.ndarray) -> jnp.ndarray:
+        """(B,) what the pick minimises, from the rows' scores, total residuals and feasibility."""
+        ...
+
+    def elites(self, key: jnp.ndarray, residual: jnp.ndarray, score: jnp.ndarray, feasible: jnp.ndarray,
+               num_constraint_elites: int, num_elites: int) -> jnp.ndarray:
+        """(num_elites,) indices of the elite set; ``key`` and ``residual`` are +inf for rows never ranked."""
+        ...
+
+
+@dataclass(frozen=True)
+class _WeightedScore:
+    cost_weight: float = 1.0  # [-] w of the score w * cost + residual
+
+    def __post_init__(self) -> None:
+        check_number("ranking.cost_weight", self.cost_weight, 0.0, MAX_WEIGHT, low_open=True)
+
+    def score(self, cost: jnp.ndarray, residual: jnp.ndarray) -> jnp.ndarray:
+        """``w * cost + residual`` of rows with weighted driving ``cost`` and total ``residual``."""
+        return self.cost_weight * cost + residual
+
+
+@dataclass(frozen=True)
+class FeasibilityFirst(_WeightedScore):
+    """Feasible rows first, by score; infeasible ones after them, by residual (driveopt's default).
+
+    The constraint elites are the lowest keys, where every feasible row ranks ahead of every infeasible one; the elite
+    set is the lowest scores of those, feasible rows always ahead. So a batch with any feasible row never picks an
+    infeasible one, and a batch without one picks the row closest to the constraints."""
+
+    def key(self, score: jnp.ndarray, residual: jnp.ndarray, feasible: jnp.ndarray) -> jnp.ndarray:
+        return jnp.where(feasible, score, INFEASIBLE_PENALTY + residual)
+
+    def elites(self, key, residual, score, feasible, num_constraint_elites: int, num_elites: int) -> jnp.ndarray:
+        constraint_elites = select_lowest(key, num_constraint_elites)
+        elite_key = jnp.where(feasible, score - INFEASIBLE_PENALTY, score)
+        return constraint_elites[select_lowest(elite_key[constraint_elites], num_elites)]
+
+
+@dataclass(frozen=True)
+class CostPlusResidual(_WeightedScore):
+    """P1's ranking (Alg. 1): the ``num_constraint_elites`` lowest residuals, the ``num_elites`` lowest scores of
+    those, and the lowest score is picked, feasible or not. P1's authors weigh the cost 1e-5 on driveopt's scale
+    (``driveopt.registry.P1_RANKING_COST_WEIGHT``), so the residual leads and the cost separates equal residuals."""
+
+    def key(self, score: jnp.ndarray, residual: jnp.ndarray, feasible: jnp.ndarray) -> jnp.ndarray:
+        return score
+
+    def elites(self, key, residual, score, feasible, num_constraint_elites: int, num_elites: int) -> jnp.ndarray:
+        constraint_elites = select_lowest(residual, num_constraint_elites)
+        return constraint_elites[select_lowest(score[constraint_elites], num_elites)]
