@@ -29,7 +29,10 @@ RUNS = ("bilevel:four-lane-d3.0", "cvae-mix:four-lane-d3.0", "vqvae-cem:p2-four-
 
 def run_side(runs: list[str], seed: int, duration: float, path: Path) -> None:
     """Run each ``planner:scenario`` episode not yet in ``path`` in this process (this side's code) and add it there."""
-    from driveopt.experiments.rollout import run_episode
+    try:
+        from driveopt.experiments.rollout import run_episode
+    except ModuleNotFoundError:  # a tree from before the episode loop moved to experiments/
+        from driveopt.sim.rollout import run_episode
     from driveopt.registry import get_planner
 
     done = json.loads(path.read_text()) if path.exists() else {}
