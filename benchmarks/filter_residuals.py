@@ -1,4 +1,4 @@
-"""Offline residuals of P2's learned safety filter against the plain projection, by iteration count (issue 15).
+"""Offline residuals of P2's learned safety filter against the plain projection, by iteration count.
 
     python benchmarks/filter_residuals.py --data HELD.h5 [HELD2.h5 ...] --filter-weights filter.ckpt \
         --json out/filter_residuals.json [--samples-from vqvae|cvae|gaussian] [--prior-weights FILE] \
@@ -76,8 +76,8 @@ from driveopt.projection import constraint_residuals
 from driveopt.qp import make_model
 from driveopt.registry import get_optimiser
 from driveopt.safety.learned import LearnedFilter
-from driveopt.training.cvae import evaluation_road_rows
-from driveopt.training.filter import SAMPLE_SOURCES, _draw, row_problems, scenario_config, training_prior
+from driveopt.training.filter import SAMPLE_SOURCES, draw_setpoints, row_problems, scenario_config, training_prior
+from driveopt.training.harness import evaluation_road_rows
 from driveopt.trajectory import evaluate
 
 ITERATIONS = (1, 5, 10, 25, 50, 100)  # [-] projection iterations measured by default
@@ -249,7 +249,7 @@ def run(args: argparse.Namespace) -> int:
         for row in bar:
             stacked = row_problems(data, np.array([row]), v_des, config)
             key = jax.random.fold_in(base_key, row)
-            setpoints = _draw(prior, jax.tree_util.tree_map(jnp.asarray, stacked), key[None], args.samples)[0]
+            setpoints = draw_setpoints(prior, jax.tree_util.tree_map(jnp.asarray, stacked), key[None], args.samples)[0]
             problem = jax.tree_util.tree_map(lambda a: jnp.asarray(a[0]), stacked)
             changes = lane_changes(np.asarray(setpoints), float(problem.init_y[0]), float(problem.lane_width))
             results: dict[str, dict[str, Any]] = {variant: {} for variant in VARIANTS}

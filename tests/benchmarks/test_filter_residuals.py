@@ -1,4 +1,4 @@
-"""benchmarks/filter_residuals.py (issue 15): residuals after k projection iterations with the learned filter and with
+"""benchmarks/filter_residuals.py: residuals after k projection iterations with the learned filter and with
 the plain projection, on held-out demonstration rows; resumable output and one-line errors.
 
 The script is loaded once and every run shares one setting (8 samples, k = 1 and 25, the ``vqvae-filter`` projection),
@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from learned_data import write_demonstrations
-from tiny_models import _random_params, tiny_pixelcnn
+from tiny_models import random_params, tiny_pixelcnn
 
 from driveopt.learned import filter as fl
 from driveopt.learned.checkpoint import save_checkpoint
@@ -60,7 +60,7 @@ def measured(tmp_path_factory):
     output layer moves gammas, multipliers and first iterate, and the same network with the plain output layer."""
     tmp = tmp_path_factory.mktemp("residuals")
     data = write_demonstrations(tmp / "held.h5")  # 2 episodes of 6 rows, four lanes
-    params = _random_params(fl.init_params, CFG, 0)
+    params = random_params(fl.init_params, CFG, 0)
     random = tiny_filter(tmp / "random.ckpt", params)
     projection = get_optimiser("vqvae-filter").config.projection
     # The plain variant runs the configured projection: barrier mode with gammas 1, which plain_params reproduces exactly.
@@ -185,7 +185,7 @@ def test_bad_checkpoints_data_and_options_exit_with_a_one_line_error(measured, t
     header, body = random.read_bytes().split(b"\n", 1)
     damaged = tmp_path / "damaged.ckpt"
     damaged.write_bytes(header + b"\n" + body[: len(body) // 2])
-    two_lane = tiny_filter(tmp_path / "two-lane.ckpt", _random_params(fl.init_params, CFG, 0), lanes=(2,))
+    two_lane = tiny_filter(tmp_path / "two-lane.ckpt", random_params(fl.init_params, CFG, 0), lanes=(2,))
     garbage = tmp_path / "garbage.h5"
     garbage.write_text("not HDF5")
     out = tmp_path / "bad.json"

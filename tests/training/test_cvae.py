@@ -9,7 +9,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from learned_data import LANES, write_synthetic
+from learned_data import LANES, file_fixture, trained_fixture, write_synthetic
+from tiny_models import with_meta
 
 from driveopt.checks import ConfigError
 from driveopt.cli import main
@@ -21,31 +22,15 @@ from driveopt.priors.cvae import CVAEPrior, load_prior, prior_for, shipped_weigh
 from driveopt.problem import build_problem
 from driveopt.qp import qp_layer
 from driveopt.scene import load_scene
-from driveopt.training.cvae import TrainConfig, TrainingError, make_batch, road_lanes, train_cvae, training_rows
+from driveopt.training.cvae import TrainConfig, make_batch, train_cvae
+from driveopt.training.harness import TrainingError, road_lanes, training_rows
 
 CFG = CVAEConfig(hidden=(32, 32))
 TCFG = TrainConfig(epochs=10, batch_size=32, learning_rate=3e-3, anneal_epochs=2, decay_every=8)
 
 
-def _with_meta(path, dest, change):
-    """Copy of the checkpoint ``path`` at ``dest`` whose header meta went through ``change`` (the body is kept)."""
-    header, body = path.read_bytes().split(b"\n", 1)
-    doc = json.loads(header)
-    change(doc["meta"])
-    dest.write_bytes(json.dumps(doc).encode() + b"\n" + body)
-    return dest
-
-
-@pytest.fixture(scope="module")
-def data_file(tmp_path_factory):
-    return write_synthetic(tmp_path_factory.mktemp("demo") / "demo.h5")
-
-
-@pytest.fixture(scope="module")
-def trained(data_file, tmp_path_factory):
-    out = tmp_path_factory.mktemp("cvae")
-    summary = train_cvae(data_file, out, CFG, TCFG, progress=False)
-    return out, summary
+data_file = file_fixture(write_synthetic, "demo.h5")
+trained = trained_fixture(lambda data, out: train_cvae(data, out, CFG, TCFG, progress=False))
 
 
 def test_qp_layer_gradient_through_decoder_matches_finite_differences(data_file):
@@ -116,7 +101,7 @@ def test_checkpoint_of_another_architecture_is_refused(trained, tmp_path):
         meta["config"]["hidden"] = [64, 64]  # header claims widths the weights do not have
 
     with pytest.raises(CheckpointError, match="does not match|shape"):
-        load_prior(_with_meta(trained[0] / "cvae.ckpt", tmp_path / "mismatch.ckpt", wider))
+        load_prior(with_meta(trained[0] / "cvae.ckpt", tmp_path / "mismatch.ckpt", wider))
 
 
 def test_training_resumes_to_the_same_weights(data_file, trained, tmp_path):
@@ -127,6 +112,8 @@ def test_training_resumes_to_the_same_weights(data_file, trained, tmp_path):
     a = load_prior(tmp_path / "last.ckpt").propose(problem, jax.random.PRNGKey(0), 8, None).samples
     b = load_prior(trained[0] / "last.ckpt").propose(problem, jax.random.PRNGKey(0), 8, None).samples
     np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-5)
+    for name in ("cvae.ckpt", "last.ckpt", "history.json"):  # every step and draw follows from the seed: the same bytes
+        assert (tmp_path / name).read_bytes() == (trained[0] / name).read_bytes(), name
 
 
 def test_resume_with_other_data_or_settings_is_refused(trained, tmp_path):
@@ -269,7 +256,7 @@ def test_resume_with_another_validation_split_is_refused(data_file, trained, tmp
     for change, reason in ((other_split, "other validation episodes"), (older, "no validation split")):
         out = tmp_path / change.__name__
         out.mkdir()
-        _with_meta(trained[0] / "last.ckpt", out / "last.ckpt", change)
+        with_meta(trained[0] / "last.ckpt", out / "last.ckpt", change)
         with pytest.raises(CheckpointError, match=reason):
             train_cvae(data_file, out, CFG, TCFG, progress=False)
 
@@ -280,7 +267,7 @@ def test_weights_record_their_road_and_refuse_other_lane_counts(trained, tmp_pat
     assert isinstance(prior_for(4, 30.0, weights, None), CVAEPrior)
     with pytest.raises(CheckpointError, match="4-lane roads, not this 2-lane road"):
         prior_for(2, 30.0, weights, None)
-    older = _with_meta(weights, tmp_path / "older.ckpt", lambda meta: meta.pop("lanes"))
+    older = with_meta(weights, tmp_path / "older.ckpt", lambda meta: meta.pop("lanes"))
     assert isinstance(prior_for(2, 30.0, older, None), CVAEPrior)  # no record: accepted unchecked
 
 

@@ -1,4 +1,4 @@
-"""P2's learned safety filter (issue 15): barrier configuration, 0 projection iterations, the filter network in the
+"""P2's learned safety filter: barrier configuration, 0 projection iterations, the filter network in the
 planner, the eq. 9 loss and its gradient, training (loss, checkpoints, resume), the vqvae-filter planner and options.
 
 The trainings share one setting (``CFG``, ``TCFG``, the ``vqvae-filter`` projection), so their jitted steps compile
@@ -14,27 +14,27 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from learned_data import file_fixture, trained_fixture, write_scenes
 
 from driveopt.checks import ConfigError
 from driveopt.cli import main
 from driveopt.cli.common import config_overrides
 from driveopt.config import BasisConfig, ProjectionConfig, QPConfig
-from driveopt.data.demonstrations import DemonstrationWriter, load_demonstrations
+from driveopt.data.demonstrations import load_demonstrations
 from driveopt.learned import filter as fl
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from driveopt.observation import OBSERVATION_DIM, observation_vector
 from driveopt.planner import PlanStatus, plan, project_batch, setpoint_batch
 from driveopt.problem import build_problem
 from driveopt.projection import constraint_residuals, project
-from driveopt.qp import boundary_values, make_model, qp_layer, solve_setpoint_qp
+from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
 from driveopt.registry import get_optimiser, list_planners
 from driveopt.safety import FilterError, FilterInit, LearnedFilter, check_filter_init, load_filter
 from driveopt.sampler import GaussianPrior
-from driveopt.scene import EgoState, Neighbour, Road, Scene, load_scene
+from driveopt.scene import load_scene
 from driveopt.sim.scenarios import get_scenario
 from driveopt.training.filter import (
     TrainConfig,
-    _draw,
+    draw_setpoints,
     row_problems,
     scenario_config,
     selection_key,
@@ -52,48 +52,8 @@ PLANNER = get_optimiser("vqvae-filter")
 PLAN = PLANNER.with_samples(16).with_overrides(projection={"max_iterations": 6})  # what `driveopt plan` below runs
 
 
-# ------------------------------------------------------------------------------------------ data
-
-
-def scene_rows(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
-    """Demonstration rows of random four-lane scenes (observation, state and lane bounds as the closed loop stores
-    them); the plan keeps speed and lane."""
-    obs, init_x, init_y, bounds, setpoints = [], [], [], [], []
-    for _ in range(n):
-        y, vx = float(rng.choice([0.0, 4.0, 8.0, 12.0]) + rng.normal(0.0, 0.3)), float(rng.uniform(6.0, 14.0))
-        neighbours = tuple(Neighbour(x=float(rng.uniform(8.0, 50.0)), y=float(rng.choice([0.0, 4.0, 8.0, 12.0])),
-                                     vx=float(rng.uniform(0.0, 10.0))) for _ in range(int(rng.integers(2, 5))))
-        scene = Scene(ego=EgoState(x=0.0, y=y, vx=vx), road=Road(num_lanes=4), neighbours=neighbours)
-        obs.append(observation_vector(scene))
-        init_x.append([0.0, vx, 0.0])
-        init_y.append([y, 0.0, 0.0])
-        bounds.append(scene.lateral_bounds)
-        setpoints.append([vx] * 4 + [y] * 4)
-    f32 = lambda a: np.asarray(a, np.float32)  # noqa: E731
-    coeffs, positions = qp_layer(make_model(BasisConfig(), QPConfig()), QPConfig(), f32(setpoints), f32(init_x), f32(init_y))
-    return {"observation": f32(obs), "init_x": f32(init_x), "init_y": f32(init_y), "lane_bounds": f32(bounds),
-            "setpoints": f32(setpoints), "coeffs": np.asarray(coeffs), "trajectory": np.asarray(positions),
-            "status": np.zeros(n, np.int8), "time": np.arange(n, dtype=np.float32) / 10.0}
-
-
-def write_scenes(path, episodes: int = 3, rows: int = 6, seed: int = 0, scenario: str = "four-lane-d3.0"):
-    rng = np.random.default_rng(seed)
-    writer = DemonstrationWriter(path, {"expert": "synthetic"}, BasisConfig().num_nodes, 22, OBSERVATION_DIM)
-    for e in range(episodes):
-        entry = {"scenario": scenario, "seed": seed, "episode": e, "env_seed": e, "collided": False, "duration": rows / 10.0}
-        writer.append_episode(entry, scene_rows(rng, rows))
-    return path
-
-
-@pytest.fixture(scope="module")
-def data_file(tmp_path_factory):
-    return write_scenes(tmp_path_factory.mktemp("demo") / "scenes.h5")
-
-
-@pytest.fixture(scope="module")
-def trained(data_file, tmp_path_factory):
-    out = tmp_path_factory.mktemp("filter")
-    return out, train_filter(data_file, out, CFG, TCFG, config=PLANNER.config, progress=False)
+data_file = file_fixture(write_scenes, "scenes.h5")
+trained = trained_fixture(lambda data, out: train_filter(data, out, CFG, TCFG, config=PLANNER.config, progress=False))
 
 
 def small_batch(num: int = 8):
@@ -129,7 +89,7 @@ def test_barrier_gammas_are_validated_configuration_and_default_to_the_plain_con
     np.testing.assert_array_equal(configured.coeffs, given.coeffs)
 
 
-def test_without_a_filter_the_projection_gives_the_numbers_it_gave_before_issue_15():
+def test_without_a_filter_the_projection_gives_the_numbers_recorded_before_learned_filters():
     """Residuals of 8 samples after 5 iterations, recorded with the code before the barrier gammas, 0 iterations and
     per-sample filters were added (plain and barrier mode agree at gamma = 1); no course bound, which came later."""
     model = make_model()
@@ -256,7 +216,7 @@ def test_grad_of_the_eq9_loss_is_finite_and_matches_finite_differences(trained, 
     problems = row_problems(data, rows, v_des, config)
     problems = jax.tree_util.tree_map(jnp.asarray, problems)
     prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
-    setpoints = _draw(prior, problems, jax.random.split(jax.random.PRNGKey(5), len(rows)), TCFG.samples)
+    setpoints = draw_setpoints(prior, problems, jax.random.split(jax.random.PRNGKey(5), len(rows)), TCFG.samples)
     weight = jnp.float32(TCFG.residual_weight)
 
     def evaluate(params):  # the training step's own compiled function

@@ -1,4 +1,4 @@
-"""VQ-VAE + PixelCNN prior (issue 14): multi-modal demonstrations (schema 2, v1 still readable), quantisation,
+"""VQ-VAE + PixelCNN prior: multi-modal demonstrations (schema 2, v1 still readable), quantisation,
 loss, codebook re-seeding, PixelCNN masking and sampling, training and checkpoints, the planners."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from learned_data import SCENARIO, synthetic_rows
+from learned_data import SCENARIO, file_fixture, synthetic_rows, write_modes
 
 from driveopt.basis import make_basis
 from driveopt.cli import main
@@ -37,10 +37,11 @@ from driveopt.problem import build_problem
 from driveopt.qp import make_model, qp_layer
 from driveopt.registry import get_optimiser
 from driveopt.scene import load_scene
-from driveopt.training.cvae import make_batch, training_rows
-from driveopt.training.vqvae import TrainConfig, mode_batch, mode_examples, train_pixelcnn, train_vqvae
+from driveopt.training.cvae import make_batch
+from driveopt.training.harness import training_rows
+from driveopt.training.pixelcnn import train_pixelcnn
+from driveopt.training.vqvae import TrainConfig, mode_batch, mode_examples, train_vqvae
 
-M = 4  # mode slots of the synthetic files
 # What the `trained` fixture's commands train (the tests' own calls with these settings reuse its compilations).
 VQ_CFG = vq.VQVAEConfig(decoder_hidden=(32, 32))
 PX_CFG = px.PixelCNNConfig(channels=16, layers=2, kernel_size=7)
@@ -52,37 +53,8 @@ PX_ARGS = ["--channels", "16", "--layers", "2", "--kernel", "7", "--epochs", "6"
 # ------------------------------------------------------------------------------------------- data
 
 
-def synthetic_modes(rng: np.random.Generator, rows: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """1..M modes per row: keep the lane, change left, change right, slow down (the set-point QP's plans)."""
-    n = len(rows["observation"])
-    y0, v = rows["init_y"][:, 0], rows["init_x"][:, 1]
-    options = [(v, y0), (v, np.clip(y0 + 4.0, 0, 12)), (v, np.clip(y0 - 4.0, 0, 12)), (np.maximum(v - 5.0, 0.0), y0)]
-    out = {"mode_setpoints": np.zeros((n, M, 8), np.float32), "mode_coeffs": np.zeros((n, M, 22), np.float32),
-           "mode_cost": np.zeros((n, M), np.float32), "mode_residual": np.zeros((n, M), np.float32),
-           "mode_mask": np.zeros((n, M), bool)}
-    model = make_model(BasisConfig(), QPConfig())
-    count = rng.integers(1, M + 1, n)
-    for j, (speed, lateral) in enumerate(options):
-        sp = np.concatenate([np.repeat(speed[:, None], 4, 1), np.repeat(lateral[:, None], 4, 1)], 1).astype(np.float32)
-        coeffs, _ = qp_layer(model, QPConfig(), sp, rows["init_x"], rows["init_y"])
-        use = count > j
-        out["mode_setpoints"][use, j], out["mode_coeffs"][use, j] = sp[use], np.asarray(coeffs)[use]
-        out["mode_cost"][use, j], out["mode_mask"][use, j] = float(j), True
-    return out
-
-
-def write_modes(path, episodes: int = 4, rows: int = 48, seed: int = 0, scenario: str = SCENARIO):
-    rng = np.random.default_rng(seed)
-    writer = DemonstrationWriter(path, {"expert": "synthetic"}, 100, 22, 55, M)
-    for e in range(episodes):
-        data = synthetic_rows(rng, rows)
-        entry = {"scenario": scenario, "seed": seed, "episode": e, "env_seed": e, "collided": False, "duration": rows / 10.0}
-        writer.append_episode(entry, {**data, **synthetic_modes(rng, data)})
-    return path
-
-
 def write_v1(path, episodes: int = 2, rows: int = 16, seed: int = 0):
-    """A schema-version-1 file exactly as the code before issue 14 wrote it (no mode datasets)."""
+    """A schema-version-1 file exactly as driveopt wrote it before it stored modes (no mode datasets)."""
     rng = np.random.default_rng(seed)
     shapes = {"observation": (55,), "init_x": (3,), "init_y": (3,), "lane_bounds": (2,), "setpoints": (8,), "coeffs": (22,),
               "trajectory": (100, 2), "status": (), "time": ()}
@@ -111,9 +83,7 @@ def write_v1(path, episodes: int = 2, rows: int = 16, seed: int = 0):
     return path
 
 
-@pytest.fixture(scope="module")
-def mode_file(tmp_path_factory):
-    return write_modes(tmp_path_factory.mktemp("modes") / "modes.h5")
+mode_file = file_fixture(write_modes, "modes.h5")
 
 
 def test_select_modes_keeps_distinct_feasible_samples_lowest_cost_first():

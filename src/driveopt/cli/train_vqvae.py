@@ -1,6 +1,6 @@
 """``driveopt train vqvae`` and ``driveopt train pixelcnn`` (P2's learned sampler), registered by :mod:`driveopt.cli.train`.
 
-The settings are checked (:class:`~driveopt.training.vqvae.TrainConfig`,
+The settings are checked (:class:`~driveopt.training.vqvae.TrainConfig`, which both trainers take,
 :class:`~driveopt.learned.vqvae.VQVAEConfig`, :class:`~driveopt.learned.pixelcnn.PixelCNNConfig`)
 before any data is read or output written.
 """
@@ -78,7 +78,7 @@ def run_vqvae(args: argparse.Namespace) -> int:
 def run_pixelcnn(args: argparse.Namespace) -> int:
     from driveopt.learned.pixelcnn import PixelCNNConfig
     from driveopt.learned.vqvae import load_vqvae
-    from driveopt.training.vqvae import train_pixelcnn
+    from driveopt.training.pixelcnn import train_pixelcnn
 
     tcfg = _train_config(args)
     vq_cfg = load_vqvae(args.vqvae)[0]

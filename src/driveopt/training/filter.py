@@ -1,14 +1,13 @@
 """``driveopt train filter``: fit P2's learned safety filter (§III-C, eq. 9) through the unrolled projection, resumably.
 
-Examples: the observations of the demonstration rows the CVAE learns from (status SUCCESS, not within
-``crash_margin`` seconds of a collision; rows, canonical order and validation split of
-:mod:`driveopt.training.cvae`), each rebuilt into its planning problem
-(:func:`driveopt.data.replay.problem_from_row`). For every observation ``samples`` set-points are drawn
-from the chosen prior (``samples_from``: the VQ-VAE as P2, the CVAE, or the planner's Gaussian) and
-turned into trajectories xi by the planner's own set-point QP (:func:`driveopt.planner.setpoint_batch`);
-the filter sets up their projection, which runs exactly ``unroll`` iterations (default 25; the authors: 5) of the
-planner's own code (:func:`driveopt.planner.project_batch` with ``unroll=True``), and the loss is P2
-eq. 9, a mean over samples and observations::
+Examples: the observations of the demonstration rows the harness learns from (:mod:`driveopt.training.harness`:
+status SUCCESS, not within ``crash_margin`` seconds of a collision, canonical order, whole episodes held out or separate
+validation files), each rebuilt into its planning problem (:func:`driveopt.data.replay.problem_from_row`). For every
+observation ``samples`` set-points are drawn from the chosen prior (``samples_from``: the VQ-VAE as P2, the CVAE, or the
+planner's Gaussian) and turned into trajectories xi by the planner's own set-point QP
+(:func:`driveopt.planner.setpoint_batch`); the filter sets up their projection, which runs exactly ``unroll``
+iterations (default 25; the authors: 5) of the planner's own code (:func:`driveopt.planner.project_batch` with
+``unroll=True``), and the loss is P2 eq. 9, a mean over samples and observations::
 
     L = |xi_bar* - xi|^2 + s * c(xi_bar*)
 
@@ -24,26 +23,25 @@ once (fixed for every epoch) and also reports the plain filter on them (``baseli
 the samples as first iterate, zero multipliers; ``val_feasible``: share of samples within the
 planner's residual tolerance).
 
-Optimiser: AdamW with a step decay. Output folder, as the other trainers: ``last.ckpt`` (resume
-state), ``filter.ckpt`` (the best epoch by :func:`selection_key`: the most validation samples feasible, then
-the lowest validation loss; what ``--filter-weights`` and the ``vqvae-filter`` planner load) and ``history.json``,
-written atomically after every epoch; ``last.ckpt`` also every ``save_every`` seconds within an epoch (the steps
-done and their running sums: an epoch of 20 000 observations takes about an hour on 2 cores). Rerunning resumes,
-mid-epoch too: each step's minibatch and samples follow from the seed, the epoch and the step, so a resumed run
-takes the same steps as an uninterrupted one. A checkpoint from other data, another split, other settings, another
-prior or projection is refused with the reason; settings are checked before the data is read, and a non-finite
-training loss stops with :class:`~driveopt.training.cvae.TrainingError`.
+Optimiser: AdamW with a step decay. Output folder, as the other trainers: ``last.ckpt`` (resume state), ``filter.ckpt``
+(the best epoch by :func:`selection_key`: the most validation samples feasible, then the lowest validation loss; what
+``--filter-weights`` and the ``vqvae-filter`` planner load) and ``history.json``, written atomically after every epoch;
+``last.ckpt`` also every ``save_every`` seconds within an epoch (the steps done and their running sums: an epoch of
+20 000 observations takes about an hour on 2 cores). Rerunning resumes, mid-epoch too: each step's minibatch and samples
+follow from the seed, the epoch and the step, so a resumed run takes the same steps as an uninterrupted one. A
+checkpoint from other data, another split, other settings, another prior or projection is refused with the reason;
+settings are checked before the data is read, and a non-finite training loss stops with
+:class:`~driveopt.training.harness.TrainingError`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import json
-import math
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -56,58 +54,42 @@ from driveopt.data.demonstrations import DatasetError, Demonstrations
 from driveopt.data.replay import problem_from_row
 from driveopt.files import file_digest
 from driveopt.learned import filter as fl
-from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, restore, save_checkpoint
+from driveopt.learned.checkpoint import CheckpointError
 from driveopt.planner import project_batch, setpoint_batch
 from driveopt.problem import PlanningProblem
 from driveopt.projection import constraint_residuals
 from driveopt.qp import make_model
 from driveopt.safety.learned import LearnedFilter
 from driveopt.sim.scenarios import ScenarioError, get_scenario
-from driveopt.training.cvae import (
-    TrainingError,
-    _check_same_data,
-    _make_folder,
-    _rows,
-    check_output_folder,
-    data_record,
-    epoch_bar,
-    minibatches,
-    road_lanes,
-)
-from driveopt.training.vqvae import _chunks
+from driveopt.training import harness
 
+WEIGHTS = "filter.ckpt"  # the best epoch's weights in the output folder
 SAMPLE_SOURCES = ("vqvae", "cvae", "gaussian")  # --samples-from
+VALIDATION_KEY = 2**30  # folded into the run's key for the validation samples (epoch keys are 1, 2, ...)
 
 
 @dataclasses.dataclass(frozen=True)
-class TrainConfig:
+class TrainConfig(harness.BaseTrainConfig):
+    """The filter's settings: the common ones (:class:`~driveopt.training.harness.BaseTrainConfig`; ``batch_size``
+    counts observations), the samples and the unrolled projection."""
+
     epochs: int = 30  # [-]
     batch_size: int = 16  # [-] observations (demonstration rows) per step
     samples: int = 64  # [-] trajectories drawn from the prior per observation
     unroll: int = 25  # [-] projection iterations unrolled (the authors': 5; 25 is what the planner runs in P2 Fig. 8's target)
     residual_weight: float = 1000.0  # [m^2] s of eq. 9, per unit of total residual (m, m/s, m/s^2 summed, as ranked)
     samples_from: str = "vqvae"  # [-] the prior the samples come from: vqvae | cvae | gaussian
-    learning_rate: float = 1e-3  # [-] AdamW initial rate
-    weight_decay: float = 6e-5  # [-]
-    decay_every: int = 20  # [epochs] step decay period
-    decay_factor: float = 0.1  # [-]
-    validation_fraction: float = 0.1  # [-] share of episodes held out
-    train_episodes: int = 0  # [-] learn from only this many of the other episodes (0: all)
-    crash_margin: float = 3.0  # [s] rows this close before a collision are left out
-    seed: int = 0  # [-] >= 0
 
-    def __post_init__(self):
-        for name, minimum in (("epochs", 1), ("batch_size", 1), ("samples", 1), ("unroll", 1), ("decay_every", 1),
-                              ("train_episodes", 0), ("seed", 0)):
-            check_count(f"TrainConfig.{name}", getattr(self, name), minimum)
-        check_number("TrainConfig.residual_weight", self.residual_weight, 0.0, unit="m^2")
-        check_number("TrainConfig.learning_rate", self.learning_rate, 0.0, low_open=True)
-        check_number("TrainConfig.weight_decay", self.weight_decay, 0.0)
-        check_number("TrainConfig.decay_factor", self.decay_factor, 0.0, 1.0, low_open=True)
-        check_number("TrainConfig.validation_fraction", self.validation_fraction, 0.0, 1.0, high_open=True)
-        check_number("TrainConfig.crash_margin", self.crash_margin, 0.0, unit="s")
+    OWN_SETTINGS_AFTER: ClassVar[str] = "batch_size"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("samples", "unroll"):
+            check_count(self.setting_name(name), getattr(self, name), 1)
+        check_number(self.setting_name("residual_weight"), self.residual_weight, 0.0, unit="m^2")
         if self.samples_from not in SAMPLE_SOURCES:
-            raise ConfigError(f"TrainConfig.samples_from must be one of {', '.join(SAMPLE_SOURCES)}, got {self.samples_from!r}")
+            raise ConfigError(f"{self.setting_name('samples_from')} must be one of {', '.join(SAMPLE_SOURCES)}, "
+                              f"got {self.samples_from!r}")
 
 
 # ------------------------------------------------------------------------------------------- the loss
@@ -142,7 +124,7 @@ def loss(params, cfg: fl.FilterConfig, norm: fl.Normaliser, problems: PlanningPr
 
 
 @functools.partial(jax.jit, static_argnames=("num",))
-def _draw(prior: Any, problems: PlanningProblem, keys: jax.Array, num: int) -> jnp.ndarray:
+def draw_setpoints(prior: Any, problems: PlanningProblem, keys: jax.Array, num: int) -> jnp.ndarray:
     """(R, num, 8) set-points of the prior for each of R observations (the planner's first batch)."""
     return jax.vmap(lambda problem, key: prior.propose(problem, key, num, None).samples)(problems, keys)
 
@@ -160,15 +142,8 @@ def _update(params, grads, opt_state, optimiser):
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "config"))
-def _terms(params, norm, problems, setpoints, cfg, config):
+def _validation_terms(params, norm, problems, setpoints, cfg, config):
     return batch_terms(params, cfg, norm, problems, setpoints, config)
-
-
-@functools.lru_cache(maxsize=16)  # one object per setting: the jitted step takes it as a static argument
-def _optimiser(tcfg: TrainConfig, steps_per_epoch: int) -> optax.GradientTransformation:
-    schedule = optax.exponential_decay(tcfg.learning_rate, transition_steps=tcfg.decay_every * steps_per_epoch,
-                                       decay_rate=tcfg.decay_factor, staircase=True)
-    return optax.adamw(schedule, weight_decay=tcfg.weight_decay)
 
 
 # ------------------------------------------------------------------------------------------- inputs
@@ -203,10 +178,6 @@ def row_problems(data: Demonstrations, rows: np.ndarray, v_des: dict[str, float]
     return jax.tree_util.tree_map(lambda *a: np.stack([np.asarray(x) for x in a]), *problems)
 
 
-def _take(problems: PlanningProblem, idx: np.ndarray) -> PlanningProblem:
-    return jax.tree_util.tree_map(lambda a: jnp.asarray(a[idx]), problems)
-
-
 def training_prior(samples_from: str, lanes: list[int], config: PlannerConfig, weights: str | Path | None) -> tuple[Any, dict]:
     """(prior, record) that draws the training samples: the VQ-VAE (PixelCNN checkpoint) or CVAE of ``weights``, by
     default the ones shipped for the road, or the planner's Gaussian. The record names it for resumption (a digest of
@@ -234,20 +205,101 @@ def training_prior(samples_from: str, lanes: list[int], config: PlannerConfig, w
     return prior, {"samples_from": samples_from, "weights": file_digest(path)}
 
 
-def _check_resume(path: Path, meta: dict[str, Any], expected: dict[str, Any], tcfg: TrainConfig) -> None:
-    """CheckpointError unless ``path``'s meta has ``expected``'s network configuration, prior, projection, data record
-    and the same training settings (epochs aside)."""
-    recorded = dict(meta)
-    if isinstance(meta.get("projection"), dict):  # a setting added since it was written ran at its default, as before
-        recorded["projection"] = {**dataclasses.asdict(ProjectionConfig()), **meta["projection"]}
-    for key, what in (("config", "network configuration"), ("prior", "prior"), ("projection", "projection")):
-        if recorded.get(key) != json.loads(json.dumps(expected[key])):
-            raise CheckpointError(f"{path} was trained with another {what} ({meta.get(key)}, now {expected[key]}); use a new --out")
-    stored = dict(meta.get("train_config", {}))
-    mismatch = {k: (stored.get(k), v) for k, v in dataclasses.asdict(tcfg).items() if k != "epochs" and stored.get(k) != v}
-    if mismatch:
-        raise CheckpointError(f"{path} was trained with other settings {mismatch} (stored, now); use a new --out")
-    _check_same_data(path, meta.get("data"), expected["data"])
+def training_split(data_paths: harness.Paths, validation_paths: harness.Paths | None, tcfg: TrainConfig,
+                   cfg: fl.FilterConfig) -> harness.Split:
+    """The harness's split (:func:`~driveopt.training.harness.load_split`); DatasetError when the demonstrations'
+    plans have another number of coefficients than the filter's basis."""
+    split = harness.load_split(data_paths, validation_paths, tcfg)
+    if split.data.coeffs.shape[-1] != cfg.num_coeffs:
+        raise DatasetError(f"the demonstrations' plans have {split.data.coeffs.shape[-1]} coefficients, the filter's basis "
+                           f"{cfg.num_coeffs}")
+    return split
+
+
+def split_planner(split: harness.Split, config: PlannerConfig) -> tuple[PlannerConfig, dict[str, float]]:
+    """(``config`` adapted to the car of the split's scenarios, their desired speeds [m/s] by scenario name)
+    (:func:`scenario_config`); DatasetError when the validation rows' car has other limits than the training rows'."""
+    planner, v_des = scenario_config(split.data, split.train_rows, config)
+    if len(split.val_rows):
+        held_planner, held_v_des = scenario_config(split.held, split.val_rows, config)
+        if held_planner != planner:
+            raise DatasetError("the validation demonstrations' car has other limits than the training demonstrations'")
+        v_des = {**v_des, **held_v_des}
+    return planner, v_des
+
+
+@dataclasses.dataclass(frozen=True)
+class FilterInputs:
+    """What the filter learns from: the split, the planning configuration it trains in and the prior of the samples."""
+
+    split: harness.Split
+    lanes: list[int]  # lane counts of the training roads
+    config: PlannerConfig  # the training's planning configuration (:func:`training_config`)
+    prior: Any  # draws the samples (:func:`training_prior`)
+    prior_record: dict[str, Any]  # names the prior in the checkpoints
+    train_problems: PlanningProblem  # stacked (numpy, N leading): the training rows' problems
+    val_problems: PlanningProblem | None  # those of the validation rows (None: no validation rows)
+
+
+def filter_inputs(data_paths: harness.Paths, validation_paths: harness.Paths | None, cfg: fl.FilterConfig, tcfg: TrainConfig,
+                  config: PlannerConfig, prior_weights: str | Path | None) -> FilterInputs:
+    """The inputs of :func:`train_filter`, checked: ConfigError when the filter's basis is not the planner's (before
+    any data is read), DatasetError or CheckpointError for unusable demonstrations or prior weights."""
+    if cfg.basis != config.basis:
+        raise ConfigError(f"the filter's basis {cfg.basis} is not the planner's {config.basis}")
+    split = training_split(data_paths, validation_paths, tcfg, cfg)
+    lanes = split.lanes()
+    planner, v_des = split_planner(split, config)
+    run_config = training_config(planner, tcfg)
+    prior, prior_record = training_prior(tcfg.samples_from, lanes, run_config, prior_weights)
+    train_problems = row_problems(split.data, split.train_rows, v_des, run_config)
+    val_problems = row_problems(split.held, split.val_rows, v_des, run_config) if len(split.val_rows) else None
+    return FilterInputs(split, lanes, run_config, prior, prior_record, train_problems, val_problems)
+
+
+def check_resumable(path: Path, stored: dict[str, Any], meta: dict[str, Any], tcfg: TrainConfig) -> None:
+    """CheckpointError unless the checkpoint's ``stored`` meta has ``meta``'s network configuration, prior,
+    projection and data, and the same settings (:func:`~driveopt.training.harness.check_same_run`). A projection
+    setting added since the checkpoint was written ran at its default, so it reads as that."""
+    recorded = dict(stored)
+    if isinstance(stored.get("projection"), dict):
+        recorded["projection"] = {**dataclasses.asdict(ProjectionConfig()), **stored["projection"]}
+    expected = {"config": ("network configuration", meta["config"]), "prior": ("prior", meta["prior"]),
+                "projection": ("projection", meta["projection"])}
+    harness.check_same_run(path, recorded, tcfg, meta["data"], expected)
+
+
+def _take(problems: PlanningProblem, idx: np.ndarray) -> PlanningProblem:
+    return jax.tree_util.tree_map(lambda a: jnp.asarray(a[idx]), problems)
+
+
+class Validation:
+    """The validation observations with their samples, drawn once from the prior (the same for every epoch), and
+    eq. 9's terms on them, evaluated ``chunk`` observations at a time."""
+
+    def __init__(self, problems: PlanningProblem, prior: Any, key: jax.Array, tcfg: TrainConfig, cfg: fl.FilterConfig,
+                 config: PlannerConfig, chunk: int) -> None:
+        self.leaves, self.treedef = jax.tree_util.tree_flatten(problems)
+        self.tcfg, self.cfg, self.config, self.chunk = tcfg, cfg, config, chunk
+        keys = jax.random.split(key, len(self.leaves[0]))
+        self.setpoints = np.concatenate(harness.chunks([*self.leaves, np.asarray(keys)], lambda *a: draw_setpoints(
+            prior, self.problems(a[:-1]), a[-1], tcfg.samples), chunk))
+
+    def problems(self, leaves: Any) -> PlanningProblem:
+        return jax.tree_util.tree_unflatten(self.treedef, leaves)
+
+    def terms(self, params: Any, normaliser: fl.Normaliser) -> dict[str, float]:
+        """Means over observations and samples of the correction [m^2], residual and feasible share, and eq. 9's loss."""
+        parts = harness.chunks([*self.leaves, self.setpoints], lambda *a: _validation_terms(
+            params, normaliser, self.problems(a[:-1]), a[-1], self.cfg, self.config), self.chunk)
+        terms = {k: float(np.mean(np.concatenate([part[k] for part in parts]))) for k in parts[0]}
+        return {**terms, "loss": terms["correction"] + self.tcfg.residual_weight * terms["residual"]}
+
+    def plain_filter_terms(self, params: Any, normaliser: fl.Normaliser) -> dict[str, float]:
+        """:meth:`terms` of the plain filter (the configuration's gammas, the samples as first iterate, zero
+        multipliers): the baseline the learned one is compared with."""
+        projection = self.config.projection
+        return self.terms(fl.plain_params(params, self.cfg, projection.gamma_obs, projection.gamma_lane), normaliser)
 
 
 # ------------------------------------------------------------------------------------------- training
@@ -263,14 +315,14 @@ def selection_key(record: dict[str, Any]) -> tuple[float, float]:
 
 
 def train_filter(
-    data_paths: str | Path | Sequence[str | Path],
+    data_paths: harness.Paths,
     out_dir: str | Path,
     cfg: fl.FilterConfig = fl.FilterConfig(),
     tcfg: TrainConfig = TrainConfig(),
     *,
     config: PlannerConfig,
     prior_weights: str | Path | None = None,
-    validation_paths: str | Path | Sequence[str | Path] | None = None,
+    validation_paths: harness.Paths | None = None,
     progress: bool = True,
     save_every: float = 300.0,
     stop_after: int | None = None,
@@ -281,117 +333,112 @@ def train_filter(
     shipped one). ``save_every`` [s]: the period of mid-epoch saves of ``last.ckpt``. ``stop_after`` /
     ``stop_after_steps``: return after this many epochs / minibatch steps of this call, saved (for tests of
     resumption). The summary's ``weights`` is the path of ``filter.ckpt``, or None before an epoch wrote it."""
-    out = check_output_folder(out_dir, "filter.ckpt")
-    if cfg.basis != config.basis:
-        raise ConfigError(f"the filter's basis {cfg.basis} is not the planner's {config.basis}")
-    data, held, train_rows, val_rows = _rows(data_paths, validation_paths, tcfg)
-    if data.coeffs.shape[-1] != cfg.num_coeffs:
-        raise DatasetError(f"the demonstrations' plans have {data.coeffs.shape[-1]} coefficients, the filter's basis "
-                           f"{cfg.num_coeffs}")
-    lanes = road_lanes(data, train_rows)
-    planner, v_des = scenario_config(data, train_rows, config)
-    if len(val_rows):
-        held_planner, held_v_des = scenario_config(held, val_rows, config)
-        if held_planner != planner:
-            raise DatasetError("the validation demonstrations' car has other limits than the training demonstrations'")
-        v_des = {**v_des, **held_v_des}
-    run_config = training_config(planner, tcfg)
-    prior, prior_record = training_prior(tcfg.samples_from, lanes, run_config, prior_weights)
-    train_problems = row_problems(data, train_rows, v_des, run_config)
-    val_problems = row_problems(held, val_rows, v_des, run_config) if len(val_rows) else None
-
-    batch_size = min(tcfg.batch_size, len(train_rows))
-    steps_per_epoch = len(train_rows) // batch_size
-    optimiser = _optimiser(tcfg, steps_per_epoch)
-    meta_base = {"config": cfg.to_dict(), "train_config": dataclasses.asdict(tcfg), "data": data_record(data, held, val_rows),
-                 "lanes": lanes, "prior": prior_record, "projection": dataclasses.asdict(run_config.projection),
-                 "rows": {"train": int(len(train_rows)), "validation": int(len(val_rows))}}
-
+    out = harness.check_output_folder(out_dir, WEIGHTS)
+    inputs = filter_inputs(data_paths, validation_paths, cfg, tcfg, config, prior_weights)
+    split = inputs.split
+    meta = {"config": cfg.to_dict(), "train_config": tcfg.record(), "data": split.record(), "lanes": inputs.lanes,
+            "prior": inputs.prior_record, "projection": dataclasses.asdict(inputs.config.projection), "rows": split.row_counts()}
     key = jax.random.PRNGKey(tcfg.seed)
+    batch_size, steps = harness.epoch_steps(len(split.train_rows), tcfg.batch_size)
+    optimiser = harness.make_optimiser(tcfg, steps)
     params = fl.init_params(cfg, jax.random.fold_in(key, 0))
-    normaliser = fl.fit_normaliser(data.observation[train_rows], data.init_y[train_rows, 0], data.coeffs[train_rows], cfg)
-    opt_state = optimiser.init(params)
-    history: list[dict[str, Any]] = []
-    partial = None  # {"epoch", "steps", "sums"} of an epoch that a mid-epoch save left unfinished
-    last = out / "last.ckpt"
-    if last.exists():
-        meta, state = load_checkpoint(last, fl.CHECKPOINT_KIND)
-        _check_resume(last, meta, meta_base, tcfg)
-        target = {"params": params, "normaliser": normaliser, "opt_state": opt_state}
-        restored = restore(target, {k: state.get(k) for k in target}, last, "the training state")
-        params, normaliser, opt_state = restored["params"], fl.Normaliser(*restored["normaliser"]), restored["opt_state"]
-        history = list(meta.get("history", []))
-        partial = meta.get("partial")
-    _make_folder(out)
+    rows = split.train_rows
+    normaliser = fl.fit_normaliser(split.data.observation[rows], split.data.init_y[rows, 0], split.data.coeffs[rows], cfg)
+    run = harness.TrainingRun(out, fl.CHECKPOINT_KIND, WEIGHTS, meta)
+    state = run.resume({"params": params, "normaliser": normaliser, "opt_state": optimiser.init(params)},
+                       lambda path, stored: check_resumable(path, stored, meta, tcfg))
+    trainer = FilterEpochs(cfg, tcfg, key, optimiser, state, inputs, batch_size, steps, run,
+                           save_every=save_every, stop_after_steps=stop_after_steps)
+    harness.run_epochs(run, trainer, tcfg, desc="train filter", progress=progress, stop_after=stop_after)
+    return run.summary(kept=max(run.history, key=selection_key, default=None), baseline=trainer.baseline)
 
-    validate, baseline = None, None
-    if val_problems is not None:  # the same samples every epoch
-        val_keys = jax.random.split(jax.random.fold_in(key, 2**30), len(val_rows))
-        leaves, treedef = jax.tree_util.tree_flatten(val_problems)
-        val_setpoints = np.concatenate(_chunks([*leaves, np.asarray(val_keys)], lambda *a: _draw(
-            prior, jax.tree_util.tree_unflatten(treedef, a[:-1]), a[-1], tcfg.samples), batch_size))
 
-        def validate(p):
-            parts = _chunks([*leaves, val_setpoints], lambda *a: _terms(
-                p, normaliser, jax.tree_util.tree_unflatten(treedef, a[:-1]), a[-1], cfg, run_config), batch_size)
-            terms = {k: float(np.mean(np.concatenate([part[k] for part in parts]))) for k in parts[0]}
-            return {**terms, "loss": terms["correction"] + tcfg.residual_weight * terms["residual"]}
+class FilterEpochs(harness.EpochTrainer):
+    """The filter's epochs: minibatch steps of eq. 9 on fresh samples, saved every ``save_every`` seconds within an
+    epoch; then eq. 9 on the fixed validation samples."""
 
-        baseline = validate(fl.plain_params(params, cfg, run_config.projection.gamma_obs, run_config.projection.gamma_lane))
+    def __init__(self, cfg: fl.FilterConfig, tcfg: TrainConfig, key: jax.Array, optimiser: optax.GradientTransformation,
+                 state: dict[str, Any], inputs: FilterInputs, batch_size: int, steps: int, run: harness.TrainingRun, *,
+                 save_every: float, stop_after_steps: int | None) -> None:
+        self.cfg, self.tcfg, self.key, self.optimiser, self.run = cfg, tcfg, key, optimiser, run
+        self.params, self.opt_state = state["params"], state["opt_state"]
+        self.normaliser = fl.Normaliser(*state["normaliser"])
+        self.inputs, self.batch_size, self.steps = inputs, batch_size, steps
+        self.weight = jnp.float32(tcfg.residual_weight)
+        self.save_every, self.stop_after_steps = save_every, stop_after_steps
+        self.partial = run.resumed.get("partial")  # {"epoch", "steps", "sums"} of an epoch a mid-epoch save left unfinished
+        self.steps_run = 0  # minibatch steps taken in this call
+        self.saved = time.perf_counter()  # [s] when last.ckpt was last written
+        self.validation, self.baseline = None, None
+        if inputs.val_problems is not None:
+            self.validation = Validation(inputs.val_problems, inputs.prior, jax.random.fold_in(key, VALIDATION_KEY), tcfg, cfg,
+                                         inputs.config, batch_size)
+            self.baseline = self.validation.plain_filter_terms(self.params, self.normaliser)
 
-    weight = jnp.float32(tcfg.residual_weight)
-    best = max(map(selection_key, history), default=None)
-    bar = epoch_bar(len(history), tcfg, stop_after, "train filter", progress)
-    start = saved = time.perf_counter()
-    steps_run, stopped = 0, False
-    for epoch in bar:
-        epoch_key = jax.random.fold_in(key, epoch + 1)
-        sums = {"loss": 0.0, "correction": 0.0, "residual": 0.0, "feasible": 0.0}
-        done = 0
-        if partial is not None and partial.get("epoch") == epoch + 1:  # resume inside this epoch
-            done, sums = int(partial["steps"]), {k: float(partial["sums"][k]) for k in sums}
-        partial = None
-        for i, idx in enumerate(minibatches(epoch_key, len(train_rows), batch_size, steps_per_epoch)):
+    def train_epoch(self, epoch: int, show: Callable[[str], None]) -> dict[str, Any] | None:
+        epoch_key = self.epoch_key(epoch)
+        done, sums = self.resumed_progress(epoch)
+        self.saved = time.perf_counter()
+        for i, idx in enumerate(harness.minibatches(epoch_key, len(self.inputs.split.train_rows), self.batch_size, self.steps)):
             if i < done:
                 continue
-            problems = _take(train_problems, idx)
-            setpoints = _draw(prior, problems, jax.random.split(jax.random.fold_in(epoch_key, i + 1), len(idx)), tcfg.samples)
-            (value, terms), grads = value_and_grad(params, normaliser, problems, setpoints, weight, cfg, run_config)
-            params, opt_state = _update(params, grads, opt_state, optimiser)
-            sums["loss"] += float(value)
-            for k in ("correction", "residual", "feasible"):
-                sums[k] += float(terms[k])
-            bar.set_postfix_str(f"step {i + 1}/{steps_per_epoch} train {sums['loss'] / (i + 1):.2f}")
-            steps_run += 1
-            stopped = stop_after_steps is not None and steps_run >= stop_after_steps
-            if i + 1 < steps_per_epoch and (stopped or time.perf_counter() - saved >= save_every):
-                save_checkpoint(last, fl.CHECKPOINT_KIND, {"params": params, "normaliser": normaliser, "opt_state": opt_state},
-                                {**meta_base, "epoch": epoch, "history": history, "baseline": baseline,
-                                 "partial": {"epoch": epoch + 1, "steps": i + 1, "sums": sums}})
-                saved = time.perf_counter()
-                if stopped:
-                    break
-        if stopped and i + 1 < steps_per_epoch:
-            break
-        record = {"epoch": epoch + 1, **{f"train_{k}": v / steps_per_epoch for k, v in sums.items()}}
-        if not math.isfinite(record["train_loss"]):
-            raise TrainingError(f"training diverged in epoch {epoch + 1} (train loss {record['train_loss']}): "
-                                f"lower the learning rate (now {tcfg.learning_rate:g})")
-        if validate is not None:
-            record.update({f"val_{k}": v for k, v in validate(params).items()})
-        history.append(record)
-        meta = {**meta_base, "epoch": epoch + 1, "history": history, "baseline": baseline}
-        if best is None or selection_key(record) > best:
-            best = selection_key(record)
-            save_checkpoint(out / "filter.ckpt", fl.CHECKPOINT_KIND, {"params": params, "normaliser": normaliser}, meta)
-        save_checkpoint(last, fl.CHECKPOINT_KIND, {"params": params, "normaliser": normaliser, "opt_state": opt_state}, meta)
-        saved = time.perf_counter()
-        (out / "history.json").write_text(json.dumps(history, indent=1))
-        bar.set_postfix_str(f"train {record['train_loss']:.2f} val {record.get('val_loss', float('nan')):.2f}")
-        if stopped:
-            break
-    bar.close()
-    weights = out / "filter.ckpt"
-    return {"epochs": len(history), "history": history, "kept": max(history, key=selection_key, default=None),
-            "baseline": baseline, "rows": meta_base["rows"],
-            "seconds": time.perf_counter() - start, "out": str(out), "weights": str(weights) if weights.exists() else None}
+            self.train_step(idx, jax.random.fold_in(epoch_key, i + 1), sums)
+            show(f"step {i + 1}/{self.steps} train {sums['loss'] / (i + 1):.2f}")
+            self.steps_run += 1
+            self.stopped = self.stop_after_steps is not None and self.steps_run >= self.stop_after_steps
+            if i + 1 < self.steps and (self.stopped or time.perf_counter() - self.saved >= self.save_every):
+                self.save_progress(epoch, i + 1, sums)
+                if self.stopped:
+                    return None
+        record = {"epoch": epoch + 1, **harness.train_means(sums, self.steps)}
+        if self.validation is not None:
+            record.update({f"val_{k}": v for k, v in self.validation.terms(self.params, self.normaliser).items()})
+        return record
+
+    def resumed_progress(self, epoch: int) -> tuple[int, dict[str, float]]:
+        """(steps already taken, their running sums) of epoch ``epoch``: those a mid-epoch save recorded when this is
+        the epoch it left unfinished, else none."""
+        sums = {"loss": 0.0, "correction": 0.0, "residual": 0.0, "feasible": 0.0}
+        partial, self.partial = self.partial, None
+        if partial is not None and partial.get("epoch") == epoch + 1:
+            return int(partial["steps"]), {k: float(partial["sums"][k]) for k in sums}
+        return 0, sums
+
+    def train_step(self, idx: np.ndarray, step_key: jax.Array, sums: dict[str, float]) -> None:
+        """One AdamW step of eq. 9 on the observations ``idx`` with samples drawn from ``step_key``."""
+        problems = _take(self.inputs.train_problems, idx)
+        setpoints = draw_setpoints(self.inputs.prior, problems, jax.random.split(step_key, len(idx)), self.tcfg.samples)
+        (value, terms), grads = value_and_grad(self.params, self.normaliser, problems, setpoints, self.weight, self.cfg,
+                                               self.inputs.config)
+        self.params, self.opt_state = _update(self.params, grads, self.opt_state, self.optimiser)
+        harness.accumulate(sums, value, terms)
+
+    def save_progress(self, epoch: int, steps_done: int, sums: dict[str, float]) -> None:
+        """Write last.ckpt inside epoch ``epoch``: the state after ``steps_done`` of its steps and their running sums."""
+        self.run.save_last(self.training_state(), {"baseline": self.baseline,
+                                                   "partial": {"epoch": epoch + 1, "steps": steps_done, "sums": sums}})
+        self.saved = time.perf_counter()
+
+    def best_rank(self, run: harness.TrainingRun) -> tuple[float, float] | None:
+        """Recomputed from the resumed history (last.ckpt records no rank)."""
+        return min(map(self.rank, run.history), default=None)
+
+    def rank(self, record: dict[str, Any]) -> tuple[float, float]:
+        """:func:`selection_key`, negated: lower is better."""
+        feasible, negative_loss = selection_key(record)
+        return -feasible, -negative_loss
+
+    def weights_state(self) -> dict[str, Any]:
+        return {"params": self.params, "normaliser": self.normaliser}
+
+    def training_state(self) -> dict[str, Any]:
+        return {"params": self.params, "normaliser": self.normaliser, "opt_state": self.opt_state}
+
+    def weights_meta(self, run: harness.TrainingRun) -> dict[str, Any]:
+        return {"baseline": self.baseline}
+
+    def last_meta(self, run: harness.TrainingRun) -> dict[str, Any]:
+        return {"baseline": self.baseline}
+
+    def describe(self, record: dict[str, Any]) -> str:
+        return f"train {record['train_loss']:.2f} val {record.get('val_loss', float('nan')):.2f}"
