@@ -12,12 +12,16 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-from driveopt.checks import ConfigError, check_types, require
+from driveopt.checks import ConfigError, check_budget, check_types, require
 
+MIN_HORIZON = 1.0  # [s] shortest planning horizon (each of the four set-point quarters lasts T / 4); far below it
+# (1e-30 s) the basis's derivatives (1/T, 1/T^2) leave float32's range and every plan is NaN
 MAX_HORIZON = 120.0  # [s] longest planning horizon
 MAX_SPEED = 100.0  # [m/s] highest speed bound
 MAX_ACCELERATION = 100.0  # [m/s^2] highest acceleration bound
 MAX_WEIGHT = 1e6  # [-] highest cost weight, gain or penalty weight
+MIN_TEMPERATURE = 1e-6  # [-] lowest sampler temperature: far below it (1e-300) it rounds to 0 in float32 and the
+# elite weights exp(-(c - min c) / temperature) are 0 / 0 = NaN
 
 
 @dataclass(frozen=True)
@@ -31,7 +35,8 @@ class BasisConfig:
     def __post_init__(self) -> None:
         check_types(self, "basis")
         require(3 <= self.order <= 20, f"basis.order must be in [3, 20], got {self.order}")
-        require(0 < self.horizon <= MAX_HORIZON, f"basis.horizon must be in (0, {MAX_HORIZON:g}] s, got {self.horizon:g}")
+        require(MIN_HORIZON <= self.horizon <= MAX_HORIZON,
+                f"basis.horizon must be in [{MIN_HORIZON:g}, {MAX_HORIZON:g}] s, got {self.horizon:g}")
         require(8 <= self.num_nodes <= 2000, f"basis.num_nodes must be in [8, 2000], got {self.num_nodes}")
         require(self.num_nodes % 4 == 0, "basis.num_nodes must be divisible by 4 (one segment per set-point)")
 
@@ -176,7 +181,8 @@ class SamplerConfig:
             1 <= self.num_elites <= self.num_constraint_elites <= self.num_samples,
             "sampler needs 1 <= num_elites <= num_constraint_elites <= num_samples",
         )
-        require(0 < self.temperature <= MAX_WEIGHT, f"sampler.temperature must be in (0, {MAX_WEIGHT:g}]")
+        require(MIN_TEMPERATURE <= self.temperature <= MAX_WEIGHT,
+                f"sampler.temperature must be in [{MIN_TEMPERATURE:g}, {MAX_WEIGHT:g}], got {self.temperature:g}")
         require(0 < self.learning_rate <= 1, "sampler.learning_rate must be in (0, 1]")
         require(0 <= self.covariance_jitter <= 1e3, "sampler.covariance_jitter must be in [0, 1000]")
         require(0 < self.speed_std <= MAX_SPEED and 0 < self.lateral_std <= 100, "sampler needs speed_std in (0, 100] m/s and lateral_std in (0, 100] m")
@@ -200,6 +206,13 @@ class PlannerConfig:
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     cost: CostConfig = field(default_factory=CostConfig)
 
+    def __post_init__(self) -> None:
+        work, sample_nodes = planning_work(self), self.sampler.num_samples * self.basis.num_nodes
+        check_budget("planning work per call (samples x sampler iterations x projection iterations x nodes)", work,
+                     MAX_PLANNING_WORK, f"about {_hours(work / PLANNING_WORK_PER_SECOND)} a call on 2 CPU cores")
+        check_budget("planning memory per call (samples x nodes)", sample_nodes, MAX_SAMPLE_NODES,
+                     f"about {sample_nodes * BYTES_PER_SAMPLE_NODE / 1e9:.1f} GB of working arrays")
+
     def replace(self, **sections: Mapping[str, Any] | Any) -> "PlannerConfig":
         """Copy with sections replaced; a mapping value updates fields of that section.
 
@@ -213,6 +226,27 @@ class PlannerConfig:
         elites = min(self.sampler.num_constraint_elites, samples)
         return self.replace(sampler={"num_samples": samples, "num_constraint_elites": elites,
                                      "num_elites": min(self.sampler.num_elites, elites)})
+
+
+# Estimates of one planning call (measured on 2 CPU cores with the dense-snapshot problem, 10 obstacles): it does
+# about PLANNING_WORK_PER_SECOND units of planning_work a second and holds about BYTES_PER_SAMPLE_NODE bytes per
+# sample and node. The limits are 1000 times the default call's work (1e7: ~0.5 s) and 200 times its memory
+# (1e5 sample-nodes); DRIVEOPT_ALLOW_LARGE=1 lifts them (:func:`driveopt.checks.check_budget`).
+PLANNING_WORK_PER_SECOND = 1e7  # [sample-node-iterations / s]
+BYTES_PER_SAMPLE_NODE = 80  # [bytes]
+MAX_PLANNING_WORK = 1e10  # [sample-node-iterations]
+MAX_SAMPLE_NODES = 2e7  # [samples x nodes]
+
+
+def planning_work(config: PlannerConfig) -> float:
+    """[sample-node-iterations] the work of one planning call: every sampler iteration projects every sample, each
+    projection iteration touching every node (an unprojected batch, max_iterations 0, still costs one pass)."""
+    return (float(config.sampler.num_samples) * config.sampler.num_iterations
+            * max(config.projection.max_iterations, 1) * config.basis.num_nodes)
+
+
+def _hours(seconds: float) -> str:
+    return f"{seconds / 3600:.3g} hours" if seconds >= 3600 else f"{seconds / 60:.3g} minutes"
 
 
 _SECTIONS = {

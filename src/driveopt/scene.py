@@ -11,9 +11,10 @@ into the arrays the planner consumes. Problem files are JSON (:func:`scene_from_
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import math
 import numbers
+import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from driveopt.errors import DriveoptError, UnknownNameError
+from driveopt.jsonfile import read_json
 
 
 class ProblemError(DriveoptError):
@@ -188,6 +190,8 @@ class Scene:
         object.__setattr__(self, "edge_margin", _number("edge_margin", self.edge_margin))
         if not isinstance(self.name, str):
             raise ProblemError(f"name must be a string, got {self.name!r}")
+        if not _is_valid_unicode(self.name):
+            raise ProblemError(f"name {self.name!r} is not valid Unicode (a lone surrogate)")
         lo, hi = self.lateral_bounds
         if lo >= hi:
             raise ProblemError("the road is narrower than the ego vehicle plus edge margins")
@@ -198,6 +202,15 @@ class Scene:
         lo, hi = self.road.edges
         half = 0.5 * self.ego.width + self.edge_margin
         return lo + half, hi - half
+
+
+def _is_valid_unicode(text: str) -> bool:
+    """Whether ``text`` can be written out as UTF-8 (a lone surrogate such as "\\ud800" cannot)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def scene_to_dict(scene: Scene) -> dict[str, Any]:
@@ -216,6 +229,20 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
 _TOP_KEYS = {"name", "description", "v_des", "road", "ego", "neighbours", "ellipse_margin", "edge_margin"}
 
 
+def _build(cls: type, values: dict[str, Any], where: str) -> Any:
+    """``cls(**values)`` after checking the keys: a misspelt or missing key is a ProblemError naming ``where``
+    and listing the valid keys (a TypeError from the constructor would name neither)."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - set(fields))
+    if unknown:
+        raise ProblemError(f"unknown key(s) {unknown} in '{where}'; valid: {sorted(fields)}")
+    missing = sorted(name for name, f in fields.items() if name not in values and f.default is dataclasses.MISSING
+                     and f.default_factory is dataclasses.MISSING)
+    if missing:
+        raise ProblemError(f"'{where}' is missing {missing}")
+    return cls(**values)
+
+
 def _section(data: dict[str, Any], key: str, cls: type, required: bool) -> Any:
     if key not in data:
         if required:
@@ -224,10 +251,7 @@ def _section(data: dict[str, Any], key: str, cls: type, required: bool) -> Any:
     value = data[key]
     if not isinstance(value, dict):
         raise ProblemError(f"'{key}' must be an object")
-    try:
-        return cls(**value)
-    except TypeError as exc:
-        raise ProblemError(f"bad '{key}': {exc}") from None
+    return _build(cls, value, key)
 
 
 def scene_from_dict(data: Any) -> Scene:
@@ -245,11 +269,10 @@ def scene_from_dict(data: Any) -> Scene:
         if not isinstance(n, dict):
             raise ProblemError(f"neighbours[{i}] must be an object")
         try:
-            parsed.append(Neighbour(**n))
-        except TypeError as exc:
-            raise ProblemError(f"bad neighbours[{i}]: {exc}") from None
+            parsed.append(_build(Neighbour, n, f"neighbours[{i}]"))
         except ProblemError as exc:
-            raise ProblemError(f"neighbours[{i}]: {exc}") from None
+            message = str(exc)
+            raise ProblemError(message if f"neighbours[{i}]" in message else f"neighbours[{i}]: {message}") from None
     return Scene(
         ego=_section(data, "ego", EgoState, required=True),
         road=_section(data, "road", Road, required=False),
@@ -274,16 +297,19 @@ def builtin_problems() -> list[str]:
 
 
 def load_scene(name_or_path: str | Path) -> Scene:
-    """Load a built-in problem by name, or a problem file by path."""
+    """Load a built-in problem by name, or a problem file by path (read by :func:`driveopt.jsonfile.read_json`,
+    which refuses special files, huge files, deep nesting, huge numbers and invalid Unicode)."""
     path = Path(name_or_path)
-    if not path.suffix and (BUILTIN_DIR / f"{name_or_path}.json").exists():
-        path = BUILTIN_DIR / f"{name_or_path}.json"
-    if not path.exists():
-        raise UnknownProblemError(f"no problem named '{name_or_path}'; built-in problems: {builtin_problems()}, or give a JSON file path")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ProblemError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ProblemError(f"{path}: cannot read ({exc})") from None
-    return scene_from_dict(data)
+    if _is_bare_name(name_or_path):
+        if (BUILTIN_DIR / f"{name_or_path}.json").exists():
+            path = BUILTIN_DIR / f"{name_or_path}.json"
+        elif not path.exists():
+            raise UnknownProblemError(f"no problem named '{name_or_path}'; built-in problems: {builtin_problems()}, "
+                                      "or give a JSON file path")
+    return scene_from_dict(read_json(path, "problem file", ProblemError))
+
+
+def _is_bare_name(name_or_path: str | Path) -> bool:
+    """Whether ``name_or_path`` reads as a problem's name (no suffix, no folder) rather than a file path."""
+    text = str(name_or_path)
+    return not Path(text).suffix and "/" not in text and os.sep not in text

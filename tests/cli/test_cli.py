@@ -7,10 +7,14 @@ from driveopt.cli import main
 FAST = ["--samples", "120", "--iterations", "2", "--projection-iterations", "10", "--repeats", "1"]
 
 
+def _refuse(name):
+    raise ValueError(f"{name} is not JSON")
+
+
 def test_plan_writes_json_and_plot(tmp_path, capsys):
     out, fig = tmp_path / "r.json", tmp_path / "r.png"
     assert main(["plan", "--problem", "static-blockage", *FAST, "--json", str(out), "--plot", str(fig)]) == 0
-    report = json.loads(out.read_text())
+    report = json.loads(out.read_text(), parse_constant=_refuse)  # strict JSON: no NaN or Infinity
     assert report["status"] in ("SUCCESS", "INFEASIBLE")
     traj = report["trajectory"]
     assert set(("t", "x", "y", "speed", "heading")) <= set(traj) and len(traj["x"]) == 100
@@ -60,7 +64,8 @@ def test_bad_config_file(tmp_path, capsys):
 def test_plan_speaks_the_registered_planner_names(tmp_path, capsys):
     out = tmp_path / "grid.json"
     assert main(["plan", "--problem", "dense-snapshot", "--planner", "grid", "--repeats", "0", "--json", str(out)]) == 0
-    report = json.loads(out.read_text())
+    report = json.loads(out.read_text(), parse_constant=_refuse)
+    assert report["timing"]["solve_s"] is None and report["timing"]["compile_s"] is None  # --repeats 0: null, not NaN
     assert report["planner"] == "grid" and report["config"]["sampler"]["num_iterations"] == 1  # grid's own config
     assert report["config"]["sampler"]["num_samples"] == 320
     assert main(["plan", "--planner", "idm"]) == 2  # no optimiser behind it

@@ -68,3 +68,43 @@ def test_the_readme_configuration_reference_lists_every_field_with_a_unit():
               for f in dataclasses.fields(getattr(PlannerConfig(), s.name))}
     assert fields == set(rows), (sorted(fields - set(rows)), sorted(set(rows) - fields))
     assert all(unit.strip() for unit in rows.values())
+
+
+@pytest.mark.parametrize(
+    "data, needle",
+    [
+        ({"basis": {"horizon": 1e-30}}, "basis.horizon must be in [1, 120] s"),
+        ({"basis": {"horizon": 0.5}}, "basis.horizon must be in [1, 120] s"),
+        ({"sampler": {"temperature": 1e-300}}, "sampler.temperature must be in [1e-06, 1e+06]"),
+        ({"sampler": {"num_samples": 100_000, "num_iterations": 1000}, "projection": {"max_iterations": 10_000}},
+         "planning work per call"),
+        ({"sampler": {"num_samples": 100_000, "num_iterations": 1}, "basis": {"num_nodes": 2000},
+          "projection": {"max_iterations": 1}}, "planning memory per call"),
+    ],
+)
+def test_degenerate_and_unrunnable_configs_are_refused(monkeypatch, data, needle):
+    monkeypatch.delenv("DRIVEOPT_ALLOW_LARGE", raising=False)
+    with pytest.raises(ConfigError) as info:
+        from_dict(data)
+    assert needle in str(info.value) and "\n" not in str(info.value)
+
+
+def test_the_work_and_memory_limits_name_the_way_past_them(monkeypatch):
+    big = {"sampler": {"num_samples": 100_000, "num_iterations": 1000}, "projection": {"max_iterations": 10_000}}
+    monkeypatch.delenv("DRIVEOPT_ALLOW_LARGE", raising=False)
+    with pytest.raises(ConfigError, match=r"1e\+14 \(about .* hours a call on 2 CPU cores\).*DRIVEOPT_ALLOW_LARGE=1"):
+        from_dict(big)
+    monkeypatch.setenv("DRIVEOPT_ALLOW_LARGE", "1")
+    assert from_dict(big).sampler.num_samples == 100_000
+
+
+def test_the_limits_leave_the_registered_planners_room():
+    from driveopt.config import MAX_PLANNING_WORK, MAX_SAMPLE_NODES, planning_work
+    from driveopt.registry import get_planner, list_planners
+
+    configs = {name: getattr(get_planner(name), "config", None) for name in list_planners()}
+    configs = {name: config for name, config in configs.items() if isinstance(config, PlannerConfig)}
+    assert configs
+    for name, config in configs.items():
+        assert planning_work(config) <= MAX_PLANNING_WORK / 100, name
+        assert config.sampler.num_samples * config.basis.num_nodes <= MAX_SAMPLE_NODES / 100, name

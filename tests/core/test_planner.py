@@ -143,3 +143,98 @@ def test_off_road_start_plans_back_onto_the_road(small_config, lanes, side):
     never_relaxed = small_config.replace(projection={"recovery_time": 0.0})
     stuck = plan(problem, never_relaxed, key=jax.random.PRNGKey(0))
     assert stuck.status == PlanStatus.INFEASIBLE
+
+
+@pytest.mark.parametrize("x_offset, needle", [
+    (float("nan"), "x_offset must be finite, got nan"),
+    (float("inf"), "x_offset must be finite, got inf"),
+    (1e39, r"x_offset must be within \[-100000, 100000\] m, got 1e\+39"),
+    (-2e5, r"x_offset must be within \[-100000, 100000\] m"),
+    (10**400, "x_offset must be finite"),
+    ("5", "x_offset must be a real number"),
+    (True, "x_offset must be a real number"),
+    ([1.0], "x_offset must be a real number"),
+    (np.zeros(3), "x_offset must be a real number"),
+    (None, "x_offset must be a real number"),
+])
+def test_a_bad_x_offset_is_a_one_line_problem_error(small_config, x_offset, needle):
+    problem = build_problem(load_scene("static-blockage"), small_config.basis)
+    with pytest.raises(ProblemError, match=needle) as exc:
+        plan(problem, small_config, key=jax.random.PRNGKey(0), x_offset=x_offset)
+    assert "\n" not in str(exc.value)
+
+
+@pytest.mark.parametrize("key, needle", [
+    (0, "key must be a JAX PRNG key .* got 0"),
+    ([0, 0], r"got \[0, 0\]"),
+    (np.zeros(2, np.int32), "got ndarray of shape \\(2,\\) and dtype int32"),
+    (jnp.zeros(3, jnp.uint32), "shape \\(3,\\)"),
+    (jax.random.split(jax.random.PRNGKey(0), 4), "shape \\(4, 2\\)"),
+    (jax.random.split(jax.random.key(0), 4), "key must be one PRNG key, got a batch of shape \\(4,\\)"),
+    ("seed", "got 'seed'"),
+])
+def test_a_bad_key_is_a_one_line_problem_error(small_config, key, needle):
+    problem = build_problem(load_scene("static-blockage"), small_config.basis)
+    with pytest.raises(ProblemError, match=needle) as exc:
+        plan(problem, small_config, key=key)
+    assert "\n" not in str(exc.value)
+
+
+def test_typed_keys_numpy_keys_and_real_offsets_plan(small_config):
+    """What the checks accept: jax.random.key, a (2,) uint32 array of numpy, an int or a numpy float as x_offset."""
+    problem = build_problem(load_scene("static-blockage"), small_config.basis)
+    reference = plan(problem, small_config, key=jax.random.PRNGKey(3), x_offset=100.0)
+    same = plan(problem, small_config, key=np.asarray(jax.random.PRNGKey(3)), x_offset=np.float32(100.0))
+    np.testing.assert_array_equal(same.trajectory.x, reference.trajectory.x)
+    assert plan(problem, small_config, key=jax.random.key(3), x_offset=-100000).x_offset == -100000.0
+
+
+def test_moving_against_the_direction_of_travel_is_a_reversal_beyond_float_noise():
+    """Rows (B, K) of velocities and positions: a roll-back at a node, between nodes (the positions fall behind, the
+    velocities at the nodes do not show it), or for a reversing ego a move forwards; float noise is none."""
+    from driveopt.ranking import REVERSAL_DISTANCE, REVERSAL_SPEED, feasible_rows, moves_against_travel
+
+    t = np.linspace(0.0, 3.0, 7)
+    braking = np.maximum(6.0 - 3.0 * t, 0.0)  # [m/s] 6 m/s to rest in 2 s
+    braked = np.concatenate([[0.0], np.cumsum(0.5 * (braking[1:] + braking[:-1]) * np.diff(t))])
+    noise = np.full_like(t, -0.1 * REVERSAL_SPEED)
+    dip = braked - np.where(t > 2.0, 2.0 * REVERSAL_DISTANCE, 0.0)
+    vx = np.stack([braking, braking - 0.2, braking + noise, braking])
+    x = np.stack([braked, braked - 0.2 * t, braked + noise * t, dip])
+    np.testing.assert_array_equal(moves_against_travel(jnp.asarray(x), jnp.asarray(vx), 6.0), [False, True, False, True])
+    # a reversing ego brakes its backward motion: the mirrored rows; forwards after braking is against its travel
+    np.testing.assert_array_equal(moves_against_travel(jnp.asarray(-x), jnp.asarray(-vx), -6.0), [False, True, False, True])
+    np.testing.assert_array_equal(moves_against_travel(jnp.asarray(x), jnp.asarray(vx), -6.0), [True] * 4)
+    # a standing ego (within the tolerance) moves forwards
+    assert not bool(moves_against_travel(jnp.asarray(x[0]), jnp.asarray(vx[0]), -0.5 * REVERSAL_SPEED))
+    residual = jnp.asarray([0.0, 0.0, 1.0, 0.0])
+    np.testing.assert_array_equal(feasible_rows(residual, jnp.asarray(x), jnp.asarray(vx), 6.0, 0.05), [True, False, False, False])
+
+
+@pytest.mark.parametrize("ego_vx, ahead, v_des, status", [(0.0, 8.0, 10.0, PlanStatus.SUCCESS), (6.0, 12.0, 0.0, PlanStatus.INFEASIBLE)])
+def test_no_success_plan_rolls_back(small_config, ego_vx, ahead, v_des, status):
+    """A car standing 8 or 12 m ahead: rows that roll back (the stop rows overshoot their stop and roll back, at up to
+    1 m/s) are not feasible. Without that the standing ego's SUCCESS plan rolled back at 0.7 m/s, and the ego at 6 m/s
+    got a SUCCESS plan that rolled back at 0.96 m/s: the one now drives on, the other gets INFEASIBLE with the
+    fallback, which stops."""
+    from driveopt.qp import make_model
+    from driveopt.ranking import moves_against_travel
+    from driveopt.trajectory import evaluate
+
+    scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=ego_vx), road=Road(num_lanes=3), neighbours=(Neighbour(x=ahead, y=4.0),),
+                  v_des=v_des)
+    result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0))
+    model = make_model(small_config.basis, small_config.qp)
+    rolled_back_within_tolerance = 0
+    for snapshot, feasible in ((result.first, result.history.num_feasible[0]), (result.last, result.history.num_feasible[-1])):
+        rows = evaluate(model, jnp.asarray(snapshot.projected_coeffs))
+        rolling = np.asarray(moves_against_travel(rows.x, rows.vx, ego_vx))
+        within = np.asarray(snapshot.residual) <= small_config.sampler.residual_tolerance
+        rolled_back_within_tolerance += np.sum(rolling & within)
+        assert feasible == np.sum(within & ~rolling)
+    assert rolled_back_within_tolerance > 0  # rows the residual alone counted feasible
+    assert result.status == status
+    if status == PlanStatus.SUCCESS:
+        assert np.min(result.trajectory.vx) >= -1e-3 and np.all(np.diff(result.trajectory.x) >= -1e-3)
+    else:
+        assert np.all(np.diff(result.fallback.x) >= 0.0) and result.fallback.speed[-1] == 0.0

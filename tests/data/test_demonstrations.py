@@ -97,9 +97,12 @@ def test_same_episodes_have_the_same_fingerprint_in_any_file_order(tmp_path):
     ab, ba = load_demonstrations([a, b]), load_demonstrations([b, a])
     assert ab.fingerprint() == ba.fingerprint()
     assert [ab.episode_ids()[i] for i in np.argsort(ab.episode_rank())] == [ba.episode_ids()[i] for i in np.argsort(ba.episode_rank())]
-    with h5py.File(b, "a") as f:  # same keys and row count, other content
-        f["observation"][3, 2] += 1.0
-    assert load_demonstrations([a, b]).fingerprint() != ab.fingerprint()
+    rng, other = np.random.default_rng(1), _writer(tmp_path / "c.h5")  # b's episodes, one value changed
+    for episode in range(2):
+        rows = synthetic_rows(rng, 8)
+        rows["observation"][3, 2] += 1.0 if episode == 0 else 0.0
+        other.append_episode(_entry(episode, seed=1), rows)
+    assert load_demonstrations([a, tmp_path / "c.h5"]).fingerprint() != ab.fingerprint()
 
 
 def test_bad_files_are_refused(tmp_path):
@@ -231,3 +234,83 @@ def test_a_file_held_longer_than_the_wait_is_a_clear_error(tmp_path, monkeypatch
         holder.kill()
         holder.wait()
     assert len(load_demonstrations(path)) == 8
+
+
+def test_a_truncated_file_is_reported_as_corrupted_at_once(tmp_path, monkeypatch):
+    import time
+
+    from driveopt.data import demonstrations
+
+    monkeypatch.setattr(demonstrations, "LOCK_WAIT_S", 20.0)
+    path = write_synthetic(tmp_path / "d.h5", episodes=2, rows=8)
+    raw = path.read_bytes()
+    path.write_bytes(raw[: len(raw) // 2])
+    start = time.monotonic()
+    with pytest.raises(DatasetError) as info:
+        load_demonstrations(path)
+    assert time.monotonic() - start < 5.0  # not retried as if another process held the file
+    assert "corrupted: truncated" in str(info.value) and "another process" not in str(info.value)
+    with pytest.raises(DatasetError, match="corrupted: truncated"):
+        _writer(path)
+
+
+def test_only_hdf5s_lock_error_counts_as_a_held_file():
+    from driveopt.data.demonstrations import _is_lock_error
+
+    held = OSError(11, "Unable to synchronously open file (unable to lock file, errno = 11, error message = "
+                       "'Resource temporarily unavailable')")
+    truncated = OSError("Unable to synchronously open file (truncated file: eof = 326288, sblock->base_addr = 0, "
+                        "stored_eof = 652576)")
+    assert _is_lock_error(held) and not _is_lock_error(truncated)
+
+
+def _load_or_error(path):
+    try:
+        return load_demonstrations(path)
+    except DatasetError:
+        return None
+
+
+def _same(a, b) -> bool:
+    arrays = [(getattr(a, name), getattr(b, name)) for name in ("observation", "init_x", "init_y", "lane_bounds",
+                                                                "setpoints", "coeffs", "trajectory", "status",
+                                                                "time", "episode")]
+    arrays += [(a.episodes[name], b.episodes[name]) for name in b.episodes]
+    arrays += list(zip(a.modes or (), b.modes or ()))
+    return (a.modes is None) == (b.modes is None) and a.attrs == b.attrs and all(
+        np.array_equal(x, y) for x, y in arrays)
+
+
+def test_a_zeroed_block_anywhere_is_refused_or_harmless(tmp_path):
+    """Every 4 KB block of a file zeroed in turn: the load refuses the file as corrupted, or returns exactly the
+    rows written (the block held unused space); never different rows."""
+    path = write_synthetic(tmp_path / "d.h5", episodes=3, rows=6)
+    good, raw = load_demonstrations(path), path.read_bytes()
+    damaged, refused = tmp_path / "damaged.h5", 0
+    for offset in range(0, len(raw), 4096):
+        block = raw[offset:offset + 4096]
+        if not any(block):
+            continue
+        damaged.write_bytes(raw[:offset] + bytes(len(block)) + raw[offset + 4096:])
+        loaded = _load_or_error(damaged)
+        assert loaded is None or _same(loaded, good), f"a zeroed block at byte {offset} went unnoticed"
+        refused += loaded is None
+    assert refused >= 5
+
+
+def test_a_changed_value_is_refused_as_corrupted(tmp_path):
+    path = write_synthetic(tmp_path / "d.h5", episodes=2, rows=8)
+    with h5py.File(path, "a") as f:  # as a flipped bit or a stray write would
+        f["observation"][11, 2] += 1.0
+    with pytest.raises(DatasetError, match=r"corrupted: episode 1 \(four-lane-d3.0, seed 0, episode 1\) does not match"):
+        load_demonstrations(path)
+
+
+def test_files_without_checksums_stay_readable_and_appendable(tmp_path):
+    """A file written before driveopt stored checksums: read unchecked, as before."""
+    path = write_synthetic(tmp_path / "d.h5", episodes=2, rows=8)
+    with h5py.File(path, "a") as f:
+        del f["episodes/checksum"]
+        f["observation"][3, 2] += 1.0  # unnoticed without checksums
+    _writer(path).append_episode(_entry(2), synthetic_rows(np.random.default_rng(1), 8))
+    assert len(load_demonstrations(path)) == 24

@@ -1,6 +1,6 @@
-"""A real ``driveopt bench`` process (tests/bench_child.py: fake episodes that sleep, two spawned workers)
-interrupted by Ctrl-C or SIGTERM, or killed with SIGKILL: it stops at once, keeps every finished
-episode, resumes, and leaves no worker behind."""
+"""A real ``driveopt bench`` process (tests/bench_child.py: fake episodes that sleep, two spawned workers, or Ray
+tasks) interrupted by Ctrl-C or SIGTERM, or killed with SIGKILL: it stops at once, keeps every finished episode,
+resumes, and leaves no worker (no Ray process) behind; a Ctrl-C never reaches a worker, not even one still starting."""
 
 import os
 import signal
@@ -126,12 +126,10 @@ def test_interrupted_bench_stops_at_once_keeps_episodes_and_resumes(tmp_path, ho
     finally:
         reap(proc, pids)
     assert "Traceback" not in stderr
-    if how == "ctrl-c":
-        assert proc.returncode == 130
-        assert stderr.rstrip().splitlines()[-1] == (
-            f"driveopt: interrupted: {2 * FAST} episodes kept in {out}; rerun the same command to resume")
-    else:
-        assert proc.returncode == 128 + signal.SIGTERM
+    status, word = (130, "interrupted") if how == "ctrl-c" else (128 + signal.SIGTERM, "terminated")
+    assert proc.returncode == status
+    assert stderr.rstrip().splitlines()[-1] == (
+        f"driveopt: {word}: {2 * FAST} episodes kept in {out}; rerun the same command to resume")
     kept = load_records(out / "episodes.jsonl")
     assert len(kept) == 2 * FAST and not (out / "summary.csv").exists()
 
@@ -142,6 +140,81 @@ def test_interrupted_bench_stops_at_once_keeps_episodes_and_resumes(tmp_path, ho
     keys = [(r["planner"], r["episode"]) for r in records]
     assert records[: len(kept)] == kept and len(keys) == len(set(keys)) == 16
     assert (out / "summary.csv").exists()
+
+
+def ctrl_c_reaches(pid: int) -> bool:
+    """Whether SIGINT would interrupt ``pid`` now: neither blocked nor ignored (/proc/PID/status)."""
+    fields = dict(line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines() if ":" in line)
+    bit = 1 << (signal.SIGINT - 1)
+    return not (int(fields["SigBlk"], 16) | int(fields["SigIgn"], 16)) & bit
+
+
+def test_ctrl_c_while_the_workers_start_stops_the_bench_and_never_reaches_them(tmp_path):
+    # a terminal's Ctrl-C goes to every process of the group: a worker still importing must not take it (a traceback)
+    marks = tmp_path / "marks"
+    proc = start_bench(tmp_path / "out", marks, slow=60)
+    pids: list[int] = []
+    try:
+        wait_for(lambda: len(workers(proc.pid)) == 2, STARTUP_S, proc)
+        pids = workers(proc.pid)
+        assert not any(ctrl_c_reaches(pid) for pid in pids)
+        interrupt(proc, "ctrl-c")
+        _, stderr = proc.communicate(timeout=PROMPT_S)
+        wait_for(lambda: not any(alive(pid) for pid in pids), PROMPT_S)
+    finally:
+        reap(proc, pids)
+    assert proc.returncode == 130 and "Traceback" not in stderr, stderr[-3000:]
+    assert stderr.rstrip().splitlines()[-1].startswith("driveopt: interrupted: ")
+
+
+def descendants(parent: int) -> list[int]:
+    """Every process ``parent`` started, and those they started (PPid in /proc)."""
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            ppid = int((entry / "stat").read_text().rpartition(")")[2].split()[1])
+        except OSError:  # it ended
+            continue
+        children.setdefault(ppid, []).append(int(entry.name))
+    found, todo = [], [parent]
+    while todo:
+        started = children.get(todo.pop(), [])
+        found += started
+        todo += started
+    return found
+
+
+@pytest.mark.slow  # a local Ray instance takes 10-30 s to start on two cores
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm", "kill -9"])
+def test_a_stopped_ray_bench_takes_its_local_ray_instance_with_it(tmp_path, how):
+    pytest.importorskip("ray")
+    out = tmp_path / "out"
+    proc = start_child(CHILD, ["--scenarios", "two-lane-d1.0", "--planners", "idm", "grid", "--episodes", "8",
+                               "--backend", "ray", "--out", str(out)], tmp_path / "marks", slow=60)
+    ray_processes: list[int] = []
+    try:
+        wait_for(lambda: len(load_records(out / "episodes.jsonl")) == 2 * FAST, STARTUP_S, proc)
+        time.sleep(1.0)  # both slow episodes under way
+        ray_processes = descendants(proc.pid)
+        assert len(ray_processes) >= 4  # GCS, raylet, agents, workers
+        start = time.monotonic()
+        if how == "kill -9":
+            proc.kill()
+        else:
+            interrupt(proc, how)
+        _, stderr = proc.communicate(timeout=PROMPT_S)
+        exit_s = time.monotonic() - start
+        wait_for(lambda: not any(alive(pid) for pid in ray_processes), PROMPT_S)
+    finally:
+        reap(proc, ray_processes)
+    if how != "kill -9":
+        word, status = ("interrupted", 130) if how == "ctrl-c" else ("terminated", 128 + signal.SIGTERM)
+        assert proc.returncode == status and exit_s < 3.0, stderr[-3000:]
+        assert stderr.rstrip().splitlines()[-1] == (
+            f"driveopt: {word}: {2 * FAST} episodes kept in {out}; rerun the same command to resume")
+        assert "Traceback" not in stderr and "SIGTERM received" not in stderr
 
 
 P2_CHILD = Path(__file__).with_name("p2_sweep_child.py")

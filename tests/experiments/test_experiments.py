@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -347,3 +348,156 @@ def test_an_episode_list_outside_the_episodes_or_with_repeats_is_refused(tmp_pat
         run_bench(dataclasses.replace(SPEC, episode_list=episode_list), tmp_path / "out", workers=1,
                   episode_fn=fake_episode, progress=False)
     assert not (tmp_path / "out").exists()
+
+
+# --- one writer per folder, records checked when read -----------------------------------------------------------
+
+TINY_ARGV = ["bench", "--scenarios", "two-lane-d1.0", "--planners", "idm", "--workers", "1"]
+
+
+def _cli_bench_with_fake_episodes(monkeypatch, episode_fn=fake_episode):
+    """`driveopt bench` through the CLI, its episodes ``episode_fn`` (no simulator)."""
+    import functools
+
+    from driveopt.experiments import bench
+
+    monkeypatch.setattr(bench, "run_bench", functools.partial(bench.run_bench, episode_fn=episode_fn, progress=False))
+
+
+def _one_line_error(capsys, argv) -> str:
+    from driveopt.cli import main
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("driveopt: error: ") and err.count("\n") == 1 and "Traceback" not in err
+    return err
+
+
+def test_a_second_bench_on_a_folder_in_use_is_refused_and_the_first_counts_each_episode_once(tmp_path, capsys, monkeypatch):
+    """Two runs on one --out both ran every job before (15 records for 8 jobs); the second is now refused at once."""
+    from driveopt.cli import main
+
+    out = tmp_path / "out"
+    argv = [*TINY_ARGV, "--episodes", "4", "--out", str(out)]
+    second: dict[str, str] = {}
+
+    def episode_starting_a_second_run(job, options):
+        if job.episode == 1:  # the first run holds the folder and has written one record
+            second["err"] = _one_line_error(capsys, argv)
+        return fake_episode(job, options)
+
+    _cli_bench_with_fake_episodes(monkeypatch, episode_starting_a_second_run)
+    assert main(argv) == 0
+    assert second["err"] == (f"driveopt: error: the output folder {out} is in use by another run (PID {os.getpid()}); "
+                             "wait for it to end or choose another output\n")
+    keys = [key_of(r) for r in load_records(out / "episodes.jsonl")]
+    assert len(keys) == len(set(keys)) == 4
+    assert [row["episodes"] for row in json.loads((out / "summary.json").read_text())] == [4]
+    assert main(argv) == 0  # the lock went with the run: a resume finds every episode done
+    assert len(load_records(out / "episodes.jsonl")) == 4
+
+
+GOOD_LINE = {"schema": 1, "collided": False, "off_road": False, "mean_speed": 9.0, "plan_ms": [], "sim_seconds": 0.1,
+             "plan_seconds": 0.0, "scenario": "two-lane-d1.0", "planner": "idm", "seed": 42, "episode": 7}
+
+
+def _without(name):
+    return json.dumps({k: v for k, v in GOOD_LINE.items() if k != name}).encode()
+
+
+@pytest.mark.parametrize("line, problem", [
+    (None, "idm on two-lane-d1.0, seed 42, episode 0 again (first on line 1)"),  # line 1 repeated
+    (_without("planner"), "no field 'planner'"),
+    (_without("collided"), "no field 'collided'"),
+    (json.dumps({**GOOD_LINE, "seed": "x"}).encode(), "'seed' must be an integer >= 0, got 'x'"),
+    (json.dumps({**GOOD_LINE, "collided": "no"}).encode(), "'collided' must be true or false"),
+    (json.dumps({**GOOD_LINE, "mean_speed": float("nan")}).encode(), "corrupted line (not JSON: NaN is not a JSON value)"),
+    ("{\"schema\": 1, \"planner\": \"caf\xe9\"}".encode("latin-1"), "corrupted line (not UTF-8 text)"),
+    (b"[1, 2]", "not a JSON object"),
+])
+def test_a_bad_record_is_refused_with_its_file_and_line_by_bench_and_summarise(tmp_path, capsys, monkeypatch, line, problem):
+    """A duplicated line gave "5 of 4 episodes"; a record without planner or collided, a non-UTF-8 line or a seed "x"
+    gave tracebacks in bench and summarise."""
+    out = tmp_path / "out"
+    run_bench(BenchSpec(("two-lane-d1.0",), ("idm",), (42,), 2), out, workers=1, episode_fn=fake_episode, progress=False)
+    store = out / "episodes.jsonl"
+    first = store.read_bytes().split(b"\n")[0]
+    store.write_bytes(store.read_bytes() + (first if line is None else line) + b"\n")
+    where = f"{store}:3: "
+    _cli_bench_with_fake_episodes(monkeypatch)
+    assert where + problem in _one_line_error(capsys, [*TINY_ARGV, "--episodes", "2", "--out", str(out)])
+    assert where + problem in _one_line_error(capsys, ["summarise", str(out), "--out", str(tmp_path / "merged")])
+    with pytest.raises(StoreError, match=re.escape(where)):
+        load_records(store)
+    assert not (tmp_path / "merged").exists()
+
+
+def test_records_without_their_spec_are_refused_never_mixed(tmp_path):
+    """spec.json deleted, then a rerun with other options: one table mixed two settings."""
+    out = tmp_path / "out"
+    run_bench(dataclasses.replace(SPEC, options={"duration": 1.0}), out, workers=1, episode_fn=fake_episode, progress=False)
+    (out / "spec.json").unlink()
+    before = (out / "episodes.jsonl").read_bytes()
+    for options in ({"duration": 2.0}, {"duration": 1.0}):  # without the spec nothing tells which ran with what
+        with pytest.raises(StoreError, match="spec.json is missing"):
+            run_bench(dataclasses.replace(SPEC, options=options, episodes=4), out, workers=1, episode_fn=fake_episode,
+                      progress=False)
+    assert (out / "episodes.jsonl").read_bytes() == before and not (out / "spec.json").exists()
+
+
+def test_a_record_of_another_run_s_settings_is_refused(tmp_path):
+    """Each record names its settings: a line of a folder run with another duration does not count here."""
+    from driveopt.experiments.store import load_folder
+
+    spec = BenchSpec(("two-lane-d1.0",), ("idm",), (42,), 4)
+    run_bench(dataclasses.replace(spec, options={"duration": 1.0}, episode_list=(0, 1)), tmp_path / "a", workers=1,
+              episode_fn=fake_episode, progress=False)
+    run_bench(dataclasses.replace(spec, options={"duration": 2.0}, episode_list=(3,)), tmp_path / "b", workers=1,
+              episode_fn=fake_episode, progress=False)
+    assert len(load_folder(tmp_path / "a")[1]) == 2
+    with open(tmp_path / "a" / "episodes.jsonl", "ab") as f:
+        f.write((tmp_path / "b" / "episodes.jsonl").read_bytes())
+    with pytest.raises(StoreError, match=re.escape(f"{tmp_path / 'a' / 'episodes.jsonl'}:3: idm on two-lane-d1.0 ran with other settings")):
+        load_folder(tmp_path / "a")
+    with pytest.raises(StoreError, match="other settings"):
+        run_bench(dataclasses.replace(spec, options={"duration": 1.0}), tmp_path / "a", workers=1, episode_fn=fake_episode,
+                  progress=False)
+
+
+@pytest.mark.parametrize("seeds, needle", [
+    (["-1"], "seed -1 is out of range: seeds are integers from 0 to 42948 with 2 episodes"),
+    (["200000000000000"], "seed 200000000000000 is out of range"),
+    (["42949"], "seed 42949 is out of range"),  # 42949 x 100003 + 1 > 2**32 - 1: JAX's seed would wrap
+    (["42", "42"], "seeds [42, 42]: give each once"),
+])
+def test_bench_seeds_are_checked_before_anything_is_written(tmp_path, capsys, monkeypatch, seeds, needle):
+    """--seeds -1 and 2e14 failed only after spec.json was written."""
+    _cli_bench_with_fake_episodes(monkeypatch)
+    out = tmp_path / "out"
+    assert needle in _one_line_error(capsys, [*TINY_ARGV, "--episodes", "2", "--seeds", *seeds, "--out", str(out)])
+    assert not out.exists()
+
+
+def test_summaries_are_strict_json_with_null_for_missing_numbers(tmp_path, capsys):
+    """idm never plans: its plan times are missing, NaN in the rows, null in summary.json (bench and summarise)."""
+    from driveopt.cli import main
+
+    def strict(text):
+        return json.loads(text, parse_constant=lambda name: pytest.fail(f"{name} in JSON output"))
+
+    spec = BenchSpec(("two-lane-d1.0",), ("idm",), (42,), 2)
+    rows = run_bench(spec, tmp_path / "idm", workers=1, episode_fn=idle_episode, progress=False)
+    assert np.isnan(rows[0]["plan_ms_median"])
+    for name in ("summary.json", "spec.json"):
+        strict((tmp_path / "idm" / name).read_text())
+    assert strict((tmp_path / "idm" / "summary.json").read_text())[0]["plan_ms_median"] is None
+    for line in (tmp_path / "idm" / "episodes.jsonl").read_text().splitlines():
+        strict(line)
+    assert main(["summarise", str(tmp_path / "idm"), "--out", str(tmp_path / "merged")]) == 0
+    assert strict((tmp_path / "merged" / "summary.json").read_text())[0]["plan_ms_p95"] is None
+    assert "summary.json" in capsys.readouterr().out
+
+
+def idle_episode(job, options):
+    """An episode of a planner that never plans: no plan times."""
+    return {**fake_episode(job, options), "plan_ms": []}

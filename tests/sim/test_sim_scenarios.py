@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 
 import pytest
 
@@ -100,7 +101,7 @@ def test_overrides_are_coerced_and_validated():
         ({"target_speed_fraction": [0.0, 1.5]}, "0 <= lo <= hi <= 1"),
         ({"policy_frequency": 10, "simulation_frequency": 15}, "must be a multiple of policy_frequency"),
         ({"road": "roundabout"}, "road must be one of"),
-        ({"duration": -1.0}, "duration must be > 0"),
+        ({"duration": -1.0}, "duration must be in (0, 3600] s"),
         ({"acceleration_range": [1.0, 5.0]}, "acceleration_range"),
         ({"steering_range": [-2.0, 2.0]}, "steering_range"),
     ],
@@ -141,7 +142,7 @@ def test_bad_override_files(tmp_path, text, fragment):
 
 
 def test_missing_override_file(tmp_path):
-    with pytest.raises(ScenarioError, match="not found"):
+    with pytest.raises(ScenarioError, match="no such file"):
         load_overrides(tmp_path / "nope.json")
 
 
@@ -156,3 +157,66 @@ def test_timing_properties():
     s = get_scenario("two-lane-d1.0")
     assert s.steps_per_action == s.simulation_frequency // s.policy_frequency
     assert s.num_actions == 500
+
+
+@pytest.mark.parametrize(
+    "overrides, fragment",
+    [
+        ({"simulation_frequency": 1_000_000_000}, "frequencies must be integers in [1, 1000] Hz"),
+        ({"vehicles_count": 100_000}, "vehicles_count must be in [0, 1000]"),
+        ({"duration": 1e300}, "duration must be in (0, 3600] s"),
+        ({"duration": 1e308}, "duration must be in (0, 3600] s"),
+        ({"duration": 0.01}, "must last at least one action"),
+        ({"acceleration_range": [-1e300, 1e300]}, "-100 <= lo < 0 < hi <= 100"),
+        ({"density": 1e-300}, "density must be in [0.1, 10]"),
+        ({"lanes": 1_000_000}, "lanes must be in [1, 16]"),
+        ({"speed_limit": 1e30}, "speed_limit must be in (0, 100] m/s"),
+        ({"ego_speed": 1e30}, "ego_speed must be in [0, 100] m/s"),
+        ({"v_des": 1e30}, "v_des must be in [0, 100] m/s"),
+        ({"min_spawn_gap": 1e30}, "min_spawn_gap must be in [0, 1000] m"),
+        ({"duration": 3600.0}, "DRIVEOPT_ALLOW_LARGE=1"),
+    ],
+)
+def test_unrunnable_and_degenerate_scenarios_are_refused(monkeypatch, overrides, fragment):
+    monkeypatch.delenv("DRIVEOPT_ALLOW_LARGE", raising=False)
+    with pytest.raises(ScenarioError) as info:
+        apply_overrides(get_scenario("four-lane-d3.0"), overrides)
+    assert fragment in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_long_episode_runs_when_the_user_allows_large_work(monkeypatch):
+    long = {"duration": 3600.0, "vehicles_count": 200}  # 1.4e7 vehicle-steps: hours
+    monkeypatch.setenv("DRIVEOPT_ALLOW_LARGE", "1")
+    assert apply_overrides(get_scenario("four-lane-d3.0"), long).duration == 3600.0
+    monkeypatch.setenv("DRIVEOPT_ALLOW_LARGE", "0")
+    with pytest.raises(ScenarioError, match="simulation work per episode"):
+        apply_overrides(get_scenario("four-lane-d3.0"), long)
+
+
+def test_every_registered_scenario_is_within_the_ranges():
+    for name in list_scenarios():
+        assert Scenario(**get_scenario(name).to_dict()) == get_scenario(name)
+
+
+@pytest.mark.parametrize(
+    "text, fragment",
+    [
+        ('{"duration": ' + "9" * 400 + "}", "has 400 characters"),
+        ("[" * 100_000 + "]" * 100_000, "nested deeper than"),
+        ('{"description": "\\ud800"}', "not valid Unicode"),
+        ('{"duration": Infinity}', "Infinity is not a JSON number"),
+    ],
+)
+def test_override_files_beyond_the_reader_limits_are_one_line_errors(tmp_path, text, fragment):
+    path = tmp_path / "bad.json"
+    path.write_text(text)
+    with pytest.raises(ScenarioError) as info:
+        load_overrides(path)
+    assert fragment in str(info.value) and str(path) in str(info.value)
+
+
+def test_a_fifo_as_override_file_is_refused_without_blocking(tmp_path):
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)
+    with pytest.raises(ScenarioError, match="not a regular file .a FIFO."):
+        load_overrides(fifo)

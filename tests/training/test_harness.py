@@ -20,6 +20,7 @@ from tiny_models import with_meta
 
 from driveopt.checks import ConfigError
 from driveopt.data.demonstrations import DatasetError
+from driveopt.files import LOCK_NAME
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint
 from driveopt.training import cvae, harness, vqvae
 from driveopt.training import filter as filter_training
@@ -104,7 +105,7 @@ def train_mean(out, tcfg: ToyConfig = ToyConfig(), *, data: dict[str, Any] | Non
 
 
 def folder_bytes(out) -> dict[str, bytes]:
-    return {path.name: path.read_bytes() for path in sorted(out.iterdir())}
+    return {path.name: path.read_bytes() for path in sorted(out.iterdir()) if path.name != LOCK_NAME}
 
 
 @pytest.fixture(scope="module")

@@ -194,3 +194,39 @@ def test_dummy_video_driver_is_a_clear_error(tmp_path, monkeypatch, capsys):
         check_video_driver()
     display.get_driver = lambda: "offscreen"
     check_video_driver()
+
+
+def test_a_truncated_video_is_an_error_and_leaves_no_file(tmp_path, monkeypatch):
+    """A full disk cut the MP4 at 4 KB and drive printed "wrote": the writer checks the file ffmpeg finished."""
+    from driveopt.viz.video import VideoError, mp4_problem
+
+    frames = np.random.default_rng(0).integers(0, 255, (5, 64, 96, 3), dtype=np.uint8)
+    with VideoWriter(tmp_path / "whole.mp4", fps=5) as writer:
+        for frame in frames:
+            writer.append(frame)
+    whole = (tmp_path / "whole.mp4").read_bytes()
+    assert mp4_problem(tmp_path / "whole.mp4") is None
+    (tmp_path / "cut.mp4").write_bytes(whole[:4096])
+    assert mp4_problem(tmp_path / "cut.mp4").startswith("truncated at 4096 bytes")
+
+    writer = VideoWriter(tmp_path / "full.mp4", fps=5)
+    for frame in frames:
+        writer.append(frame)
+    close = writer._writer.close
+
+    def close_on_a_full_disk():  # ffmpeg ends without an error, but the disk kept only the first 4 KB
+        close()
+        with open(writer._tmp, "r+b") as f:
+            f.truncate(4096)
+
+    monkeypatch.setattr(writer._writer, "close", close_on_a_full_disk)
+    with pytest.raises(VideoError, match="full.mp4: the MP4 ffmpeg wrote is incomplete"):
+        writer.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mp4", "whole.mp4"]
+
+
+def test_a_failed_episode_leaves_no_video(tmp_path):
+    with pytest.raises(RuntimeError, match="episode failed"), VideoWriter(tmp_path / "v.mp4", fps=5) as writer:
+        writer.append(np.zeros((32, 48, 3), np.uint8))
+        raise RuntimeError("episode failed")
+    assert list(tmp_path.iterdir()) == []

@@ -4,9 +4,10 @@ scenarios | planners``.
 One module per command, each with ``register(subparsers)``. Errors in user input (a
 :class:`~driveopt.errors.DriveoptError`: unknown name, malformed file or config, unusable
 checkpoint) print one line ``driveopt: error: ...`` on stderr and exit with status 2; Ctrl-C prints
-``driveopt: interrupted`` (and what the command kept, when it says) and exits with status 130;
-SIGTERM unwinds the same way silently, with status 143; any other exception is a bug and keeps its
-traceback.
+``driveopt: interrupted`` (and what the command kept, when it says) and exits with status 130, SIGTERM
+``driveopt: terminated`` the same way with status 143, within two seconds whatever the command is doing
+(:mod:`driveopt.cli.interrupts`); a reader of stdout that goes away (``driveopt plan | head -1``) ends it
+quietly with status 141; any other exception is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -14,52 +15,61 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
-import threading
 from collections.abc import Sequence
 
-from driveopt.cli import bench, collect, drive, listing, plan, plot_curves, plot_prior, summarise, train
+from driveopt.cli import bench, collect, drive, interrupts, listing, plan, plot_curves, plot_prior, summarise, train
 from driveopt.cli.common import UsageError
+from driveopt.cli.parser import OneLineArgumentParser
 from driveopt.errors import DriveoptError
 
 __all__ = ["UsageError", "build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="driveopt", description="Bi-level motion planning for dense highway traffic.")
+    parser = OneLineArgumentParser(prog="driveopt", description="Bi-level motion planning for dense highway traffic.")
     sub = parser.add_subparsers(dest="command", required=True)
     for command in (plan, drive, bench, summarise, collect, train, plot_prior, plot_curves, listing):
         command.register(sub)
     return parser
 
 
-def _exit_on_sigterm(signum, frame) -> None:
-    raise SystemExit(128 + signum)
-
-
-def stop_cleanly_on_signals() -> None:
-    """For a long job's entry point (the CLI, the benchmark scripts); only in the main thread."""
-    if threading.current_thread() is threading.main_thread():
-        # A terminated long job (collect, train, bench) unwinds like Ctrl-C: files are closed, the
-        # finished work is kept, and a rerun resumes.
-        signal.signal(signal.SIGTERM, _exit_on_sigterm)
-        # Ctrl-C interrupts even where the shell that started us ignored SIGINT (a background job of a
-        # script, which Python would otherwise inherit): the long jobs stop cleanly either way.
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+def stop_cleanly_on_signals(program: str | None = None) -> None:
+    """For a long job's entry point (the CLI, the benchmark scripts), in the main thread: Ctrl-C and SIGTERM unwind
+    as ``KeyboardInterrupt`` (files are closed, the finished work is kept, a rerun resumes) and end the process
+    within two seconds with status 130 or 143, even from inside a compiled call (:func:`interrupts.install`).
+    ``program`` names it in the one-line message (default: the script's name)."""
+    interrupts.install(program or interrupts.default_program())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    stop_cleanly_on_signals()
+    stop_cleanly_on_signals("driveopt")
     try:
-        return args.func(args)
+        status = args.func(args)
+        sys.stdout.flush()  # here, where a reader that went away can still be told from a bug
     except DriveoptError as exc:
         print(f"driveopt: error: {_first_line(exc) or type(exc).__name__}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:  # a command may re-raise it with what it kept as the message
-        detail = _first_line(exc)
+        return _interrupted(_first_line(exc))
+    except BrokenPipeError as exc:
+        if interrupts.stdout_closed(exc):
+            return interrupts.BROKEN_PIPE_STATUS
+        raise
+    if interrupts.stop_status() is not None:  # the command swallowed the signal's exception: it stops all the same
+        return _interrupted("")
+    return status
+
+
+def _interrupted(detail: str) -> int:
+    """Write the one line for the stopping signal and return its status; for a KeyboardInterrupt raised without a
+    signal (by a caller of :func:`main`), ``driveopt: interrupted`` and 130."""
+    if interrupts.stop_status() is None:
         print(f"driveopt: interrupted: {detail}" if detail else "driveopt: interrupted", file=sys.stderr)
         return 128 + signal.SIGINT
+    interrupts.announce(detail)
+    return interrupts.stop_status()
 
 
 def _first_line(exc: BaseException) -> str:

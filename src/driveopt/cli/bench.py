@@ -1,7 +1,8 @@
 """``driveopt bench``: scenarios x planners x seeds x episodes, resumable, with summary table and plots.
 
-Names and options are checked before the output folder is touched (``BenchSpec.check``). Ctrl-C
-stops at once with ``driveopt: interrupted: N episodes kept in OUT; ...`` and status 130.
+Names, options and seeds are checked before the output folder is touched (``BenchSpec.check``); a folder another
+run is writing is refused at once. Ctrl-C stops at once with ``driveopt: interrupted: N episodes kept in OUT; ...``
+and status 130.
 """
 
 from __future__ import annotations
@@ -10,17 +11,19 @@ import argparse
 from pathlib import Path
 
 from driveopt.cli.common import config_overrides, positive_int
+from driveopt.cli.parser import duration
 
 
 def register(sub) -> None:
     p = sub.add_parser("bench", help="scenarios x planners x seeds x episodes; resumable; summary table and plots")
     p.add_argument("--scenarios", nargs="+", default=["four-lane-d3.0", "two-lane-d2.5"])
     p.add_argument("--planners", nargs="+", default=["bilevel", "vanilla", "grid", "random", "batch", "idm"])
-    p.add_argument("--seeds", nargs="+", type=int, default=[42])
+    p.add_argument("--seeds", nargs="+", type=int, default=[42],
+                   help="traffic seeds (episode e of seed s drives traffic seed s x 100003 + e, which must fit in 32 bits)")
     p.add_argument("--episodes", type=positive_int, default=50, help="episodes per scenario, planner and seed")
     p.add_argument("--episode-list", nargs="+", type=int, metavar="E",
                    help="run only these episode indices (each below --episodes), e.g. an A/B on the episodes that collided")
-    p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
+    p.add_argument("--duration", type=duration, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="override the optimisers' samples per iteration (not vanilla's single sample)")
     p.add_argument("--weights", help="learned-prior checkpoint for the cvae planner, or policy file for dqn/ppo (default: shipped weights)")
     p.add_argument("--filter-weights", help="learned safety-filter checkpoint for every optimiser (recorded with --config)")
@@ -53,5 +56,5 @@ def run(args: argparse.Namespace) -> int:
         kept = len(load_records(Path(args.out) / "episodes.jsonl"))
         raise KeyboardInterrupt(f"{kept} episodes kept in {args.out}; rerun the same command to resume") from None
     print(markdown_table(rows))
-    print(f"wrote {args.out}/episodes.jsonl, summary.csv, summary.md, summary.png")
+    print(f"wrote {args.out}/episodes.jsonl, summary.csv, summary.md, summary.json, summary.png")
     return 0

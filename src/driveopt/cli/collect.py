@@ -1,13 +1,16 @@
 """``driveopt collect``: expert demonstrations into an HDF5 file, resumable.
 
-The options are checked (:func:`driveopt.experiments.collect.check_options`) before the file is created or opened.
+The options and the ``--json`` path are checked (:func:`driveopt.experiments.collect.check_options`,
+:func:`driveopt.files.check_output_file`) before the file is created or opened; the summary is strict JSON, written
+whole.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from driveopt.cli.common import positive_int
+from driveopt.cli.common import positive_int, writable_file, write_json
+from driveopt.cli.parser import duration
 
 
 def register(sub) -> None:
@@ -17,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--episodes", type=positive_int, default=10, help="episodes per scenario")
     p.add_argument("--samples", type=positive_int, default=250, help="expert samples per sampler iteration (250, as drive and bench: with 1000 the expert crashed more)")
     p.add_argument("--iterations", type=positive_int, default=5, help="expert sampler iterations")
-    p.add_argument("--duration", type=float, default=50.0, help="episode length [s]")
+    p.add_argument("--duration", type=duration, default=50.0, help="episode length [s]")
     p.add_argument("--workers", type=positive_int, default=1, help="parallel episodes")
     p.add_argument("--modes", type=positive_int, default=8,
                    help="distinct feasible plans of the expert's first and final batches stored per step (VQ-VAE training)")
@@ -27,10 +30,9 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    from driveopt.experiments.collect import collect
 
-    from driveopt.experiments.collect import collect, summary_json
-
+    writable_file(args.json, "--json")
     summary = collect(args.out, args.scenarios, seed=args.seed, episodes=args.episodes, samples=args.samples,
                       iterations=args.iterations, duration=args.duration, workers=args.workers, modes=args.modes)
     print(f"collected {summary['episodes']} episodes ({summary['rows']} rows, {summary['collided']} collided) in "
@@ -39,6 +41,5 @@ def run(args: argparse.Namespace) -> int:
         spread = ", ".join(f"{k}: {n}" for k, n in summary["modes_per_row"].items() if n)
         print(f"modes per row (modes: rows) of the new rows: {spread}")
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(summary_json(summary))
+        print(f"wrote {write_json(args.json, summary)}")
     return 0

@@ -1,15 +1,16 @@
-"""What every command shares: the usage error, argument types, and planner-config files."""
+"""What every command shares: the usage error, argument types, planner-config files, and the checks and writers of
+output files."""
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
 from pathlib import Path
 from typing import Any
 
+from driveopt import files
 from driveopt.config import from_dict
 from driveopt.errors import DriveoptError
+from driveopt.files import check_output_file
 
 
 class UsageError(DriveoptError):
@@ -47,32 +48,27 @@ def seed(text: str) -> int:
     return value
 
 
-def writable_file(path: str | None, what: str) -> None:
-    """Refuse, before any work, an output path that is a directory or whose folder cannot be written."""
-    if not path:
-        return
-    target = Path(path)
-    if target.is_dir():
-        raise UsageError(f"{what} {path} is a directory; give a file path")
-    folder = target.parent
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
-    if not folder.is_dir() or not os.access(folder, os.W_OK):
-        raise UsageError(f"{what} {path} cannot be written (no writable folder {folder})")
-    if target.exists() and not os.access(target, os.W_OK):
-        raise UsageError(f"{what} {path} cannot be written (permission denied)")
+def writable_file(path: str | None, what: str, suffixes: tuple[str, ...] = ()) -> None:
+    """Refuse, before any work, an output path that cannot take the file (:func:`driveopt.files.check_output_file`:
+    a folder, a device, an extension not in ``suffixes``, a folder that cannot be written); nothing when no path is
+    given."""
+    if path:
+        check_output_file(path, what, suffixes)
 
 
 def config_overrides(path: str | None, filter_weights: str | None = None) -> dict[str, Any]:
-    """Planner-config overrides from a JSON file (nested sections), checked against the config schema; an optional
+    """Planner-config overrides from a JSON file (nested sections, read by :func:`driveopt.jsonfile.read_json`),
+    checked against the config schema; an optional
     ``safety_filter`` section ``{"weights": FILE}`` names a learned safety filter checkpoint, and so does
     ``filter_weights`` (``--filter-weights``, which wins)."""
+    from driveopt.jsonfile import JSONFileError, read_json
+
     data: Any = {}
     if path:
         try:
-            data = json.loads(Path(path).read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise UsageError(f"cannot read config {path}: {exc}") from None
+            data = read_json(path, "config")  # special files, huge files, deep nesting, huge numbers: refused
+        except JSONFileError as exc:
+            raise UsageError(f"cannot read {exc}") from None
     if isinstance(data, dict):
         from driveopt.safety.learned import FILTER_SECTION, split_filter_section
 
@@ -85,8 +81,6 @@ def config_overrides(path: str | None, filter_weights: str | None = None) -> dic
 
 
 def write_json(path: str | Path, data: Any) -> Path:
-    """Write ``data`` as indented JSON, creating the folder."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=1))
-    return path
+    """Write ``data`` as indented strict JSON (no NaN or Infinity: a missing number is null), whole or not at all,
+    creating the folder; OutputError (one line) when it cannot be written."""
+    return files.write_json(path, data)

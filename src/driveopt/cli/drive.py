@@ -1,4 +1,9 @@
-"""``driveopt drive``: one closed-loop episode with a progress bar, a summary, and an MP4 of the plans."""
+"""``driveopt drive``: one closed-loop episode with a progress bar, a summary, and an MP4 of the plans.
+
+``--json`` and ``--video`` are checked (a folder that can be written, ``.mp4`` for the video) before the episode
+runs; both are written whole or not at all, and a video ffmpeg could not finish (a full disk) is an error, not
+"wrote". The JSON is strict: a planner that never plans (``idm``) has null plan times.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +11,7 @@ import argparse
 import contextlib
 
 from driveopt.cli.common import config_overrides, positive_int, seed, writable_file, write_json
+from driveopt.cli.parser import duration
 
 
 def register(sub) -> None:
@@ -16,10 +22,10 @@ def register(sub) -> None:
     p.add_argument("--weights", help="learned-prior checkpoint, or policy file of dqn/ppo (default: the weights shipped for the road)")
     p.add_argument("--filter-weights", help="learned safety-filter checkpoint for any optimiser (vqvae-filter: default the shipped one)")
     p.add_argument("--seed", type=seed, default=42, help="traffic and sampling seed")
-    p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
+    p.add_argument("--duration", type=duration, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="samples per sampler iteration")
     p.add_argument("--replan-every", type=positive_int, help="policy periods each plan is executed open-loop (P1: 5; default 1)")
-    p.add_argument("--video", default="out/drive.mp4", help="MP4 path ('' for none)")
+    p.add_argument("--video", default="out/drive.mp4", help="MP4 path, ending in .mp4 ('' for none)")
     p.add_argument("--json", help="write the episode summary as JSON here")
     p.add_argument("--config", help="planner config overrides, JSON (nested sections, e.g. {\"cost\": {\"consistency\": 1.0}})")
     p.set_defaults(func=run)
@@ -32,9 +38,10 @@ def run(args: argparse.Namespace) -> int:
     from driveopt.planner import PlanStatus
     from driveopt.registry import get_planner
     from driveopt.sim.scenarios import resolve_scenario
+    from driveopt.viz.video import VIDEO_SUFFIXES
 
     writable_file(args.json, "--json")
-    writable_file(args.video, "--video")
+    writable_file(args.video, "--video", VIDEO_SUFFIXES)
     scenario = resolve_scenario(args.scenario, config_file=args.scenario_config)
     if args.duration is not None:
         scenario = scenario.replace(duration=args.duration)
@@ -67,11 +74,12 @@ def run(args: argparse.Namespace) -> int:
             bar.set_postfix(v=f"{episode.speeds[-1]:.1f}" if episode.speeds else "-",
                             plan_ms=f"{1e3 * step.decision.plan_seconds:.0f}" if result is not None else "-")
     episode = rollout.episode
-    summary = episode.summary()
+    summary = episode_summary(episode)
+    planning = ("no planning calls" if summary["plan_ms_median"] is None else
+                f"planning {summary['plan_ms_median']:.0f} ms median / {summary['plan_ms_p95']:.0f} ms p95")
     print(
         f"{scenario.name} / {spec.name} (seed {args.seed}): collided {episode.collided}, off-road {episode.off_road}, "
-        f"{episode.sim_duration:.1f} s simulated, mean speed {episode.mean_speed:.1f} m/s, "
-        f"planning {summary['plan_ms_median']:.0f} ms median / {summary['plan_ms_p95']:.0f} ms p95, "
+        f"{episode.sim_duration:.1f} s simulated, mean speed {episode.mean_speed:.1f} m/s, {planning}, "
         f"compile {episode.compile_seconds:.1f} s"
     )
     if args.json:
@@ -79,3 +87,11 @@ def run(args: argparse.Namespace) -> int:
     if args.video:
         print(f"  wrote {args.video}")
     return 0
+
+
+def episode_summary(episode) -> dict:
+    """The episode's JSON summary; the plan-time statistics are null (missing) when it made no planning call."""
+    summary = episode.summary()
+    if not episode.plan_ms:
+        summary.update(plan_ms_median=None, plan_ms_p95=None)
+    return summary

@@ -1,4 +1,8 @@
-"""``driveopt plan`` and ``driveopt problems``: one planning call on a problem file or a built-in problem."""
+"""``driveopt plan`` and ``driveopt problems``: one planning call on a problem file or a built-in problem.
+
+``--json`` and ``--plot`` are checked (a folder that can be written, a figure extension) before anything is planned,
+and written whole (strict JSON: a number that is missing, such as the timing of no repeat, is null).
+"""
 
 from __future__ import annotations
 
@@ -29,7 +33,7 @@ def register(sub) -> None:
     p.add_argument("--max-obstacles", type=positive_int, default=10, help="nearest neighbours considered")
     p.add_argument("--repeats", type=non_negative_int, default=3, help="extra timed calls after the first (compile) call; 0: none")
     p.add_argument("--json", help="write the result as JSON here")
-    p.add_argument("--plot", help="write a plot (PNG) here")
+    p.add_argument("--plot", help="write a plot here (PNG, or PDF/SVG/... by extension)")
     p.set_defaults(func=run)
 
     p = sub.add_parser("problems", help="list built-in problems")
@@ -56,7 +60,10 @@ def run(args: argparse.Namespace) -> int:
     from driveopt.planner import plan
 
     writable_file(args.json, "--json")
-    writable_file(args.plot, "--plot")
+    if args.plot:
+        from driveopt.viz.figures import figure_suffixes
+
+        writable_file(args.plot, "--plot", figure_suffixes())
     scene = load_scene(args.problem)
     spec = _spec(args)
     config = spec.config

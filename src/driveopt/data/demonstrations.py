@@ -45,11 +45,22 @@ redoes that episode.
 An episode is identified by (scenario, seed, episode) and a digest of its rows
 (:meth:`Demonstrations.episode_ids`): the same episode gives the same identity in any file and at
 any position, so fingerprints and orders built on it do not depend on the order of the files.
+
+Integrity: the writer stores with each episode a SHA-256 of its entry and of every stored byte of its
+rows (``episodes/checksum``, 64 hex digits, written before the entry's position fields), and reading
+verifies it, so a damaged file (a block of zeros, a flipped bit) is refused as corrupted instead of
+training on wrong rows; damage to HDF5's own structures makes the read fail, also reported as corrupted.
+Files written before driveopt stored checksums (no ``episodes/checksum``) are read unchecked, as before;
+so are episodes appended to them. A truncated file is reported as corrupted at once (HDF5 compares the
+file's length with the one it recorded). The file keeps HDF5's default (earliest) format: the newer
+formats mark a file open for writing in its superblock, and a collector killed mid-write would leave it
+unreadable until ``h5clear``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import itertools
 import json
@@ -69,6 +80,8 @@ ROW_FIELDS = ("observation", "init_x", "init_y", "lane_bounds", "setpoints", "co
 MODE_FIELDS = ("mode_setpoints", "mode_coeffs", "mode_cost", "mode_residual", "mode_mask")  # version 2
 EPISODE_FIELDS = ("scenario", "seed", "episode", "env_seed", "collided", "duration", "first_row", "num_rows")
 _POSITION_FIELDS = ("first_row", "num_rows")  # of EPISODE_FIELDS: set by the writer, last
+CHECKSUM = "checksum"  # episodes/checksum: SHA-256 (hex) of each episode's entry and rows (absent in older files)
+_CHECKSUM_DTYPE = "S64"
 _ROW_DTYPES = {"status": np.int8, "mode_mask": np.bool_}
 _EPISODE_DTYPES = {"seed": np.int64, "episode": np.int32, "env_seed": np.int64, "collided": np.bool_,
                    "duration": np.float32, "first_row": np.int64, "num_rows": np.int64}
@@ -201,7 +214,7 @@ class DemonstrationWriter:
         try:
             f = _open_waiting_for_lock(self.path, "a")
         except OSError as exc:
-            raise DatasetError(f"cannot open demonstrations {self.path}{_locked_hint(exc)}: {exc}") from None
+            raise DatasetError(f"cannot open demonstrations {self.path}{_unreadable_hint(exc)}: {exc}") from None
         try:
             yield f
         finally:
@@ -224,10 +237,14 @@ class DemonstrationWriter:
             n = int(data["observation"].shape[0])
             entry = {**{name: episode[name] for name in EPISODE_FIELDS if name not in _POSITION_FIELDS},
                      "first_row": start, "num_rows": n}
-            for name in (*ROW_FIELDS, *MODE_FIELDS):
+            data["episode"] = np.full(n, index, np.int32)
+            for name in (*ROW_FIELDS, "episode", *MODE_FIELDS):
                 _write_from(f[name], start, data[name])
-            _write_from(f["episode"], start, np.full(n, index, np.int32))
-            for name in EPISODE_FIELDS:  # the entry goes last: it marks the rows complete
+            fields = list(EPISODE_FIELDS)
+            if CHECKSUM in f["episodes"]:  # before the position fields, so that a complete entry has it
+                entry[CHECKSUM] = episode_checksum(entry, data)
+                fields.insert(EPISODE_FIELDS.index(_POSITION_FIELDS[0]), CHECKSUM)
+            for name in fields:  # the entry goes last: it marks the rows complete
                 ds = f["episodes"][name]
                 ds.resize(index + 1, axis=0)
                 ds[index] = entry[name]
@@ -250,11 +267,12 @@ def _create(f: Any, attrs: dict[str, Any], num_nodes: int, num_coeffs: int, obse
     for name in EPISODE_FIELDS:
         dtype = _h5py().string_dtype() if name == "scenario" else _EPISODE_DTYPES[name]
         group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(64,))
+    group.create_dataset(CHECKSUM, shape=(0,), maxshape=(None,), dtype=_CHECKSUM_DTYPE, chunks=(64,))
 
 
 def _checked_rows(f: Any, rows: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """``rows`` as arrays (no modes: padding) after checking that every field has the same row count and the
-    file's row shape."""
+    """``rows`` as arrays of the file's dtypes (no modes: padding) after checking that every field has the same row
+    count and the file's row shape (the checksum is taken of exactly the values written)."""
     data = {name: np.asarray(rows[name]) for name in ROW_FIELDS}
     n = data["observation"].shape[0]
     given = [name for name in MODE_FIELDS if name in rows]
@@ -267,7 +285,23 @@ def _checked_rows(f: Any, rows: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
             raise DatasetError(f"episode rows '{name}' have shape {values.shape}, expected ({n}, {f[name].shape[1:]})")
     if given and not np.all(np.isfinite(data["mode_cost"][data["mode_mask"].astype(bool)])):
         raise DatasetError("episode rows have a mode with a non-finite cost")
-    return data
+    return {name: np.ascontiguousarray(values, dtype=f[name].dtype) for name, values in data.items()}
+
+
+def episode_checksum(entry: dict[str, Any], rows: dict[str, np.ndarray]) -> bytes:
+    """SHA-256 (64 hex digits, as bytes) of an episode's entry (EPISODE_FIELDS in the file's dtypes) and of its
+    rows (name -> array in the file's dtype), in a fixed order: what the writer stores and the reader recomputes."""
+    digest = hashlib.sha256()
+    for name in EPISODE_FIELDS:
+        value = entry[name]
+        if name == "scenario":
+            digest.update((value.decode() if isinstance(value, bytes) else str(value)).encode())
+        else:
+            digest.update(np.asarray(value, _EPISODE_DTYPES[name]).tobytes())
+    for name in sorted(rows):
+        digest.update(name.encode())
+        digest.update(np.ascontiguousarray(rows[name]).tobytes())
+    return digest.hexdigest().encode()
 
 
 def _row_datasets(f: Any) -> tuple[str, ...]:
@@ -307,8 +341,8 @@ def _truncate_partial(f: Any) -> tuple[int, int]:
     """Drop a partly written episode entry and the rows beyond the last complete episode (an append cut
     short); returns (complete episodes, their rows): where the next episode goes."""
     count, end = _complete_extent(f)
-    for name in EPISODE_FIELDS:
-        if f["episodes"][name].shape[0] != count:
+    for name in (*EPISODE_FIELDS, *((CHECKSUM,) if CHECKSUM in f["episodes"] else ())):
+        if f["episodes"][name].shape[0] > count:
             f["episodes"][name].resize(count, axis=0)
     for name in _row_datasets(f):
         if f[name].shape[0] != end:
@@ -320,14 +354,18 @@ LOCK_WAIT_S = 60.0
 """How long [s] opening a demonstrations file waits for another process (a reader or the collector) to close it."""
 
 
-def _is_lock_error(exc: OSError) -> bool:
-    return "lock" in str(exc).lower()
+def _is_lock_error(exc: BaseException) -> bool:
+    """Whether opening failed because another process holds HDF5's file lock: errno EAGAIN / EWOULDBLOCK, or HDF5's
+    words for it (not merely "lock" anywhere: a truncated file's message names "sblock", the superblock)."""
+    if isinstance(exc, OSError) and exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK):
+        return True
+    return "unable to lock file" in str(exc).lower()
 
 
 def _open_waiting_for_lock(path: Path, mode: str) -> Any:
     """``h5py.File(path, mode)``, retried while another process holds the file's HDF5 lock (the collector opens the
     file only for each write and readers only for each load, so a lock is released within about a second); the last
-    OSError after LOCK_WAIT_S seconds, or at once when the error is not a lock."""
+    OSError after LOCK_WAIT_S seconds, or at once when the error is not a lock (a truncated or corrupted file)."""
     deadline = time.monotonic() + LOCK_WAIT_S
     delay = 0.05
     while True:
@@ -340,8 +378,13 @@ def _open_waiting_for_lock(path: Path, mode: str) -> Any:
         delay = min(2 * delay, 1.0)
 
 
-def _locked_hint(exc: OSError) -> str:
-    return f" (another process held it for over {LOCK_WAIT_S:g} s)" if _is_lock_error(exc) else ""
+def _unreadable_hint(exc: BaseException) -> str:
+    """Why an HDF5 file could not be opened or read, for the message: held by another process, or corrupted."""
+    if _is_lock_error(exc):
+        return f" (another process held it for over {LOCK_WAIT_S:g} s)"
+    if "truncated file" in str(exc).lower():
+        return " (corrupted: truncated, shorter than HDF5 recorded)"
+    return " (corrupted or not HDF5)"
 
 
 def _attr(value: Any) -> Any:
@@ -402,6 +445,8 @@ def _joined_modes(parts: list[Demonstrations]) -> ModeRows | None:
 def _load_one(path: Path) -> Demonstrations:
     if not path.exists():
         raise DatasetError(f"demonstrations file {path} does not exist")
+    if not path.is_file():
+        raise DatasetError(f"demonstrations file {path} is not a regular file")
     try:
         with _open_waiting_for_lock(path, "r") as f:
             version = _check_attrs(f, path)
@@ -409,15 +454,16 @@ def _load_one(path: Path) -> Demonstrations:
             eps = {name: f["episodes"][name][:count] for name in EPISODE_FIELDS}
             eps["scenario"] = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in eps["scenario"]])
             rows = {name: f[name][:end] for name in (*ROW_FIELDS, "episode", *(MODE_FIELDS if version >= 2 else ()))}
+            checksums = f["episodes"][CHECKSUM][:count] if CHECKSUM in f["episodes"] else np.zeros(0, _CHECKSUM_DTYPE)
             attrs = {k: _attr(v) for k, v in f.attrs.items()}
     except DatasetError:
         raise
-    except (OSError, KeyError, ValueError, IndexError) as exc:
-        reason = _locked_hint(exc) or " (corrupted or not HDF5?)"
-        raise DatasetError(f"cannot read demonstrations {path}{reason}: {exc}") from None
+    except (OSError, KeyError, ValueError, IndexError) as exc:  # h5py's errors on a damaged file
+        raise DatasetError(f"cannot read demonstrations {path}{_unreadable_hint(exc)}: {exc}") from None
     for name, data in rows.items():
         if data.dtype.kind == "f" and not np.all(np.isfinite(data)):
             raise DatasetError(f"{path}: dataset '{name}' contains NaN or inf")
+    _verify_checksums(path, eps, rows, checksums)
     if np.any(rows["episode"] >= max(len(eps["num_rows"]), 1)) or np.any(rows["episode"] < 0):
         raise DatasetError(f"{path}: row episode indices out of range")
     modes = None
@@ -425,6 +471,17 @@ def _load_one(path: Path) -> Demonstrations:
         modes = ModeRows(*(rows[name] for name in MODE_FIELDS[:4]), rows["mode_mask"].astype(bool))
     return Demonstrations(**{n: rows[n] for n in ROW_FIELDS}, episode=rows["episode"].astype(np.int64), episodes=eps,
                           attrs=attrs, modes=modes)
+
+
+def _verify_checksums(path: Path, eps: dict[str, np.ndarray], rows: dict[str, np.ndarray], checksums: np.ndarray) -> None:
+    """DatasetError unless every episode with a stored checksum has the entry and rows it was written with."""
+    for index, stored in enumerate(checksums):
+        first, num = int(eps["first_row"][index]), int(eps["num_rows"][index])
+        entry = {name: eps[name][index] for name in EPISODE_FIELDS}
+        if first < 0 or num < 0 or first + num > len(rows["episode"]) or stored != episode_checksum(
+                entry, {name: values[first:first + num] for name, values in rows.items()}):
+            raise DatasetError(f"demonstrations {path} are corrupted: episode {index} ({entry['scenario']}, seed "
+                               f"{entry['seed']}, episode {entry['episode']}) does not match the checksum written with it")
 
 
 def mode_distribution(counts: Iterable[int]) -> dict[str, int]:

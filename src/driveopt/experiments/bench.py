@@ -7,18 +7,19 @@ with no episode lost or repeated. The episode function (:func:`episode_record` b
 simulated episode, :mod:`driveopt.experiments.rollout`) receives the job key and the options and derives
 every random choice from them: same seeds, same results.
 
-Everything a user can get wrong (names, options, backend) is checked before the output folder is
-created or touched, and a folder is only refused when it holds episodes run with other options.
-Ctrl-C or SIGTERM while episodes run stops at once (see :mod:`driveopt.experiments.runner`): the
-finished episodes are kept and the summaries left as they were; summaries and ``spec.json`` are
-replaced whole, never left half-written.
+Everything a user can get wrong (names, options, seeds, backend) is checked before the output folder is
+created or touched, and a folder is only refused when it holds episodes run with other options. One run at a
+time writes into a folder (it holds ``.lock`` there; a second run is refused at once), every record names the
+settings it ran with, and records are checked when read (:mod:`driveopt.experiments.store`), so a resume never
+counts an episode twice or mixes two settings in one table. Ctrl-C or SIGTERM while episodes run stops at once
+(see :mod:`driveopt.experiments.runner`): the finished episodes are kept and the summaries left as they were;
+summaries and ``spec.json`` are replaced whole, never left half-written.
 """
 
 from __future__ import annotations
 
 import json
-import os
-from collections.abc import Callable
+import numbers
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,16 +27,29 @@ from typing import Any
 import jax
 from tqdm import tqdm
 
-from driveopt.checks import check_count, check_number
+from driveopt.checks import check_count
 from driveopt.drivers.base import DriverSpec
 from driveopt.errors import DriveoptError
 from driveopt.experiments.rollout import run_episode
 from driveopt.experiments.runner import EpisodeFn, check_backend, execute, usable_cpus
-from driveopt.experiments.store import JobKey, StoreError, append_record, key_of, load_records, pending, repair
+from driveopt.experiments.store import (
+    ENV_SEED_STRIDE,
+    MAX_ENV_SEED,
+    RECORDS_FILE,
+    SPEC_FILE,
+    JobKey,
+    StoreError,
+    append_record,
+    key_of,
+    load_folder,
+    pending,
+    repair,
+    settings_digest,
+)
 from driveopt.experiments.summary import markdown_table, plot_summary, summarise, write_csv
-from driveopt.files import make_output_folder
+from driveopt.files import atomic_write, json_text, lock_output_folder, make_output_folder, write_json
 from driveopt.registry import get_planner
-from driveopt.sim.scenarios import resolve_scenario
+from driveopt.sim.scenarios import check_duration, resolve_scenario
 
 
 class BenchOptionError(DriveoptError):
@@ -83,11 +97,17 @@ class BenchSpec:
         ]
 
     def check(self) -> None:
-        """Refuse, as a DriveoptError, what an episode would refuse: an episode list with an index twice or outside
+        """Refuse, as a DriveoptError, what an episode would refuse: a scenario, planner or seed given twice, a seed
+        whose traffic seeds fall outside [0, MAX_ENV_SEED], an episode list with an index twice or outside
         ``episodes``, an unknown scenario or planner, a duration that is not a finite number > 0, samples that are not
         an integer >= 1, a weights file that does not exist, config overrides the planner config rejects, weights a
         planner cannot use on a scenario's road (``DriverSpec.check``). Other options (those of a custom episode
         function) pass unchecked."""
+        for name, values in (("scenarios", self.scenarios), ("planners", self.planners), ("seeds", self.seeds)):
+            if len(set(values)) < len(values):
+                raise BenchOptionError(f"{name} {list(values)}: give each once")
+        check_count("episodes", self.episodes, 0)
+        check_seeds(self.seeds, self.episodes)
         scenarios = [resolve_scenario(name, overrides=self.options.get("scenario")) for name in self.scenarios]
         check_options(self.options)
         outside = [e for e in self.episode_list if not 0 <= e < self.episodes]
@@ -112,11 +132,22 @@ class BenchSpec:
         return digests
 
 
+def check_seeds(seeds: tuple[int, ...], episodes: int) -> None:
+    """BenchOptionError unless every seed is an integer whose episodes' traffic seeds (``seed * ENV_SEED_STRIDE +
+    episode``) lie in [0, MAX_ENV_SEED]: beyond it JAX's 32-bit seed would repeat another episode's randomness."""
+    highest = (MAX_ENV_SEED - max(episodes - 1, 0)) // ENV_SEED_STRIDE
+    for seed in seeds:
+        if not (isinstance(seed, numbers.Integral) and not isinstance(seed, bool) and 0 <= seed <= highest):
+            raise BenchOptionError(f"seed {seed!r} is out of range: seeds are integers from 0 to {highest} with "
+                                   f"{episodes} episodes (traffic seed = seed x {ENV_SEED_STRIDE} + episode, at most "
+                                   f"{MAX_ENV_SEED})")
+
+
 def check_options(options: dict[str, Any]) -> None:
     """BenchOptionError or ConfigError for a bench option out of range or a weights file that does not exist."""
     duration, samples, weights = options.get("duration"), options.get("samples"), options.get("weights")
     if duration is not None:
-        check_number("duration", duration, 0.0, low_open=True, unit="s")
+        check_duration(duration)
     if samples is not None:
         check_count("samples", samples)
     if weights is not None and not Path(weights).is_file():
@@ -132,26 +163,32 @@ def run_bench(
     episode_fn: EpisodeFn = episode_record,
     progress: bool = True,
 ) -> list[dict[str, Any]]:
-    """Run the missing jobs of ``spec``, then write summary.csv, summary.md and summary.png.
+    """Run the missing jobs of ``spec``, then write summary.csv, summary.md, summary.json and summary.png.
 
     workers: parallel episodes (default: the CPUs this process may use); 1 runs in this process. backend: 'local' or 'ray'.
-    Returns the summary rows over all records of the spec (old and new).
+    Returns the summary rows over all records of the spec (old and new). OutputInUseError (driveopt.files) at once
+    when another run holds the folder.
     """
     spec.check()
     check_backend(backend)
-    out = Path(out_dir)
-    make_output_folder(out, StoreError, "episodes.jsonl, spec.json and the summaries")
-    store = out / "episodes.jsonl"
-    done = load_records(store)
-    _claim(out / "spec.json", spec, has_episodes=bool(done))
+    out = make_output_folder(out_dir, StoreError, "episodes.jsonl, spec.json and the summaries")
+    with lock_output_folder(out):
+        return _run_locked(spec, out, workers or len(usable_cpus()), backend, episode_fn, progress)
+
+
+def _run_locked(spec: BenchSpec, out: Path, workers: int, backend: str, episode_fn: EpisodeFn,
+                progress: bool) -> list[dict[str, Any]]:
+    """:func:`run_bench` in the folder ``out``, which this process holds."""
+    store = out / RECORDS_FILE
+    recorded, done = load_folder(out)
+    settings = _claim(out / SPEC_FILE, spec, recorded)
     repair(store)
     jobs = spec.jobs()
     todo = pending(jobs, done)
-    workers = workers or len(usable_cpus())
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="bench", unit="ep", disable=not progress)
 
     def finished(record: dict) -> None:
-        append_record(store, record)
+        append_record(store, {**record, "settings": settings[(record["scenario"], record["planner"])]})
         bar.update(1)
         bar.set_postfix_str(f"{record['scenario']}/{record['planner']} crashed={record['collided']}")
 
@@ -161,49 +198,41 @@ def run_bench(
         bar.close()
 
     order = {job: i for i, job in enumerate(jobs)}  # summaries follow the spec, not completion order
-    records = sorted((r for r in load_records(store) if key_of(r) in order), key=lambda r: order[key_of(r)])
+    records = sorted((r for r in load_folder(out)[1] if key_of(r) in order), key=lambda r: order[key_of(r)])
     rows = summarise(records)
     write_summaries(rows, out)
     return rows
 
 
 def write_summaries(rows: list[dict[str, Any]], out: Path) -> None:
-    """summary.csv, summary.md and (for any rows) summary.png of ``rows`` in the folder ``out``, each replaced whole."""
-    _replace(out / "summary.csv", lambda path: write_csv(rows, path))
-    _replace(out / "summary.md", lambda path: path.write_text(markdown_table(rows)))
+    """summary.csv, summary.md, summary.json (strict JSON: a missing number is null) and (for any rows) summary.png
+    of ``rows`` in the folder ``out``, each replaced whole."""
+    write_csv(rows, out / "summary.csv")
+    atomic_write(out / "summary.md", markdown_table(rows).encode())
+    write_json(out / "summary.json", rows)
     if rows:
-        _replace(out / "summary.png", lambda path: plot_summary(rows, path))
+        plot_summary(rows, out / "summary.png")
 
 
-def _claim(path: Path, spec: BenchSpec, *, has_episodes: bool) -> None:
+def _claim(path: Path, spec: BenchSpec, recorded: dict[str, Any] | None) -> dict[tuple[str, str], str]:
     """Record ``spec`` and the digests of the learned weights it drives with in the output folder; StoreError when
-    the folder holds episodes run with other options (samples, duration, weights, config) or, for a planner and
-    scenario it recorded, other weights (e.g. shipped weights replaced since): resuming must not mix two settings
-    in one table. A folder without episodes is free, whatever its spec.json says."""
+    the folder holds episodes (``recorded``: their spec.json) run with other options (samples, duration, weights,
+    config) or, for a planner and scenario it recorded, other weights (e.g. shipped weights replaced since): resuming
+    must not mix two settings in one table. A folder without episodes is free, whatever its spec.json says.
+
+    Returns the settings digest (:func:`driveopt.experiments.store.settings_digest`) of each (scenario, planner)."""
     weights = spec.weights_digests()
-    if has_episodes and path.exists():
-        try:
-            recorded = json.loads(path.read_text())
-            options, recorded_weights = recorded["options"], recorded.get("weights", {})
-        except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, AttributeError) as exc:
-            raise StoreError(f"{path} is unreadable ({exc}); remove it or use another output folder") from None
-        if options != json.loads(json.dumps(spec.options)):
-            raise StoreError(f"{path.parent} holds episodes run with options {options}, not {spec.options}; "
+    options = json.loads(json_text(spec.options))
+    if recorded is not None:
+        if recorded["options"] != options:
+            raise StoreError(f"{path.parent} holds episodes run with options {recorded['options']}, not {spec.options}; "
                              "use another output folder")
-        changed = sorted(key for key in set(recorded_weights) & set(weights) if recorded_weights[key] != weights[key])
+        old = recorded["weights"]
+        changed = sorted(key for key in set(old) & set(weights) if old[key] != weights[key])
         if changed:
             raise StoreError(f"{path.parent} holds episodes of {', '.join(changed)} driven with other learned weights "
-                             f"(digest {recorded_weights[changed[0]]}, now {weights[changed[0]]}); use another output folder")
-        weights = {**recorded_weights, **weights}
-    _replace(path, lambda tmp: tmp.write_text(json.dumps({**asdict(spec), "weights": weights}, indent=1)))
-
-
-def _replace(path: Path, write: Callable[[Path], Any]) -> None:
-    """``write`` a temporary sibling of ``path`` (same suffix) and rename it over ``path``: an interrupted
-    write leaves the previous file whole."""
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+                             f"(digest {old[changed[0]]}, now {weights[changed[0]]}); use another output folder")
+        weights = {**old, **weights}
+    write_json(path, {**asdict(spec), "weights": weights})
+    return {(scenario, planner): settings_digest(options, weights.get(f"{planner}/{scenario}"))
+            for scenario in spec.scenarios for planner in spec.planners}

@@ -11,7 +11,6 @@ finished episodes and an interruption loses only the episodes in flight.
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -20,12 +19,13 @@ import numpy as np
 from tqdm import tqdm
 
 from driveopt.basis import make_basis
-from driveopt.checks import ConfigError, check_count, check_number
+from driveopt.checks import ConfigError, check_count
 from driveopt.config import BasisConfig
 from driveopt.data.demonstrations import (
     MAX_MODES,
     MODE_FIELDS,
     ROW_FIELDS,
+    DatasetError,
     DemonstrationWriter,
     EpisodeKey,
     mode_distribution,
@@ -35,9 +35,10 @@ from driveopt.drivers.optimiser import OptimiserSpec
 from driveopt.experiments.rollout import Rollout
 from driveopt.experiments.runner import execute
 from driveopt.experiments.store import JobKey
+from driveopt.files import lock_output_file
 from driveopt.observation import OBSERVATION_DIM
 from driveopt.registry import get_optimiser
-from driveopt.sim.scenarios import get_scenario
+from driveopt.sim.scenarios import check_duration, get_scenario
 
 EXPERT = "expert"  # planner field of the jobs
 
@@ -90,7 +91,7 @@ def check_options(scenarios: Sequence[str], *, seed: int, episodes: int, samples
     for name, value in (("episodes", episodes), ("samples", samples), ("iterations", iterations), ("workers", workers),
                         ("modes", modes)):
         check_count(name, value)
-    check_number("duration", duration, 0.0, low_open=True, unit="s")
+    check_duration(duration)
 
 
 def collect(
@@ -111,7 +112,8 @@ def collect(
 
     Returns a summary: episodes and rows written now, skipped as already present, wall time, and
     ``modes_per_row`` ({"k": rows written now with k modes}).
-    Options are checked (:func:`check_options`) before the file is created or opened.
+    Options are checked (:func:`check_options`) before the file is created or opened; the run holds a lock beside
+    the file (``.NAME.lock``), so a second collection into the same file is refused at once (OutputInUseError).
     """
     check_options(scenarios, seed=seed, episodes=episodes, samples=samples, iterations=iterations,
                   duration=duration, workers=workers, modes=modes)
@@ -121,9 +123,34 @@ def collect(
     # Episode-major: a collection stopped part-way covers every scenario evenly.
     jobs = [JobKey(s, EXPERT, seed, e) for e in range(episodes) for s in scenarios]
     summary = {"episodes": 0, "rows": 0, "collided": 0, "skipped": 0, "plan_seconds": 0.0, "sim_seconds": 0.0}
-    mode_counts: list[np.ndarray] = []
     start = time.perf_counter()
-    writer = DemonstrationWriter(out, settings, basis.num_nodes, 2 * (basis.order + 1), OBSERVATION_DIM, modes)
+    out = _output_file(out)
+    with lock_output_file(out):
+        writer = DemonstrationWriter(out, settings, basis.num_nodes, 2 * (basis.order + 1), OBSERVATION_DIM, modes)
+        options = {"samples": samples, "iterations": iterations, "duration": duration, "modes": modes}
+        _collect_into(writer, jobs, options, workers, progress, summary)
+    summary["wall_seconds"] = time.perf_counter() - start
+    summary["settings"] = settings
+    return summary
+
+
+def _output_file(out: str | Path) -> Path:
+    """``out`` as a Path, its folder created; DatasetError when it is a folder or its folder cannot be made."""
+    path = Path(out)
+    if path.is_dir():
+        raise DatasetError(f"{path} is a directory; give the demonstrations file's path (e.g. {path / 'demonstrations.h5'})")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DatasetError(f"cannot create the folder of {path}: {exc.strerror or exc}") from None
+    return path
+
+
+def _collect_into(writer: DemonstrationWriter, jobs: list[JobKey], options: dict[str, Any], workers: int, progress: bool,
+                  summary: dict[str, Any]) -> None:
+    """Run the jobs ``writer``'s file lacks (each episode with ``options``, see :func:`demonstration_episode`) and
+    append each episode as it finishes, counting it in ``summary``."""
+    mode_counts: list[np.ndarray] = []
     done = writer.done()
     todo = [j for j in jobs if EpisodeKey(j.scenario, j.seed, j.episode) not in done]
     summary["skipped"] = len(jobs) - len(todo)
@@ -141,15 +168,8 @@ def collect(
         bar.set_postfix_str(f"{record['entry']['scenario']} rows={summary['rows']} crashed={summary['collided']}")
 
     try:
-        execute(todo, {"samples": samples, "iterations": iterations, "duration": duration, "modes": modes},
-                demonstration_episode, finished, workers=workers)
+        execute(todo, options, demonstration_episode, finished, workers=workers)
     finally:
         bar.close()
     summary["modes_per_row"] = mode_distribution(np.concatenate(mode_counts) if mode_counts else [])
-    summary["wall_seconds"] = time.perf_counter() - start
-    summary["settings"] = settings
-    return summary
 
-
-def summary_json(summary: dict[str, Any]) -> str:
-    return json.dumps(summary, indent=1, default=float)

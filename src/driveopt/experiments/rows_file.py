@@ -2,7 +2,8 @@
 
 A rerun with the same settings continues after the rows already written (a line torn by an interruption, and
 everything after it, is dropped and redone); a rerun with other settings is refused rather than mixing two runs
-in one file.
+in one file. The file is rewritten whole (:func:`driveopt.files.atomic_write`) and its lines are strict JSON
+(:func:`row_line`: no NaN or Infinity, a missing number is null).
 """
 
 from __future__ import annotations
@@ -11,7 +12,14 @@ import json
 from pathlib import Path
 from typing import Any, Callable, TypeVar
 
+from driveopt.files import atomic_write, json_text, refuse_constant
+
 T = TypeVar("T")
+
+
+def row_line(record: dict[str, Any]) -> str:
+    """One line of a results file: ``record`` as strict JSON on one line, with its newline."""
+    return json_text(record, indent=None) + "\n"
 
 
 def resume_rows(path: str | Path, settings: dict[str, Any], parse: Callable[[dict[str, Any]], T], error: type[Exception],
@@ -23,23 +31,39 @@ def resume_rows(path: str | Path, settings: dict[str, Any], parse: Callable[[dic
     ``path`` is not such a file or holds rows of other settings.
     """
     path = Path(path)
-    lines = path.read_text().splitlines() if path.exists() else []
+    lines = _lines(path, error)
     if not lines:
-        path.write_text(json.dumps({"settings": settings}) + "\n")
+        atomic_write(path, row_line({"settings": settings}).encode())
         return []
     try:
-        earlier = json.loads(lines[0])["settings"]
-        changed = sorted(k for k in set(earlier) | set(settings) if earlier.get(k) != settings.get(k))
-    except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
+        earlier = _strict(lines[0])["settings"]
+        now = json.loads(json_text(settings))  # as the file holds them: lists for tuples, null for NaN
+        changed = sorted(k for k in set(earlier) | set(now) if earlier.get(k) != now.get(k))
+    except (UnicodeDecodeError, ValueError, KeyError, TypeError, AttributeError):
         raise error(f"{path} is not a {what} results file: remove it or choose another --json") from None
     if changed:
         raise error(f"{path} holds results of other settings ({', '.join(changed)}): remove it or choose another --json")
     rows, kept = [], lines[:1]
     for line in lines[1:]:
         try:
-            rows.append(parse(json.loads(line)))
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError):
+            rows.append(parse(json.loads(line.decode("utf-8"))))
+        except (UnicodeDecodeError, ValueError, KeyError, TypeError):
             break  # an interrupted write: redo from here
         kept.append(line)
-    path.write_text("".join(f"{line}\n" for line in kept))
+    atomic_write(path, b"".join(line + b"\n" for line in kept))
     return rows
+
+
+def _lines(path: Path, error: type[Exception]) -> list[bytes]:
+    """The non-empty lines of ``path`` (none when it does not exist); ``error`` when it cannot be read."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return []
+    except OSError as exc:
+        raise error(f"{path} cannot be read ({exc.strerror or exc}): choose another --json") from None
+    return [line for line in data.split(b"\n") if line.strip()]
+
+
+def _strict(line: bytes) -> Any:
+    return json.loads(line.decode("utf-8"), parse_constant=refuse_constant)

@@ -5,15 +5,19 @@ processes, or a Ray cluster.
 and derive every random choice from the job and the options. The parent process is the only one that
 writes: ``finished(record)`` is called in it, once per job, in completion order.
 
-Local workers are spawned processes bound to the parent: they ignore Ctrl-C (the parent handles it),
+Local workers are spawned processes bound to the parent: they never see Ctrl-C (the parent handles it),
 end within a second when the parent ends however it ends (``kill -9`` included), and are killed at
-once, not waited for, when :func:`execute` stops on an exception (Ctrl-C, SIGTERM's SystemExit, a
-failed episode): the results of the episodes in flight would be dropped anyway. On Linux, when there are no
+once, not waited for, when :func:`execute` stops on an exception (Ctrl-C, SIGTERM, a failed episode):
+the results of the episodes in flight would be dropped anyway. On Linux, when there are no
 more workers than CPUs this process may use (its affinity: ``taskset`` limits it), each worker is bound to
 its own share of them (:func:`cpu_shares`): XLA's thread pools of unbound workers contend for every core,
 and two bound workers run about a fifth more closed-loop episodes per hour on two cores (README). Ray runs the same
-function as Ray tasks on the cluster that ``RAY_ADDRESS`` names (a local instance when unset), and
-the unfinished tasks are cancelled on an exception; install it with ``pip install 'driveopt[ray]'``.
+function as Ray tasks on the cluster that ``RAY_ADDRESS`` names (a local instance when unset); on an
+exception the unfinished tasks on a cluster are cancelled, and a local instance that :func:`execute` started
+is killed with everything it runs, within a second. When this process is killed with ``kill -9`` instead,
+Ray's own fate sharing ends the instance's GCS, raylet and workers with it, and a small reaper process started
+with the instance kills the rest within a second (the raylet's two agents, which would linger for a minute).
+Install Ray with ``pip install 'driveopt[ray]'``.
 """
 
 from __future__ import annotations
@@ -37,6 +41,8 @@ EpisodeFn = Callable[[JobKey, dict], dict]
 BACKENDS = ("local", "ray")
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 ORPHAN_POLL_S = 0.5  # [s] how often a worker checks that its parent is alive
+RAY_POLL_S = 0.1  # [s] how long one wait for a Ray task lasts at most
+RAY_SHUTDOWN_S = 0.4  # [s] what a stopped command gives Ray's shutdown of its local instance before killing it
 
 
 class BackendError(DriveoptError):
@@ -108,7 +114,8 @@ def _run_pool(todo: Sequence[JobKey], options: dict, episode_fn: EpisodeFn, fini
     pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=context,
                                   initializer=_bind_to_parent, initargs=(os.getpid(), shares))
     try:
-        futures = [pool.submit(call, episode_fn, job, options) for job in todo]
+        with _ctrl_c_held_from_workers():
+            futures = [pool.submit(call, episode_fn, job, options) for job in todo]
         for future in cf.as_completed(futures):
             finished(future.result())
     except BaseException:
@@ -116,6 +123,21 @@ def _run_pool(todo: Sequence[JobKey], options: dict, episode_fn: EpisodeFn, fini
         raise
     finally:
         pool.shutdown(wait=True)
+
+
+@contextlib.contextmanager
+def _ctrl_c_held_from_workers():
+    """Block SIGINT in this thread while it spawns workers: they start with it blocked (and ignore it once set up, see
+    :func:`_bind_to_parent`), so a Ctrl-C sent to the whole process group never stops one halfway through its
+    imports with a traceback. This process still gets it at once, on one of its other threads."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
 
 def _kill_workers(pool: cf.ProcessPoolExecutor) -> None:
@@ -134,6 +156,8 @@ def _bind_to_parent(parent: int, shares: Any) -> None:
     """Worker initializer: leave Ctrl-C to the parent, end this worker as soon as ``parent`` ends, and run on the next
     CPU share of the queue ``shares`` when it has one (before anything starts XLA's thread pools)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked while spawned: a pending one is dropped
     if not shares.empty():
         os.sched_setaffinity(0, shares.get())
     _set_parent_death_signal()
@@ -164,16 +188,112 @@ def _import_ray() -> Any:
 
 
 def _run_ray(todo: Sequence[JobKey], options: dict, episode_fn: EpisodeFn, finished: Callable[[dict], None]) -> None:
+    global _local_ray
     ray = _import_ray()
     if not ray.is_initialized():
-        ray.init(address=os.environ.get("RAY_ADDRESS"), ignore_reinit_error=True, log_to_driver=False)
+        _local_ray = _start_ray(ray)
     remote = ray.remote(call)
     refs = [remote.remote(episode_fn, job, options) for job in todo]
     try:
-        while refs:
-            done, refs = ray.wait(refs, num_returns=1)
-            finished(ray.get(done[0]))
+        while refs:  # in short waits: Ray notices a signal in a blocking wait only about once a second
+            done, refs = ray.wait(refs, num_returns=1, timeout=RAY_POLL_S)
+            for ref in done:
+                finished(ray.get(ref))
     except BaseException:
-        for ref in refs:
-            ray.cancel(ref, force=True)
+        if _local_ray is not None:  # nothing outlives this process: the instance goes, and its tasks with it
+            _local_ray.stop(ray)
+            _local_ray = None
+        else:  # a cluster that stays up: stop this command's tasks on it
+            for ref in refs:
+                ray.cancel(ref, force=True)
         raise
+
+
+# The reaper: kills the processes named by its arguments once its stdin ends, that is when the process holding the
+# other end ends, however it ends. psutil remembers when each process started, so a pid reused meanwhile is spared.
+REAPER = """
+import sys, psutil
+processes = []
+for pid in sys.argv[1:]:
+    try:
+        processes.append(psutil.Process(int(pid)))
+    except psutil.Error:
+        pass
+sys.stdin.buffer.read()
+for process in processes:
+    try:
+        process.kill()
+    except psutil.Error:
+        pass
+"""
+
+
+class _LocalRay:
+    """A local Ray instance this process started: its processes (``psutil.Process``, children of this one), and a
+    reaper that kills them, and what they started, when this process ends first (``kill -9`` included). Ray's own
+    fate sharing ends the GCS, the raylet and the workers with this process, but not the raylet's agents, which
+    linger for a minute."""
+
+    def __init__(self, processes: list[Any]):
+        import subprocess
+
+        self.processes = processes
+        # in its own session, so that a Ctrl-C to this process's group passes it by
+        self.reaper = subprocess.Popen([sys.executable, "-c", REAPER, *(str(p.pid) for p in _with_descendants(processes))],
+                                       stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, start_new_session=True)
+
+    def stop(self, ray: Any) -> None:
+        """End the instance within about a second: Ray's own shutdown gets RAY_SHUTDOWN_S (it disconnects this driver
+        in a fraction of that, then stops the processes one by one, gracefully, which takes longer), then every
+        process of the instance is killed, those it started included."""
+        import psutil  # a dependency of Ray's
+
+        doomed = _with_descendants(self.processes)
+        stopper = threading.Thread(target=ray.shutdown, name="driveopt-ray-shutdown", daemon=True)
+        stopper.start()
+        stopper.join(RAY_SHUTDOWN_S)
+        for process in doomed:
+            with contextlib.suppress(psutil.Error):  # already ended (psutil also refuses a reused pid)
+                process.kill()
+        self.reaper.stdin.close()  # nothing left for it to do
+        stopper.join(RAY_SHUTDOWN_S)
+
+
+_local_ray: _LocalRay | None = None  # the local Ray instance this process started, while it runs
+
+
+def _start_ray(ray: Any) -> _LocalRay | None:
+    """Connect to the cluster at ``RAY_ADDRESS`` (or one already running here), or start a local instance: returned."""
+    import psutil  # a dependency of Ray's
+
+    before = {child.pid for child in psutil.Process().children()}
+    with _sigterm_kept():
+        ray.init(address=os.environ.get("RAY_ADDRESS"), ignore_reinit_error=True, log_to_driver=False)
+    started = [child for child in psutil.Process().children() if child.pid not in before]
+    return _LocalRay(started) if started else None
+
+
+def _with_descendants(roots: list[Any]) -> list[Any]:
+    """``roots`` (``psutil.Process``) and every process they started that still runs."""
+    import psutil
+
+    found = []
+    for root in roots:
+        with contextlib.suppress(psutil.Error):  # ended meanwhile
+            found += [root, *root.children(recursive=True)]
+    return found
+
+
+@contextlib.contextmanager
+def _sigterm_kept():
+    """Give SIGTERM back to this process's handler after the block: Ray's driver installs its C++ crash handler for it
+    too, which prints a stack dump of this process before passing the signal on."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    handler = signal.getsignal(signal.SIGTERM)
+    try:
+        yield
+    finally:
+        if handler is not None:  # None: set outside Python, nothing to give back
+            signal.signal(signal.SIGTERM, handler)

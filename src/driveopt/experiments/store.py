@@ -1,25 +1,41 @@
 """Append-only JSONL store of episode records: the unit of resumption for ``driveopt bench``.
 
-One line per finished episode, flushed and fsynced as soon as the episode ends. A run that is
-interrupted loses at most the episodes in flight; a rerun reads the finished keys and skips them.
-A line cut short by a crash (no trailing newline / invalid JSON at the end of the file) is
-dropped on load and rewritten by the rerun; invalid JSON anywhere else is reported as corruption.
+A bench output folder holds ``spec.json`` (the settings of its episodes: options and the digests of the learned
+weights) and ``episodes.jsonl``, one line per finished episode, flushed and fsynced as soon as the episode ends. A
+run that is interrupted loses at most the episodes in flight; a rerun reads the finished keys and skips them. A final
+line cut short by a crash (no trailing newline) is not a record: it is ignored on load and cut off before the rerun
+appends.
+
+Every record is checked when read: strict JSON in UTF-8, the fields a summary counts with their types, one record
+per job, and (for records that name their settings) the settings of the folder's ``spec.json``. Anything else is
+refused with the file and line number, never counted; so is a folder whose records have no ``spec.json`` to say how
+they were run.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import math
+import numbers
 import os
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any, Iterable, NamedTuple
+from typing import Any, NamedTuple
 
 from driveopt.errors import DriveoptError
+from driveopt.files import atomic_write, json_text, refuse_constant
 
 SCHEMA_VERSION = 1
+RECORDS_FILE = "episodes.jsonl"
+SPEC_FILE = "spec.json"
+ENV_SEED_STRIDE = 100_003  # traffic seed of an episode: seed * ENV_SEED_STRIDE + episode
+MAX_ENV_SEED = 2**32 - 1  # traffic seeds feed JAX's 32-bit PRNG seed and highway-env's generator, as `drive --seed`
 
 
 class StoreError(DriveoptError):
-    """The results file is corrupted or was written by an incompatible version."""
+    """The results file is corrupted, holds a record twice or of other settings, or was written by an incompatible
+    version."""
 
 
 class JobKey(NamedTuple):
@@ -31,52 +47,182 @@ class JobKey(NamedTuple):
     @property
     def env_seed(self) -> int:
         """Traffic seed of this episode: the same for every planner (same traffic for all)."""
-        return self.seed * 100_003 + self.episode
+        return self.seed * ENV_SEED_STRIDE + self.episode
 
 
 def key_of(record: dict[str, Any]) -> JobKey:
     return JobKey(record["scenario"], record["planner"], int(record["seed"]), int(record["episode"]))
 
 
-def load_records(path: str | Path) -> list[dict[str, Any]]:
-    """All complete records of a results file (empty when it does not exist)."""
-    path = Path(path)
-    if not path.exists():
+def _is_int(value: Any) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    """A finite real number, not a bool."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+# (field, what it must be, the check): the fields the summaries count, each with its JSON type
+_REQUIRED: tuple[tuple[str, str, Callable[[Any], bool]], ...] = (
+    ("scenario", "a non-empty string", lambda v: isinstance(v, str) and bool(v)),
+    ("planner", "a non-empty string", lambda v: isinstance(v, str) and bool(v)),
+    ("seed", "an integer >= 0", lambda v: _is_int(v) and v >= 0),
+    ("episode", "an integer >= 0", lambda v: _is_int(v) and v >= 0),
+    ("collided", "true or false", lambda v: isinstance(v, bool)),
+    ("off_road", "true or false", lambda v: isinstance(v, bool)),
+    ("mean_speed", "a finite number", _is_number),
+    ("sim_seconds", "a finite number >= 0", lambda v: _is_number(v) and v >= 0),
+    ("plan_seconds", "a finite number >= 0", lambda v: _is_number(v) and v >= 0),
+)
+_OPTIONAL: tuple[tuple[str, str, Callable[[Any], bool]], ...] = (
+    ("plan_ms", "a list of finite numbers", lambda v: isinstance(v, list) and all(_is_number(x) for x in v)),
+    ("device", "a string", lambda v: isinstance(v, str)),
+    ("settings", "a string", lambda v: isinstance(v, str)),
+)
+
+
+def record_problem(record: Any) -> str | None:
+    """What is wrong with ``record`` as a bench record (a missing or mistyped field, another schema); None when
+    nothing is."""
+    if not isinstance(record, dict):
+        return f"not a JSON object but {type(record).__name__}"
+    if record.get("schema") != SCHEMA_VERSION:
+        return f"not a driveopt bench record of schema {SCHEMA_VERSION}"
+    for name, expected, valid in _REQUIRED:
+        if name not in record:
+            return f"no field '{name}'"
+        if not valid(record[name]):
+            return f"'{name}' must be {expected}, got {record[name]!r}"
+    for name, expected, valid in _OPTIONAL:
+        if name in record and not valid(record[name]):
+            return f"'{name}' must be {expected}, got {record[name]!r}"
+    return None
+
+
+class _Line(NamedTuple):
+    number: int
+    record: dict[str, Any]
+
+
+def _read_lines(path: Path) -> list[_Line]:
+    """The checked records of ``path`` with their line numbers; StoreError (file:line) for anything else."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
         return []
-    lines = path.read_text().split("\n")
-    records = []
-    for number, line in enumerate(lines, start=1):
-        if not line.strip():
+    except OSError as exc:
+        raise StoreError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    lines = data.split(b"\n")[:-1]  # what follows the last newline is an interrupted write, not a record
+    checked: list[_Line] = []
+    first: dict[JobKey, int] = {}
+    for number, raw in enumerate(lines, start=1):
+        if not raw.strip():
             continue
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError:
-            if number == len(lines):  # a final line cut short by an interruption
-                continue
-            raise StoreError(f"{path}:{number}: corrupted line (not JSON)") from None
-        if not isinstance(record, dict) or record.get("schema") != SCHEMA_VERSION:
-            raise StoreError(f"{path}:{number}: not a driveopt bench record of schema {SCHEMA_VERSION}")
-        records.append(record)
-    return records
+        record = _parse(path, number, raw)
+        key = key_of(record)
+        if key in first:
+            raise StoreError(f"{path}:{number}: {key.planner} on {key.scenario}, seed {key.seed}, episode {key.episode} "
+                             f"again (first on line {first[key]}); each episode is counted once: remove one of them")
+        first[key] = number
+        checked.append(_Line(number, record))
+    return checked
+
+
+def _parse(path: Path, number: int, raw: bytes) -> dict[str, Any]:
+    try:
+        record = json.loads(raw.decode("utf-8"), parse_constant=refuse_constant)
+    except UnicodeDecodeError:
+        raise StoreError(f"{path}:{number}: corrupted line (not UTF-8 text)") from None
+    except ValueError as exc:  # JSONDecodeError, NaN or Infinity
+        raise StoreError(f"{path}:{number}: corrupted line (not JSON: {str(exc).splitlines()[0]})") from None
+    problem = record_problem(record)
+    if problem:
+        raise StoreError(f"{path}:{number}: {problem}")
+    return record
+
+
+def load_records(path: str | Path) -> list[dict[str, Any]]:
+    """All complete records of a results file, each checked (:func:`record_problem`, one per job); empty when the
+    file does not exist. It does not look at the folder's spec: :func:`load_folder` does."""
+    return [line.record for line in _read_lines(Path(path))]
+
+
+def settings_digest(options: dict[str, Any], weights: str | None) -> str:
+    """16 hex digits naming the settings an episode ran with: the bench ``options`` and the digest of the learned
+    weights its planner drove with on its scenario (None: none)."""
+    text = json.dumps({"options": options, "weights": weights}, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def expected_settings(spec: dict[str, Any], scenario: str, planner: str) -> str:
+    """:func:`settings_digest` of an episode of ``planner`` on ``scenario`` under a folder's ``spec.json``."""
+    return settings_digest(spec["options"], spec["weights"].get(f"{planner}/{scenario}"))
+
+
+def read_spec(path: str | Path) -> dict[str, Any] | None:
+    """The contents of a ``spec.json`` (at least ``options`` and ``weights``, both objects); None when it does not
+    exist, StoreError when it cannot be read or is malformed."""
+    path = Path(path)
+    try:
+        spec = json.loads(path.read_bytes().decode("utf-8"), parse_constant=refuse_constant)
+    except FileNotFoundError:
+        return None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise StoreError(f"{path} is unreadable ({str(exc).splitlines()[0]}); remove it or use another output folder") from None
+    if not (isinstance(spec, dict) and isinstance(spec.get("options"), dict) and isinstance(spec.get("weights", {}), dict)):
+        raise StoreError(f"{path} is not a bench spec (an object with 'options' and 'weights'); remove it or use another "
+                         "output folder")
+    return {**spec, "weights": spec.get("weights", {})}
+
+
+def load_folder(location: str | Path) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
+    """(spec, records) of a bench folder (or of its records file, with ``spec.json`` beside it): the records checked
+    as :func:`load_records` does, and each that names its settings against the spec. StoreError when the folder
+    holds records but no ``spec.json``: nothing would tell their settings from another run's. A folder without records
+    is free, whatever its ``spec.json`` says: (None, [])."""
+    path = Path(location)
+    records_path = path / RECORDS_FILE if path.is_dir() else path
+    lines = _read_lines(records_path)
+    if not lines:
+        return None, []
+    spec_path = records_path.parent / SPEC_FILE
+    spec = read_spec(spec_path)
+    if spec is None:
+        raise StoreError(f"{records_path} holds {len(lines)} episodes but {spec_path} is missing (the settings they "
+                         "ran with): restore it, or use another output folder")
+    for number, record in lines:
+        if "settings" in record and record["settings"] != expected_settings(spec, record["scenario"], record["planner"]):
+            raise StoreError(f"{records_path}:{number}: {record['planner']} on {record['scenario']} ran with other "
+                             f"settings than {spec_path} holds; it belongs to another run: remove it")
+    return spec, [line.record for line in lines]
 
 
 def repair(path: str | Path) -> None:
-    """Drop a trailing partial line so that appends start on a fresh line."""
+    """Cut off a trailing partial line so that appends start on a fresh line (whole: via a renamed copy)."""
     path = Path(path)
     if not path.exists():
         return
     data = path.read_bytes()
     if data and not data.endswith(b"\n"):
-        path.write_bytes(data[: data.rfind(b"\n") + 1])
+        atomic_write(path, data[: data.rfind(b"\n") + 1])
 
 
 def append_record(path: str | Path, record: dict[str, Any]) -> None:
-    """Append one record durably (write, flush, fsync)."""
-    line = json.dumps({"schema": SCHEMA_VERSION, **record}, separators=(",", ":")) + "\n"
-    with open(path, "a", encoding="utf-8") as f:
-        f.write(line)
-        f.flush()
-        os.fsync(f.fileno())
+    """Append one record durably (write, flush, fsync) as strict JSON; a record the loader would refuse is a bug of
+    the episode function (ValueError), and is not written."""
+    record = {"schema": SCHEMA_VERSION, **record}
+    problem = record_problem(record)
+    if problem:
+        raise ValueError(f"an episode record to append is malformed: {problem}")
+    line = json_text(record, indent=None) + "\n"
+    try:
+        with open(path, "a", encoding="utf-8") as f:
+            f.write(line)
+            f.flush()
+            os.fsync(f.fileno())
+    except OSError as exc:
+        raise StoreError(f"cannot append to {path}: {exc.strerror or exc}") from None
 
 
 def pending(jobs: Iterable[JobKey], records: Iterable[dict[str, Any]]) -> list[JobKey]:

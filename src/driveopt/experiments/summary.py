@@ -1,4 +1,5 @@
-"""Summary statistics, tables and plots of benchmark records (P1 Fig. 7 style)."""
+"""Summary statistics, tables and plots of benchmark records (P1 Fig. 7 style); the files are written whole or not
+at all (:func:`driveopt.files.atomic_output`)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,9 @@ from pathlib import Path
 from typing import Any, Iterable
 
 import numpy as np
+
+from driveopt.experiments.store import StoreError
+from driveopt.files import atomic_output
 
 COLUMNS = (
     "scenario", "planner", "episodes", "collision_rate", "collision_ci_low", "collision_ci_high",
@@ -45,10 +49,18 @@ def summarise(records: Iterable[dict[str, Any]], reference: str = REFERENCE) -> 
     over episodes; its standard deviation over the collision-free ones. Every planner but ``reference``
     is compared with it episode by episode where the records hold it (``faster_than_reference`` of
     ``compared_with_reference`` episodes, both collision-free). Plan and wall times come only from the episodes
-    planned on :data:`TIMING_DEVICE` (a point may hold episodes run elsewhere for their outcomes; NaN when none)."""
+    planned on :data:`TIMING_DEVICE` (a point may hold episodes run elsewhere for their outcomes; NaN when none).
+    StoreError when two records (with seeds and episodes) are the same episode: it would be counted twice."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    episodes: set[tuple[Any, ...]] = set()
     for r in records:
         groups[(r["scenario"], r["planner"])].append(r)
+        if "seed" in r and "episode" in r:
+            key = (r["scenario"], r["planner"], r["seed"], r["episode"])
+            if key in episodes:
+                raise StoreError(f"the records hold {key[1]} on {key[0]}, seed {key[2]}, episode {key[3]} twice; "
+                                 "each episode is counted once")
+            episodes.add(key)
     by_episode = {(r["scenario"], r["seed"], r["episode"]): r for (_, planner), rs in groups.items() if planner == reference
                   for r in rs}
     rows = []
@@ -83,8 +95,9 @@ def summarise(records: Iterable[dict[str, Any]], reference: str = REFERENCE) -> 
 
 
 def write_csv(rows: list[dict[str, Any]], path: str | Path) -> Path:
+    """``rows`` as CSV with the :data:`COLUMNS` (a missing number is ``nan``), replacing ``path`` whole."""
     path = Path(path)
-    with open(path, "w", newline="") as f:
+    with atomic_output(path) as tmp, open(tmp, "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=COLUMNS)
         writer.writeheader()
         writer.writerows(rows)
@@ -129,7 +142,8 @@ def _family_and_density(scenario: str) -> tuple[str, float | None]:
 
 
 def plot_summary(rows: list[dict[str, Any]], path: str | Path) -> Path:
-    """Collision rate (with 95% CI) and collision-free speed against density, one panel pair per road."""
+    """Collision rate (with 95% CI) and collision-free speed against density, one panel pair per road, written to
+    ``path`` whole (format by extension)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -161,6 +175,9 @@ def plot_summary(rows: list[dict[str, Any]], path: str | Path) -> Path:
         axes[0, col].legend(fontsize=8)
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        with atomic_output(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
     return path

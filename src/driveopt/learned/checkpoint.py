@@ -9,8 +9,11 @@ validation split, the lane counts of the training roads, history; see
 checksum, so the weights stay byte-identical.
 
 Writes are atomic (a temporary file in the same folder, fsynced, then renamed), so an interrupted
-save leaves the previous checkpoint intact. Loading checks the format, version, kind and checksum
-and raises :class:`CheckpointError` with the reason, never returns a partly read state.
+save leaves the previous checkpoint intact. Loading checks the format, version, kind and checksum,
+that ``meta`` is a mapping, and (:func:`restore`) that every array has the model's shape and holds
+finite values of a sane magnitude, and the loaders that every normaliser scale is positive: a
+checksum only proves the file is the one written, and a trainer that diverged writes NaN faithfully.
+It raises :class:`CheckpointError` with the reason, never returns a partly read or unusable state.
 """
 
 from __future__ import annotations
@@ -20,13 +23,18 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from flax import serialization
 
 from driveopt.errors import DriveoptError
 from driveopt.files import atomic_write
+from driveopt.jsonfile import JSONFileError, parse_json
 
 FORMAT = "driveopt-checkpoint"
 SCHEMA_VERSION = 1
+MAX_MAGNITUDE = 1e6  # [-] largest absolute value of a weight or statistic accepted (the shipped ones stay under 1e3;
+# a value of 1e30 is finite, but turns the networks' outputs into inf and the plans into NaN)
+MIN_SCALE = 1e-6  # [-] smallest normaliser standard deviation accepted (the trainers floor theirs at 1e-3)
 
 
 class CheckpointError(DriveoptError):
@@ -48,13 +56,15 @@ def load_checkpoint(path: str | Path, kind: str, lanes: int | None = None) -> tu
     and the checkpoint was trained for roads with other lane counts (:func:`check_lanes`)."""
     path = Path(path)
     try:
+        if path.exists() and not path.is_file():
+            raise CheckpointError(f"cannot read checkpoint {path}: not a regular file")
         raw = path.read_bytes()
     except OSError as exc:
         raise CheckpointError(f"cannot read checkpoint {path}: {exc.strerror or exc}") from None
     line, sep, body = raw.partition(b"\n")
     try:
-        header = json.loads(line) if sep else None
-    except (json.JSONDecodeError, UnicodeDecodeError):
+        header = parse_json(line.decode("utf-8"), f"checkpoint {path}") if sep else None
+    except (JSONFileError, UnicodeDecodeError):
         header = None
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a driveopt checkpoint (bad header)")
@@ -69,6 +79,8 @@ def load_checkpoint(path: str | Path, kind: str, lanes: int | None = None) -> tu
     except Exception as exc:  # msgpack raises several types on malformed input
         raise CheckpointError(f"{path} is corrupted: {exc}") from None
     meta = header.get("meta", {})
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"{path} has an invalid header: 'meta' must be an object, got {type(meta).__name__}")
     if lanes is not None:
         check_lanes(meta, lanes, path)
     return meta, state
@@ -102,15 +114,39 @@ def header_config(meta: dict[str, Any], path: str | Path, config_type: Any, what
 
 
 def restore(target: Any, state: dict[str, Any], path: str | Path, what: str) -> Any:
-    """``target``'s structure filled from ``state``; CheckpointError when the shapes do not match."""
+    """``target``'s structure filled from ``state``; CheckpointError when the shapes do not match, or when an array
+    holds NaN, an infinity or a value beyond +-MAX_MAGNITUDE."""
     try:
         restored = serialization.from_state_dict(target, state)
     except (ValueError, KeyError, TypeError) as exc:
         raise CheckpointError(f"{path}: {what} does not match the model: {exc}") from None
     import jax
-    import numpy as np
 
     for want, got in zip(jax.tree_util.tree_leaves(target), jax.tree_util.tree_leaves(restored)):
         if np.shape(want) != np.shape(got):
             raise CheckpointError(f"{path}: {what} has an array of shape {np.shape(got)}, the model needs {np.shape(want)}")
+    for name, values in _named_leaves(restored):
+        values = np.asarray(values)
+        if values.dtype.kind in "fc" and not np.all(np.isfinite(values)):
+            raise CheckpointError(f"{path}: {what} holds NaN or infinite values (in {name}): the training diverged")
+        if values.dtype.kind in "fciu" and values.size and np.max(np.abs(values)) > MAX_MAGNITUDE:
+            raise CheckpointError(f"{path}: {what} holds values beyond +-{MAX_MAGNITUDE:g} (in {name}): the training "
+                                  "diverged")
     return restored
+
+
+def check_scales(path: str | Path, what: str, scales: dict[str, Any]) -> None:
+    """CheckpointError unless every normaliser standard deviation in ``scales`` (name -> array) is at least
+    MIN_SCALE: inputs are divided by them, and a zero turns every plan into NaN."""
+    for name, values in scales.items():
+        values = np.asarray(values)
+        if values.size and not np.min(values) >= MIN_SCALE:
+            raise CheckpointError(f"{path}: {what} has a normaliser scale below {MIN_SCALE:g} (in {name}, "
+                                  f"{float(np.min(values)):g}): inputs are divided by it")
+
+
+def _named_leaves(tree: Any) -> list[tuple[str, Any]]:
+    """(path as text, array) of every leaf of ``tree``, for messages that say where a bad value is."""
+    import jax
+
+    return [(jax.tree_util.keystr(keys), leaf) for keys, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]]

@@ -31,9 +31,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.checks import ConfigError, check_count, check_number
+from driveopt.checks import ConfigError, check_count, check_number, check_parameters, dense_parameters
 from driveopt.config import BasisConfig, ProjectionConfig, QPConfig
-from driveopt.learned.checkpoint import header_config, load_checkpoint, restore
+from driveopt.learned.checkpoint import check_scales, header_config, load_checkpoint, restore
 from driveopt.observation import EGO_FEATURES, NEIGHBOUR_FEATURES, NUM_NEIGHBOURS, OBSERVATION_DIM, neighbour_mask
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, TrajectoryModel, make_model, qp_layer
 
@@ -60,6 +60,13 @@ class CVAEConfig:
         check_number("CVAEConfig.v_max", self.v_max, 0.0, low_open=True, unit="m/s")
         check_number("CVAEConfig.position_clip", self.position_clip, 0.0, low_open=True, unit="m")
         check_count("CVAEConfig.trajectory_stride", self.trajectory_stride)
+        check_parameters("CVAEConfig", self.parameter_count)
+
+    @property
+    def parameter_count(self) -> int:
+        """[-] weights of the encoder and the decoder (LayerNorm scales aside): what the widths cost in memory."""
+        encoder = dense_parameters([FEATURE_DIM + self.trajectory_features, *self.hidden, 2 * self.latent_dim])
+        return encoder + dense_parameters([self.latent_dim + FEATURE_DIM, *self.hidden, SETPOINT_DIM])
 
     @property
     def trajectory_features(self) -> int:
@@ -222,4 +229,11 @@ def load_cvae(path: str | Path, lanes: int | None = None) -> tuple[CVAEConfig, A
     cfg = header_config(meta, path, CVAEConfig, "CVAE")
     target = empty_state(cfg)
     restored = restore(target, {k: state.get(k) for k in target}, path, "the CVAE state")
-    return cfg, restored["params"], Normaliser(*restored["normaliser"]), meta
+    norm = Normaliser(*restored["normaliser"])
+    check_scales(path, "the CVAE state", normaliser_scales(norm))
+    return cfg, restored["params"], norm, meta
+
+
+def normaliser_scales(norm: Any) -> dict[str, Any]:
+    """name -> standard deviations of a normaliser (the CVAE's or the VQ-VAE's: same fields), for check_scales."""
+    return {f"normaliser.{name}": getattr(norm, name) for name in norm._fields if name.endswith("_std")}

@@ -34,10 +34,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.checks import ConfigError, check_count, check_number
+from driveopt.checks import ConfigError, check_count, check_number, check_parameters, dense_parameters
 from driveopt.config import BasisConfig
 from driveopt.filtering import FilterError, FilterInit
-from driveopt.learned.checkpoint import CheckpointError, header_config, load_checkpoint, restore
+from driveopt.learned.checkpoint import check_scales, header_config, load_checkpoint, restore
 from driveopt.observation import EGO_FEATURES, NEIGHBOUR_FEATURES, OBSERVATION_DIM
 from driveopt.problem import PlanningProblem
 
@@ -68,6 +68,12 @@ class FilterConfig:
         check_number("FilterConfig.coeff_scale", self.coeff_scale, 0.0, low_open=True, unit="m")
         check_number("FilterConfig.multiplier_scale", self.multiplier_scale, 0.0, low_open=True, unit="m")
         check_number("FilterConfig.position_clip", self.position_clip, 0.0, low_open=True, unit="m")
+        check_parameters("FilterConfig", self.parameter_count)
+
+    @property
+    def parameter_count(self) -> int:
+        """[-] weights of the MLP (LayerNorm scales aside): what the widths cost in memory."""
+        return dense_parameters([self.input_dim, *self.hidden, self.output_dim])
 
     @property
     def num_coeffs(self) -> int:
@@ -195,6 +201,6 @@ def load_filter(path: str | Path, lanes: int | None = None) -> tuple[FilterConfi
     cfg = header_config(meta, path, FilterConfig, "safety-filter")
     target = empty_state(cfg)
     restored = restore(target, {k: state.get(k) for k in target}, path, "the safety-filter state")
-    if not all(np.all(np.isfinite(np.asarray(leaf))) for leaf in jax.tree_util.tree_leaves(restored)):
-        raise CheckpointError(f"{path}: the safety-filter weights hold NaN or infinite values")
-    return cfg, restored["params"], Normaliser(*restored["normaliser"]), meta
+    norm = Normaliser(*restored["normaliser"])
+    check_scales(path, "the safety-filter state", {"normaliser.std": norm.std})
+    return cfg, restored["params"], norm, meta

@@ -29,9 +29,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from driveopt.checks import ConfigError, check_count
-from driveopt.learned.checkpoint import CheckpointError, header_config, load_checkpoint, restore
-from driveopt.learned.cvae import FEATURE_DIM, MLP
+from driveopt.checks import ConfigError, check_count, check_parameters, dense_parameters
+from driveopt.learned.checkpoint import CheckpointError, check_scales, header_config, load_checkpoint, restore
+from driveopt.learned.cvae import FEATURE_DIM, MLP, normaliser_scales
 from driveopt.learned.vqvae import Normaliser, VQVAEConfig, empty_state
 
 CHECKPOINT_KIND = "pixelcnn"
@@ -55,6 +55,20 @@ class PixelCNNConfig:
             raise ConfigError(f"PixelCNNConfig.kernel_size must be odd, got {self.kernel_size}")
         for width in self.condition_hidden:
             check_count("PixelCNNConfig.condition_hidden widths", width)
+        check_parameters("PixelCNNConfig", self.parameter_count)
+
+    @property
+    def parameter_count(self) -> int:
+        """[-] weights of the condition MLP, the gated layers, the position embedding and the head: what the widths
+        cost in memory."""
+        c, k = self.channels, self.kernel_size
+
+        def gated(inputs: int) -> int:  # masked convolution to 2c, condition to 2c, gate output to c
+            return k * inputs * 2 * c + 2 * c + dense_parameters([c, 2 * c]) + dense_parameters([c, c])
+
+        condition = dense_parameters([FEATURE_DIM, *self.condition_hidden, c])
+        head = dense_parameters([c, c, self.codebook_size])
+        return condition + gated(self.codebook_size) + self.layers * gated(c) + self.num_latents * c + head
 
     @classmethod
     def for_vqvae(cls, vq: VQVAEConfig, **fields: Any) -> "PixelCNNConfig":
@@ -245,5 +259,7 @@ def load_vqvae_prior(path: str | Path, lanes: int | None = None) -> dict[str, An
                               f"VQ-VAE ({vq_cfg.num_latents} x {vq_cfg.codebook_size})")
     target = {"params": jax.eval_shape(lambda key: init_params(cfg, key), jax.random.PRNGKey(0)), "vqvae": empty_state(vq_cfg)}
     restored = restore(target, {k: state.get(k) for k in target}, path, "the PixelCNN state")
+    norm = Normaliser(*restored["vqvae"]["normaliser"])
+    check_scales(path, "the PixelCNN state", normaliser_scales(norm))
     return {"vqvae_config": vq_cfg, "vqvae_params": restored["vqvae"]["params"],
-            "normaliser": Normaliser(*restored["vqvae"]["normaliser"]), "config": cfg, "params": restored["params"], "meta": meta}
+            "normaliser": norm, "config": cfg, "params": restored["params"], "meta": meta}

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import math
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -34,10 +35,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.checks import ConfigError, check_count, check_number
+from driveopt.checks import ConfigError, check_count, check_number, check_parameters, dense_parameters
 from driveopt.config import BasisConfig, ProjectionConfig, QPConfig
-from driveopt.learned.checkpoint import header_config, load_checkpoint, restore
-from driveopt.learned.cvae import FEATURE_DIM, MLP, Batch, observation_features
+from driveopt.learned.checkpoint import check_scales, header_config, load_checkpoint, restore
+from driveopt.learned.cvae import FEATURE_DIM, MLP, Batch, normaliser_scales, observation_features
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, TrajectoryModel, make_model, qp_layer
 
 CHECKPOINT_KIND = "vqvae"
@@ -74,6 +75,16 @@ class VQVAEConfig:
         if math.prod(self.encoder_strides) * self.num_latents != self.basis.num_nodes:
             raise ConfigError(f"VQVAEConfig: {self.basis.num_nodes} nodes / prod(encoder_strides) "
                               f"{math.prod(self.encoder_strides)} must equal num_latents {self.num_latents}")
+        check_parameters("VQVAEConfig", self.parameter_count)
+
+    @property
+    def parameter_count(self) -> int:
+        """[-] weights of the encoder's convolutions, the decoder and the codebook: what the widths cost in memory."""
+        widths = (2, *self.encoder_channels)
+        encoder = sum(self.kernel_size * a * b + b for a, b in itertools.pairwise(widths))
+        encoder += dense_parameters([widths[-1], self.latent_dim])  # the 1 x 1 convolution to the latent vectors
+        decoder = dense_parameters([self.num_latents * self.latent_dim + FEATURE_DIM, *self.decoder_hidden, SETPOINT_DIM])
+        return encoder + decoder + self.codebook_size * self.latent_dim
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -248,4 +259,6 @@ def load_vqvae(path: str | Path, lanes: int | None = None) -> tuple[VQVAEConfig,
     meta, state = load_checkpoint(path, CHECKPOINT_KIND, lanes)
     cfg = header_config(meta, path, VQVAEConfig, "VQ-VAE")
     restored = restore(empty_state(cfg), {k: state.get(k) for k in ("params", "normaliser")}, path, "the VQ-VAE state")
-    return cfg, restored["params"], Normaliser(*restored["normaliser"]), meta
+    norm = Normaliser(*restored["normaliser"])
+    check_scales(path, "the VQ-VAE state", normaliser_scales(norm))
+    return cfg, restored["params"], norm, meta

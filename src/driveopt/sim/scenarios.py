@@ -25,21 +25,27 @@ Every field can be overridden from a mapping or a JSON object file::
 
     scenario = resolve_scenario("four-lane-d3.0", config_file="my.json", overrides={"duration": 20.0})
 
-Unknown keys and values of the wrong type raise :class:`ScenarioError` naming the field.
+Unknown keys and values of the wrong type or beyond their range (``MAX_VEHICLES``, ``MAX_DURATION``,
+``MAX_SIMULATION_FREQUENCY``, ...) raise :class:`ScenarioError` naming the field; so does an episode whose
+simulation work (duration x simulation_frequency x cars) exceeds ``MAX_VEHICLE_STEPS``, unless the
+environment variable ``DRIVEOPT_ALLOW_LARGE=1`` is set. Override files are read by
+:func:`driveopt.jsonfile.read_json`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import difflib
-import json
 import math
 import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
+from driveopt.checks import ConfigError, check_budget
+from driveopt.config import MAX_ACCELERATION, MAX_SPEED
 from driveopt.errors import DriveoptError
+from driveopt.jsonfile import read_json
 
 ROADS = ("highway", "two-way", "merge")
 """Road layouts, each an upstream highway-env environment: highway-v0, two-way-v0, merge-v0."""
@@ -52,6 +58,20 @@ SLOW_SPEED_LIMIT = 7.0  # [m/s] P2's slow-traffic variant
 P1_TARGET_SPEEDS = (0.7, 0.8)  # [-] neighbour target speed ~ U(lo, hi) * speed_limit (P1's modified highway-env)
 P2_TARGET_SPEEDS = (0.0, 1.0)  # [-] P2 Fig. 7: each neighbour chooses its speed uniformly between zero and the limit
 P2_LANES = 4  # [-] lanes of the p2-* scenarios (P2's text does not say; P1's dense road)
+
+
+# Ranges beyond which a scenario is degenerate or cannot run: highway-env allocates per simulation step of an action
+# (1e9 Hz: gigabytes), spawns and steps its traffic in time growing with the car count (1e5 cars: hours for a reset),
+# and an acceleration of 1e300 m/s^2 gives an infinite, then NaN, state.
+MAX_LANES = 16  # [-] lanes of a highway road
+MIN_DENSITY, MAX_DENSITY = 0.1, 10.0  # [-] vehicles_density (spawn gaps scale with 1 / density; registered: 1 to 3)
+MAX_VEHICLES = 1000  # [-] neighbours spawned on a highway
+MAX_GAP = 1000.0  # [m] min_initial_gap and min_spawn_gap
+MAX_DURATION = 3600.0  # [s] episode length (P1: 50 s)
+MAX_SIMULATION_FREQUENCY = 1000  # [Hz] highway-env integration rate (default 20)
+MAX_VEHICLE_STEPS = 1e6  # [-] duration x simulation_frequency x (vehicles_count + 1): the simulation work of an
+# episode, 20 times the default episode's (5.1e4); DRIVEOPT_ALLOW_LARGE=1 lifts it (driveopt.checks.check_budget)
+SECONDS_PER_VEHICLE_STEP = 3e-3  # [s] measured on 2 busy CPU cores (highway-env's IDM traffic, 50 to 200 cars)
 
 
 class ScenarioError(DriveoptError):
@@ -92,32 +112,55 @@ class Scenario:
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             object.__setattr__(self, f.name, _coerce(f.name, getattr(self, f.name), _FIELD_TYPES[f.name]))
+        self._check_road_and_traffic()
+        check_duration(self.duration)
+        self._check_timing()
+        self._check_ego()
+
+    def _check_road_and_traffic(self) -> None:
         _check(self.road in ROADS, f"road must be one of {list(ROADS)}, got {self.road!r}")
-        _check(self.lanes >= 1, "lanes must be >= 1")
+        _check(1 <= self.lanes <= MAX_LANES, f"lanes must be in [1, {MAX_LANES}], got {self.lanes}")
         if self.road != "highway":
             _check(self.lanes == 2, f"road {self.road!r} has 2 lanes upstream; lanes must be 2, got {self.lanes}")
-        _check(self.density > 0, "density must be > 0")
-        _check(self.vehicles_count >= 0, "vehicles_count must be >= 0")
-        _check(self.speed_limit > 0, "speed_limit must be > 0 [m/s]")
+        _in_range("density", self.density, MIN_DENSITY, MAX_DENSITY, "")
+        _check(0 <= self.vehicles_count <= MAX_VEHICLES, f"vehicles_count must be in [0, {MAX_VEHICLES}], "
+               f"got {self.vehicles_count}")
+        _in_range("speed_limit", self.speed_limit, 0.0, MAX_SPEED, "m/s", low_open=True)
         lo, hi = self.target_speed_fraction
         _check(0 <= lo <= hi <= 1, "target_speed_fraction must be (lo, hi) with 0 <= lo <= hi <= 1 [-] (fractions of "
                f"speed_limit: neighbour target speeds ~ U(lo, hi) * speed_limit), got {self.target_speed_fraction}")
-        _check(self.ego_speed >= 0, "ego_speed must be >= 0 [m/s]")
-        _check(self.min_initial_gap >= 0, "min_initial_gap must be >= 0 [m]")
-        _check(self.min_spawn_gap >= 0, "min_spawn_gap must be >= 0 [m]")
-        _check(self.duration > 0, "duration must be > 0 [s]")
-        _check(self.simulation_frequency > 0 and self.policy_frequency > 0, "frequencies must be > 0 [Hz]")
+        _in_range("min_initial_gap", self.min_initial_gap, 0.0, MAX_GAP, "m")
+        _in_range("min_spawn_gap", self.min_spawn_gap, 0.0, MAX_GAP, "m")
+
+    def _check_ego(self) -> None:
+        _in_range("ego_speed", self.ego_speed, 0.0, MAX_SPEED, "m/s")
+        _in_range("v_des", self.v_des, 0.0, MAX_SPEED, "m/s")
+        a_lo, a_hi = self.acceleration_range
+        _check(-MAX_ACCELERATION <= a_lo < 0 < a_hi <= MAX_ACCELERATION, "acceleration_range must be (lo, hi) with "
+               f"-{MAX_ACCELERATION:g} <= lo < 0 < hi <= {MAX_ACCELERATION:g} [m/s^2], got {self.acceleration_range}")
+        s_lo, s_hi = self.steering_range
+        _check(-math.pi / 2 < s_lo < 0 < s_hi < math.pi / 2, "steering_range must satisfy -pi/2 < lo < 0 < hi < pi/2 [rad]")
+
+    def _check_timing(self) -> None:
+        """Frequencies in range and in step, at least one action, and the episode's simulation work within
+        MAX_VEHICLE_STEPS (unless DRIVEOPT_ALLOW_LARGE=1)."""
+        _check(1 <= self.simulation_frequency <= MAX_SIMULATION_FREQUENCY and 1 <= self.policy_frequency,
+               f"frequencies must be integers in [1, {MAX_SIMULATION_FREQUENCY}] Hz, got simulation_frequency "
+               f"{self.simulation_frequency} and policy_frequency {self.policy_frequency}")
         _check(
             self.simulation_frequency % self.policy_frequency == 0,
             f"simulation_frequency ({self.simulation_frequency} Hz) must be a multiple of policy_frequency "
             f"({self.policy_frequency} Hz): highway-env holds each action for simulation_frequency // "
             "policy_frequency steps but advances its clock by 1 / policy_frequency, so a remainder desynchronises them",
         )
-        _check(self.v_des >= 0, "v_des must be >= 0 [m/s]")
-        a_lo, a_hi = self.acceleration_range
-        _check(a_lo < 0 < a_hi, "acceleration_range must be (lo, hi) with lo < 0 < hi [m/s^2]")
-        s_lo, s_hi = self.steering_range
-        _check(-math.pi / 2 < s_lo < 0 < s_hi < math.pi / 2, "steering_range must satisfy -pi/2 < lo < 0 < hi < pi/2 [rad]")
+        _check(self.num_actions >= 1, f"duration ({self.duration:g} s) must last at least one action "
+               f"(1 / policy_frequency = {1 / self.policy_frequency:g} s)")
+        steps = self.duration * self.simulation_frequency * (self.vehicles_count + 1)
+        try:
+            check_budget("simulation work per episode (duration x simulation_frequency x vehicles)", steps,
+                         MAX_VEHICLE_STEPS, f"about {steps * SECONDS_PER_VEHICLE_STEP / 3600:.2g} hours on 2 CPU cores")
+        except ConfigError as exc:
+            raise ScenarioError(str(exc)) from None
 
     @property
     def steps_per_action(self) -> int:
@@ -149,6 +192,20 @@ _FIELD_TYPES: dict[str, Any] = typing.get_type_hints(Scenario)
 def _check(cond: bool, message: str) -> None:
     if not cond:
         raise ScenarioError(message)
+
+
+def _in_range(name: str, value: float, low: float, high: float, unit: str, low_open: bool = False) -> None:
+    inside = (low < value if low_open else low <= value) and value <= high
+    _check(inside, f"{name} must be in {'(' if low_open else '['}{low:g}, {high:g}]{' ' + unit if unit else ''}, "
+                   f"got {value:g}")
+
+
+def check_duration(duration: Any) -> float:
+    """``duration`` [s] as a float; ScenarioError unless it is a finite number in (0, MAX_DURATION] (the
+    command line's ``--duration`` and the experiment options use it, as the scenarios do)."""
+    _check(_is_number(duration) and math.isfinite(duration), f"duration must be a finite number, got {duration!r}")
+    _in_range("duration", duration, 0.0, MAX_DURATION, "s", low_open=True)
+    return float(duration)
 
 
 def _is_number(value: Any) -> bool:
@@ -191,16 +248,9 @@ def apply_overrides(scenario: Scenario, overrides: Mapping[str, Any]) -> Scenari
 
 
 def load_overrides(path: str | Path) -> dict[str, Any]:
-    """Read a JSON object of scenario field overrides from ``path``."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ScenarioError(f"scenario config file not found: {path}") from None
-    except json.JSONDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"{path}: cannot read ({exc})") from None
+    """Read a JSON object of scenario field overrides from ``path`` (through :func:`driveopt.jsonfile.read_json`:
+    special files, huge files, deep nesting, huge numbers and invalid Unicode are refused)."""
+    data = read_json(path, "scenario config file", ScenarioError)
     if not isinstance(data, dict):
         raise ScenarioError(f"{path}: must hold a JSON object of scenario fields, got {type(data).__name__}")
     return data

@@ -392,7 +392,7 @@ class TrainingRun:
         save_checkpoint(self.last, self.kind, state, self.checkpoint_meta(self.history, extra))
 
     def write_history(self) -> None:
-        (self.out / HISTORY).write_text(json.dumps(self.history, indent=1))
+        files.write_json(self.out / HISTORY, self.history)
 
     def summary(self, **extra: Any) -> dict[str, Any]:
         """What a trainer returns: epochs and history, ``extra``, row counts, seconds of this call's epochs, the folder
@@ -468,24 +468,25 @@ def run_epochs(run: TrainingRun, trainer: EpochTrainer, tcfg: BaseTrainConfig, *
                stop_after: int | None) -> None:
     """Train ``run`` from its history's length to ``tcfg.epochs`` (at most ``stop_after`` epochs in this call). After
     each epoch: stop on a diverged loss, write the weights file when the epoch ranks best, then last.ckpt and
-    history.json."""
-    run.best = trainer.best_rank(run)
-    bar = epoch_bar(len(run.history), tcfg, stop_after, desc, progress)
-    run.started = time.perf_counter()
-    for epoch in bar:
-        record = trainer.train_epoch(epoch, bar.set_postfix_str)
-        if record is None:
-            break
-        check_finite(record, epoch, tcfg)
-        rank = trainer.rank(record)
-        if rank is not None and (run.best is None or rank < run.best):
-            run.best = rank
-            run.save_weights(trainer.weights_state(), [*run.history, record], trainer.weights_meta(run))
-        trainer.after_ranking(epoch, record)
-        run.history.append(record)
-        run.save_last(trainer.training_state(), trainer.last_meta(run))
-        run.write_history()
-        bar.set_postfix_str(trainer.describe(record))
-        if trainer.stopped:
-            break
-    bar.close()
+    history.json. A second training into the same folder is refused while this one runs."""
+    with files.lock_output_folder(run.out):  # one training writes into a folder at a time
+        run.best = trainer.best_rank(run)
+        bar = epoch_bar(len(run.history), tcfg, stop_after, desc, progress)
+        run.started = time.perf_counter()
+        for epoch in bar:
+            record = trainer.train_epoch(epoch, bar.set_postfix_str)
+            if record is None:
+                break
+            check_finite(record, epoch, tcfg)
+            rank = trainer.rank(record)
+            if rank is not None and (run.best is None or rank < run.best):
+                run.best = rank
+                run.save_weights(trainer.weights_state(), [*run.history, record], trainer.weights_meta(run))
+            trainer.after_ranking(epoch, record)
+            run.history.append(record)
+            run.save_last(trainer.training_state(), trainer.last_meta(run))
+            run.write_history()
+            bar.set_postfix_str(trainer.describe(record))
+            if trainer.stopped:
+                break
+        bar.close()

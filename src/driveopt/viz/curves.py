@@ -22,6 +22,7 @@ import numpy as np
 
 from driveopt.errors import DriveoptError
 from driveopt.files import make_output_folder
+from driveopt.viz.figures import figure_suffixes, save_figure
 
 CURVE_FILE = "curve.csv"
 SUMMARY_FILE = "summary.json"
@@ -96,7 +97,8 @@ def read_curve(folder: str | Path) -> Curve:
 
 
 def plot_curves(curves: Sequence[Curve], path: str | Path) -> Path:
-    """Three panels (see the module docstring), one line per curve, written to ``path`` (PNG/PDF/SVG by extension)."""
+    """Three panels (see the module docstring), one line per curve, written whole to ``path`` (PNG/PDF/SVG by
+    extension)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -107,6 +109,8 @@ def plot_curves(curves: Sequence[Curve], path: str | Path) -> Path:
     path = Path(path)
     if path.is_dir():
         raise CurveError(f"{path} is a directory; give a file path for the figure")
+    if path.suffix.lower() not in figure_suffixes():
+        raise CurveError(f"{path}: expected a figure file ending in .png, .pdf, .svg (or another matplotlib format)")
     make_output_folder(path.parent, CurveError, path.name)
     labels = [c.label for c in curves]
     fig, axes = plt.subplots(len(PANELS), 1, figsize=(7.5, 9.0), sharex=True)
@@ -123,7 +127,4 @@ def plot_curves(curves: Sequence[Curve], path: str | Path) -> Path:
     axes[-1].set_xlabel("training steps [env steps]")
     axes[0].legend(fontsize=8)
     fig.suptitle("RL baselines: deterministic evaluation episodes during training", fontsize=11)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

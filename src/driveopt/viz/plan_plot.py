@@ -21,6 +21,7 @@ from driveopt.config import PlannerConfig
 from driveopt.planner import PlanResult, Snapshot
 from driveopt.qp import make_model
 from driveopt.scene import Scene
+from driveopt.viz import figures
 
 MAX_DRAWN = 150  # trajectories per panel
 
@@ -55,7 +56,7 @@ def _draw_batch(ax, W: np.ndarray, coeffs: np.ndarray, x0: float, color: str, hi
 
 
 def plot_plan(result: PlanResult, scene: Scene, config: PlannerConfig, path: str | Path) -> Path:
-    """Write the figure to ``path`` (PNG/PDF/SVG by extension) and return the path."""
+    """Write the figure to ``path`` (PNG/PDF/SVG by extension), whole or not at all, and return the path."""
     model = make_model(config.basis, config.qp)
     W = np.asarray(model.W)
     x0 = result.x_offset
@@ -109,10 +110,6 @@ def plot_plan(result: PlanResult, scene: Scene, config: PlannerConfig, path: str
 
 
 def save_figure(fig, path: str | Path) -> Path:
-    """Lay out, write (format by extension, parent folders created) and close ``fig``."""
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    """Lay out, write (format by extension, parent folders created) whole and close ``fig``
+    (:func:`driveopt.viz.figures.save_figure`)."""
+    return figures.save_figure(fig, path)

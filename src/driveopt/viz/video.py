@@ -12,7 +12,9 @@ drawn as separate pieces, never joined across the part that is off screen.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import struct
 import sys
 import warnings
 from pathlib import Path
@@ -23,12 +25,15 @@ from PIL import Image, ImageDraw, ImageFont
 
 from driveopt.config import PlannerConfig
 from driveopt.errors import DriveoptError
+from driveopt.files import commit, temporary_sibling
 from driveopt.qp import make_model
 
 
 class VideoError(DriveoptError):
-    """A video cannot be recorded here (black-frame SDL driver, unwritable path)."""
+    """A video cannot be recorded here (black-frame SDL driver, unwritable path, a write that failed)."""
 
+
+VIDEO_SUFFIXES = (".mp4",)  # H.264 in an MP4 container
 
 SAMPLE_RGBA = (40, 90, 230, 110)
 ELITE_RGBA = (255, 150, 0, 170)
@@ -224,7 +229,9 @@ class VideoWriter:
 
     Frames of odd width or height are padded to even (their last row / column repeated), as H.264
     needs; every frame must have the shape of the first. Refuses SDL's ``dummy`` video driver
-    (black frames) with a VideoError.
+    (black frames) with a VideoError. The video is whole or absent: ffmpeg writes a hidden temporary
+    sibling, which is checked (:func:`mp4_problem`) and renamed to ``path`` only when it is a complete
+    MP4; a failed write (ffmpeg stopped, a full disk, a truncated file) is a VideoError and leaves no file.
     """
 
     def __init__(self, path: str | Path, fps: float):
@@ -232,12 +239,16 @@ class VideoWriter:
 
         check_video_driver()
         self.path = Path(path)
+        if self.path.suffix.lower() not in VIDEO_SUFFIXES:
+            raise VideoError(f"video {self.path}: expected a file ending in {', '.join(VIDEO_SUFFIXES)}")
+        self._tmp = temporary_sibling(self.path)
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise VideoError(f"cannot create the directory of {self.path}: {exc}") from None
-        self._writer = imageio.get_writer(str(self.path), fps=fps, codec="libx264", macro_block_size=1, quality=7)
+            self._writer = imageio.get_writer(str(self._tmp), fps=fps, codec="libx264", macro_block_size=1, quality=7)
+        except BaseException:
+            self._tmp.unlink(missing_ok=True)
+            raise
         self._shape: tuple[int, ...] | None = None
+        self._open = True
         self.frames = 0
 
     def append(self, frame: np.ndarray) -> None:
@@ -251,14 +262,80 @@ class VideoWriter:
             # The first frame starts ffmpeg (fork, then exec at once); JAX's fork detector would warn of a
             # deadlock that cannot happen in a process that only execs.
             warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
-            self._writer.append_data(pad_to_even(frame))
+            try:
+                self._writer.append_data(pad_to_even(frame))
+            except OSError as exc:  # ffmpeg ended: it could not write (a full disk) or was killed
+                raise VideoError(f"cannot write {self.path}: ffmpeg stopped ({_first_line(exc)})") from None
         self.frames += 1
 
     def close(self) -> None:
-        self._writer.close()
+        """Finish the MP4 and put it at ``path``; VideoError (and no file) when ffmpeg failed or the file is not a
+        complete MP4."""
+        if not self._open:
+            return
+        self._open = False
+        try:
+            self._writer.close()
+        except (OSError, RuntimeError) as exc:
+            self._tmp.unlink(missing_ok=True)
+            raise VideoError(f"cannot write {self.path}: ffmpeg failed ({_first_line(exc)})") from None
+        problem = mp4_problem(self._tmp)
+        if problem:
+            self._tmp.unlink(missing_ok=True)
+            raise VideoError(f"cannot write {self.path}: the MP4 ffmpeg wrote is incomplete ({problem}); is the disk full?")
+        commit(self._tmp, self.path)
+
+    def abort(self) -> None:
+        """Stop ffmpeg and remove what it wrote: the episode failed, so no video is kept."""
+        if not self._open:
+            return
+        self._open = False
+        with contextlib.suppress(Exception):
+            self._writer.close()
+        self._tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> "VideoWriter":
         return self
 
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def _first_line(exc: BaseException) -> str:
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+
+
+def mp4_problem(path: str | Path) -> str | None:
+    """What makes ``path`` not a complete MP4, in words ("truncated at 4096 bytes", "no movie header ..."); None
+    when its top-level boxes tile the file and hold the media data and the movie header (``moov``, which ffmpeg
+    writes last: a write cut short by a full disk has none)."""
+    path = Path(path)
+    size = path.stat().st_size
+    kinds = set()
+    with open(path, "rb") as f:
+        offset = 0
+        while offset < size:
+            header = f.read(8)
+            if len(header) < 8:
+                return f"truncated at {size} bytes (a box header is cut short)"
+            length, kind = struct.unpack(">I4s", header)
+            if length == 1:  # a 64-bit size follows
+                extended = f.read(8)
+                if len(extended) < 8:
+                    return f"truncated at {size} bytes (a box header is cut short)"
+                length = struct.unpack(">Q", extended)[0]
+            elif length == 0:  # the box runs to the end of the file
+                length = size - offset
+            if length < 8 or offset + length > size:
+                return f"truncated at {size} bytes (its {kind.decode('latin-1')!r} box needs {offset + length})"
+            kinds.add(kind)
+            offset += length
+            f.seek(offset)
+    if b"mdat" not in kinds:
+        return f"no media data in {size} bytes"
+    if b"moov" not in kinds:
+        return f"no movie header after {size} bytes"
+    return None

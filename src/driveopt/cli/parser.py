@@ -1,0 +1,35 @@
+"""The command line's argument parser and the argument types that check a value's range when it is parsed.
+
+:class:`OneLineArgumentParser` reports a usage error (a missing or unknown option, a value its type
+refuses) the way every other user error is reported: one line ``driveopt: error: ...`` on stderr and
+exit status 2, without argparse's usage block (``--help`` still prints it). Subcommand parsers made with
+``add_subparsers`` are of the same class, so the rule holds for every command.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import NoReturn
+
+
+class OneLineArgumentParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line ``driveopt: error: <message>`` and exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        first = message.splitlines()[0] if message else "invalid arguments"
+        self.exit(2, f"driveopt: error: {first} (see {self.prog} --help)\n")
+
+
+def duration(text: str) -> float:
+    """Argument type of ``--duration`` [s]: a finite number in (0, MAX_DURATION], the range of a scenario's
+    duration, so that ``1e308`` is refused when parsed rather than overflowing a step count later."""
+    from driveopt.sim.scenarios import ScenarioError, check_duration  # the simulator's package loads in seconds
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a duration in seconds, got {text!r}") from None
+    try:
+        return check_duration(value)
+    except ScenarioError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
