@@ -1,11 +1,7 @@
 """How the rows of a sampler batch are ranked: the key that picks the plan, and the elite sets the sampler adapts to.
 
 Every row of a batch has a weighted driving cost ``c`` and a total constraint residual ``r`` after projection; it is
-*feasible* (:func:`feasible_rows`) when ``r`` is within ``sampler.residual_tolerance`` and it never moves against the
-ego's direction of travel (:func:`moves_against_travel`): a plan that brakes and then rolls backwards, or a reversing
-car's plan that brakes and then drives forwards, is no plan the car should report as found, whatever its residual (the
-projection bounds the course only above ``projection.course_min_speed``, so below it nothing else keeps a row from
-rolling back). A ranking turns them into
+*feasible* when ``r`` is within ``sampler.residual_tolerance``. A ranking turns them into
 
 - a **score** ``w c + r`` (``cost_weight`` w): what the cross-entropy update weighs the elites by (P1 eq. 6);
 - a **key**: what the pick of a batch, the best over the iterations and the fallback's choice minimise;
@@ -22,7 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
-import jax
 import jax.numpy as jnp
 
 from driveopt.checks import check_number
@@ -30,37 +25,13 @@ from driveopt.config import MAX_WEIGHT
 from driveopt.sampler import select_lowest
 
 INFEASIBLE_PENALTY = 1e6  # [-] added to the key of an infeasible row (FeasibilityFirst): feasible ones rank first
-REVERSAL_SPEED = 1e-3  # [m/s] longitudinal velocity against the direction of travel that a feasible row may have at a
-# node: float32 noise of velocities read out of coefficients of hundreds of metres is ~1e-4 m/s, rows that roll back
-# do so at 0.01 m/s and more (a polynomial braked to rest rings: the stop rows at 0.07 to 4 m/s)
-REVERSAL_DISTANCE = 1e-3  # [m] how far behind the furthest point it has reached a feasible row may be at a node: catches
-# a roll-back between two nodes (a car standing with a braking acceleration: 2 mm in the 0.15 s to the next node)
-
-
-def moves_against_travel(x: jnp.ndarray, vx: jnp.ndarray, vx0: jnp.ndarray) -> jnp.ndarray:
-    """(...,) whether rows with longitudinal positions ``x`` [m] and velocities ``vx`` [m/s] at the nodes (..., K) move
-    against the ego's direction of travel: faster than :data:`REVERSAL_SPEED` at a node, or further than
-    :data:`REVERSAL_DISTANCE` back from the furthest point reached. The direction is backwards for a reversing ego
-    (its velocity now, ``vx0`` [m/s], below -REVERSAL_SPEED), whose plans may only brake the backward motion, and
-    forwards otherwise (standing too)."""
-    reversing = vx0 < -REVERSAL_SPEED
-    along_v, along_x = jnp.where(reversing, -vx, vx), jnp.where(reversing, -x, x)
-    behind = jax.lax.cummax(along_x, axis=along_x.ndim - 1) - along_x
-    return jnp.any(along_v < -REVERSAL_SPEED, axis=-1) | jnp.any(behind > REVERSAL_DISTANCE, axis=-1)
-
-
-def feasible_rows(residual: jnp.ndarray, x: jnp.ndarray, vx: jnp.ndarray, vx0: jnp.ndarray, tolerance: float) -> jnp.ndarray:
-    """(B,) bool: rows whose total ``residual`` (B,) is within ``tolerance`` and whose longitudinal positions ``x`` [m]
-    and velocities ``vx`` [m/s] (B, K) never move against the direction of travel of an ego with velocity ``vx0``
-    [m/s] now (:func:`moves_against_travel`)."""
-    return (residual <= tolerance) & ~moves_against_travel(x, vx, vx0)
 
 
 class Candidate(NamedTuple):
     """One ranked row of a batch."""
 
     score: jnp.ndarray  # () the ranking key (Ranking.key) of the row
-    feasible: jnp.ndarray  # () bool: a batch row's :func:`feasible_rows`; the fallback's: its residual within tolerance
+    feasible: jnp.ndarray  # () bool: total residual within sampler.residual_tolerance
     setpoints: jnp.ndarray  # (8,)
     coeffs: jnp.ndarray  # (2n,)
     residuals: jnp.ndarray  # (4,) per family (driveopt.projection.FAMILIES)

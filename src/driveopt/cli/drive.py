@@ -11,7 +11,6 @@ import argparse
 import contextlib
 
 from driveopt.cli.common import config_overrides, positive_int, seed, writable_file, write_json
-from driveopt.cli.parser import duration
 
 
 def register(sub) -> None:
@@ -22,7 +21,7 @@ def register(sub) -> None:
     p.add_argument("--weights", help="learned-prior checkpoint, or policy file of dqn/ppo (default: the weights shipped for the road)")
     p.add_argument("--filter-weights", help="learned safety-filter checkpoint for any optimiser (vqvae-filter: default the shipped one)")
     p.add_argument("--seed", type=seed, default=42, help="traffic and sampling seed")
-    p.add_argument("--duration", type=duration, help="episode length [s] (default: the scenario's)")
+    p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="samples per sampler iteration")
     p.add_argument("--replan-every", type=positive_int, help="policy periods each plan is executed open-loop (P1: 5; default 1)")
     p.add_argument("--video", default="out/drive.mp4", help="MP4 path, ending in .mp4 ('' for none)")

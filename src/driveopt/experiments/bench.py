@@ -27,7 +27,7 @@ from typing import Any
 import jax
 from tqdm import tqdm
 
-from driveopt.checks import check_count
+from driveopt.checks import check_count, check_number
 from driveopt.drivers.base import DriverSpec
 from driveopt.errors import DriveoptError
 from driveopt.experiments.rollout import run_episode
@@ -49,7 +49,7 @@ from driveopt.experiments.store import (
 from driveopt.experiments.summary import markdown_table, plot_summary, summarise, write_csv
 from driveopt.files import atomic_write, json_text, lock_output_folder, make_output_folder, write_json
 from driveopt.registry import get_planner
-from driveopt.sim.scenarios import check_duration, resolve_scenario
+from driveopt.sim.scenarios import resolve_scenario
 
 
 class BenchOptionError(DriveoptError):
@@ -147,7 +147,7 @@ def check_options(options: dict[str, Any]) -> None:
     """BenchOptionError or ConfigError for a bench option out of range or a weights file that does not exist."""
     duration, samples, weights = options.get("duration"), options.get("samples"), options.get("weights")
     if duration is not None:
-        check_duration(duration)
+        check_number("duration", duration, 0.0, low_open=True, unit="s")
     if samples is not None:
         check_count("samples", samples)
     if weights is not None and not Path(weights).is_file():

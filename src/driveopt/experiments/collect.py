@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from driveopt.basis import make_basis
-from driveopt.checks import ConfigError, check_count
+from driveopt.checks import ConfigError, check_count, check_number
 from driveopt.config import BasisConfig
 from driveopt.data.demonstrations import (
     MAX_MODES,
@@ -38,7 +38,7 @@ from driveopt.experiments.store import JobKey
 from driveopt.files import lock_output_file
 from driveopt.observation import OBSERVATION_DIM
 from driveopt.registry import get_optimiser
-from driveopt.sim.scenarios import check_duration, get_scenario
+from driveopt.sim.scenarios import get_scenario
 
 EXPERT = "expert"  # planner field of the jobs
 
@@ -91,7 +91,7 @@ def check_options(scenarios: Sequence[str], *, seed: int, episodes: int, samples
     for name, value in (("episodes", episodes), ("samples", samples), ("iterations", iterations), ("workers", workers),
                         ("modes", modes)):
         check_count(name, value)
-    check_duration(duration)
+    check_number("duration", duration, 0.0, low_open=True, unit="s")
 
 
 def collect(
