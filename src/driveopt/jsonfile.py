@@ -177,7 +177,7 @@ def _invalid_string(value: Any) -> str | None:
     while pending:
         item = pending.pop()
         if isinstance(item, str):
-            if not _is_valid_unicode(item):
+            if not is_valid_unicode(item):
                 return item
         elif isinstance(item, dict):
             pending.extend(item.keys())
@@ -187,7 +187,8 @@ def _invalid_string(value: Any) -> str | None:
     return None
 
 
-def _is_valid_unicode(text: str) -> bool:
+def is_valid_unicode(text: str) -> bool:
+    """Whether ``text`` can be written out as UTF-8 (a lone surrogate such as "\\ud800" cannot)."""
     try:
         text.encode("utf-8")
     except UnicodeEncodeError:

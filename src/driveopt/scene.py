@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from driveopt.errors import DriveoptError, UnknownNameError
-from driveopt.jsonfile import read_json
+from driveopt.jsonfile import is_valid_unicode, read_json
 
 
 class ProblemError(DriveoptError):
@@ -190,7 +190,7 @@ class Scene:
         object.__setattr__(self, "edge_margin", _number("edge_margin", self.edge_margin))
         if not isinstance(self.name, str):
             raise ProblemError(f"name must be a string, got {self.name!r}")
-        if not _is_valid_unicode(self.name):
+        if not is_valid_unicode(self.name):
             raise ProblemError(f"name {self.name!r} is not valid Unicode (a lone surrogate)")
         lo, hi = self.lateral_bounds
         if lo >= hi:
@@ -202,15 +202,6 @@ class Scene:
         lo, hi = self.road.edges
         half = 0.5 * self.ego.width + self.edge_margin
         return lo + half, hi - half
-
-
-def _is_valid_unicode(text: str) -> bool:
-    """Whether ``text`` can be written out as UTF-8 (a lone surrogate such as "\\ud800" cannot)."""
-    try:
-        text.encode("utf-8")
-    except UnicodeEncodeError:
-        return False
-    return True
 
 
 def scene_to_dict(scene: Scene) -> dict[str, Any]:
