@@ -14,21 +14,41 @@ and ``plan``); ``files``; ``learned/`` (networks), ``priors/``, ``safety/``, ``d
 ``experiments/`` (rollout, bench, collect); ``viz/``, ``cli/``.
 """
 
-from driveopt.checks import ConfigError
-from driveopt.batch_rows import SamplesOnly, StopRows
-from driveopt.config import BasisConfig, CostConfig, PlannerConfig, ProjectionConfig, QPConfig, SamplerConfig
-from driveopt.errors import DriveoptError
-from driveopt.fallback import Fallback
-from driveopt.planner import PlanResult, PlanStatus, Solution, plan, solve
-from driveopt.priors import GaussianPrior, Prior, Proposal
-from driveopt.problem import PlanningProblem, build_problem
-from driveopt.ranking import CostPlusResidual, FeasibilityFirst
-from driveopt.scene import EgoState, Neighbour, ProblemError, Road, Scene, load_scene
+import importlib
+from typing import Any
 
-__all__ = [
-    "BasisConfig", "ConfigError", "CostConfig", "PlannerConfig", "ProjectionConfig", "QPConfig", "SamplerConfig",
-    "DriveoptError", "PlanResult", "PlanStatus", "Solution", "plan", "solve", "GaussianPrior", "Prior", "Proposal",
-    "PlanningProblem", "build_problem", "EgoState", "Neighbour", "ProblemError", "Road", "Scene", "load_scene",
-    "CostPlusResidual", "FeasibilityFirst", "Fallback", "SamplesOnly", "StopRows",
-]
+# Public name -> the module that defines it. Imported on first use (``driveopt.plan``, ``from driveopt import plan``),
+# so that ``import driveopt`` and the command line's help and listings load neither JAX nor highway-env.
+# A new export is one line here.
+_EXPORTS = {
+    "ConfigError": "driveopt.checks",
+    "SamplesOnly": "driveopt.batch_rows", "StopRows": "driveopt.batch_rows",
+    "BasisConfig": "driveopt.config", "CostConfig": "driveopt.config", "PlannerConfig": "driveopt.config",
+    "ProjectionConfig": "driveopt.config", "QPConfig": "driveopt.config", "SamplerConfig": "driveopt.config",
+    "DriveoptError": "driveopt.errors",
+    "Fallback": "driveopt.fallback",
+    "PlanResult": "driveopt.planner", "PlanStatus": "driveopt.planner", "Solution": "driveopt.planner",
+    "plan": "driveopt.planner", "solve": "driveopt.planner",
+    "GaussianPrior": "driveopt.priors", "Prior": "driveopt.priors", "Proposal": "driveopt.priors",
+    "PlanningProblem": "driveopt.problem", "build_problem": "driveopt.problem",
+    "CostPlusResidual": "driveopt.ranking", "FeasibilityFirst": "driveopt.ranking",
+    "EgoState": "driveopt.scene", "Neighbour": "driveopt.scene", "ProblemError": "driveopt.scene", "Road": "driveopt.scene",
+    "Scene": "driveopt.scene", "load_scene": "driveopt.scene",
+}
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'driveopt' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # looked up once
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
+
+
 __version__ = "0.1.0"

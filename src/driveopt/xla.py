@@ -1,4 +1,5 @@
-"""How the planner's computations are compiled: float32 matrix products on every backend, and CPU compiler options.
+"""How the planner's computations are compiled: float32 matrix products on every backend, CPU compiler options, and
+JAX's persistent compilation cache (:mod:`driveopt.compilation_cache`, set up when this module is imported).
 
 Accelerators multiply float32 matrices at reduced precision by default (TF32 on NVIDIA GPUs, bfloat16 on
 TPUs), which is fine for network layers but not for the optimisation layers: the projection's fixed-point
@@ -13,6 +14,10 @@ from typing import Callable, TypeVar
 
 import jax
 import jax.numpy as jnp
+
+from driveopt.compilation_cache import enable_default
+
+enable_default()  # before anything of driveopt's is compiled: the persistent cache (driveopt.compilation_cache)
 
 F = TypeVar("F", bound=Callable)
 

@@ -8,6 +8,11 @@ checkpoint) print one line ``driveopt: error: ...`` on stderr and exit with stat
 ``driveopt: terminated`` the same way with status 143, within two seconds whatever the command is doing
 (:mod:`driveopt.cli.interrupts`); a reader of stdout that goes away (``driveopt plan | head -1``) ends it
 quietly with status 141; any other exception is a bug and keeps its traceback.
+
+``driveopt --help``, each command's ``--help`` and the listings (``scenarios``, ``planners``, ``problems``) import
+neither JAX nor highway-env nor Flax: every command module imports them inside its run function. Commands that
+compile use JAX's persistent compilation cache (:mod:`driveopt.compilation_cache`; ``DRIVEOPT_COMPILATION_CACHE=0``
+turns it off).
 """
 
 from __future__ import annotations
@@ -15,11 +20,13 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+import warnings
 from collections.abc import Sequence
 
 from driveopt.cli import bench, collect, drive, interrupts, listing, plan, plot_curves, plot_prior, summarise, train
 from driveopt.cli.common import UsageError
 from driveopt.cli.parser import OneLineArgumentParser
+from driveopt.compilation_cache import CacheSetupWarning
 from driveopt.errors import DriveoptError
 
 __all__ = ["UsageError", "build_parser", "main"]
@@ -45,6 +52,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     stop_cleanly_on_signals("driveopt")
+    _one_line_cache_warnings()
     try:
         status = args.func(args)
         sys.stdout.flush()  # here, where a reader that went away can still be told from a bug
@@ -60,6 +68,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     if interrupts.stop_status() is not None:  # the command swallowed the signal's exception: it stops all the same
         return _interrupted("")
     return status
+
+
+def _one_line_cache_warnings() -> None:
+    """An unusable compilation-cache folder (:mod:`driveopt.compilation_cache`) is reported as one line
+    ``driveopt: warning: ...``; other warnings keep Python's format."""
+    plain = warnings.formatwarning
+
+    def format_warning(message, category, filename, lineno, line=None):
+        if issubclass(category, CacheSetupWarning):
+            return f"driveopt: warning: {message}\n"
+        return plain(message, category, filename, lineno, line)
+
+    warnings.formatwarning = format_warning
 
 
 def _interrupted(detail: str) -> int:

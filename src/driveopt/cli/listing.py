@@ -1,8 +1,14 @@
-"""``driveopt scenarios`` and ``driveopt planners``: what can be named on the other commands."""
+"""``driveopt scenarios`` and ``driveopt planners``: what can be named on the other commands.
+
+Both print from :mod:`driveopt.cli.catalogue` (no JAX, highway-env or Flax is imported), whose rows the tests keep equal
+to the registries'.
+"""
 
 from __future__ import annotations
 
 import argparse
+
+from driveopt.cli.catalogue import PLANNERS, SCENARIOS, ScenarioLine
 
 
 def register(sub) -> None:
@@ -10,22 +16,25 @@ def register(sub) -> None:
     sub.add_parser("planners", help="list planners").set_defaults(func=run_planners)
 
 
-def run_scenarios(args: argparse.Namespace) -> int:
-    from driveopt.sim.scenarios import get_scenario, list_scenarios
+def scenario_lines(rows: list[ScenarioLine]) -> list[str]:
+    """One line per scenario: name, road, lanes, density, neighbours' speed limit [m/s], their target speeds [m/s],
+    episode length [s]."""
+    width = max(len(row.name) for row in rows)
+    return [f"{r.name:{width}s} {r.road:8s} lanes {r.lanes}  density {r.density:.1f}  limit {r.speed_limit:.0f} m/s  "
+            f"targets {r.target_speeds[0]:g}-{r.target_speeds[1]:g} m/s  {r.duration:.0f} s" for r in rows]
 
-    width = max(len(name) for name in list_scenarios())
-    for name in list_scenarios():
-        s = get_scenario(name)
-        lo, hi = s.target_speed_range
-        print(f"{name:{width}s} {s.road:8s} lanes {s.lanes}  density {s.density:.1f}  limit {s.speed_limit:.0f} m/s  "
-              f"targets {lo:g}-{hi:g} m/s  {s.duration:.0f} s")
+
+def planner_lines(rows: list[tuple[str, str]]) -> list[str]:
+    """One line per planner: its name and one-line description."""
+    width = max(len(name) for name, _ in rows)
+    return [f"{name:{width}s}  {description}" for name, description in rows]
+
+
+def run_scenarios(args: argparse.Namespace) -> int:
+    print("\n".join(scenario_lines(list(SCENARIOS))))
     return 0
 
 
 def run_planners(args: argparse.Namespace) -> int:
-    from driveopt.registry import PLANNERS
-
-    width = max(len(name) for name in PLANNERS)
-    for spec in PLANNERS.values():
-        print(f"{spec.name:{width}s}  {spec.description}")
+    print("\n".join(planner_lines(list(PLANNERS))))
     return 0

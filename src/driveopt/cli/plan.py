@@ -10,12 +10,7 @@ import argparse
 import dataclasses
 import time
 
-import numpy as np
-
 from driveopt.cli.common import config_overrides, non_negative_int, positive_int, seed, writable_file, write_json
-from driveopt.config import to_dict
-from driveopt.problem import build_problem
-from driveopt.scene import builtin_problems, load_scene, scene_to_dict
 
 
 def register(sub) -> None:
@@ -56,8 +51,12 @@ def _spec(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     import jax
+    import numpy as np
 
+    from driveopt.config import to_dict
     from driveopt.planner import plan
+    from driveopt.problem import build_problem
+    from driveopt.scene import load_scene, scene_to_dict
 
     writable_file(args.json, "--json")
     if args.plot:
@@ -104,6 +103,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_problems(args: argparse.Namespace) -> int:
+    from driveopt.scene import builtin_problems, load_scene
+
     for name in builtin_problems():
         scene = load_scene(name)
         print(f"{name}: {len(scene.neighbours)} neighbours, {scene.road.num_lanes} lanes, ego {scene.ego.vx:.0f} m/s")
