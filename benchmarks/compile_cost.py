@@ -4,9 +4,9 @@
 
 Each case runs in a fresh process (nothing compiled yet) on the built-in ``dense-snapshot`` problem with the
 default planner configuration (``--samples`` samples): the compile time (first ``plan()`` call minus the
-steady-state median), the steady-state median of ``--calls`` further calls, and the process's memory mappings
-(lines of ``/proc/self/maps``) before the first call, after it, and after ``jax.clear_caches()``. jaxlib 0.10
-maps each fused kernel of a CPU executable separately, and a process that reaches Linux's ``vm.max_map_count``
+steady-state median; JAX's persistent compilation cache off), the steady-state median of ``--calls`` further calls,
+and the process's memory mappings (lines of ``/proc/self/maps``) before the first call, after it, and after
+``jax.clear_caches()``. jaxlib 0.10 maps each fused kernel of a CPU executable separately, and a process that reaches Linux's ``vm.max_map_count``
 dies at its next compilation: ``compilations_to_the_limit`` is how many such compilations fit. A case's options
 are merged over the planner's own (``driveopt.xla.XLA_CPU_COMPILER_OPTIONS``). Every finished case is
 written at once; a rerun skips the cases already in the file.
@@ -94,7 +94,8 @@ def measure(options: dict, calls: int, samples: int) -> dict:
 def run_case(name: str, calls: int, samples: int) -> dict:
     """``name`` measured in a fresh Python process."""
     proc = subprocess.run([sys.executable, __file__, "--one", name, "--calls", str(calls), "--samples", str(samples)],
-                          capture_output=True, text=True)
+                          capture_output=True, text=True,
+                          env={**os.environ, "DRIVEOPT_COMPILATION_CACHE": "0"})  # compilations, not cache loads
     if proc.returncode != 0:
         raise SystemExit(f"compile_cost: case {name} failed:\n{proc.stderr[-3000:]}")
     record = json.loads(proc.stdout.strip().splitlines()[-1])

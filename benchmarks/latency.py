@@ -7,8 +7,8 @@ iterations) in {(5, 20), (1, 100)}, on the built-in 10-neighbour problem
 ``dense-snapshot`` with 100 nodes: compile time (first call minus the
 steady-state median) and the steady-state median / p90 wall time of a full
 ``plan()`` call over ``--calls`` calls with fresh PRNG keys, plus samples per
-second. Results are appended to the JSON file after every case, so an
-interrupted run resumes (``--resume``) without repeating finished cases.
+second (JAX's persistent compilation cache is off: compile times are compilations). Results are appended to
+the JSON file after every case, so an interrupted run resumes (``--resume``) without repeating finished cases.
 """
 
 from __future__ import annotations
@@ -81,6 +81,7 @@ def main(argv=None) -> int:
     parser.add_argument("--config", help="planner-config overrides (JSON, as for driveopt plan --config), applied before "
                                          "each case's samples and iterations")
     args = parser.parse_args(argv)
+    jax.config.update("jax_enable_compilation_cache", False)  # compile times are compilations, not cache loads
     if args.calls < 1:
         parser.error("--calls must be >= 1")
     try:
