@@ -110,3 +110,15 @@ def test_two_processes_fill_one_folder_at_once(tmp_path):
     assert third.returncode == 0, third.stderr
     again = json.loads(third.stdout.splitlines()[-1])
     assert again["hits"] == len(entries) and again["total"] == first[0]["total"] == first[1]["total"]
+
+
+def test_a_second_plan_loads_the_planner_from_the_cache(tmp_path):
+    env = {**{k: v for k, v in os.environ.items() if not k.startswith("JAX_")}, ENV: str(tmp_path), "JAX_LOG_COMPILES": "1"}
+    command = [sys.executable, "-m", "driveopt.cli", "plan", "--samples", "10", "--iterations", "2",
+               "--projection-iterations", "2", "--repeats", "0"]
+    runs = [subprocess.run(command, capture_output=True, text=True, timeout=600, env=env, check=False) for _ in range(2)]
+    assert [run.returncode for run in runs] == [0, 0], runs[-1].stderr[-2000:]
+    assert len(list(tmp_path.glob("jit_solve-*-cache"))) == 1
+    hit = "Persistent compilation cache hit for 'jit_solve'"
+    assert hit not in runs[0].stderr and hit in runs[1].stderr
+    assert runs[0].stdout.splitlines()[:3] == runs[1].stdout.splitlines()[:3]  # the same plan
