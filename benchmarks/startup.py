@@ -1,0 +1,125 @@
+"""How long the command line takes to start: ``--help``, the listings, and a first and a second ``driveopt plan``.
+
+    python benchmarks/startup.py --json out/startup.json [--runs 5] [--plan-runs 3] [--plan-args ...]
+
+Every command runs in a fresh process (``python -m driveopt.cli``, as the ``driveopt`` script runs it); the time is
+the process's wall time [s], the median over ``--runs`` runs (``--plan-runs`` for ``plan``). ``plan`` is timed twice
+per run with the same configuration and a compilation-cache folder of its own: ``plan_first`` starts from an empty
+folder (it compiles the planner and writes it there), ``plan_second`` finds it there (it loads the compiled planner).
+For both, ``first_call_s`` is the first planning call as ``plan --json`` reports it (compilation or loading included),
+``solve_s`` the median of the further calls (``--repeats``), and ``start_to_plan_s`` the wall time minus
+``--repeats`` x ``solve_s``: from the command's start to the first plan's result. The machine's load average
+(``os.getloadavg``) is recorded before and after every measurement.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.metadata
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+LIGHT = {"help": ["--help"], "scenarios": ["scenarios"], "planners": ["planners"], "problems": ["problems"],
+         "plan_help": ["plan", "--help"]}
+PLAN_ARGS = ["--problem", "dense-snapshot", "--repeats", "3"]
+
+
+def _run(argv: list[str], env: dict[str, str]) -> tuple[float, subprocess.CompletedProcess]:
+    start = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "driveopt.cli", *argv], capture_output=True, text=True, env=env,
+                          check=False)
+    wall = time.perf_counter() - start
+    if proc.returncode != 0:
+        raise SystemExit(f"startup: driveopt {' '.join(argv)} failed ({proc.returncode}): {proc.stderr.strip()[-2000:]}")
+    return wall, proc
+
+
+def _environment(cache: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    return {**env, "DRIVEOPT_COMPILATION_CACHE": cache}
+
+
+def time_light(name: str, argv: list[str], runs: int) -> dict:
+    """Median wall time of a command that plans nothing (with the cache off: it must not matter)."""
+    load = os.getloadavg()
+    walls = [_run(argv, _environment("0"))[0] for _ in range(runs)]
+    return {"argv": argv, "runs": walls, "median_s": statistics.median(walls), "load_before": load, "load_after": os.getloadavg()}
+
+
+def _plan_once(plan_args: list[str], cache: Path, out: Path) -> dict:
+    wall, _ = _run(["plan", *plan_args, "--json", str(out)], _environment(str(cache)))
+    timing = json.loads(out.read_text())["timing"]
+    repeats = 0 if timing["solve_s"] is None else int(plan_args[plan_args.index("--repeats") + 1])
+    return {"wall_s": wall, "first_call_s": timing["first_call_s"], "solve_s": timing["solve_s"],
+            "start_to_plan_s": wall - repeats * (timing["solve_s"] or 0.0)}
+
+
+def time_plan(plan_args: list[str], runs: int) -> dict:
+    """``plan`` from an empty cache folder, then again from the folder it filled; ``runs`` times, each with a new one."""
+    result: dict = {"args": plan_args, "plan_first": [], "plan_second": [], "cache_entries": [], "load": []}
+    for _ in range(runs):
+        with tempfile.TemporaryDirectory(prefix="driveopt-startup-") as tmp:
+            cache, out = Path(tmp) / "cache", Path(tmp) / "plan.json"
+            load = os.getloadavg()
+            result["plan_first"].append(_plan_once(plan_args, cache, out))
+            result["cache_entries"].append(sorted(p.name.split("-")[0] for p in cache.glob("*-cache")))
+            result["plan_second"].append(_plan_once(plan_args, cache, out))
+            result["load"].append({"before": load, "after": os.getloadavg()})
+    for which in ("plan_first", "plan_second"):
+        result[f"{which}_median"] = {k: statistics.median(r[k] for r in result[which] if r[k] is not None)
+                                     for k in ("wall_s", "first_call_s", "start_to_plan_s")}
+    return result
+
+
+def machine() -> dict:
+    return {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
+            "affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
+            "jax": importlib.metadata.version("jax")}
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return value
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--json", default="out/startup.json", help="results file")
+    parser.add_argument("--runs", type=_positive, default=5, help="runs of each light command (--help, listings)")
+    parser.add_argument("--plan-runs", type=_positive, default=3, help="first/second plan pairs")
+    parser.add_argument("--plan-args", nargs=argparse.REMAINDER, default=PLAN_ARGS,
+                        help=f"arguments of driveopt plan, last on the line (default: {' '.join(PLAN_ARGS)}); "
+                             "must include --repeats")
+    args = parser.parse_args(argv)
+    if "--repeats" not in args.plan_args:
+        parser.error("--plan-args must include --repeats N")
+    report: dict = {"machine": machine(), "load_before": os.getloadavg(), "commands": {}}
+    for name, command in LIGHT.items():
+        report["commands"][name] = time_light(name, command, args.runs)
+        print(f"driveopt {' '.join(command)}: {report['commands'][name]['median_s']:.2f} s median of {args.runs}", flush=True)
+    report["plan"] = time_plan(args.plan_args, args.plan_runs)
+    for which in ("plan_first", "plan_second"):
+        m = report["plan"][f"{which}_median"]
+        print(f"{which}: {m['wall_s']:.2f} s wall, first call {m['first_call_s']:.2f} s, start to first plan "
+              f"{m['start_to_plan_s']:.2f} s (median of {args.plan_runs})", flush=True)
+    report["load_after"] = os.getloadavg()
+    path = Path(args.json)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(report, indent=1))
+    tmp.replace(path)
+    print(f"wrote {path} (load average {report['load_before'][0]:.2f} before, {report['load_after'][0]:.2f} after)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
