@@ -49,7 +49,7 @@ def feasible_samples(snapshot, tolerance: float) -> int:
 
 def feasibility(problem, scenario, model, name: str, samples: int, keys: int) -> dict:
     spec = get_planner(name).with_samples(samples)
-    config = adapt_to_vehicle(spec.config, scenario, model)
+    config = adapt_to_vehicle(spec.config, model)
     prior = spec.prior(scenario.lanes)
     tolerance = config.sampler.residual_tolerance
     first, last, moving = [], [], []

@@ -133,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
     rows, lanes = evaluation_road_rows(data, args.validation, args.seed, args.max_rows, "the learned priors are")
     spec = get_optimiser(args.planner)
     scenarios = {str(name): get_scenario(str(name)) for name in np.unique(data.episodes["scenario"][data.episode[rows]])}
-    configs = {name: evaluation_config(adapt_to_vehicle(spec.config, s, BicycleModel()), args.samples) for name, s in scenarios.items()}
+    configs = {name: evaluation_config(adapt_to_vehicle(spec.config, BicycleModel(acceleration_range=s.acceleration_range, steering_range=s.steering_range)), args.samples) for name, s in scenarios.items()}
     priors, weights = make_priors(args.priors, spec.config, lanes, args.cvae_weights, args.vqvae_weights)
     settings = {"data": data.fingerprint(), "rows": len(rows), "validation": args.validation, "seed": args.seed,
                 "max_rows": args.max_rows, "samples": args.samples, "best_of": args.best_of, "planner": args.planner,

@@ -11,7 +11,8 @@ features), ``problem`` (arrays for the planner); the numerics ``basis``, ``qp``,
 ``ranking``, ``fallback``, ``batch_rows``; ``filtering`` (the SafetyFilter contract); ``planner`` (``solve``
 and ``plan``); ``files``; ``learned/`` (networks), ``priors/``, ``safety/``, ``data/`` (demonstrations),
 ``sim/`` (highway-env), ``rl/``, ``drivers/`` and ``registry`` (who drives); ``training/``;
-``experiments/`` (rollout, bench, collect); ``viz/``, ``cli/``.
+``experiments/`` (rollout, bench, collect); ``controller`` (:class:`Controller`: a planner driving the user's own
+highway-env env); ``viz/``, ``cli/``.
 """
 
 import importlib
@@ -34,6 +35,7 @@ _EXPORTS = {
     "CostPlusResidual": "driveopt.ranking", "FeasibilityFirst": "driveopt.ranking",
     "EgoState": "driveopt.scene", "Neighbour": "driveopt.scene", "ProblemError": "driveopt.scene", "Road": "driveopt.scene",
     "Scene": "driveopt.scene", "load_scene": "driveopt.scene",
+    "Controller": "driveopt.controller", "gym_make": "driveopt.sim.rewards",
 }
 __all__ = list(_EXPORTS)
 

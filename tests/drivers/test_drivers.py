@@ -22,7 +22,7 @@ from driveopt.trajectory import Trajectory
 
 def test_planner_bounds_fit_the_simulated_car():
     scenario = get_scenario("four-lane-d3.0")
-    config = adapt_to_vehicle(get_planner("bilevel").config, scenario, BicycleModel())
+    config = adapt_to_vehicle(get_planner("bilevel").config, BicycleModel(acceleration_range=scenario.acceleration_range, steering_range=scenario.steering_range))
     assert config.projection.a_max <= 5.0 and config.projection.kappa_max < 2 * np.sin(np.arctan(0.5)) / 5.0
     assert config.qp.initial_acceleration  # plans start from the applied acceleration (smooth commands)
 
@@ -98,7 +98,7 @@ def test_p1_driver_executes_its_plan_unless_it_is_not_finite(status):
     for name in ("grid", "grid-p1"):
         driver = get_planner(name).driver()
         driver.model = model
-        actions[name] = driver._command(result, 0.0, state, env)[0]
+        actions[name] = driver._command(result, driver.followed(result), 0.0, state, env)[0]  # a road along +x: world
     np.testing.assert_array_equal(actions["grid"], brakes_now.action)
     expected = follows_plan if status == PlanStatus.INFEASIBLE else brakes_now
     np.testing.assert_array_equal(actions["grid-p1"], expected.action)

@@ -23,7 +23,7 @@ from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, Road, Scene
 from driveopt.sim.env import step_env
 from driveopt.sim.perception import perceive, scene_from_env
-from driveopt.sim.road_frame import RoadFrameError, driving_lanes, road_geometry
+from driveopt.sim.road_frame import RoadFrameError, build_frame
 from driveopt.sim.scenarios import get_scenario
 
 # ----------------------------------------------------------------------------- synthetic scenes
@@ -204,8 +204,9 @@ def test_two_way_and_merge_roads_exclude_oncoming_and_ramp_lanes():
         scene = scene_from_env(env, scenario)
         assert scene.road == Road(num_lanes=2, lane_width=4.0, first_lane_center=0.0, curvature=0.0)
         network = env.unwrapped.road.network
+        frame = build_frame(network, ("a", "b"))
         for x in (0.0, 250.0, 350.0, 1000.0):  # before, along and after the merge section, past the end
-            assert road_geometry(driving_lanes(network, x)).num_lanes == 2
+            assert frame.road(x, 30.0, 10.0).num_lanes == 2
 
 
 def test_merge_obstacle_is_a_neighbour():
@@ -232,4 +233,4 @@ def test_uneven_lanes_are_rejected():
     network.add_lane("a", "b", StraightLane([0, 0], [100, 0], width=4.0))
     network.add_lane("a", "b", StraightLane([0, 5], [100, 5], width=4.0))
     with pytest.raises(RoadFrameError, match="not adjacent"):
-        road_geometry(driving_lanes(network, 10.0))
+        build_frame(network, ("a", "b"))

@@ -28,6 +28,8 @@ class Decision(NamedTuple):
     problem: PlanningProblem | None = None  # the planning problem it solved
     plan_seconds: float = 0.0  # [s] wall time of the planning call
     guarded: bool = False  # the contact guard replaced the command by braking now (driveopt.sim.contact)
+    frame: Any = None  # the road frame it planned in (driveopt.sim.road_frame.RoadFrame)
+    plan_world: Any = None  # the plan it follows in world coordinates (driveopt.sim.world_plan.WorldTrajectory)
 
 
 class Driver(Protocol):

@@ -43,28 +43,38 @@ from driveopt.problem import build_problem
 from driveopt.ranking import FeasibilityFirst, Ranking
 from driveopt.sim.contact import guard
 from driveopt.sim.control import BicycleModel, brake_at_least, ego_kinematics, track
-from driveopt.sim.perception import Perception, perceive
+from driveopt.sim.perception import Perception, RoadPreview, perceive
+from driveopt.sim.road_frame import RoadFrameError
 from driveopt.sim.scenarios import Scenario
+from driveopt.sim.world_plan import to_world
 
 SAFETY_FACTOR = 0.9  # [-] plans use at most this fraction of the simulator's acceleration and curvature
+MIN_PLANNING_CURVATURE = 0.02  # [1/m] path curvature a plan must keep on top of the road's (a 50 m radius)
 
 PriorFactory = Callable[[PlannerConfig, int, "str | None"], Any]  # (config, lanes, weights file) -> prior
 
 
-def vehicle_acceleration(scenario: Scenario) -> float:
+def vehicle_acceleration(model: BicycleModel) -> float:
     """[m/s^2] the acceleration plans may use: SAFETY_FACTOR of the smaller end of the car's ``acceleration_range``."""
-    return SAFETY_FACTOR * min(abs(scenario.acceleration_range[0]), abs(scenario.acceleration_range[1]))
+    return SAFETY_FACTOR * min(abs(model.acceleration_range[0]), abs(model.acceleration_range[1]))
 
 
-def adapt_to_vehicle(config: PlannerConfig, scenario: Scenario, model: BicycleModel) -> PlannerConfig:
+def adapt_to_vehicle(config: PlannerConfig, model: BicycleModel, road_curvature: float = 0.0) -> PlannerConfig:
     """Cap the planner's acceleration and curvature bounds at what the simulated car can do.
 
     Upstream's ego accelerates within ``acceleration_range`` and turns at most with curvature
-    2 sin(beta_max) / L, beta_max = arctan(tan(delta_max) / 2).
+    2 sin(beta_max) / L, beta_max = arctan(tan(delta_max) / 2). Plans are made in the road frame, where a path's
+    curvature is what it turns on top of the road's: the bound leaves ``|road_curvature|`` [1/m] (the sharpest
+    curve of the route) to the road. RoadFrameError when the road turns tighter than the car can.
     """
-    a_max = vehicle_acceleration(scenario)
-    beta_max = math.atan(0.5 * math.tan(max(abs(s) for s in scenario.steering_range)))
-    kappa_max = SAFETY_FACTOR * 2.0 * math.sin(beta_max) / model.length
+    a_max = vehicle_acceleration(model)
+    beta_max = math.atan(0.5 * math.tan(max(abs(s) for s in model.steering_range)))
+    car_kappa = SAFETY_FACTOR * 2.0 * math.sin(beta_max) / model.length
+    kappa_max = car_kappa - abs(road_curvature)
+    if road_curvature != 0.0 and kappa_max < MIN_PLANNING_CURVATURE:
+        raise RoadFrameError(f"the route curves with radius {1.0 / abs(road_curvature):.1f} m; with its steering range "
+                             f"{model.steering_range} rad the car turns no tighter than {1.0 / car_kappa:.1f} m "
+                             f"(with the planner's {SAFETY_FACTOR} safety factor), leaving no curvature to manoeuvre")
     projection = dataclasses.replace(
         config.projection,
         a_max=min(config.projection.a_max, a_max),
@@ -73,9 +83,9 @@ def adapt_to_vehicle(config: PlannerConfig, scenario: Scenario, model: BicycleMo
     return dataclasses.replace(config, projection=projection)
 
 
-def adapt_fallback(fallback: Fallback, scenario: Scenario) -> Fallback:
+def adapt_fallback(fallback: Fallback, model: BicycleModel) -> Fallback:
     """``fallback`` braking comfortably at no more than the car can (:func:`vehicle_acceleration`)."""
-    return dataclasses.replace(fallback, deceleration=min(fallback.deceleration, vehicle_acceleration(scenario)))
+    return dataclasses.replace(fallback, deceleration=min(fallback.deceleration, vehicle_acceleration(model)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,16 +204,23 @@ class OptimiserDriver:
         self.name = spec.name
         self.compile_seconds = 0.0
 
-    def reset(self, env: Any, scenario: Scenario, seed: int) -> None:
-        """Adapt the configuration to the env's car, load the prior, and compile (timed as ``compile_seconds``)."""
+    def reset(self, env: Any, scenario: Any, seed: int) -> None:
+        """Adapt the configuration to the env's car and road, load the prior, and compile (timed as ``compile_seconds``).
+
+        The car's acceleration and steering ranges, its length, the simulation and policy frequencies and the road
+        are read from ``env``; ``scenario`` (a :class:`~driveopt.sim.scenarios.Scenario` or a
+        :class:`~driveopt.sim.perception.Task`) gives only the desired speed, a name and optionally a route."""
         self.scenario = scenario
         self.model = BicycleModel.from_env(env)
-        self.config = adapt_to_vehicle(self.spec.config, scenario, self.model)
-        self.strategies = {**self.spec.strategies, "fallback": adapt_fallback(self.spec.fallback, scenario)}
-        self.prior = self.spec.prior(scenario.lanes)
-        self.safety_filter = self.spec.safety_filter(scenario.lanes)
+        self.preview = RoadPreview(lateral_acceleration=self.spec.config.projection.centripetal_max)
+        first = perceive(env, scenario, self.preview)
+        self.config = adapt_to_vehicle(self.spec.config, self.model, first.frame.curvature_between(-math.inf, math.inf))
+        self.strategies = {**self.spec.strategies, "fallback": adapt_fallback(self.spec.fallback, self.model)}
+        lanes = first.scene.road.num_lanes
+        self.prior = self.spec.prior(lanes)
+        self.safety_filter = self.spec.safety_filter(lanes)
         self.key = jax.random.PRNGKey(seed)
-        self.period = 1.0 / scenario.policy_frequency  # [s] one policy period
+        self.period = 1.0 / env.unwrapped.config["policy_frequency"]  # [s] one policy period
         self.replan_period = self.spec.replan_every * self.period  # [s] between replans
         self.carries_plan = self.config.cost.consistency > 0
         # The first call passes absent placeholders for what later calls carry: every call runs one compilation,
@@ -211,11 +228,12 @@ class OptimiserDriver:
         self.warm = WarmStart.absent() if self.spec.warm_start else None
         self.previous = PreviousPlan.absent(self.config.basis.num_nodes) if self.carries_plan else None
         start = time.perf_counter()
-        problem = self._problem(perceive(env, scenario))
+        problem = self._problem(first)
         plan(problem, self.config, key=jax.random.fold_in(self.key, 1), prior=self.prior, warm_start=self.warm,
              previous=self.previous, safety_filter=self.safety_filter, **self.strategies)
         self.compile_seconds = time.perf_counter() - start
         self.executing = None
+        self.executing_world = None
         self.executed_periods = 0
 
     def _problem(self, perception: Perception):
@@ -227,15 +245,24 @@ class OptimiserDriver:
         previous = previous_plan(result, self.replan_period) if self.carries_plan else None
         return (result.mean if self.spec.warm_start else None), previous
 
+    def _executes_chosen(self, result: PlanResult) -> bool:
+        """Whether the car follows the chosen plan whatever its status (P1), not the safe trajectory."""
+        return self.spec.executes_infeasible and result.status != PlanStatus.NUMERICAL_ERROR
+
+    def followed(self, result: PlanResult) -> Any:
+        """The trajectory of ``result`` the car follows (road frame): the chosen plan (P1, unless NUMERICAL_ERROR) or the
+        safe trajectory (the plan when SUCCESS, else the fallback)."""
+        return result.trajectory if self._executes_chosen(result) else result.safe_trajectory
+
     def act(self, env: Any) -> Decision:
         if self.executing is not None and self.executed_periods < self.spec.replan_every:  # P1's open-loop periods
-            perception = perceive(env, self.scenario) if self.spec.contact_guard else None
-            kinematics = perception.kinematics if perception else ego_kinematics(env)
-            action, guarded = self._command(self.executing, self.executed_periods * self.period, kinematics, env,
-                                            perception and perception.scene)
+            perception = perceive(env, self.scenario, self.preview) if self.spec.contact_guard else None
+            tracking = perception.tracking if perception else ego_kinematics(env)
+            action, guarded = self._command(self.executing, self.executing_world, self.executed_periods * self.period,
+                                            tracking, env, perception)
             self.executed_periods += 1
             return Decision(action, guarded=guarded)
-        perception = perceive(env, self.scenario)
+        perception = perceive(env, self.scenario, self.preview)
         scene = perception.scene
         problem = self._problem(perception)
         self.key, sub = jax.random.split(self.key)
@@ -245,18 +272,21 @@ class OptimiserDriver:
         elapsed = time.perf_counter() - start
         self.warm, self.previous = self._carried(result)
         self.executing, self.executed_periods = result, 1
-        action, guarded = self._command(result, 0.0, perception.kinematics, env, scene)
-        return Decision(action, result, scene, problem, elapsed, guarded)
+        self.executing_world = to_world(self.followed(result), perception.frame)  # in world coordinates, for tracking
+        action, guarded = self._command(result, self.executing_world, 0.0, perception.tracking, env, perception)
+        return Decision(action, result, scene, problem, elapsed, guarded, perception.frame, self.executing_world)
 
-    def _command(self, result: PlanResult, elapsed: float, kinematics, env: Any, scene=None) -> tuple[Any, bool]:
-        """(the action that follows ``result``'s executed plan ``elapsed`` [s] after it was made, whether the contact
-        guard replaced it by braking now; ``scene``: the world now, read when the configuration guards)."""
-        if self.spec.executes_infeasible and result.status != PlanStatus.NUMERICAL_ERROR:  # P1: the chosen plan, feasible or not
-            return track(result.trajectory, elapsed, kinematics, self.model).action, False
-        command = track(result.safe_trajectory, elapsed, kinematics, self.model)
+    def _command(self, result: PlanResult, followed: Any, elapsed: float, tracking, env: Any,
+                 perception: Perception | None = None) -> tuple[Any, bool]:
+        """(the action that tracks ``followed`` (:meth:`followed` of ``result`` in world coordinates) ``elapsed`` [s]
+        after it was planned, whether the contact guard replaced it by braking now); ``tracking``: the ego's speed and
+        world heading; ``perception``: the world now, read when the configuration guards."""
+        command = track(followed, elapsed, tracking, self.model)
+        if self._executes_chosen(result):  # P1: the chosen plan, feasible or not
+            return command.action, False
         if result.status != PlanStatus.SUCCESS:  # executing the fallback: brake now, not after a ramp
             command = brake_at_least(command, result.fallback_deceleration, self.model, float(env.unwrapped.vehicle.speed))
         guarded = False
-        if self.spec.contact_guard:
-            command, guarded = guard(command, kinematics, scene, self.model)
+        if self.spec.contact_guard and perception is not None:
+            command, guarded = guard(command, perception.kinematics, perception.scene, self.model)
         return command.action, guarded

@@ -34,7 +34,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from driveopt.errors import DriveoptError
-from driveopt.sim.road_frame import driving_lanes, slip_angle, vehicle_motion
+from driveopt.sim.lane_graph import wrap_angle
+from driveopt.sim.road_frame import slip_angle
 from driveopt.trajectory import Trajectory
 
 _BISECTION_STEPS = 60  # halves the slip-angle bracket (< 1 rad) down to ~1e-18 rad
@@ -127,15 +128,14 @@ class EgoKinematics(NamedTuple):
     """What the inverse needs of the ego now."""
 
     speed: float  # [m/s]
-    heading: float  # [rad] body heading relative to the road (not the course)
+    heading: float  # [rad] body heading (not the course) in the trajectory's axes: world axes for world plans
 
 
 def ego_kinematics(env: Any) -> EgoKinematics:
-    """Speed and body heading of ``env.unwrapped.vehicle`` in the road frame."""
+    """Speed and world body heading of ``env.unwrapped.vehicle`` (the axes of :mod:`driveopt.sim.world_plan`; on a
+    road along +x, the road frame's)."""
     vehicle = env.unwrapped.vehicle
-    lanes = driving_lanes(env.unwrapped.road.network, float(vehicle.position[0]))
-    m = vehicle_motion(vehicle, lanes[0])
-    return EgoKinematics(speed=m.speed, heading=m.heading)
+    return EgoKinematics(speed=float(vehicle.speed), heading=wrap_angle(float(vehicle.heading)))
 
 
 def predict(state: EgoKinematics, acceleration: float, steering: float, model: BicycleModel) -> tuple[np.ndarray, EgoKinematics]:
@@ -250,5 +250,6 @@ def brake_at_least(command: Command, deceleration: float, model: BicycleModel, s
 
 
 def command_from_env(env: Any, trajectory: Trajectory, elapsed: float, model: BicycleModel | None = None) -> Command:
-    """The command that follows ``trajectory`` (planned ``elapsed`` [s] ago) from the env's current ego state."""
+    """The command that follows ``trajectory`` (world coordinates, planned ``elapsed`` [s] ago) from the env's current
+    ego state."""
     return track(trajectory, elapsed, ego_kinematics(env), model or BicycleModel.from_env(env))

@@ -20,7 +20,8 @@ The subclasses below only add what the scenarios need and upstream has no config
 - truncation after ``duration`` seconds on every road, counted in integer simulation steps
   (upstream accumulates ``1 / policy_frequency`` in a float; two-way-v0 and merge-v0 never truncate);
 - rewards that do not read DiscreteMetaAction-only state (upstream two-way-v0 reads
-  ``vehicle.speed_index``; merge-v0 tests ``action in [0, 2]``, which raises for array actions).
+  ``vehicle.speed_index``; merge-v0 tests ``action in [0, 2]``, which raises for array actions): the
+  terms of :mod:`driveopt.sim.rewards`, which fixes a user's own env the same way.
 
 gymnasium 1.x wrappers hide attributes: reach the simulator through ``env.unwrapped``.
 """
@@ -32,13 +33,13 @@ from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
-from highway_env import utils
 from highway_env.envs.common.observation import ObservationType
 from highway_env.envs.highway_env import HighwayEnv
 from highway_env.envs.merge_env import MergeEnv
 from highway_env.envs.two_way_env import TwoWayEnv
 
 from driveopt.sim.fast_road import FastRoad
+from driveopt.sim.rewards import two_way_rewards
 from driveopt.sim.scenarios import Scenario
 
 UPSTREAM_TRAFFIC = "highway_env.vehicle.behavior.IDMVehicle"
@@ -175,10 +176,7 @@ class DriveoptTwoWayEnv(_ScenarioTraffic, TwoWayEnv):
     """two-way-v0 (one lane each way; the ego overtakes on the oncoming lane) with scenario traffic."""
 
     def _rewards(self, action: Any) -> dict[str, float]:
-        speed = utils.lmap(self.vehicle.speed, [20.0, 30.0], [0.0, 1.0])
-        side = self.road.network.all_side_lanes(self.vehicle.lane_index)
-        left = (len(side) - 1 - self.vehicle.lane_index[2]) / max(len(side) - 1, 1)
-        return {"high_speed_reward": float(np.clip(speed, 0.0, 1.0)), "left_lane_reward": float(left)}
+        return two_way_rewards(self, action)
 
 
 class DriveoptMergeEnv(_ScenarioTraffic, MergeEnv):
@@ -186,7 +184,7 @@ class DriveoptMergeEnv(_ScenarioTraffic, MergeEnv):
 
     def _rewards(self, action: Any) -> dict[str, float]:
         # upstream's lane_change_reward tests `action in [0, 2]` (DiscreteMetaAction); no lane-change actions here
-        return super()._rewards(None)
+        return MergeEnv._rewards(self, None)
 
 
 _CLASSES = {"highway": DriveoptHighwayEnv, "two-way": DriveoptTwoWayEnv, "merge": DriveoptMergeEnv}

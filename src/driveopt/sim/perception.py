@@ -1,9 +1,18 @@
 """From the simulator to the planner: the current state as a :class:`~driveopt.scene.Scene`, read once per step.
 
-:func:`perceive` reads ``env.unwrapped`` once: the ego in road coordinates (see
-:mod:`driveopt.sim.road_frame`), the driving lanes at the ego's position, and every other vehicle
-and collidable road object with its actual length and width. It returns the planning scene and the
-ego's speed and body heading for the controller (:func:`driveopt.sim.control.track`).
+:func:`perceive` reads ``env.unwrapped`` once: the Frenet frame along the ego's route (see
+:mod:`driveopt.sim.road_frame`; any road of straight, circular and sine lanes), the ego in it, the lanes
+that continue ahead, the road's curvature just ahead (for the centripetal bound), and every other vehicle
+and collidable road object the frame reaches, with its actual length and width. It returns the planning
+scene, the frame, and the ego's speed and body heading for the controller (relative to the road for the
+contact guard, in world axes for :func:`driveopt.sim.control.track`, which follows plans turned into world
+coordinates by :mod:`driveopt.sim.world_plan`).
+
+Curves ahead lower the scene's desired speed to the fastest from which the car can still slow to a
+curve's speed (``sqrt(lateral_acceleration / |kappa|)``) at :attr:`RoadPreview.deceleration`: the planner
+sees one constant curvature per call, so without that advice a car would meet the centripetal bound only
+when the curve entered the preview, too fast. On a straight road the desired speed, the road and every
+state are the straight road's, exactly.
 
 The ego's velocity in the scene points along its course (body heading + the slip angle of the
 steering applied now), as the simulator integrates it, so a plan starts with the lateral velocity
@@ -16,56 +25,97 @@ rate, and slow drifts across lanes).
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+import math
+from dataclasses import dataclass
+from typing import Any, NamedTuple, Sequence
 
 from driveopt.observation import ObservationError
 from driveopt.scene import EgoState, Neighbour, ProblemError, Scene
 from driveopt.sim.control import EgoKinematics
-from driveopt.sim.road_frame import Motion, driving_lanes, road_geometry, vehicle_motion
-from driveopt.sim.scenarios import Scenario
+from driveopt.sim.road_frame import Motion, RoadFrame, ego_frame, vehicle_motion, wrap_angle
+
+
+@dataclass(frozen=True)
+class RoadPreview:
+    """How far along the route the scene looks, and the speed advice for curves."""
+
+    lateral_acceleration: float = 4.0  # [m/s^2] the planner's centripetal bound (projection.centripetal_max)
+    deceleration: float = 1.5  # [m/s^2] comfortable braking towards a curve's speed
+    lane_time: float = 4.0  # [s] lanes ending within this time at the current speed are left out of the road
+    lane_distance: float = 30.0  # [m] ... or within this distance, whichever is further
+    curvature_time: float = 1.5  # [s] the curvature within this time ahead enters the centripetal bound
+    curvature_distance: float = 10.0  # [m] ... or within this distance, whichever is further
+    speed_distance: float = 300.0  # [m] curves within this distance lower the desired speed
 
 
 class Perception(NamedTuple):
     """What one closed-loop step knows of the world."""
 
-    scene: Scene  # planning scene: the ego's velocity along its course
-    kinematics: EgoKinematics  # the ego's speed [m/s] and body heading [rad], for the controller
+    scene: Scene  # planning scene in the road frame: the ego's velocity along its course
+    kinematics: EgoKinematics  # the ego's speed [m/s] and body heading relative to the road [rad] (contact guard)
+    frame: RoadFrame | None = None  # the Frenet frame the scene is in
+    tracking: EgoKinematics | None = None  # the ego's speed [m/s] and world body heading [rad] (tracking world plans)
 
 
-def _read(env: Any, scenario: Scenario) -> tuple[Scene, Motion]:
-    """(scene, the ego's motion) of the current simulator state."""
+def curve_speed(frame: RoadFrame, s: float, v_des: float, preview: RoadPreview) -> float:
+    """[m/s] ``v_des``, lowered to the fastest speed from which the car slows to each curve's speed within
+    ``preview.speed_distance`` ahead of ``s`` [m] at ``preview.deceleration``."""
+    speed = v_des
+    for distance, kappa in frame.curves_ahead(s, s + preview.speed_distance):
+        if kappa > 0.0:
+            speed = min(speed, math.sqrt(preview.lateral_acceleration / kappa + 2.0 * preview.deceleration * max(distance, 0.0)))
+    return speed
+
+
+def _read(env: Any, task: Any, preview: RoadPreview) -> tuple[Scene, Motion, RoadFrame]:
+    """(scene, the ego's motion, the frame) of the current simulator state; ``task``: its ``v_des`` [m/s], ``name``
+    and optional ``route`` (node names)."""
     sim = env.unwrapped
     ego_vehicle = sim.vehicle
     if ego_vehicle is None or sim.road is None:
         raise ObservationError("the env has no road or ego vehicle: call env.reset(seed=...) first")
-    lanes = driving_lanes(sim.road.network, float(ego_vehicle.position[0]))
-    road = road_geometry(lanes)
-    reference = lanes[0]
+    frame, me = ego_frame(env, getattr(task, "route", None))
+    ahead = max(me.speed, 0.0)
+    road = frame.road(me.x, max(preview.lane_distance, ahead * preview.lane_time),
+                      max(preview.curvature_distance, ahead * preview.curvature_time), behind=0.5 * me.length)
     try:
-        me = vehicle_motion(ego_vehicle, reference)
         ego = EgoState(x=me.x, y=me.y, vx=me.vx, vy=me.vy, ax=me.ax, ay=me.ay, length=me.length, width=me.width,
                        yaw=me.heading)
         neighbours = []
         others = [v for v in sim.road.vehicles if v is not ego_vehicle]
         others += [o for o in sim.road.objects if getattr(o, "collidable", True)]
         for other in others:
-            m = vehicle_motion(other, reference)
+            m = vehicle_motion(other, frame, near_s=me.x)
+            if m is None:  # beyond the frame: the far side of the graph
+                continue
             accel = (m.ax * m.vx + m.ay * m.vy) / m.speed if m.speed > 1e-6 else 0.0  # along the velocity
             neighbours.append(
                 Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width, yaw=m.heading, accel=accel)
             )
-        scene = Scene(ego=ego, road=road, neighbours=tuple(neighbours), v_des=scenario.v_des, name=scenario.name)
+        v_des = curve_speed(frame, me.x, float(task.v_des), preview)
+        scene = Scene(ego=ego, road=road, neighbours=tuple(neighbours), v_des=v_des, name=task.name)
     except ProblemError as exc:
         raise ObservationError(f"simulator state at t = {sim.steps / sim.config['simulation_frequency']:.2f} s: {exc}") from None
-    return scene, me
+    return scene, me, frame
 
 
-def scene_from_env(env: Any, scenario: Scenario) -> Scene:
-    """Scene of the current simulator state (``v_des``, name: the scenario's)."""
-    return _read(env, scenario)[0]
+def scene_from_env(env: Any, task: Any, preview: RoadPreview = RoadPreview()) -> Scene:
+    """Scene of the current simulator state (``v_des``, name: the task's, e.g. a scenario)."""
+    return _read(env, task, preview)[0]
 
 
-def perceive(env: Any, scenario: Scenario) -> Perception:
-    """The planning scene and the ego's kinematics, read once."""
-    scene, me = _read(env, scenario)
-    return Perception(scene, EgoKinematics(speed=me.speed, heading=me.heading))
+def perceive(env: Any, task: Any, preview: RoadPreview = RoadPreview()) -> Perception:
+    """The planning scene, its frame and the ego's kinematics, read once; ``task``: anything with ``v_des`` [m/s] and
+    ``name`` (a :class:`~driveopt.sim.scenarios.Scenario`, a :class:`Task`), and optionally ``route``."""
+    scene, me, frame = _read(env, task, preview)
+    world = EgoKinematics(speed=me.speed, heading=wrap_angle(float(env.unwrapped.vehicle.heading)))
+    return Perception(scene, EgoKinematics(speed=me.speed, heading=me.heading), frame, world)
+
+
+@dataclass(frozen=True)
+class Task:
+    """What a driver is asked to do on a user's env: its desired speed, a name for records, and optionally a route."""
+
+    v_des: float  # [m/s]
+    name: str = "env"
+    route: Sequence[str] | None = None  # node names of highway-env's lane graph, e.g. ("0", "1", "2", "exit")

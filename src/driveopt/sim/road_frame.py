@@ -1,50 +1,86 @@
-"""Road (Frenet) frame of highway-env's straight roads, and vehicle motion expressed in it.
+"""The road (Frenet) frame along the ego's route through highway-env's lane graph, and motion expressed in it.
 
-The driving lanes at a longitudinal position are the straight, non-forbidden lanes that point
-along +x and cover that position (highway-v0: all lanes; two-way-v0: the two a->b lanes, not
-the oncoming b->a one; merge-v0: the two main lanes, not the on-ramp). Lane i is centred at
-``first_lane_center + i * lane_width`` (highway-v0: 4 m wide, centred at y = 0, 4, 8, ...).
+The frame follows the lowest driving lane of each road of the route (:mod:`driveopt.sim.lane_graph`):
+``s`` [m] is the arc length along that reference line and ``d`` [m] the lateral offset from it (upstream's
+lateral axis: to the left of the direction of travel, +y on a road along +x). At the ego's road, ``(s, d)``
+of the reference lane's start are that point's coordinates along and across the lane's initial direction,
+so that on a road along +x ``s`` is the world ``x`` and ``d`` the world ``y``; the roads ahead and behind
+continue the arc length. Consecutive straight, collinear roads form one piece measured in the ego road's
+lane (a straight road along +x, any number of sections, is exactly today's ``x = x0 + (X - x0)``,
+``y = y0 + (Y - y0)``); a curved piece (``CircularLane``, ``SineLane``) is measured in its own lane.
 
-Positions come from the lowest driving lane's ``local_coordinates`` (longitudinal,
-lateral), shifted by that lane's start, so ``x`` is the distance along the road and ``y``
-the lateral offset, both in the same sense as highway-env's world axes (``y`` grows
-downwards on screen).
+What the frame represents, checked whenever it is built (every perception):
 
-Upstream's kinematic bicycle (``Vehicle.step``) moves the centre along ``heading + beta``
-with ``beta = arctan(tan(steering) / 2)``, not along ``heading``; ``Vehicle.velocity`` ignores
-``beta`` (an upstream TODO). :func:`vehicle_motion` uses the course ``heading + beta`` and the
-acceleration the vehicle is currently applying (``vehicle.action``, held until its next action):
-tangential ``a`` and normal ``speed * heading_rate = speed**2 * sin(beta) / (length / 2)``.
+- each road's driving lanes are parallel (constant lateral offset: concentric arcs, parallel lines),
+  equally wide and adjacent; otherwise :class:`RoadFrameError` names the lane;
+- no lane of another road crosses the route's lanes at more than :data:`CROSSING_ANGLE` (an
+  intersection's or a roundabout's crossing traffic has no place in a frame along the route); joining
+  lanes at a shallow angle (an on-ramp) and oncoming lanes (two-way) are represented;
+- the route does not end at a junction (a node whose roads do not continue the route's lanes, or only
+  by a turn sharper than :data:`driveopt.sim.lane_graph.MAX_TURN`, as into a roundabout's ring);
+- the ego lies on the frame, within :data:`MAX_EGO_OFFSET` of its road's lanes.
+
+Vehicles are placed on the piece whose longitudinal range holds them, nearest laterally; those more than
+:data:`LATERAL_REACH` beside the road's lanes or beyond a curved end of the frame are dropped (the other
+side of a racetrack's infield, a far part of the graph).
+
+Upstream's kinematic bicycle (``Vehicle.step``) moves the centre along ``heading + beta`` with
+``beta = arctan(tan(steering) / 2)``, not along ``heading``; ``Vehicle.velocity`` ignores ``beta`` (an
+upstream TODO). :func:`vehicle_motion` uses the course ``heading + beta`` and the acceleration the vehicle
+is applying (``vehicle.action``, held until its next action): tangential ``a`` and normal
+``speed * heading_rate = speed**2 * sin(beta) / (length / 2)``, turned into Frenet rates
+``s' = v_t / (1 - kappa d)``, ``d' = v_n`` (``kappa``: the reference line's curvature, 0 on a straight road).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from typing import Any, NamedTuple
+import weakref
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
-from highway_env.road.lane import SineLane, StraightLane
+from highway_env.road.lane import CircularLane, SineLane, StraightLane
 
 from driveopt.errors import DriveoptError
 from driveopt.scene import Road
+from driveopt.sim.lane_graph import (
+    driving_lanes,
+    lane_end,
+    lane_start,
+    next_road,
+    previous_road,
+    route_roads,
+    junctions,
+    wrap_angle,
+)
 
-_ALIGNED = 1e-6  # [-] tolerance on a lane direction being (1, 0)
-_GEOMETRY_TOL = 1e-6  # [m] tolerance on equal lane widths and even spacing
+_GEOMETRY_TOL = 1e-6  # [m] tolerance on equal lane widths and on straight sections being collinear
+_SPACING_TOL = 0.25  # [m] tolerance on adjacent lanes' spacing being their width (upstream's racetrack: 5.09 m for 5 m)
+_PARALLEL_TOL = 0.1  # [m] tolerance on a lane's lateral offset being constant along its road
+AHEAD = 600.0  # [m] route length the frame covers ahead of the ego (15 s at 40 m/s)
+BEHIND = 150.0  # [m] route length the frame covers behind the ego
+LATERAL_REACH = 15.0  # [m] vehicles further than this beside the road's lanes are not placed on the frame
+CROSSING_ANGLE = math.radians(30.0)  # [rad] a lane meeting the route at a larger angle (and not oncoming) crosses it
+MAX_EGO_OFFSET = 8.0  # [m] the ego further than this beside its road's lanes is not on the frame
+_SAMPLE_STEP = 2.0  # [m] spacing of the points at which other lanes are checked for crossings
+_CURVATURE_STEP = 1.0  # [m] half-step of the numerical curvature of a sine lane, and spacing of its samples
+_MAX_PIECES = 256  # [-] roads followed at most in each direction
 
 
 class RoadFrameError(DriveoptError):
-    """The simulator's road is not a set of straight, parallel, evenly spaced lanes along +x."""
+    """The simulator's road cannot be represented in a Frenet frame along the ego's route."""
 
 
 class Motion(NamedTuple):
     """State of a vehicle (or static object) in the road frame."""
 
-    x: float  # [m] along the road
-    y: float  # [m] across the road
-    vx: float  # [m/s] velocity of the centre
-    vy: float  # [m/s]
-    ax: float  # [m/s^2] acceleration of the centre
-    ay: float  # [m/s^2]
+    x: float  # [m] s, along the road
+    y: float  # [m] d, across the road
+    vx: float  # [m/s] s' of the centre
+    vy: float  # [m/s] d'
+    ax: float  # [m/s^2] s''
+    ay: float  # [m/s^2] d''
     speed: float  # [m/s] upstream's ``speed`` (signed, along the course)
     heading: float  # [rad] body heading relative to the road, in [-pi, pi)
     course: float  # [rad] direction of motion of the centre relative to the road: heading + slip
@@ -52,62 +88,362 @@ class Motion(NamedTuple):
     width: float  # [m]
 
 
-def wrap_angle(angle: float) -> float:
-    """[rad] angle wrapped to [-pi, pi)."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
 def slip_angle(steering: float) -> float:
     """[rad] upstream's slip angle of the centre for a front-wheel angle [rad]: arctan(tan(steering) / 2)."""
     return math.atan(0.5 * math.tan(steering))
 
 
-def _is_driving_lane(lane: Any) -> bool:
-    if not isinstance(lane, StraightLane) or isinstance(lane, SineLane) or lane.forbidden:
+def _is_straight(lane: Any) -> bool:
+    return isinstance(lane, StraightLane) and not isinstance(lane, SineLane)
+
+
+def lane_curvature(lane: Any, longitudinal: float) -> float:
+    """[1/m] signed curvature of a lane's centre line at ``longitudinal`` [m] (positive: turning left, towards +d)."""
+    if _is_straight(lane):
+        return 0.0
+    if isinstance(lane, CircularLane):
+        return lane.direction / lane.radius
+    h = _CURVATURE_STEP
+    return wrap_angle(lane.heading_at(longitudinal + h) - lane.heading_at(longitudinal - h)) / (2.0 * h)
+
+
+def _name(road: tuple[str, str], lane_id: int) -> str:
+    return f"lane {(road[0], road[1], lane_id)!r}"
+
+
+class Band(NamedTuple):
+    """The driving lanes of one road of the route, in frame coordinates."""
+
+    road: tuple[str, str]
+    s_from: float  # [m] where the road starts on the frame
+    s_to: float  # [m] where it ends
+    first_center: float  # [m] d of its lowest lane's centre line
+    num_lanes: int
+    lane_width: float  # [m]
+
+    @property
+    def low(self) -> float:
+        """[m] d of the right edge."""
+        return self.first_center - 0.5 * self.lane_width
+
+    @property
+    def high(self) -> float:
+        """[m] d of the left edge."""
+        return self.first_center + (self.num_lanes - 0.5) * self.lane_width
+
+
+@dataclasses.dataclass
+class Piece:
+    """One stretch of the frame measured in one lane: ``s = s_start + longitudinal``, ``d = d_shift + lateral``."""
+
+    lane: Any  # the reference lane (highway-env lane object)
+    s_start: float  # [m] s at the lane's longitudinal 0
+    d_shift: float  # [m] d of the lane's centre line
+    lo: float  # [m] longitudinal range the piece covers (collinear straight roads extend it beyond the lane)
+    hi: float
+    bands: list[Band]
+    open_lo: bool = False  # a straight first piece extends backwards without end
+    open_hi: bool = False  # a straight last piece extends forwards without end
+
+    def covers(self, longitudinal: float, margin: float = 0.0) -> bool:
+        return ((self.open_lo or longitudinal >= self.lo - margin) and (self.open_hi or longitudinal <= self.hi + margin))
+
+    @property
+    def straight(self) -> bool:
+        return _is_straight(self.lane)
+
+
+def _road_lanes(network: Any, road: tuple[str, str]) -> tuple[Any, list[float], float]:
+    """(reference lane, lateral offsets [m] of the driving lanes from it, lane width [m]); RoadFrameError naming a
+    lane that is not parallel, not as wide or not adjacent."""
+    lanes = driving_lanes(network, road)
+    ref_id, ref = lanes[0]
+    width = float(ref.width_at(0.0))
+    offsets = []
+    for lane_id, lane in lanes:
+        lateral = [ref.local_coordinates(np.asarray(lane.position(f * lane.length, 0.0), dtype=float))[1]
+                   for f in (0.0, 0.5, 1.0)]
+        if np.ptp(lateral) > _PARALLEL_TOL:
+            raise RoadFrameError(f"{_name(road, lane_id)} is not parallel to {_name(road, ref_id)}: its lateral offset "
+                                 f"varies from {min(lateral):.2f} to {max(lateral):.2f} m along the road")
+        if abs(float(lane.width_at(0.0)) - width) > _GEOMETRY_TOL:
+            raise RoadFrameError(f"{_name(road, lane_id)} is {float(lane.width_at(0.0))} m wide, {_name(road, ref_id)} "
+                                 f"{width} m: driving lanes have different widths")
+        offsets.append(float(lateral[0]))
+    if len(offsets) > 1 and np.max(np.abs(np.diff(offsets) - width)) > _SPACING_TOL:
+        raise RoadFrameError(f"driving lanes of road {road!r} centred at lateral offsets {offsets} are not adjacent "
+                             f"{width} m lanes")
+    return ref, offsets, width
+
+
+def _collinear(piece: Piece, lane: Any, joint: np.ndarray) -> bool:
+    """Whether a straight ``lane`` lies on the straight ``piece``'s line through ``joint`` (a point of both)."""
+    if not (piece.straight and _is_straight(lane)):
         return False
-    return abs(lane.direction[0] - 1.0) < _ALIGNED and abs(lane.direction[1]) < _ALIGNED
+    _, lateral = piece.lane.local_coordinates(joint)
+    return abs(lateral) < _GEOMETRY_TOL and float(np.dot(piece.lane.direction, lane.direction)) > 1.0 - 1e-12
 
 
-def driving_lanes(network: Any, x: float) -> list[StraightLane]:
-    """The driving lanes of the road section containing world x [m] (nearest section past the ends), lowest y first."""
-    sections: list[list[StraightLane]] = []
-    for tos in network.graph.values():
-        for lanes in tos.values():
-            straight = [lane for lane in lanes if _is_driving_lane(lane)]
-            if straight:
-                sections.append(straight)
-    if not sections:
-        raise RoadFrameError("the road has no straight, non-forbidden lane along +x")
+class RoadFrame:
+    """The Frenet frame of the ego's route at one moment (see the module docstring)."""
 
-    def distance(section: list[StraightLane]) -> float:
-        start, end = section[0].start[0], section[0].end[0]
-        return max(start - x, 0.0, x - end)
+    def __init__(self, pieces: list[Piece], ego_road: tuple[str, str], roads: tuple[tuple[str, str], ...],
+                 ego_s: float) -> None:
+        self.pieces = pieces
+        self.ego_road = ego_road
+        self.roads = roads  # every road the frame follows, in order
+        self.ego_s = ego_s  # [m] about where the ego is (tells the passes of a loop apart)
 
-    best = min(sections, key=distance)
-    return sorted(best, key=lambda lane: lane.start[1])
+    # ------------------------------------------------------------------ world -> frame
+    def locate(self, position: np.ndarray, near_s: float | None = None) -> tuple[float, float, Piece, float, float] | None:
+        """(s, d, piece, longitudinal, lateral) of a world position [m], or None where the frame does not reach it.
+
+        Among the pieces whose range holds it, the one it is laterally nearest to the lanes of (ties, as on a loop
+        that the frame passes twice: the one nearest ``near_s``)."""
+        position = np.asarray(position, dtype=float)
+        best, best_key = None, None
+        for piece in self.pieces:
+            longitudinal, lateral = piece.lane.local_coordinates(position)
+            if not piece.covers(longitudinal, margin=0.5):
+                continue
+            s, d = piece.s_start + longitudinal, piece.d_shift + lateral
+            outside = max(min(b.low for b in piece.bands) - d, d - max(b.high for b in piece.bands), 0.0)
+            if outside > LATERAL_REACH:
+                continue
+            key = (round(outside, 6), abs(s - near_s) if near_s is not None else 0.0)
+            if best_key is None or key < best_key:
+                best, best_key = (s, d, piece, float(longitudinal), float(lateral)), key
+        return best
+
+    # ------------------------------------------------------------------ along the reference line
+    def piece_at(self, s: float) -> tuple[Piece, float]:
+        """(piece, longitudinal [m]) at arc length ``s`` [m]; clamped to the frame's curved ends."""
+        for piece in self.pieces:
+            if piece.covers(s - piece.s_start):
+                return piece, s - piece.s_start
+        first, last = self.pieces[0], self.pieces[-1]
+        if s < first.s_start + first.lo:
+            return first, first.lo
+        return last, last.hi
+
+    def curvature_at(self, s: float) -> float:
+        """[1/m] signed curvature of the reference line at ``s``."""
+        piece, longitudinal = self.piece_at(s)
+        return lane_curvature(piece.lane, longitudinal)
+
+    def curvature_between(self, s_from: float, s_to: float) -> float:
+        """[1/m] the signed curvature of largest magnitude of the reference line on [s_from, s_to] (0.0 on straights)."""
+        worst = 0.0
+        for piece in self.pieces:
+            lo = max(s_from - piece.s_start, piece.lo if not piece.open_lo else -math.inf)
+            hi = min(s_to - piece.s_start, piece.hi if not piece.open_hi else math.inf)
+            if lo > hi or piece.straight:
+                continue
+            for longitudinal in np.linspace(lo, hi, max(2, int((hi - lo) / _CURVATURE_STEP) + 1)):
+                k = lane_curvature(piece.lane, float(longitudinal))
+                if abs(k) > abs(worst):
+                    worst = k
+        return worst
+
+    def curves_ahead(self, s_from: float, s_to: float) -> list[tuple[float, float]]:
+        """[(distance [m] from ``s_from``, |curvature| [1/m])] at the start of each curved stretch (and at ``s_from``
+        when it lies on one) up to ``s_to``, sampled every :data:`_CURVATURE_STEP` on sine lanes."""
+        curves = []
+        for piece in self.pieces:
+            lo = max(s_from - piece.s_start, piece.lo)
+            hi = min(s_to - piece.s_start, piece.hi)
+            if lo > hi or piece.straight:
+                continue
+            samples = [lo] if isinstance(piece.lane, CircularLane) else np.arange(lo, hi + 1e-9, _CURVATURE_STEP)
+            curves += [(piece.s_start + float(x) - s_from, abs(lane_curvature(piece.lane, float(x)))) for x in samples]
+        return curves
+
+    # ------------------------------------------------------------------ the planner's road
+    def ego_band(self, s: float) -> Band:
+        """The band of the ego's road holding ``s`` (the nearest one, on a loop)."""
+        bands = [b for p in self.pieces for b in p.bands if b.road == self.ego_road]
+        return min(bands, key=lambda b: max(b.s_from - s, s - b.s_to, 0.0))
+
+    def road(self, s: float, lane_preview: float, curvature_preview: float, behind: float = 0.0) -> Road:
+        """The planner's :class:`Road` at ``s`` [m]: the ego road's lanes that continue over the next ``lane_preview``
+        [m] (a lane that ends, or leads only off the route, is left out), and the curvature of largest magnitude over
+        [s - behind, s + curvature_preview]."""
+        ego = self.ego_band(s)
+        k_lo, k_hi = 0, ego.num_lanes - 1
+        for piece in self.pieces:
+            for band in piece.bands:
+                if band is ego or band.s_to < s or band.s_from > s + lane_preview:
+                    continue
+                tol = 0.5 * abs(band.lane_width - ego.lane_width) + 0.5
+                inside = [k for k in range(ego.num_lanes)
+                          if band.first_center - tol <= ego.first_center + k * ego.lane_width
+                          <= band.first_center + (band.num_lanes - 1) * band.lane_width + tol]
+                if inside:  # a road that shares no lane with the ego's (a shifted section) leaves the lanes as they are
+                    k_lo, k_hi = max(k_lo, inside[0]), min(k_hi, inside[-1])
+        if k_hi < k_lo:
+            k_lo, k_hi = 0, ego.num_lanes - 1
+        return Road(num_lanes=k_hi - k_lo + 1, lane_width=ego.lane_width,
+                    first_lane_center=ego.first_center + k_lo * ego.lane_width,
+                    curvature=self.curvature_between(s - behind, s + curvature_preview))
+
+    # ------------------------------------------------------------------ frame -> world
+    def to_world(self, s: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(X, Y [m], heading of the reference line [rad], its curvature [1/m], offset from it [m]) at arc lengths
+        ``s`` [m] and offsets ``d`` [m], each shaped (N,)."""
+        out = np.empty((5, np.size(s)))
+        for i, (si, di) in enumerate(zip(np.ravel(s), np.ravel(d))):
+            piece, longitudinal = self.piece_at(float(si))
+            lateral = float(di) - piece.d_shift
+            x, y = piece.lane.position(longitudinal, lateral)
+            out[:, i] = x, y, piece.lane.heading_at(longitudinal), lane_curvature(piece.lane, longitudinal), lateral
+        return tuple(out)
 
 
-def road_geometry(lanes: list[StraightLane]) -> Road:
-    """Planner :class:`Road` of a section of driving lanes: count, width, centre of the lowest lane."""
-    centers = np.array([lane.start[1] for lane in lanes], dtype=float)
-    widths = np.array([lane.width_at(0.0) for lane in lanes], dtype=float)
-    if np.ptp(widths) > _GEOMETRY_TOL:
-        raise RoadFrameError(f"driving lanes have different widths {widths.tolist()} [m]")
-    if len(lanes) > 1 and np.max(np.abs(np.diff(centers) - widths[0])) > _GEOMETRY_TOL:
-        raise RoadFrameError(f"driving lanes centred at {centers.tolist()} are not adjacent {widths[0]} m lanes")
-    return Road(num_lanes=len(lanes), lane_width=float(widths[0]), first_lane_center=float(centers[0]), curvature=0.0)
+# ---------------------------------------------------------------------- building the frame
+def _bands_of(network: Any, piece: Piece, road: tuple[str, str], s_from: float, s_to: float) -> Band:
+    ref, offsets, width = _road_lanes(network, road)
+    lateral = piece.lane.local_coordinates(lane_start(ref))[1] if ref is not piece.lane else 0.0
+    return Band(road, s_from, s_to, piece.d_shift + lateral, len(offsets), width)
 
 
-def to_road_frame(reference: StraightLane, position: np.ndarray) -> tuple[float, float]:
-    """[m] (x, y) in the road frame of a world position, through the reference lane's local coordinates."""
-    longitudinal, lateral = reference.local_coordinates(np.asarray(position, dtype=float))
-    return float(reference.start[0] + longitudinal), float(reference.start[1] + lateral)
+def _origin(lane: Any) -> tuple[float, float]:
+    """(s, d) [m] of a lane's start: its coordinates along and across the lane's initial direction."""
+    start = lane_start(lane)
+    heading = float(lane.heading_at(0.0))
+    c, s = math.cos(heading), math.sin(heading)
+    return float(start[0] * c + start[1] * s), float(-start[0] * s + start[1] * c)
 
 
-def vehicle_motion(obj: Any, reference: StraightLane) -> Motion:
-    """Road-frame state of a highway-env vehicle or road object (objects without ``action`` are unaccelerated)."""
-    x, y = to_road_frame(reference, obj.position)
-    heading = wrap_angle(float(obj.heading) - reference.heading_at(x - reference.start[0]))
+def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | None = None, *,
+                ahead: float = AHEAD, behind: float = BEHIND, ego_longitudinal: float = 0.0) -> RoadFrame:
+    """The frame along the route through ``ego_road`` (see the module docstring); ``ego_longitudinal`` [m]: the ego's
+    position along its road's reference lane, from which ``ahead`` and ``behind`` [m] are measured."""
+    planned = route_roads(route)
+    ref, _, _ = _road_lanes(network, ego_road)
+    s0, d0 = _origin(ref)
+    first = Piece(ref, s0, d0, 0.0, float(ref.length), [])
+    first.bands.append(_bands_of(network, first, ego_road, s0, s0 + float(ref.length)))
+    pieces, roads = [first], [ego_road]
+
+    # Forwards.
+    road, left = ego_road, ahead - (float(ref.length) - ego_longitudinal)
+    for _ in range(_MAX_PIECES):
+        following = next_road(network, road, planned)
+        last = pieces[-1]
+        if following is None:
+            arms = junctions(network, road)
+            if arms:
+                joined, turn = arms[0]
+                how = (f"by turning {math.degrees(turn):.0f} deg" if turn is not None
+                       else "on lanes that do not start where its lanes end")
+                raise RoadFrameError(f"the route's road {road!r} ends at node {road[1]!r}, where it continues only {how} "
+                                     f"onto road {joined!r}: a junction (an intersection's, a roundabout's) cannot be "
+                                     "followed in a Frenet frame along the route; driveopt drives roads whose lanes "
+                                     "continue one another (straight, curved, merging, oncoming)")
+            last.open_hi = last.straight
+            break
+        if left <= 0.0:
+            break
+        nxt, _, _ = _road_lanes(network, following)
+        joint = lane_start(nxt)
+        if _collinear(last, nxt, joint):
+            s_from = last.s_start + last.hi
+            last.hi += float(nxt.length)
+            last.bands.append(_bands_of(network, last, following, s_from, last.s_start + last.hi))
+        else:
+            _, lateral = last.lane.local_coordinates(joint)
+            piece = Piece(nxt, last.s_start + last.hi, last.d_shift + float(lateral), 0.0, float(nxt.length), [])
+            piece.bands.append(_bands_of(network, piece, following, piece.s_start, piece.s_start + piece.hi))
+            pieces.append(piece)
+        left -= float(nxt.length)
+        road = following
+        roads.append(road)
+    else:
+        pieces[-1].open_hi = pieces[-1].straight
+
+    # Backwards.
+    road, left = ego_road, behind - ego_longitudinal
+    for _ in range(_MAX_PIECES):
+        preceding = previous_road(network, road, planned)
+        head = pieces[0]
+        if preceding is None:
+            head.open_lo = head.straight
+            break
+        if left <= 0.0:
+            break
+        prev, _, _ = _road_lanes(network, preceding)
+        joint = lane_end(prev)
+        if _collinear(head, prev, joint):
+            s_to = head.s_start + head.lo
+            head.lo -= float(prev.length)
+            head.bands.insert(0, _bands_of(network, head, preceding, head.s_start + head.lo, s_to))
+        else:
+            _, lateral = head.lane.local_coordinates(joint)
+            s_start = head.s_start + head.lo - float(prev.length)
+            piece = Piece(prev, s_start, head.d_shift + float(lateral), 0.0, float(prev.length), [])
+            piece.bands.append(_bands_of(network, piece, preceding, s_start, s_start + piece.hi))
+            pieces.insert(0, piece)
+        left -= float(prev.length)
+        road = preceding
+        roads.insert(0, road)
+    else:
+        pieces[0].open_lo = pieces[0].straight
+
+    frame = RoadFrame(pieces, ego_road, tuple(roads), s0 + ego_longitudinal)
+    _check_crossings(network, frame)
+    return frame
+
+
+_CROSSINGS: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
+
+
+def _check_crossings(network: Any, frame: RoadFrame) -> None:
+    """RoadFrameError naming a lane of another road that crosses the frame's lanes (checked once per network and
+    set of roads)."""
+    key = frozenset(frame.roads)
+    cache = _CROSSINGS.setdefault(network, {})
+    if key not in cache:
+        cache[key] = _find_crossing(network, frame)
+    if cache[key] is not None:
+        raise RoadFrameError(cache[key])
+
+
+def _find_crossing(network: Any, frame: RoadFrame) -> str | None:
+    on_route = set(frame.roads)
+    nodes = {node for road in frame.roads for node in road}
+    for frm, tos in network.graph.items():
+        for to, lanes in tos.items():
+            if (frm, to) in on_route:
+                continue
+            for lane_id, lane in enumerate(lanes):
+                # a branch leaving the route at one of its nodes overlaps the route's lanes where it leaves them
+                leaving = 2.0 * float(lane.width_at(0.0)) if frm in nodes else 0.0
+                for longitudinal in np.arange(leaving, float(lane.length) + 1e-9, _SAMPLE_STEP):
+                    point = np.asarray(lane.position(float(longitudinal), 0.0), dtype=float)
+                    found = frame.locate(point)
+                    if found is None:
+                        continue
+                    s, d, piece, ref_long, _ = found
+                    if not any(b.low < d < b.high and b.s_from <= s <= b.s_to for b in piece.bands):
+                        continue
+                    angle = abs(wrap_angle(lane.heading_at(float(longitudinal)) - piece.lane.heading_at(ref_long)))
+                    if CROSSING_ANGLE < angle < math.pi - CROSSING_ANGLE:
+                        return (f"{_name((frm, to), lane_id)} crosses the route's lanes at {math.degrees(angle):.0f} deg "
+                                f"(s = {s:.1f} m on road {frame.ego_road!r}'s frame): crossing traffic (an intersection, a "
+                                "roundabout) cannot be represented in a Frenet frame along the route; driveopt drives "
+                                "roads whose lanes run beside the route (straight, curved, merging, oncoming)")
+    return None
+
+
+# ---------------------------------------------------------------------- vehicles in the frame
+def vehicle_motion(obj: Any, frame: RoadFrame, near_s: float | None = None) -> Motion | None:
+    """Frame state of a highway-env vehicle or road object (objects without ``action`` are unaccelerated); None when
+    the frame does not reach it."""
+    found = frame.locate(obj.position, near_s)
+    if found is None:
+        return None
+    x, y, piece, longitudinal, lateral = found
+    heading = wrap_angle(float(obj.heading) - piece.lane.heading_at(longitudinal))
     speed = float(obj.speed)
     length, width = float(obj.LENGTH), float(obj.WIDTH)
     action = getattr(obj, "action", None)
@@ -119,7 +455,34 @@ def vehicle_motion(obj: Any, reference: StraightLane) -> Motion:
         beta, a_t, a_n = 0.0, 0.0, 0.0
     course = wrap_angle(heading + beta)
     c, s = math.cos(course), math.sin(course)
+    kappa = lane_curvature(piece.lane, longitudinal)
+    scale = 1.0 - kappa * lateral  # s' = v_t / (1 - kappa d)
+    v_t, v_n = speed * c, speed * s  # velocity along and across the reference line
+    a_along, a_across = a_t * c - a_n * s, a_t * s + a_n * c
+    s_dot = v_t / scale
+    turn_rate = kappa * s_dot  # [rad/s] rate of the reference line's heading at the vehicle
     return Motion(
-        x=x, y=y, vx=speed * c, vy=speed * s, ax=a_t * c - a_n * s, ay=a_t * s + a_n * c,
-        speed=speed, heading=heading, course=course, length=length, width=width,
+        x=x, y=y, vx=s_dot, vy=v_n, ax=(a_along + turn_rate * v_n + kappa * v_n * s_dot) / scale,
+        ay=a_across - turn_rate * v_t, speed=speed, heading=heading, course=course, length=length, width=width,
     )
+
+
+def ego_frame(env: Any, route: Sequence[Any] | None = None) -> tuple[RoadFrame, Motion]:
+    """(the frame along the ego's route, the ego's motion in it); RoadFrameError when the ego is not on it."""
+    sim = env.unwrapped
+    ego = sim.vehicle
+    network = sim.road.network
+    lane_index = ego.lane_index
+    road = (lane_index[0], lane_index[1])
+    if route is None:
+        route = getattr(ego, "route", None)
+    ref, _, _ = _road_lanes(network, road)
+    longitudinal = float(ref.local_coordinates(np.asarray(ego.position, dtype=float))[0])
+    frame = build_frame(network, road, route, ego_longitudinal=longitudinal)
+    me = vehicle_motion(ego, frame, near_s=frame.ego_s)
+    band = frame.ego_band(me.x) if me is not None else None
+    if band is None or max(band.low - me.y, me.y - band.high) > MAX_EGO_OFFSET:
+        raise RoadFrameError(f"the ego at {np.round(np.asarray(ego.position, dtype=float), 2).tolist()} is more than "
+                             f"{MAX_EGO_OFFSET} m from the lanes of road {road!r} (its nearest lane "
+                             f"{lane_index!r}): it is not on the road the frame represents")
+    return frame, me

@@ -165,7 +165,7 @@ def scenario_config(data: Demonstrations, rows: np.ndarray, config: PlannerConfi
         scenarios = {name: get_scenario(name) for name in names}
     except ScenarioError as exc:
         raise DatasetError(f"demonstrations of a scenario whose road is unknown: {exc}") from None
-    adapted = {name: adapt_to_vehicle(config, s, BicycleModel()) for name, s in scenarios.items()}
+    adapted = {name: adapt_to_vehicle(config, BicycleModel(acceleration_range=s.acceleration_range, steering_range=s.steering_range)) for name, s in scenarios.items()}
     if len(set(adapted.values())) > 1:
         raise DatasetError(f"the scenarios {names} have cars with other limits: train one filter per car")
     return next(iter(adapted.values())), {name: s.v_des for name, s in scenarios.items()}

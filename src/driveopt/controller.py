@@ -1,0 +1,125 @@
+"""The public controller: driveopt's planners driving the user's own highway-env env.
+
+    import gymnasium, highway_env, driveopt
+    env = gymnasium.make("highway-v0", config={"action": {"type": "ContinuousAction"}})
+    controller = driveopt.Controller("bilevel", samples=250, v_des=20.0)
+    env.reset(seed=0)
+    controller.reset(env, seed=0)
+    action = controller.act(env)                 # (2,) float32 in [-1, 1]: env.step(action)
+    controller.last.result.status, controller.last.plan_seconds
+
+It does what ``driveopt drive`` does, with the same driver (``drive`` and ``bench`` run the registered planners'
+drivers, :mod:`driveopt.drivers`): the car's acceleration and steering ranges, its length, the simulation and
+policy frequencies and the road come from the env (``env.unwrapped``: its ``ContinuousAction``, its config, its
+lane graph); the plans' acceleration and curvature are capped at what the car can do; each plan starts from the
+previous call's sampling mean (warm start) and weighs the previous plan; a plan that is not SUCCESS is replaced by
+its fallback, braking at once; the contact guard checks commands at crawling speed. Plans are made in a Frenet
+frame along the ego's route through the lane graph (:mod:`driveopt.sim.road_frame`: straight, circular and sine
+lanes), turned back into world coordinates for tracking; a road the frame cannot represent (crossing traffic,
+lanes that are not parallel) raises :class:`~driveopt.sim.road_frame.RoadFrameError` at ``reset`` or at the step
+where the route reaches it. Upstream merge-v0, roundabout-v0 and two-way-v0 raise on array actions in their
+rewards, already in ``gymnasium.make``: make them with :func:`driveopt.gym_make` (:mod:`driveopt.sim.rewards`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from driveopt.config import PlannerConfig
+from driveopt.drivers.base import Decision, DriverSpec
+from driveopt.errors import DriveoptError
+from driveopt.registry import get_planner
+from driveopt.sim.perception import Task
+
+
+class ControllerError(DriveoptError):
+    """The env or the controller's settings cannot be used (not a highway-env env, reset missing, bad values)."""
+
+
+def _env_speed_limit(env: Any) -> float:
+    """[m/s] the speed limit of the ego's lane."""
+    sim = env.unwrapped
+    return float(sim.road.network.get_lane(sim.vehicle.lane_index).speed_limit)
+
+
+class Controller:
+    """A registered planner (``driveopt planners``) as a controller of the user's env; see the module docstring.
+
+    ``planner``: a registered name or a :class:`~driveopt.drivers.base.DriverSpec`; ``samples``: samples per sampler
+    iteration; ``config``: a :class:`~driveopt.config.PlannerConfig`, or overrides as nested sections
+    (``{"cost": {"consistency": 1.0}}``); ``v_des`` [m/s]: desired speed (default: the speed limit of the ego's lane
+    at ``reset``); ``route``: node names of the env's lane graph to follow (e.g. ``["0", "1", "2", "exit"]`` takes
+    exit-v0's exit; default: the ego's own route, else straight on); ``weights``: a learned prior's checkpoint.
+    """
+
+    def __init__(self, planner: str | DriverSpec = "bilevel", *, samples: int | None = None,
+                 config: PlannerConfig | Mapping[str, Any] | None = None, v_des: float | None = None,
+                 route: Sequence[str] | None = None, weights: str | None = None) -> None:
+        spec = get_planner(planner) if isinstance(planner, str) else planner
+        if not isinstance(spec, DriverSpec):
+            raise ControllerError(f"planner must be a registered name or a DriverSpec, got {type(planner).__name__}")
+        if isinstance(config, PlannerConfig):
+            if not spec.is_optimiser:
+                raise ControllerError(f"planner '{spec.name}' does not plan with the optimiser: it takes no config")
+            spec = dataclasses.replace(spec, config=config)
+        elif config is not None:
+            spec = spec.with_overrides(**dict(config))
+        if samples is not None and (isinstance(samples, bool) or not isinstance(samples, int) or samples < 1):
+            raise ControllerError(f"samples must be a positive integer, got {samples!r}")
+        if v_des is not None and not (isinstance(v_des, (int, float)) and math.isfinite(v_des) and 0.0 < v_des <= 60.0):
+            raise ControllerError(f"v_des must be a speed in (0, 60] m/s, got {v_des!r}")
+        if route is not None and (isinstance(route, str) or not all(isinstance(node, str) for node in route)):
+            raise ControllerError(f"route must be a sequence of node names of the env's lane graph, got {route!r}")
+        self.spec = spec.with_samples(samples).with_weights(weights)
+        self.v_des = None if v_des is None else float(v_des)
+        self.route = None if route is None else tuple(route)
+        self.driver: Any = None
+        self.task: Task | None = None
+        self.last: Decision | None = None  # what the latest act() decided: action, result, scene, timing, frame
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def reset(self, env: Any, seed: int = 0) -> None:
+        """Start an episode on ``env`` (already reset): read the car, the timing and the road, warm the planner up
+        (compile; ``compile_seconds``); ``seed`` seeds the planner's sampling. RoadFrameError when the route's road
+        cannot be represented."""
+        sim = getattr(env, "unwrapped", None)
+        if getattr(sim, "road", None) is None or getattr(sim, "vehicle", None) is None:
+            raise ControllerError("the env must be a highway-env env that has been reset (env.reset(seed=...)) first")
+        if self.route is not None:
+            missing = [node for node in self.route if node not in sim.road.network.graph
+                       and not any(node in tos for tos in sim.road.network.graph.values())]
+            if missing:
+                raise ControllerError(f"route nodes {missing} are not in the env's lane graph; its nodes: "
+                                      f"{sorted(set(sim.road.network.graph) | {t for tos in sim.road.network.graph.values() for t in tos})}")
+        v_des = self.v_des if self.v_des is not None else _env_speed_limit(env)
+        self.task = Task(v_des=v_des, name=getattr(getattr(env, "spec", None), "id", None) or type(sim).__name__,
+                         route=self.route)
+        self.driver = self.spec.driver()
+        self.driver.reset(env, self.task, seed)
+        self.last = None
+
+    @property
+    def compile_seconds(self) -> float:
+        """[s] wall time of the warm-up planning call in ``reset``."""
+        return float(getattr(self.driver, "compile_seconds", 0.0))
+
+    def act(self, env: Any) -> np.ndarray:
+        """The (2,) float32 ``ContinuousAction`` (acceleration, steering in [-1, 1]) for the env's current state."""
+        if self.driver is None:
+            raise ControllerError("call controller.reset(env, seed) after env.reset() before act()")
+        self.last = self.driver.act(env)
+        return np.asarray(self.last.action, dtype=np.float32)
+
+    @property
+    def status(self) -> Any:
+        """The latest planning call's :class:`~driveopt.planner.PlanStatus` (None before one, or for drivers that do
+        not plan)."""
+        result = self.last.result if self.last is not None else None
+        return None if result is None else result.status

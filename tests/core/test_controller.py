@@ -1,0 +1,128 @@
+"""The public controller on upstream highway-env's own envs: the README quickstart, curved roads, refused roads."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import driveopt
+from driveopt.controller import ControllerError
+from driveopt.sim.road_frame import RoadFrameError
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+CONTINUOUS = {"action": {"type": "ContinuousAction"}}
+
+
+def _quickstart() -> str:
+    text = README.read_text()
+    section = text[text.index("## Quickstart: your own highway-env env"):]
+    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+
+
+def test_readme_quickstart_runs_verbatim_and_stays_on_the_road():
+    namespace: dict = {}
+    exec(compile(_quickstart(), str(README), "exec"), namespace)
+    env, info = namespace["env"], namespace["info"]
+    assert not info["crashed"] and env.unwrapped.vehicle.on_road
+    assert namespace["controller"].status is not None, "the bilevel planner planned"
+    assert env.unwrapped.time >= 10.0 - 1e-9, "the episode ran to its end"
+
+
+def drive(env_id: str, seconds: float, seed: int = 0, make_config: dict | None = None, make_kwargs: dict | None = None,
+          **controller) -> dict:
+    """Drive ``seconds`` of upstream ``env_id`` (or until the env ends the episode) through the controller; what
+    happened."""
+    env = driveopt.gym_make(env_id, config={**CONTINUOUS, **(make_config or {})}, **(make_kwargs or {}))
+    env.reset(seed=seed)
+    ctrl = driveopt.Controller("bilevel", **{"samples": 100, **controller})
+    ctrl.reset(env, seed=seed)
+    sim = env.unwrapped
+    steps = round(seconds * sim.config["policy_frequency"])
+    off_road, crashed, statuses, speeds, curvatures = 0, False, [], [], []
+    for _ in range(steps):
+        action = ctrl.act(env)
+        statuses.append(ctrl.status)
+        curvatures.append(abs(ctrl.last.scene.road.curvature))
+        _, _, terminated, truncated, info = env.step(action)
+        off_road += not sim.vehicle.on_road
+        crashed |= bool(info["crashed"])
+        speeds.append(float(sim.vehicle.speed))
+        if terminated or truncated:
+            break
+    return {"time": float(sim.time), "off_road": off_road, "crashed": crashed, "statuses": statuses,
+            "mean_speed": float(np.mean(speeds)), "curvatures": curvatures, "env": env, "controller": ctrl}
+
+
+def test_racetrack_is_driven_for_20_s_without_leaving_the_track():
+    run = drive("racetrack-v0", 20.0)
+    assert run["time"] >= 20.0 - 1e-9
+    assert run["off_road"] == 0 and not run["crashed"]
+    assert run["mean_speed"] > 5.0, "it drives round the curves, not crawling"
+    assert max(run["curvatures"]) >= 1.0 / 25.0, "the planner saw the track's curves (radii 15 to 25 m)"
+
+
+UPSTREAM_ROADS = {  # env id -> (gymnasium.make config, make kwargs, controller settings): 20 s of driving each
+    "highway-v0": ({"duration": 20}, {}, {}),
+    "racetrack-v0": ({}, {}, {}),
+    "racetrack-oval-v0": ({}, {}, {}),
+    "exit-v0": ({"duration": 20}, {}, {}),
+    "merge-v0": ({}, {}, {"v_des": 15.0}),  # upstream ends the episode past x = 370 m: 20 s at 15 m/s
+    "two-way-v0": ({"observation": {"type": "Kinematics"}}, {"max_episode_steps": 20}, {}),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", list(UPSTREAM_ROADS))
+def test_upstream_roads_are_driven_for_20_s_without_leaving_the_road(env_id):
+    config, kwargs, settings = UPSTREAM_ROADS[env_id]
+    run = drive(env_id, 20.0, make_config=config, make_kwargs=kwargs, **settings)
+    assert run["off_road"] == 0 and not run["crashed"], env_id
+    assert run["time"] >= 20.0 - 1e-9 or (env_id == "merge-v0" and run["env"].unwrapped.vehicle.position[0] > 370)
+
+
+def test_exit_route_is_followed_when_asked():
+    from driveopt.sim.road_frame import ego_frame
+
+    env = driveopt.gym_make("exit-v0", config=CONTINUOUS)
+    env.reset(seed=0)
+    assert ("2", "3") in ego_frame(env)[0].roads and ("2", "exit") not in ego_frame(env)[0].roads
+    frame, _ = ego_frame(env, route=["0", "1", "2", "exit"])
+    assert ("2", "exit") in frame.roads and ("2", "3") not in frame.roads
+
+
+@pytest.mark.parametrize("env_id, why", [("intersection-v0", "crosses the route's lanes|a junction"),
+                                         ("roundabout-v0", "a junction")])
+def test_roads_with_crossing_traffic_are_refused_at_reset(env_id, why):
+    env = driveopt.gym_make(env_id, config=CONTINUOUS)
+    env.reset(seed=0)
+    with pytest.raises(RoadFrameError, match=why) as error:
+        driveopt.Controller("bilevel", samples=100).reset(env, seed=0)
+    assert re.search(r"(lane|road) \('", str(error.value)), "the error names the lane or road"
+
+
+def test_roundabout_rewards_accept_array_actions():
+    env = driveopt.gym_make("roundabout-v0", config=CONTINUOUS)
+    env.reset(seed=0)
+    _, reward, *_ = env.step(np.zeros(2, np.float32))
+    assert np.isfinite(reward)
+
+
+@pytest.mark.parametrize("settings, message", [
+    ({"v_des": -1.0}, "v_des"), ({"samples": 0}, "samples"), ({"route": "0123"}, "route"),
+    ({"planner": "no-such-planner"}, "unknown planner"),
+])
+def test_bad_settings_raise_one_clear_error(settings, message):
+    with pytest.raises(driveopt.DriveoptError, match=message):
+        driveopt.Controller(**settings)
+
+
+def test_act_before_reset_and_unknown_route_nodes_raise():
+    env = driveopt.gym_make("highway-v0", config=CONTINUOUS)
+    env.reset(seed=0)
+    with pytest.raises(ControllerError, match="reset"):
+        driveopt.Controller().act(env)
+    with pytest.raises(ControllerError, match="not in the env's lane graph"):
+        driveopt.Controller(route=["0", "nowhere"]).reset(env, seed=0)

@@ -1,0 +1,110 @@
+"""The Frenet frame along a route through highway-env's lane graph: straight roads exactly, arcs, plans back to world."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from highway_env.road.lane import CircularLane, StraightLane
+from highway_env.road.road import RoadNetwork
+
+from driveopt.sim.road_frame import RoadFrameError, build_frame, lane_curvature
+from driveopt.sim.world_plan import to_world
+from driveopt.trajectory import Trajectory
+
+
+def _loop(radius: float = 30.0, width: float = 4.0) -> RoadNetwork:
+    """A two-lane road: 50 m straight along +x, then a left-turning quarter circle, then 50 m straight along +y."""
+    net = RoadNetwork()
+    for i in range(2):
+        net.add_lane("a", "b", StraightLane([0.0, i * width], [50.0, i * width], width=width))
+        net.add_lane("b", "c", CircularLane([50.0, radius], radius - i * width, -math.pi / 2, 0.0, clockwise=True, width=width))
+        net.add_lane("c", "d", StraightLane([50.0 + radius - i * width, radius], [50.0 + radius - i * width, radius + 50.0],
+                                            width=width))
+    return net
+
+
+def test_a_straight_road_along_x_is_the_world_frame_exactly():
+    net = RoadNetwork()
+    for i in range(3):
+        net.add_lane("a", "b", StraightLane([0.0, 4.0 * i], [300.0, 4.0 * i]))
+        net.add_lane("b", "c", StraightLane([300.0, 4.0 * i], [500.0, 4.0 * i]))
+    frame = build_frame(net, ("b", "c"))
+    rng = np.random.default_rng(0)
+    for x, y in rng.uniform([-50.0, -3.0], [600.0, 11.0], size=(50, 2)):
+        s, d, *_ = frame.locate(np.array([x, y]))
+        assert (s, d) == (300.0 + (x - 300.0), 0.0 + (y - 0.0)), "the ego road's lane measures every straight section"
+    road = frame.road(350.0, 30.0, 10.0)
+    assert (road.num_lanes, road.lane_width, road.first_lane_center, road.curvature) == (3, 4.0, 0.0, 0.0)
+
+
+def test_an_arc_is_measured_along_its_reference_lane():
+    net = _loop()
+    frame = build_frame(net, ("a", "b"))
+    assert frame.roads == (("a", "b"), ("b", "c"), ("c", "d"))
+    quarter = 0.5 * math.pi * 30.0
+    # the left lane's centre halfway round the arc: s along the reference (lowest-offset) lane, d = one lane width
+    lane = net.get_lane(("b", "c", 1))
+    s, d, piece, *_ = frame.locate(lane.position(0.5 * lane.length, 0.0))
+    assert s == pytest.approx(50.0 + 0.5 * quarter, abs=1e-9) and d == pytest.approx(4.0, abs=1e-9)
+    assert lane_curvature(piece.lane, 1.0) == pytest.approx(1.0 / 30.0)
+    # the straight after the arc continues the arc length
+    s, d, *_ = frame.locate(np.array([80.0, 40.0]))
+    assert s == pytest.approx(50.0 + quarter + 10.0) and d == pytest.approx(0.0, abs=1e-9)
+    road = frame.road(40.0, 30.0, 20.0)
+    assert road.num_lanes == 2 and road.curvature == pytest.approx(1.0 / 30.0)
+    assert frame.road(10.0, 10.0, 10.0).curvature == 0.0
+
+
+def test_a_plan_along_the_arc_turns_back_into_the_lanes_world_motion():
+    frame = build_frame(_loop(), ("a", "b"))
+    t = np.linspace(0.0, 3.0, 31)
+    speed, d = 10.0, 4.0  # [m/s] along the reference line, [m] on the outer lane's centre
+    s = 55.0 + speed * t
+    zeros = np.zeros_like(t)
+    plan = Trajectory(t=t, x=s, y=np.full_like(t, d), vx=np.full_like(t, speed), vy=zeros, ax=zeros, ay=zeros,
+                      speed=np.full_like(t, speed), heading=zeros, curvature=zeros, acceleration=zeros)
+    world = to_world(plan, frame)
+    lane = _loop().get_lane(("b", "c", 1))
+    for k in range(len(t)):
+        longitudinal, lateral = lane.local_coordinates(np.array([world.x[k], world.y[k]]))
+        assert lateral == pytest.approx(0.0, abs=1e-9), "the plan stays on the outer lane's centre line"
+        course = math.atan2(world.vy[k], world.vx[k])
+        assert math.cos(course - lane.heading_at(longitudinal)) == pytest.approx(1.0, abs=1e-12)
+        # on a 26 m radius the car covers 26/30 of the reference line's arc length, and turns at v / 26 m
+        assert math.hypot(world.vx[k], world.vy[k]) == pytest.approx(speed * 26.0 / 30.0)
+        acceleration = math.hypot(world.ax[k], world.ay[k])
+        assert acceleration == pytest.approx((speed * 26.0 / 30.0) ** 2 / 26.0)
+
+
+def test_lanes_that_are_not_parallel_are_named():
+    net = RoadNetwork()
+    net.add_lane("a", "b", StraightLane([0.0, 0.0], [100.0, 0.0]))
+    net.add_lane("a", "b", StraightLane([0.0, 4.0], [100.0, 9.0]))
+    with pytest.raises(RoadFrameError, match=r"lane \('a', 'b', 1\) is not parallel to lane \('a', 'b', 0\)"):
+        build_frame(net, ("a", "b"))
+
+
+def test_a_crossing_road_is_named():
+    net = RoadNetwork()
+    net.add_lane("a", "b", StraightLane([0.0, 0.0], [100.0, 0.0]))
+    net.add_lane("x", "y", StraightLane([50.0, -30.0], [50.0, 30.0]))
+    with pytest.raises(RoadFrameError, match=r"lane \('x', 'y', 0\) crosses the route's lanes at 90 deg"):
+        build_frame(net, ("a", "b"))
+
+
+def test_a_junction_at_the_end_of_the_route_is_named():
+    net = RoadNetwork()
+    net.add_lane("a", "b", StraightLane([0.0, 0.0], [100.0, 0.0]))
+    net.add_lane("b", "c", StraightLane([100.0, 0.0], [100.0, 80.0]))  # a right angle: not a road the frame follows
+    with pytest.raises(RoadFrameError, match=r"road \('a', 'b'\) ends at node 'b'.*turning 90 deg onto road \('b', 'c'\)"):
+        build_frame(net, ("a", "b"))
+
+
+def test_an_oncoming_road_is_not_a_junction():
+    net = RoadNetwork()
+    net.add_lane("a", "b", StraightLane([0.0, 0.0], [100.0, 0.0]))
+    net.add_lane("b", "a", StraightLane([100.0, 0.0], [0.0, 0.0]))
+    frame = build_frame(net, ("a", "b"))
+    assert frame.roads == (("a", "b"),) and frame.road(10.0, 10.0, 10.0).num_lanes == 1
