@@ -1,0 +1,45 @@
+"""``driveopt reproduce p1|p2``: every declared figure protocol of a paper through the bench store, then a report.
+
+Figures, seeds, planners, scenarios and weights are checked before the output folder is touched; a folder another
+reproduction is writing is refused at once. Ctrl-C stops at once with ``driveopt: interrupted: ...`` and status 130;
+the finished episodes are kept and the same command resumes.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from driveopt.cli.common import positive_int, seed
+
+
+def register(sub) -> None:
+    p = sub.add_parser("reproduce", help="run the declared protocols of a paper's figures; report with intervals, "
+                                         "paired tests and verdicts")
+    p.add_argument("paper", choices=["p1", "p2"], help="P1 (bi-level + CVAE) or P2 (VQ-VAE + safety filter)")
+    p.add_argument("--figures", nargs="+", metavar="FIG", help="only these figures, e.g. fig7 fig9 (default: all)")
+    p.add_argument("--quick", action="store_true",
+                   help="the quick variants: seed 42, 2 episodes of 4 s, a tenth of the samples (minutes, not hours)")
+    p.add_argument("--seeds", nargs="+", type=seed, help="traffic seeds of every figure (default: 42 123)")
+    p.add_argument("--episodes", type=positive_int, help="episodes per scenario, planner and seed (default: 50)")
+    p.add_argument("--workers", type=positive_int, help="parallel episodes (default: the CPUs it may use)")
+    p.add_argument("--backend", choices=["local", "ray"], default="local",
+                   help="local processes, or Ray (RAY_ADDRESS names the cluster; needs driveopt[ray])")
+    p.add_argument("--out", required=True, help="output folder (rerun to resume): runs/, report.md, report.json, PNGs")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from driveopt.experiments.reproduce import reproduce
+
+    try:
+        _, results = reproduce(args.paper, args.out, figures=args.figures, quick=args.quick,
+                               seeds=tuple(args.seeds) if args.seeds else None, episodes=args.episodes,
+                               workers=args.workers, backend=args.backend)
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(f"finished episodes kept under {args.out}/runs; rerun the same command to resume") from None
+    counts: dict[str, int] = {}
+    for r in results:
+        counts[r.verdict] = counts.get(r.verdict, 0) + 1
+    print(f"{len(results)} claims: " + (", ".join(f"{n} {v}" for v, n in sorted(counts.items())) or "none"))
+    print(f"wrote {args.out}/report.md, report.json and one PNG per figure")
+    return 0

@@ -1,0 +1,80 @@
+"""Exact and resampling statistics for paired closed-loop comparisons (numpy and math only).
+
+Two planners driven through the same episodes (same scenario, seed and episode: the same traffic) give paired
+outcomes. The functions here test them without distributional assumptions:
+
+* :func:`binomial_two_sided` -- the exact two-sided binomial test of ``k`` successes in ``n`` trials at p = 1/2
+  (the smaller tail doubled, capped at 1);
+* :func:`mcnemar_exact` -- McNemar's exact test on a paired binary outcome (collided or not): the binomial test on
+  the discordant pairs;
+* :func:`sign_test` -- the exact sign test of paired differences (zero differences dropped);
+* :func:`bootstrap_mean_interval` -- a percentile bootstrap interval of a mean with a fixed seed, so a report is the
+  same every time it is written;
+* :func:`paired_risk_difference_interval` -- a conservative 95% interval of a paired difference of rates from two
+  simultaneous 97.5% Wilson intervals of the discordant shares.
+
+All p-values are two-sided; intervals are returned as ``(low, high)``, NaN where there is no data.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from driveopt.experiments.summary import wilson_interval
+
+BOOTSTRAP_RESAMPLES = 10_000  # [-] resamples of a bootstrap interval
+BOOTSTRAP_SEED = 0  # fixed: the same records give the same interval
+Z_97_5 = 2.241403  # standard normal quantile at 1 - 0.025 / 2: two simultaneous 97.5% intervals cover at 95%
+
+
+def binomial_two_sided(k: int, n: int) -> float:
+    """Exact two-sided p-value of ``k`` successes in ``n`` fair trials: 2 x P(X <= min(k, n - k)), at most 1;
+    1.0 for ``n`` = 0 (no evidence)."""
+    if n < 0 or not 0 <= k <= n:
+        raise ValueError(f"need 0 <= k <= n, got k={k}, n={n}")
+    if n == 0:
+        return 1.0
+    tail = sum(math.comb(n, i) for i in range(min(k, n - k) + 1)) / 2**n
+    return min(1.0, 2.0 * tail)
+
+
+def mcnemar_exact(only_first: int, only_second: int) -> float:
+    """Exact McNemar p-value for a paired binary outcome: ``only_first`` pairs where the event happened to the first
+    member only, ``only_second`` to the second only (concordant pairs carry no information)."""
+    return binomial_two_sided(only_first, only_first + only_second)
+
+
+def sign_test(differences: Sequence[float]) -> tuple[int, int, float]:
+    """(positive, non-zero, p): the exact sign test of paired differences; zero differences are dropped."""
+    d = np.asarray(differences, float)
+    positive, negative = int(np.sum(d > 0)), int(np.sum(d < 0))
+    return positive, positive + negative, binomial_two_sided(positive, positive + negative)
+
+
+def bootstrap_mean_interval(values: Sequence[float], level: float = 0.95, resamples: int = BOOTSTRAP_RESAMPLES,
+                            seed: int = BOOTSTRAP_SEED) -> tuple[float, float]:
+    """Percentile bootstrap interval of the mean of ``values`` (same units); (NaN, NaN) with fewer than 2 values."""
+    x = np.asarray(values, float)
+    if x.size < 2:
+        return (math.nan, math.nan)
+    rng = np.random.default_rng(seed)
+    means = x[rng.integers(0, x.size, size=(resamples, x.size))].mean(axis=1)
+    tail = (1.0 - level) / 2.0
+    low, high = np.quantile(means, [tail, 1.0 - tail])
+    return (float(low), float(high))
+
+
+def paired_risk_difference_interval(only_first: int, only_second: int, pairs: int) -> tuple[float, float]:
+    """Conservative 95% interval of rate(first) - rate(second) over ``pairs`` paired episodes.
+
+    The difference is p10 - p01, the shares of pairs where only the first (only the second) had the event; each
+    share gets a 97.5% Wilson interval and the difference takes the extreme combinations, so by Bonferroni the
+    interval covers with at least 95%. (NaN, NaN) for no pairs."""
+    if pairs == 0:
+        return (math.nan, math.nan)
+    low10, high10 = wilson_interval(only_first, pairs, z=Z_97_5)
+    low01, high01 = wilson_interval(only_second, pairs, z=Z_97_5)
+    return (low10 - high01, high10 - low01)

@@ -1,0 +1,376 @@
+"""Declared protocols of the figures of P1 and P2: what ``driveopt reproduce`` runs and what each claim compares.
+
+A :class:`FigureProtocol` holds a figure's claims, its seeds, episodes and episode duration; a :class:`Claim`
+compares one :class:`Arm` (a registered planner with its bench options) with another on the same episodes and names
+the paper's value or stated direction. Each arm says whether it is the paper-faithful version of the method
+(``FAITHFUL``), driveopt's strengthened version (``STRENGTHENED``) or a reference (``REFERENCE``: highway-env's IDM
+driver). A figure that cannot be run with the registered planners declares why (``not_run``) and has no claims.
+
+Choices where the papers are silent (each also listed in ``docs/reproduction/README.md``):
+
+* Seeds 42 and 123 for every figure (DESIGN.md: the authors' seeds), 50 episodes per seed, 50 s episodes.
+* P1 Figs. 7, 8: 250 samples per sampler iteration (P1 §V-F: the benchmarks of §V-C and V-D used 250).
+* P1 Fig. 7 is compared twice. Like for like, driveopt's ``bilevel`` against driveopt's ``random``, ``grid``,
+  ``batch``, ``vanilla`` (all strengthened, replanning every 0.1 s). In P1's setting, ``bilevel-p1`` executing each
+  plan for 5 periods (0.5 s, as P1 §V-A3) against the P1-faithful ``-p1`` baselines, which replan as often; that
+  row is marked not like for like, because no P1-faithful bi-level optimiser is registered (``bilevel-p1`` keeps
+  driveopt's ranking, fallback and guard).
+* P1's densities: ``two-lane-d1.0`` and ``two-lane-d2.5``, ``four-lane-d1.5`` and ``four-lane-d3.0``; P1 Fig. 8 on
+  ``two-lane-d1.0`` (P1: the RL agents worked only in sparse two-lane traffic) and ``four-lane-d3.0``; P1 Fig. 9 on
+  ``four-lane-d3.0``; P1 Fig. 12 on ``two-way``.
+* P2 Fig. 7's settings: densities 1.5 and 3.0 at neighbour speed limits 15 and 7 m/s on four lanes (P2's text
+  names density 3 and the two limits only).
+* P2's baseline [5] is stood in for by ``cvae-filter`` (P1's CVAE through P2's one-pass filter): the CVAE of [5],
+  trained through the projection and predicting its multipliers, is not registered.
+* P2 Fig. 9's "without filter" is ``projection.max_iterations`` 0: the samples ranked as drawn, feasibility first
+  (driveopt's ranking), which is rejection sampling rather than P2's pick by cost.
+
+Quick variants (:meth:`FigureProtocol.quick`): seed 42 only, 2 episodes of 4 s, a tenth of the samples (at least
+10); the claims and arms are those of the full protocol.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from driveopt.errors import DriveoptError
+
+FAITHFUL, STRENGTHENED, REFERENCE = "paper-faithful", "driveopt-strengthened", "reference"
+COLLISIONS, SPEED, PLAN_TIME = "collisions", "speed", "plan time"
+BETTER, WORSE, NO_WORSE = "better", "worse", "no worse"  # of the claim's arm against its baseline, on its metric
+
+SEEDS = (42, 123)  # traffic seeds of every full protocol
+EPISODES = 50  # [-] per scenario, planner and seed
+QUICK_SEEDS = (42,)
+QUICK_EPISODES = 2  # [-] per scenario, planner and seed
+QUICK_DURATION = 4.0  # [s] per episode
+QUICK_SAMPLE_DIVISOR = 10  # quick arms draw samples // 10 (at least QUICK_MIN_SAMPLES) per sampler iteration
+QUICK_MIN_SAMPLES = 10
+
+
+class ProtocolError(DriveoptError):
+    """An unknown paper or figure, or a protocol option out of range."""
+
+
+@dataclass(frozen=True)
+class Arm:
+    """A registered planner as one figure runs it.
+
+    samples: per sampler iteration [-] (None: the planner's own); replan_every: policy periods of 0.1 s each plan is
+    executed (None: the planner's own); config: planner-config overrides as (dotted key, value) pairs, e.g.
+    ``(("projection.max_iterations", 0),)``; version: FAITHFUL, STRENGTHENED or REFERENCE; note: how it departs
+    from the paper's method, when it does."""
+
+    planner: str
+    version: str
+    samples: int | None = None
+    replan_every: int | None = None
+    config: tuple[tuple[str, Any], ...] = ()
+    note: str = ""
+
+    @property
+    def label(self) -> str:
+        """The planner and the options it runs with, e.g. ``bilevel-p1 n250 r5``."""
+        parts = [self.planner]
+        if self.samples is not None:
+            parts.append(f"n{self.samples}")
+        if self.replan_every is not None:
+            parts.append(f"r{self.replan_every}")
+        parts += [f"{key.rpartition('.')[2]}={value}" for key, value in self.config]
+        return " ".join(parts)
+
+    def options(self, duration: float | None) -> dict[str, Any]:
+        """The bench options of this arm (``driveopt.experiments.bench.episode_record``); duration [s] or None."""
+        options: dict[str, Any] = {}
+        if self.samples is not None:
+            options["samples"] = self.samples
+        if self.replan_every is not None:
+            options["replan_every"] = self.replan_every
+        config: dict[str, Any] = {}
+        for key, value in self.config:
+            *sections, name = key.split(".")
+            node = config
+            for section in sections:
+                node = node.setdefault(section, {})
+            node[name] = value
+        if config:
+            options["config"] = config
+        if duration is not None:
+            options["duration"] = duration
+        return options
+
+    def folder(self, duration: float | None) -> str:
+        """The bench folder (under the figure's) of every arm with these options: equal options share one."""
+        tags = [f"n{self.samples}" if self.samples is not None else "nown"]
+        if self.replan_every is not None:
+            tags.append(f"r{self.replan_every}")
+        tags += [f"{key.rpartition('.')[2].replace('_', '')}{value}" for key, value in self.config]
+        if duration is not None:
+            tags.append(f"t{duration:g}s")
+        return "-".join(tags)
+
+    def quick(self) -> "Arm":
+        samples = None if self.samples is None else max(QUICK_MIN_SAMPLES, self.samples // QUICK_SAMPLE_DIVISOR)
+        return dataclasses.replace(self, samples=samples)
+
+
+@dataclass(frozen=True)
+class Claim:
+    """``arm`` against ``baseline`` on ``scenario``, on the same episodes: the paper says ``arm`` is ``expect``
+    (BETTER, WORSE or NO_WORSE) on ``metric`` (COLLISIONS: fewer is better; SPEED, collision-free episodes: higher
+    is better; PLAN_TIME per call: lower is better). ``paper``: the paper's value or stated direction, as it gives
+    it. ``like_for_like``: both arms are the same kind of version (both faithful or both strengthened)."""
+
+    scenario: str
+    arm: Arm
+    baseline: Arm
+    metric: str
+    expect: str
+    paper: str
+    like_for_like: bool = True
+
+    @property
+    def name(self) -> str:
+        return f"{self.scenario}: {self.arm.label} vs {self.baseline.label}, {self.metric}"
+
+    def quick(self) -> "Claim":
+        return dataclasses.replace(self, arm=self.arm.quick(), baseline=self.baseline.quick())
+
+
+@dataclass(frozen=True)
+class FigureProtocol:
+    """One figure of one paper: claims, seeds, episodes per seed and episode duration [s] (None: the scenario's,
+    50 s). ``not_run``: why the figure is not run (then ``claims`` is empty). ``reduced``: a quick or otherwise
+    reduced variant, whose rows say so; ``full_episodes``: episodes per claim of the full protocol."""
+
+    paper: str
+    figure: str
+    title: str
+    claims: tuple[Claim, ...] = ()
+    seeds: tuple[int, ...] = SEEDS
+    episodes: int = EPISODES
+    duration: float | None = None
+    not_run: str = ""
+    reduced: bool = False
+    full_episodes: int = EPISODES * len(SEEDS)
+    runs_of: str = ""  # the figure whose bench folders this one reads (the same arms measured once); "": its own
+
+    @property
+    def runs_folder(self) -> str:
+        """The folder under ``DIR/runs`` that holds this figure's bench folders."""
+        return self.runs_of or self.figure
+
+    def runs(self) -> dict[str, tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]]:
+        """``{folder: (scenarios, planners, options)}``: the bench runs this figure needs, one per set of options."""
+        runs: dict[str, tuple[list[str], list[str], dict[str, Any]]] = {}
+        for claim in self.claims:
+            for arm in (claim.arm, claim.baseline):
+                scenarios, planners, _ = runs.setdefault(arm.folder(self.duration), ([], [], arm.options(self.duration)))
+                if claim.scenario not in scenarios:
+                    scenarios.append(claim.scenario)
+                if arm.planner not in planners:
+                    planners.append(arm.planner)
+        return {folder: (tuple(s), tuple(p), o) for folder, (s, p, o) in runs.items()}
+
+    def quick(self) -> "FigureProtocol":
+        return dataclasses.replace(self, claims=tuple(c.quick() for c in self.claims), seeds=QUICK_SEEDS,
+                                   episodes=QUICK_EPISODES, duration=QUICK_DURATION, reduced=True)
+
+    def with_runs(self, seeds: tuple[int, ...] | None = None, episodes: int | None = None) -> "FigureProtocol":
+        """This protocol with other seeds or episodes per seed; fewer episodes in all than the full protocol mark
+        it reduced."""
+        changed = dataclasses.replace(self, seeds=tuple(seeds) if seeds else self.seeds,
+                                      episodes=episodes if episodes else self.episodes)
+        smaller = len(changed.seeds) * changed.episodes < self.full_episodes
+        return dataclasses.replace(changed, reduced=self.reduced or smaller)
+
+
+# ---------------------------------------------------------------------------------------------------------- P1
+P1_SAMPLES = 250  # [-] P1 §V-F: the batch of the benchmarks of §V-C and V-D
+P1_REPLAN = 5  # [policy periods] P1 §V-A3: the first five elements of each plan run open loop
+P1_DENSE = ("four-lane-d3.0", "two-lane-d2.5")
+P1_SPARSE = ("four-lane-d1.5", "two-lane-d1.0")
+IDM = Arm("idm", REFERENCE)
+NOT_FAITHFUL_BILEVEL = ("not like for like: no P1-faithful bi-level optimiser is registered; bilevel-p1 keeps driveopt's "
+                        "ranking, fallback and guard")
+
+
+def _strong(planner: str, samples: int | None = P1_SAMPLES, **kw: Any) -> Arm:
+    return Arm(planner, STRENGTHENED, samples, **kw)
+
+
+def _p1_figure7() -> FigureProtocol:
+    bilevel = _strong("bilevel")
+    bilevel_p1 = _strong("bilevel-p1", replan_every=P1_REPLAN, note="P1's Gaussian start and 0.5 s replanning, driveopt's "
+                         "ranking, fallback and guard")
+    claims = []
+    for scenario in P1_DENSE + P1_SPARSE:
+        dense = scenario in P1_DENSE
+        for baseline in ("random", "grid", "batch", "vanilla"):
+            if dense:
+                collisions = ("4-10x fewer collisions than every MPC baseline" if scenario.startswith("four")
+                              else "fewer collisions (improvement 'distinctly apparent')")
+                expect = BETTER
+            elif scenario.startswith("two") and baseline != "random":
+                collisions, expect = "0% for every baseline but MPC-Random", NO_WORSE
+            elif scenario.startswith("two"):
+                collisions, expect = "MPC-Random collides, the others do not", BETTER
+            else:
+                collisions, expect = "no explicit value (figure only)", NO_WORSE
+            speed = "average speed 'either better or competitive'"
+            strong_base = _strong(baseline)
+            faithful_base = Arm(f"{baseline}-p1", FAITHFUL, P1_SAMPLES, replan_every=P1_REPLAN)
+            for arm, base, like in ((bilevel, strong_base, True), (bilevel_p1, faithful_base, False)):
+                claims.append(Claim(scenario, arm, base, COLLISIONS, expect, collisions, like))
+                claims.append(Claim(scenario, arm, base, SPEED, NO_WORSE, speed, like))
+    return FigureProtocol("p1", "fig7", "MPC baselines against the bi-level optimiser, two and four lanes, two densities",
+                          tuple(claims))
+
+
+def _p1_rl(figure: str, title: str, scenarios: tuple[str, ...], paper: dict[str, str]) -> FigureProtocol:
+    claims = []
+    for scenario in scenarios:
+        for agent in ("dqn", "ppo"):
+            rl = Arm(agent, FAITHFUL, note="P1's agent, trained 10 000 of P1's 5 M steps (shipped policy)")
+            for arm, like in ((_strong("bilevel"), False),
+                              (_strong("bilevel-p1", replan_every=P1_REPLAN), False)):
+                claims.append(Claim(scenario, arm, rl, COLLISIONS, BETTER, paper["collisions"], like))
+                claims.append(Claim(scenario, arm, rl, SPEED, BETTER, paper["speed"], like))
+    return FigureProtocol("p1", figure, title, tuple(claims))
+
+
+def _p1_figure9() -> FigureProtocol:
+    claims = []
+    for samples, paper in ((250, "4x fewer collisions with the CVAE start at 250 samples"),
+                           (1000, "fewer collisions with the CVAE start at 1000 samples; the gap shrinks")):
+        cvae, gauss = _strong("cvae", samples), _strong("bilevel-p1", samples, note="P1's Gaussian start")
+        claims.append(Claim("four-lane-d3.0", cvae, gauss, COLLISIONS, BETTER, paper))
+        claims.append(Claim("four-lane-d3.0", cvae, gauss, SPEED, NO_WORSE, "not stated"))
+    return FigureProtocol("p1", "fig9", "CVAE start against the Gaussian start, 250 and 1000 samples", tuple(claims))
+
+
+def _p1_figure10() -> FigureProtocol:
+    claims = tuple(Claim("four-lane-d3.0", _strong("cvae", n), _strong("bilevel-p1", n), PLAN_TIME, NO_WORSE,
+                         f"CVAE inference overhead 'very minimal'; {t} s per call on an RTX 3080")
+                   for n, t in ((250, "0.03"), (1000, "< 0.06")))
+    return FigureProtocol("p1", "fig10", "planning time per call, CVAE against Gaussian start (closed-loop calls)", claims,
+                          runs_of="fig9")
+
+
+def p1_figures() -> tuple[FigureProtocol, ...]:
+    """P1 Figs. 7-12 in order."""
+    return (
+        _p1_figure7(),
+        _p1_rl("fig8", "RL baselines (DQN, PPO) against the bi-level optimiser", ("two-lane-d1.0", "four-lane-d3.0"),
+               {"collisions": "DQN and PPO 'drastically worse'", "speed": "DQN and PPO slower"}),
+        _p1_figure9(),
+        _p1_figure10(),
+        FigureProtocol("p1", "fig11", "the two-way scenario (an illustration)",
+                       not_run="an illustration of the scenario, nothing to measure (driveopt drive --scenario two-way "
+                               "--video FILE renders it); its results are Fig. 12"),
+        _p1_rl("fig12", "two-way road: RL baselines against the bi-level optimiser", ("two-way",),
+               {"collisions": "0% for the MPC approaches, RL collides", "speed": "MPC approaches faster than RL"}),
+    )
+
+
+# ---------------------------------------------------------------------------------------------------------- P2
+P2_SAMPLES = 1000  # [-] P2's batch
+P2_ITERATIONS = 100  # [-] filter iterations of P2's pipeline
+CVAE_BASELINE_NOTE = "stands in for P2's baseline [5] with P1's CVAE (the CVAE of [5] is not registered)"
+
+
+def _p2(planner: str, samples: int = P2_SAMPLES, iterations: int | None = None, note: str = "") -> Arm:
+    config = () if iterations is None else (("projection.max_iterations", iterations),)
+    return Arm(planner, STRENGTHENED, samples, config=config, note=note)
+
+
+def _p2_figure7() -> FigureProtocol:
+    claims = []
+    full, plain = _p2("vqvae-filter", note="P2's pipeline with the learned filter"), _p2("vqvae", note="plain filter")
+    cvae = _p2("cvae-filter", note=CVAE_BASELINE_NOTE)
+    for scenario in ("p2-four-lane-d1.5", "p2-four-lane-d3.0", "p2-four-lane-d1.5-slow", "p2-four-lane-d3.0-slow"):
+        paper = ("up to 12x fewer collisions than the CVAE baseline (density 3)" if "d3.0" in scenario
+                 else "fewer collisions than the CVAE baseline as density rises or traffic slows")
+        for arm in (full, plain):
+            claims.append(Claim(scenario, arm, cvae, COLLISIONS, BETTER, paper))
+            claims.append(Claim(scenario, arm, cvae, SPEED, NO_WORSE, "similar velocity profiles"))
+    return FigureProtocol("p2", "fig7", "VQ-VAE against the CVAE baseline, two densities and two speed limits",
+                          tuple(claims))
+
+
+def _p2_budget(figure: str, title: str, points: tuple[tuple[int, int], ...], reduced: tuple[int, int],
+               paper: str) -> FigureProtocol:
+    """Fig. 8a/8b: (samples, iterations) points; the reduced budget against P2's full one, and the learned filter
+    against the plain one at each point."""
+    scenario = "p2-four-lane-d3.0"
+
+    def learned(n: int, k: int) -> Arm:
+        return _p2("vqvae-filter", n, None if k == P2_ITERATIONS else k)
+
+    claims = [Claim(scenario, learned(*reduced), learned(P2_SAMPLES, P2_ITERATIONS), COLLISIONS, NO_WORSE, paper)]
+    for n, k in points:
+        claims.append(Claim(scenario, learned(n, k), _p2("vqvae", n, None if k == P2_ITERATIONS else k), COLLISIONS,
+                            NO_WORSE, "learned filter proposed to enhance safety (no value stated)"))
+    return FigureProtocol("p2", figure, title, tuple(claims))
+
+
+def _p2_figure9() -> FigureProtocol:
+    claims = []
+    for density in ("1.0", "1.5", "3.0"):
+        scenario = f"p2-four-lane-d{density}"
+        vq, vq0 = _p2("vqvae-filter"), _p2("vqvae-filter", iterations=0, note="no filter: feasibility-first ranking")
+        cv, cv0 = _p2("cvae-filter", note=CVAE_BASELINE_NOTE), _p2("cvae-filter", iterations=0,
+                                                                   note="no filter: feasibility-first ranking")
+        if density != "3.0":
+            claims.append(Claim(scenario, vq0, cv0, COLLISIONS, BETTER, "CVAE without filter 8x more collisions"))
+        else:
+            for arm, base in ((vq, vq0), (cv, cv0)):
+                claims.append(Claim(scenario, arm, base, COLLISIONS, BETTER, "the filter is needed at high density"))
+        for arm, base in ((vq, vq0), (cv, cv0)):
+            claims.append(Claim(scenario, arm, base, SPEED, WORSE, "the filter makes the car more conservative (slower)"))
+    return FigureProtocol("p2", "fig9", "with and without the safety filter, densities 1.0, 1.5, 3.0", tuple(claims))
+
+
+def p2_figures() -> tuple[FigureProtocol, ...]:
+    """P2 Figs. 1, 7, 8a, 8b, 9 in order."""
+    return (
+        FigureProtocol("p2", "fig1", "CVAE against VQ-VAE samples (offline KDE)",
+                       not_run="an offline figure of the priors' samples at one observation, not a closed-loop "
+                               "comparison: driveopt plot-prior draws it (docs/results/learned-prior.md)"),
+        _p2_figure7(),
+        _p2_budget("fig8a", "filter iterations 10, 25, 50, 100, learned against plain filter",
+                   tuple((P2_SAMPLES, k) for k in (10, 25, 50, 100)), (P2_SAMPLES, 50),
+                   "collision rate 'mere 3%' at 50 iterations"),
+        _p2_budget("fig8b", "samples 250, 500, 750, 1000, learned against plain filter",
+                   tuple((n, P2_ITERATIONS) for n in (250, 500, 750, 1000)), (750, P2_ITERATIONS),
+                   "collision rate 'only increased to 4%' at 750 samples"),
+        _p2_figure9(),
+    )
+
+
+PAPERS = {"p1": p1_figures, "p2": p2_figures}
+
+
+def figures_of(paper: str, names: list[str] | tuple[str, ...] | None = None, *, quick: bool = False,
+               seeds: tuple[int, ...] | None = None, episodes: int | None = None) -> tuple[FigureProtocol, ...]:
+    """The protocols of ``paper`` ('p1' or 'p2'), only ``names`` (e.g. 'fig7') when given, in the paper's order;
+    quick variants with ``quick``; ``seeds``/``episodes`` replace those of every figure. ProtocolError for an
+    unknown paper or figure, a figure named twice."""
+    if paper not in PAPERS:
+        raise ProtocolError(f"unknown paper {paper!r}; valid: {', '.join(PAPERS)}")
+    figures = PAPERS[paper]()
+    if names:
+        known = [f.figure for f in figures]
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise ProtocolError(f"{paper} has no figure {', '.join(unknown)}; its figures: {', '.join(known)}")
+        if len(set(names)) < len(names):
+            raise ProtocolError(f"figures {list(names)}: give each once")
+        figures = tuple(f for f in figures if f.figure in names)
+    if quick:
+        figures = tuple(f.quick() for f in figures)
+    if seeds or episodes:
+        figures = tuple(f.with_runs(seeds, episodes) for f in figures)
+    return figures

@@ -1,0 +1,135 @@
+"""``driveopt reproduce p1|p2``: run each declared figure protocol through the bench store, then judge its claims.
+
+Layout of the output folder ``DIR``::
+
+    DIR/runs/<figure>/<options>/   one driveopt bench folder per set of bench options (samples, replanning period,
+                                   config, duration): episodes.jsonl, spec.json, summaries
+    DIR/report.md, DIR/report.json the claim rows (:mod:`driveopt.experiments.reproduce_report`)
+    DIR/<figure>.png               collision rates and speeds of the figure's arms with their intervals
+
+Every bench folder is resumable (:func:`driveopt.experiments.bench.run_bench`): a rerun with the same ``DIR`` skips the
+episodes it holds, a figure's records are reused by any later run that asks for the same options, and Ctrl-C keeps
+the finished episodes. Every protocol, name and option is checked before ``DIR`` is created or touched; one
+reproduction at a time writes into ``DIR`` (it holds ``DIR/.lock``). The report covers the episodes of the
+protocol as run (seeds and episodes per seed), read back from the folders and checked by the store.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from driveopt.errors import DriveoptError
+from driveopt.experiments.bench import BenchSpec, episode_record, run_bench
+from driveopt.experiments.protocols import FigureProtocol, figures_of
+from driveopt.experiments.runner import EpisodeFn, check_backend
+from driveopt.experiments.store import load_folder
+from driveopt.experiments.verdicts import ClaimResult, evaluate
+from driveopt.files import lock_output_folder, make_output_folder
+
+RUNS = "runs"
+
+
+class ReproduceError(DriveoptError):
+    """A reproduction that cannot run: bad options, or a folder it cannot use."""
+
+
+@dataclass(frozen=True)
+class BenchRun:
+    """One bench folder of a figure: ``DIR/runs/<runs_folder>/<folder>`` with its spec."""
+
+    figure: str
+    path: Path
+    spec: BenchSpec
+
+
+def bench_runs(figures: tuple[FigureProtocol, ...], out: Path) -> list[BenchRun]:
+    """The bench folders ``figures`` need under ``out``, in order; a folder two figures share is listed once."""
+    runs: dict[Path, BenchRun] = {}
+    for figure in figures:
+        for folder, (scenarios, planners, options) in figure.runs().items():
+            path = out / RUNS / figure.runs_folder / folder
+            spec = BenchSpec(scenarios, planners, figure.seeds, figure.episodes, options)
+            if path in runs and runs[path].spec != spec:
+                raise ReproduceError(f"figures ask for two different runs in {path}; give them the same seeds and episodes")
+            runs.setdefault(path, BenchRun(figure.figure, path, spec))
+    return list(runs.values())
+
+
+def check(figures: tuple[FigureProtocol, ...], out: Path, backend: str, workers: int | None) -> list[BenchRun]:
+    """Every bench run of ``figures`` checked (names, options, seeds, weights) before anything is written."""
+    if workers is not None and (not isinstance(workers, int) or isinstance(workers, bool) or workers < 1):
+        raise ReproduceError(f"workers must be an integer >= 1, got {workers!r}")
+    check_backend(backend)
+    if out.exists() and not out.is_dir():
+        raise ReproduceError(f"the output folder {out} is an existing file; give a folder")
+    runs = bench_runs(figures, out)
+    for run in runs:
+        run.spec.check()
+    return runs
+
+
+def reproduce(paper: str, out: str | Path, *, figures: list[str] | None = None, quick: bool = False,
+              seeds: tuple[int, ...] | None = None, episodes: int | None = None, workers: int | None = None,
+              backend: str = "local", episode_fn: EpisodeFn = episode_record, progress: bool = True,
+              ) -> tuple[tuple[FigureProtocol, ...], list[ClaimResult]]:
+    """Run what is missing of ``paper``'s protocols (``figures``: only those; ``quick``: their quick variants;
+    ``seeds``/``episodes``: replace every figure's), then write ``DIR/report.md``, ``report.json`` and one PNG per
+    figure. Returns the protocols and the claim rows. A DriveoptError before anything is written when an option,
+    figure, planner, scenario or weights file is wrong; KeyboardInterrupt keeps the finished episodes."""
+    chosen = figures_of(paper, figures, quick=quick, seeds=seeds, episodes=episodes)
+    return chosen, run_figures(paper, chosen, out, workers=workers, backend=backend, episode_fn=episode_fn,
+                               progress=progress)
+
+
+def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path, *, workers: int | None = None,
+                backend: str = "local", episode_fn: EpisodeFn = episode_record, progress: bool = True,
+                ) -> list[ClaimResult]:
+    """:func:`reproduce` for protocols given as objects (e.g. a protocol of one's own)."""
+    from driveopt.experiments.reproduce_report import write_report
+
+    out = Path(out)
+    runs = check(figures, out, backend, workers)
+    out = make_output_folder(out, ReproduceError, "the runs and the report")
+    with lock_output_folder(out):
+        for i, run in enumerate(runs, start=1):
+            if progress:
+                spec = run.spec
+                print(f"[{i}/{len(runs)}] {run.figure}: {', '.join(spec.planners)} on {', '.join(spec.scenarios)} "
+                      f"-> {run.path}", flush=True)
+            run_bench(run.spec, run.path, workers=workers, backend=backend, episode_fn=episode_fn, progress=progress)
+        results = judge(figures, out)
+        write_report(paper, figures, results, out)
+    return results
+
+
+def records_by_arm(path: Path) -> dict[tuple[str, str], dict[tuple[int, int], dict[str, Any]]]:
+    """``{(scenario, planner): {(seed, episode): record}}`` of one bench folder (empty when it has none)."""
+    _, records = load_folder(path)
+    out: dict[tuple[str, str], dict[tuple[int, int], dict[str, Any]]] = {}
+    for r in records:
+        out.setdefault((r["scenario"], r["planner"]), {})[(int(r["seed"]), int(r["episode"]))] = r
+    return out
+
+
+def judge(figures: tuple[FigureProtocol, ...], out: Path) -> list[ClaimResult]:
+    """Every claim of ``figures`` measured on the records under ``out``: only the episodes of the protocol as run
+    (its seeds, episodes 0 .. episodes - 1)."""
+    cache: dict[Path, Any] = {}
+    results = []
+    for figure in figures:
+        wanted = {(s, e) for s in figure.seeds for e in range(figure.episodes)}
+
+        def arm_records(arm, scenario):
+            path = out / RUNS / figure.runs_folder / arm.folder(figure.duration)
+            if path not in cache:
+                cache[path] = records_by_arm(path)  # StoreError for a corrupted or foreign folder
+            found = cache[path].get((scenario, arm.planner), {})
+            return {k: r for k, r in found.items() if k in wanted}
+
+        for claim in figure.claims:
+            results.append(evaluate(figure.figure, claim, arm_records(claim.arm, claim.scenario),
+                                    arm_records(claim.baseline, claim.scenario), figure.seeds, figure.full_episodes,
+                                    figure.reduced))
+    return results

@@ -1,0 +1,308 @@
+"""driveopt reproduce: paired statistics against hand-computed values, the verdict rule, the declared protocols, the
+report's rows, resuming from the bench store, bad input, and one small real run."""
+
+import argparse
+import json
+import math
+import time
+
+import numpy as np
+import pytest
+
+from driveopt.errors import DriveoptError
+from driveopt.experiments import paired_stats as ps
+from driveopt.experiments.protocols import (
+    BETTER,
+    COLLISIONS,
+    FAITHFUL,
+    NO_WORSE,
+    REFERENCE,
+    SPEED,
+    STRENGTHENED,
+    WORSE,
+    Arm,
+    Claim,
+    FigureProtocol,
+    ProtocolError,
+    figures_of,
+)
+from driveopt.experiments.reproduce import reproduce, run_figures
+from driveopt.experiments.summary import wilson_interval
+from driveopt.experiments.verdicts import CONTRADICTED, INCONCLUSIVE, REPRODUCED, decide, evaluate
+from driveopt.registry import get_planner
+
+# ---------------------------------------------------------------------------------------------- statistics
+
+
+def test_binomial_and_mcnemar_match_hand_computed_values():
+    assert ps.binomial_two_sided(2, 10) == pytest.approx(2 * (1 + 10 + 45) / 1024)
+    assert ps.binomial_two_sided(8, 10) == pytest.approx(2 * (1 + 10 + 45) / 1024)  # symmetric
+    assert ps.binomial_two_sided(5, 10) == 1.0  # capped
+    assert ps.binomial_two_sided(0, 0) == 1.0
+    assert ps.mcnemar_exact(0, 5) == pytest.approx(2 / 32)  # 0.0625: five discordant pairs cannot reach 0.05
+    assert ps.mcnemar_exact(0, 6) == pytest.approx(2 / 64)
+    assert ps.mcnemar_exact(1, 9) == pytest.approx(2 * 11 / 1024)
+    assert ps.mcnemar_exact(9, 1) == ps.mcnemar_exact(1, 9)
+    assert ps.mcnemar_exact(3, 3) == 1.0
+    with pytest.raises(ValueError):
+        ps.binomial_two_sided(4, 3)
+
+
+def test_mcnemar_agrees_with_the_binomial_definition_by_enumeration():
+    for b in range(8):
+        for c in range(8):
+            n = b + c
+            probs = [math.comb(n, i) / 2**n for i in range(n + 1)]
+            # two-sided exact: the total probability of outcomes no more likely than the observed one
+            expected = min(1.0, sum(p for p in probs if p <= probs[b] * (1 + 1e-12))) if n else 1.0
+            assert ps.mcnemar_exact(b, c) == pytest.approx(expected)
+
+
+def test_sign_test_drops_ties():
+    assert ps.sign_test([1.0, -1.0, 0.0, 2.0, 3.0]) == (3, 4, pytest.approx(2 * (1 + 4) / 16))
+    assert ps.sign_test([0.0, 0.0]) == (0, 0, 1.0)
+    positive, n, p = ps.sign_test([0.5] * 10)
+    assert (positive, n) == (10, 10) and p == pytest.approx(2 / 1024)
+
+
+def test_wilson_intervals_at_the_edges_and_the_simultaneous_z():
+    low, high = wilson_interval(0, 50)
+    assert low == 0.0 and high == pytest.approx(1.959964**2 / (50 + 1.959964**2))
+    low, high = wilson_interval(0, 50, z=ps.Z_97_5)
+    assert high == pytest.approx(ps.Z_97_5**2 / (50 + ps.Z_97_5**2))
+    low, high = ps.paired_risk_difference_interval(0, 0, 50)
+    assert low == pytest.approx(-high) and 0.0 < high < 0.10
+    low, high = ps.paired_risk_difference_interval(10, 0, 50)  # only the first collided, 10 times: the difference is 0.2
+    assert low > 0.0 and low < 0.2 < high
+    assert all(math.isnan(v) for v in ps.paired_risk_difference_interval(0, 0, 0))
+
+
+def test_bootstrap_interval_is_fixed_and_holds_the_mean():
+    x = np.random.default_rng(3).normal(5.0, 1.0, 40)
+    a, b = ps.bootstrap_mean_interval(x), ps.bootstrap_mean_interval(x)
+    assert a == b and a[0] < x.mean() < a[1]
+    half = 1.959964 * x.std(ddof=1) / math.sqrt(x.size)  # the normal-theory interval, for scale
+    assert a[1] - a[0] == pytest.approx(2 * half, rel=0.15)
+    assert all(math.isnan(v) for v in ps.bootstrap_mean_interval([1.0]))
+
+
+# ---------------------------------------------------------------------------------------------- verdict rule
+
+
+def test_decide_better_and_worse():
+    assert decide(BETTER, 8, 0, 0.0078, (math.nan, math.nan), math.nan) == REPRODUCED
+    assert decide(BETTER, 0, 8, 0.0078, (math.nan, math.nan), math.nan) == CONTRADICTED
+    assert decide(BETTER, 5, 0, 0.0625, (math.nan, math.nan), math.nan) == INCONCLUSIVE
+    assert decide(WORSE, 0, 8, 0.0078, (math.nan, math.nan), math.nan) == REPRODUCED
+    assert decide(WORSE, 8, 0, 0.0078, (math.nan, math.nan), math.nan) == CONTRADICTED
+
+
+def test_decide_no_worse_uses_the_interval_and_the_margin():
+    assert decide(NO_WORSE, 0, 0, 1.0, (-0.05, 0.05), 0.1) == REPRODUCED
+    assert decide(NO_WORSE, 0, 9, 0.004, (-0.30, -0.15), 0.1) == CONTRADICTED
+    assert decide(NO_WORSE, 0, 3, 0.25, (-0.20, 0.01), 0.1) == INCONCLUSIVE
+    assert decide(NO_WORSE, 0, 0, 1.0, (math.nan, math.nan), 0.1) == INCONCLUSIVE
+
+
+def _record(planner, seed, episode, collided, speed, plan_ms=None, scenario="s"):
+    return {"scenario": scenario, "planner": planner, "seed": seed, "episode": episode, "collided": collided,
+            "off_road": False, "mean_speed": speed, "sim_seconds": 1.0, "plan_seconds": 0.1,
+            **({"plan_ms": plan_ms} if plan_ms else {})}
+
+
+def test_evaluate_pairs_episodes_and_reaches_each_verdict():
+    arm, base = Arm("bilevel", STRENGTHENED, 250), Arm("grid", STRENGTHENED, 250)
+    a = {(42, e): _record("bilevel", 42, e, False, 8.0 + 0.01 * e, [50.0]) for e in range(20)}
+    b = {(42, e): _record("grid", 42, e, e < 8, 7.0, [10.0]) for e in range(20)}
+    b[(42, 99)] = _record("grid", 42, 99, True, 1.0)  # unpaired: not counted
+    fewer = evaluate("fig", Claim("s", arm, base, COLLISIONS, BETTER, "fewer"), a, b, (42,), 100, False)
+    assert (fewer.pairs, fewer.only_arm_collided, fewer.only_baseline_collided) == (20, 0, 8)
+    assert fewer.mcnemar_p == pytest.approx(2 / 256) and fewer.verdict == REPRODUCED
+    assert fewer.reduced and fewer.full_pairs == 100  # 20 pairs of 100: says so
+    assert fewer.arm.collisions == 0 and fewer.baseline.collisions == 8 and fewer.baseline.episodes == 20
+    faster = evaluate("fig", Claim("s", arm, base, SPEED, BETTER, "faster"), a, b, (42,), 20, False)
+    assert (faster.speed_pairs, faster.arm_faster) == (12, 12) and faster.verdict == REPRODUCED
+    assert faster.speed_difference == pytest.approx(np.mean([1.0 + 0.01 * e for e in range(8, 20)]))
+    slower = evaluate("fig", Claim("s", base, arm, SPEED, BETTER, "faster"), b, a, (42,), 20, False)
+    assert slower.verdict == CONTRADICTED
+    from driveopt.experiments.protocols import PLAN_TIME
+
+    plan = evaluate("fig", Claim("s", arm, base, PLAN_TIME, NO_WORSE, "minimal"), a, b, (42,), 20, False)
+    assert plan.plan_pairs == 20 and plan.arm_quicker == 0 and plan.verdict == CONTRADICTED  # 50 ms against 10
+    similar = evaluate("fig", Claim("s", arm, arm, COLLISIONS, NO_WORSE, "same"), a, a, (42,), 20, False)
+    assert similar.verdict == INCONCLUSIVE  # 20 pairs cannot bound the difference within 0.10
+    none = evaluate("fig", Claim("s", arm, base, COLLISIONS, BETTER, "fewer"), {}, b, (42,), 20, False)
+    assert none.pairs == 0 and none.verdict == INCONCLUSIVE
+
+
+# ---------------------------------------------------------------------------------------------- protocols
+
+
+def test_every_figure_of_both_papers_is_declared_with_registered_planners():
+    p1 = figures_of("p1")
+    p2 = figures_of("p2")
+    assert [f.figure for f in p1] == ["fig7", "fig8", "fig9", "fig10", "fig11", "fig12"]
+    assert [f.figure for f in p2] == ["fig1", "fig7", "fig8a", "fig8b", "fig9"]
+    for figure in p1 + p2:
+        assert bool(figure.not_run) != bool(figure.claims), figure.figure  # either claims or a reason
+        for claim in figure.claims:
+            for arm in (claim.arm, claim.baseline):
+                get_planner(arm.planner)
+                assert arm.version in (FAITHFUL, STRENGTHENED, REFERENCE)
+            assert claim.paper and claim.expect in (BETTER, WORSE, NO_WORSE)
+    # P1 Fig. 7 compares like for like (strengthened with strengthened) and in P1's setting, marked otherwise
+    fig7 = p1[0]
+    assert any(c.like_for_like and c.baseline.planner == "grid" and c.arm.planner == "bilevel" for c in fig7.claims)
+    assert all(not c.like_for_like for c in fig7.claims if c.baseline.version == FAITHFUL)
+
+
+def test_quick_variants_and_overrides():
+    for figure in figures_of("p2", quick=True):
+        assert figure.reduced and figure.episodes == 2 and figure.seeds == (42,) and (figure.duration or 0) <= 5
+        for claim in figure.claims:
+            for arm in (claim.arm, claim.baseline):
+                assert arm.samples is None or arm.samples <= 100
+    (fig9,) = figures_of("p1", ["fig9"], seeds=(1, 2), episodes=50)
+    assert fig9.seeds == (1, 2) and not fig9.reduced
+    (fig9,) = figures_of("p1", ["fig9"], episodes=10)
+    assert fig9.reduced
+
+
+@pytest.mark.parametrize("paper, names", [("p3", None), ("p1", ["fig99"]), ("p2", ["fig7", "fig7"])])
+def test_unknown_paper_or_figure(paper, names):
+    with pytest.raises(ProtocolError):
+        figures_of(paper, names)
+
+
+# ---------------------------------------------------------------------------------------------- runs and report
+
+CALLS = {"n": 0}
+
+
+def fake_episode(job, options):
+    """The proposed methods never collide and drive 9 m/s; the others collide in even episodes and drive 7 m/s."""
+    CALLS["n"] += 1
+    proposed = job.planner in ("bilevel", "bilevel-p1", "cvae", "vqvae-filter", "vqvae") and "max_iterations" not in str(options)
+    collided = (not proposed) and job.episode % 2 == 0
+    return {"collided": collided, "off_road": False, "mean_speed": 9.0 if proposed else 7.0 + 0.01 * job.episode,
+            "plan_ms": [20.0, 21.0], "sim_seconds": 0.01, "plan_seconds": 0.01, "steps": 2}
+
+
+@pytest.fixture
+def cheap_bench(monkeypatch):
+    """No bench summary plots, and no loading of the RL policies (torch) to check them: the fake episodes need neither."""
+    from driveopt.drivers.rl import RLSpec
+    from driveopt.experiments import bench
+
+    monkeypatch.setattr(bench, "plot_summary", lambda rows, path: path)
+    monkeypatch.setattr(RLSpec, "check", lambda self, scenario: None)
+
+
+def test_report_has_every_claim_row_and_resume_reuses_records(tmp_path, cheap_bench):
+    CALLS["n"] = 0
+    figures, results = reproduce("p1", tmp_path, episodes=3, seeds=(42,), workers=1, episode_fn=fake_episode,
+                                 progress=False)
+    first = CALLS["n"]
+    claims = sum(len(f.claims) for f in figures)
+    assert first > 0 and len(results) == claims
+    report = (tmp_path / "report.md").read_text()
+    rows = [line for line in report.splitlines() if line.startswith("| ") and "| scenario |" not in line]
+    assert len(rows) == claims
+    assert "Not run: an illustration" in report and "reduced: the full protocol has 100" in report
+    data = json.loads((tmp_path / "report.json").read_text())
+    assert sum(len(f["claims"]) for f in data["figures"]) == claims
+    assert {f["figure"] for f in data["figures"]} == {"fig7", "fig8", "fig9", "fig10", "fig11", "fig12"}
+    for figure in ("fig7", "fig8", "fig9", "fig10", "fig12"):
+        assert (tmp_path / f"{figure}.png").stat().st_size > 0
+    assert not (tmp_path / "fig11.png").exists()
+    by_name = {(r.figure, r.scenario, r.arm.label, r.baseline.label, r.metric): r for r in results}
+    grid = by_name[("fig7", "four-lane-d3.0", "bilevel n250", "grid n250", COLLISIONS)]
+    assert (grid.pairs, grid.only_baseline_collided, grid.verdict) == (3, 2, INCONCLUSIVE)
+    # a second run finds every episode recorded; fewer episodes judge only those
+    CALLS["n"] = 0
+    _, again = reproduce("p1", tmp_path, episodes=2, seeds=(42,), workers=1, episode_fn=fake_episode, progress=False)
+    assert CALLS["n"] == 0
+    assert {r.pairs for r in again} == {2}
+    # more episodes run only the missing ones
+    _, more = reproduce("p1", tmp_path, figures=["fig9"], episodes=4, seeds=(42,), workers=1, episode_fn=fake_episode,
+                        progress=False)
+    assert CALLS["n"] == 2 * 2  # (cvae, bilevel-p1) x (n250, n1000) folders, one new episode each
+    assert {r.pairs for r in more} == {4}
+
+
+def test_enough_episodes_reproduce_the_fake_direction(tmp_path, cheap_bench):
+    figure = FigureProtocol("p1", "figX", "fake", (
+        Claim("four-lane-d3.0", Arm("bilevel", STRENGTHENED, 25), Arm("grid", STRENGTHENED, 25), COLLISIONS, BETTER, "x"),
+        Claim("four-lane-d3.0", Arm("bilevel", STRENGTHENED, 25), Arm("grid", STRENGTHENED, 25), SPEED, BETTER, "y"),
+    ), seeds=(42, 123), episodes=8, full_episodes=16)
+    results = run_figures("p1", (figure,), tmp_path, workers=1, episode_fn=fake_episode, progress=False)
+    assert [r.verdict for r in results] == [REPRODUCED, REPRODUCED]  # 8 only-baseline collisions: p = 2/256
+    assert not results[0].reduced and results[0].seeds == (42, 123)
+
+
+@pytest.mark.parametrize("kwargs", [
+    {"figures": ["fig99"]},
+    {"seeds": (-1,)},
+    {"backend": "slurm"},
+    {"workers": 0},
+])
+def test_bad_input_fails_before_anything_is_written(tmp_path, kwargs):
+    out = tmp_path / "out"
+    with pytest.raises(DriveoptError):
+        reproduce("p1", out, episode_fn=fake_episode, progress=False, **kwargs)
+    assert not out.exists()
+
+
+def test_output_folder_that_is_a_file(tmp_path):
+    out = tmp_path / "file"
+    out.write_text("x")
+    with pytest.raises(DriveoptError, match="existing file"):
+        reproduce("p1", out, figures=["fig9"], episode_fn=fake_episode, progress=False)
+
+
+def test_cli_parses_and_reports_bad_input_as_a_driveopt_error(tmp_path):
+    from driveopt.cli.reproduce import register
+
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["reproduce", "p2", "--figures", "fig8c", "--quick", "--out", str(tmp_path / "o")])
+    assert args.quick and args.paper == "p2"
+    with pytest.raises(DriveoptError, match="fig8c"):
+        args.func(args)
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(SystemExit):
+        parser.parse_args(["reproduce", "p3", "--out", "x"])
+
+
+def test_cli_module_imports_no_jax():
+    import subprocess
+    import sys
+
+    code = "import sys, driveopt.cli.reproduce; print('jax' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "False"
+
+
+# ---------------------------------------------------------------------------------------------- real episodes
+
+
+def test_small_real_run(tmp_path):
+    """idm against one optimiser through highway-env: 1 episode of 1.5 s, 10 samples."""
+    figure = FigureProtocol("p1", "tiny", "idm against grid", (
+        Claim("two-lane-d1.0", Arm("grid", STRENGTHENED, 10), Arm("idm", REFERENCE), SPEED, NO_WORSE, "competitive"),
+    ), seeds=(42,), episodes=1, duration=1.5, reduced=True)
+    start = time.perf_counter()
+    (result,) = run_figures("p1", (figure,), tmp_path, workers=1, progress=False)
+    assert time.perf_counter() - start < 120
+    assert result.pairs == 1 and result.verdict == INCONCLUSIVE and result.reduced
+    assert result.arm.plan_ms > 0 and math.isnan(result.baseline.plan_ms)  # idm does not plan
+    assert "tiny" in (tmp_path / "report.md").read_text()
+    assert (tmp_path / "runs" / "tiny" / "n10-t1.5s" / "episodes.jsonl").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("paper", ["p1", "p2"])
+def test_quick_reproduction_of_each_paper(tmp_path, paper):
+    figures, results = reproduce(paper, tmp_path, quick=True, workers=1, progress=False)
+    assert len(results) == sum(len(f.claims) for f in figures) > 0
+    assert all(r.pairs == 2 for r in results)
+    assert (tmp_path / "report.md").exists()
