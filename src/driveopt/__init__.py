@@ -35,7 +35,7 @@ _EXPORTS = {
     "CostPlusResidual": "driveopt.ranking", "FeasibilityFirst": "driveopt.ranking",
     "EgoState": "driveopt.scene", "Neighbour": "driveopt.scene", "ProblemError": "driveopt.scene", "Road": "driveopt.scene",
     "Scene": "driveopt.scene", "load_scene": "driveopt.scene",
-    "Controller": "driveopt.controller", "gym_make": "driveopt.sim.rewards",
+    "Controller": "driveopt.controller", "RenderPlans": "driveopt.controller", "gym_make": "driveopt.sim.rewards",
 }
 __all__ = list(_EXPORTS)
 
@@ -54,3 +54,7 @@ def __dir__() -> list[str]:
 
 
 __version__ = "0.1.0"
+
+from driveopt import gym_envs as _gym_envs  # noqa: E402  light: registers the gymnasium ids once gymnasium is imported
+
+_gym_envs.install()

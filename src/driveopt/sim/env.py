@@ -38,6 +38,7 @@ from highway_env.envs.highway_env import HighwayEnv
 from highway_env.envs.merge_env import MergeEnv
 from highway_env.envs.two_way_env import TwoWayEnv
 
+from driveopt import gym_envs
 from driveopt.sim.fast_road import FastRoad
 from driveopt.sim.rewards import two_way_rewards
 from driveopt.sim.scenarios import Scenario
@@ -187,14 +188,9 @@ class DriveoptMergeEnv(_ScenarioTraffic, MergeEnv):
         return MergeEnv._rewards(self, None)
 
 
-_CLASSES = {"highway": DriveoptHighwayEnv, "two-way": DriveoptTwoWayEnv, "merge": DriveoptMergeEnv}
-
-
 def register_envs() -> None:
-    """Register the adapter envs with gymnasium (idempotent)."""
-    for road, env_id in ENV_IDS.items():
-        if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=f"{__name__}:{_CLASSES[road].__name__}")
+    """Register driveopt's envs with gymnasium (idempotent; :mod:`driveopt.gym_envs`, which ``import driveopt`` runs)."""
+    gym_envs.register()
 
 
 register_envs()
