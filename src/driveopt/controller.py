@@ -7,6 +7,7 @@
     controller.reset(env, seed=0)
     action = controller.act(env)                 # (2,) float32 in [-1, 1]: env.step(action)
     controller.last.result.status, controller.last.plan_seconds
+    frame = controller.render(env)               # env made with render_mode="rgb_array": the plans and a HUD drawn on
 
 It does what ``driveopt drive`` does, with the same driver (``drive`` and ``bench`` run the registered planners'
 drivers, :mod:`driveopt.drivers`): the car's acceleration and steering ranges, its length, the simulation and
@@ -17,7 +18,9 @@ its fallback, braking at once; the contact guard checks commands at crawling spe
 frame along the ego's route through the lane graph (:mod:`driveopt.sim.road_frame`: straight, circular and sine
 lanes), turned back into world coordinates for tracking; a road the frame cannot represent (crossing traffic,
 lanes that are not parallel) raises :class:`~driveopt.sim.road_frame.RoadFrameError` at ``reset`` or at the step
-where the route reaches it. Upstream merge-v0, roundabout-v0 and two-way-v0 raise on array actions in their
+where the route reaches it. ``render(env)`` draws the latest plan in world coordinates (any road) and a heads-up
+display on the env's frame (:mod:`driveopt.viz.overlay`); :class:`RenderPlans` wraps an env so that its own
+``render()`` does (gymnasium's ``RecordVideo`` records that). Upstream merge-v0, roundabout-v0 and two-way-v0 raise on array actions in their
 rewards, already in ``gymnasium.make``: make them with :func:`driveopt.gym_make` (:mod:`driveopt.sim.rewards`).
 """
 
@@ -27,6 +30,7 @@ import dataclasses
 import math
 from typing import Any, Mapping, Sequence
 
+import gymnasium
 import numpy as np
 
 from driveopt.config import PlannerConfig
@@ -80,6 +84,7 @@ class Controller:
         self.driver: Any = None
         self.task: Task | None = None
         self.last: Decision | None = None  # what the latest act() decided: action, result, scene, timing, frame
+        self.planned: Decision | None = None  # the latest decision that planned (act() may follow a plan open-loop)
 
     @property
     def name(self) -> str:
@@ -103,7 +108,7 @@ class Controller:
                          route=self.route)
         self.driver = self.spec.driver()
         self.driver.reset(env, self.task, seed)
-        self.last = None
+        self.last = self.planned = None
 
     @property
     def compile_seconds(self) -> float:
@@ -115,7 +120,19 @@ class Controller:
         if self.driver is None:
             raise ControllerError("call controller.reset(env, seed) after env.reset() before act()")
         self.last = self.driver.act(env)
+        if self.last.result is not None or self.planned is None:
+            self.planned = self.last
         return np.asarray(self.last.action, dtype=np.float32)
+
+    def render(self, env: Any) -> np.ndarray:
+        """(H, W, 3) uint8: ``env.render()`` (the env made with ``render_mode="rgb_array"``) with the latest plan's
+        sampled, elite and followed trajectories in world coordinates and a heads-up display (time [s], speed and
+        desired speed [m/s], planner, status, planning time [ms]); :mod:`driveopt.viz.overlay`."""
+        from driveopt.viz.overlay import render_decision
+
+        v_des = self.task.v_des if self.task is not None else self.v_des
+        return render_decision(env, self.planned, planner=self.name, v_des=v_des,
+                               config=getattr(self.driver, "config", None))
 
     @property
     def status(self) -> Any:
@@ -123,3 +140,18 @@ class Controller:
         not plan)."""
         result = self.last.result if self.last is not None else None
         return None if result is None else result.status
+
+
+class RenderPlans(gymnasium.Wrapper):
+    """A gymnasium wrapper whose ``render()`` is ``controller.render(env)``: the env's frame with the controller's
+    latest plan and its heads-up display (``RecordVideo(RenderPlans(env, controller), "videos")`` records them).
+    Everything else is the wrapped env's."""
+
+    def __init__(self, env: Any, controller: Controller) -> None:
+        if not isinstance(controller, Controller):
+            raise ControllerError(f"RenderPlans needs a driveopt.Controller, got {type(controller).__name__}")
+        super().__init__(env)
+        self.controller = controller
+
+    def render(self) -> np.ndarray:
+        return self.controller.render(self.env)

@@ -1,5 +1,8 @@
 """``driveopt drive``: one closed-loop episode with a progress bar, a summary, and an MP4 of the plans.
 
+The video's frames follow the ego; on each, the sampled, elite and followed plans in world coordinates and a
+heads-up display of time, speed, desired speed, planner, status and planning time (:mod:`driveopt.viz.overlay`).
+
 ``--json`` and ``--video`` are checked (a folder that can be written, ``.mp4`` for the video) before the episode
 runs; both are written whole or not at all, and a video ffmpeg could not finish (a full disk) is an error, not
 "wrote". The JSON is strict: a planner that never plans (``idm``) has null plan times.
@@ -34,7 +37,6 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from driveopt.experiments.rollout import Rollout
-    from driveopt.planner import PlanStatus
     from driveopt.registry import get_planner
     from driveopt.sim.scenarios import resolve_scenario
     from driveopt.viz.video import VIDEO_SUFFIXES
@@ -52,20 +54,18 @@ def run(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         bar = stack.enter_context(tqdm(total=steps, desc=f"{scenario.name} / {spec.name}", unit="step"))
         bar.set_postfix_str("compiling")
-        writer = None
+        writer, planned = None, None
         if args.video:
-            from driveopt.viz.video import VideoWriter, draw_plan, plan_overlay_arrays
+            from driveopt.viz.overlay import render_decision
+            from driveopt.viz.video import VideoWriter
 
             writer = stack.enter_context(VideoWriter(args.video, fps=scenario.policy_frequency))
         for step in rollout:
             result = step.decision.result
             if writer is not None:  # the state the plan was made from, before the simulator steps
-                frame = step.env.render()
-                if result is not None:
-                    samples, elites, chosen = plan_overlay_arrays(result, spec.config)
-                    frame = draw_plan(frame, step.env, samples=samples, elites=elites, chosen=chosen,
-                                      fallback=result.status != PlanStatus.SUCCESS)
-                writer.append(frame)
+                planned = step.decision if result is not None or planned is None else planned  # open-loop: the last plan
+                writer.append(render_decision(step.env, planned, planner=spec.name, v_des=scenario.v_des,
+                                              config=getattr(rollout.driver, "config", None)))
             episode = step.episode
             if not episode.speeds:  # the first step came after compilation: time the rest from here
                 bar.reset(total=steps)

@@ -1,9 +1,11 @@
 """MP4 videos of closed-loop episodes: plans drawn over highway-env's own frames.
 
 ``env.render()`` returns upstream's simulation surface (``viewer.sim_surface``), whose pixel of a
-world point (x, y) [m] is ``(p - origin) * scaling``; the road frame of a straight highway is the
-world frame. Samples are drawn thin and translucent, elites in orange, the chosen trajectory
-thick (green, or red when it is the fallback); a small legend names the colours.
+world point (x, y) [m] is ``(p - origin) * scaling``; plans are made in the road (Frenet) frame and turned
+into world points by the frame they were made in (:func:`plan_overlay_arrays`, any road, curved too).
+Samples are drawn thin and translucent, elites in orange, the chosen trajectory thick (green, or red when
+it is the fallback); a small legend names the colours, a heads-up box in the top-left corner holds text
+lines (:mod:`driveopt.viz.overlay` fills it with time, speeds, planner, status and planning time).
 
 Polylines are clipped segment by segment against the frame (Liang-Barsky, vectorised): a line
 that crosses the edge is drawn up to the edge, and one that leaves the frame and comes back is
@@ -41,6 +43,8 @@ CHOSEN_RGBA = (0, 200, 80, 255)
 FALLBACK_RGBA = (230, 40, 40, 255)
 SAMPLE_WIDTH, ELITE_WIDTH, CHOSEN_WIDTH = 1, 2, 4  # [px] stroke widths
 LEGEND_BG_RGBA = (255, 255, 255, 190)
+HUD_BG_RGBA = (255, 255, 255, 200)
+WORLD_NODES = 25  # [-] nodes of each sampled and elite plan drawn in world coordinates (the chosen plan keeps all)
 TEXT_RGBA = (0, 0, 0, 255)
 
 
@@ -161,6 +165,22 @@ def draw_legend(draw: ImageDraw.ImageDraw, entries: list[tuple[str, tuple, int]]
         x += tw + spacing
 
 
+def draw_text_box(draw: ImageDraw.ImageDraw, lines: list[str], size: tuple[int, int]) -> tuple[int, int, int, int]:
+    """Text lines on a translucent white box in the top-left corner; the box (x0, y0, x1, y1) [px], clipped to the
+    frame of size (width, height)."""
+    font = _font()
+    pad, spacing = 4, 2
+    left, top, _, bottom = draw.textbbox((0, 0), "Ag", font=font)
+    line_h = bottom - top
+    width = max(int(np.ceil(draw.textlength(line, font=font))) for line in lines) + 2 * pad
+    height = len(lines) * line_h + (len(lines) - 1) * spacing + 2 * pad
+    box = (2, 2, min(2 + width, size[0] - 1), min(2 + height, size[1] - 1))
+    draw.rectangle(box, fill=HUD_BG_RGBA)
+    for i, line in enumerate(lines):
+        draw.text((2 + pad - left, 2 + pad + i * (line_h + spacing) - top), line, fill=TEXT_RGBA, font=font)
+    return box
+
+
 def draw_plan(
     frame: np.ndarray,
     env: Any,
@@ -171,10 +191,12 @@ def draw_plan(
     fallback: bool = False,
     label: str | None = None,
     legend: bool = True,
+    hud: list[str] | None = None,
 ) -> np.ndarray:
-    """A copy of ``frame`` (H, W, 3) uint8 with trajectories (each (K, 2) road-frame xy [m]) drawn on it.
+    """A copy of ``frame`` (H, W, 3) uint8 with trajectories (each (K, 2) world xy [m]) drawn on it.
 
-    With ``legend`` (and anything in view) a legend names the colours of the groups given.
+    With ``legend`` (and anything in view) a legend names the colours of the groups given; ``hud`` lines go in a box
+    in the top-left corner (instead of ``label``).
     """
     frame = np.asarray(frame)
     if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
@@ -194,7 +216,9 @@ def draw_plan(
         drawn |= _polyline(draw, world_to_pixel(env, chosen), FALLBACK_RGBA if fallback else CHOSEN_RGBA, CHOSEN_WIDTH, base.size)
         entries += [("chosen", CHOSEN_RGBA, CHOSEN_WIDTH // 2), ("fallback", FALLBACK_RGBA, CHOSEN_WIDTH // 2)]
     text = label if label is not None else ("fallback" if fallback else None)
-    if text:
+    if hud:
+        draw_text_box(draw, list(hud), base.size)
+    elif text:
         draw.text((6, 4), text, fill=TEXT_RGBA, font=_font())
     if legend and drawn:
         draw_legend(draw, entries, base.size)
@@ -210,8 +234,11 @@ def pad_to_even(frame: np.ndarray) -> np.ndarray:
     return np.pad(frame, ((0, pad_h), (0, pad_w)) + ((0, 0),) * (frame.ndim - 2), mode="edge")
 
 
-def plan_overlay_arrays(result: Any, config: PlannerConfig, max_samples: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(samples (S, K, 2), elites (E, K, 2), chosen (K, 2)) road-frame xy of a PlanResult's last iteration."""
+def plan_overlay_arrays(result: Any, config: PlannerConfig, max_samples: int = 100, road_frame: Any = None
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(samples (S, K, 2), elites (E, K, 2), chosen (K, 2)) xy [m] of a PlanResult's last iteration: road-frame
+    (s, d), or with ``road_frame`` (the :class:`~driveopt.sim.road_frame.RoadFrame` the plan was made in) world
+    (X, Y) on any road, curved too. At most ``max_samples`` samples, evenly spread over the batch."""
     W = np.asarray(make_model(config.basis, config.qp).W)
     n = W.shape[1]
     coeffs = np.asarray(result.last.projected_coeffs)
@@ -221,7 +248,22 @@ def plan_overlay_arrays(result: Any, config: PlannerConfig, max_samples: int = 1
 
     pick = np.linspace(0, len(coeffs) - 1, min(max_samples, len(coeffs))).astype(int)
     chosen = result.safe_trajectory
-    return xy(coeffs[pick]), xy(coeffs[np.asarray(result.last.elite_index)]), np.stack([chosen.x, chosen.y], axis=-1)
+    samples, elites = xy(coeffs[pick]), xy(coeffs[np.asarray(result.last.elite_index)])
+    chosen_xy = np.stack([chosen.x, chosen.y], axis=-1)
+    if road_frame is None:
+        return samples, elites, chosen_xy
+    # every point is turned into the world one by one: the batch's lines keep WORLD_NODES nodes (first and last kept)
+    nodes = np.unique(np.linspace(0, W.shape[0] - 1, min(WORLD_NODES, W.shape[0])).round().astype(int))
+    return (world_points(road_frame, samples[:, nodes]), world_points(road_frame, elites[:, nodes]),
+            world_points(road_frame, chosen_xy))
+
+
+def world_points(road_frame: Any, sd: np.ndarray) -> np.ndarray:
+    """World xy (..., 2) [m] of road-frame points ``sd`` (..., 2) [m] (arc length, lateral offset) of ``road_frame``."""
+    sd = np.asarray(sd, float)
+    flat = sd.reshape(-1, 2)
+    x, y = road_frame.to_world(flat[:, 0], flat[:, 1])[:2]
+    return np.stack([x, y], axis=-1).reshape(sd.shape)
 
 
 class VideoWriter:
