@@ -136,22 +136,26 @@ class Pipeline:
                     "setpoint_qp": _jit(_setpoint_qp, ("cfg", "fallback")), "projection": _jit(_projection, ("cfg",)),
                     "ranking_update": _jit(_ranking_update, ("cfg", "ranking")),
                     "fallback": _jit(_fallback, ("cfg", "fallback", "ranking"))}
-        fns = self.fns
+        self.args: dict[str, tuple[tuple, dict]] = {}
+        self.compile_s: dict[str, float] = {}  # [s] each part's compilation (lowering included)
         key_prior, key_loop = jax.random.split(key)  # as solve() splits it
-        self.args = {"proposal_first": ((problem, key_prior, prior), {"cfg": cfg})}
-        self.proposal = fns["proposal_first"](problem, key_prior, prior, cfg=cfg)
-        self.args["proposal_next"] = ((problem, key_loop, self.proposal.mean, self.proposal.cov), {"cfg": cfg})
-        self.args["setpoint_qp"] = ((problem, self.proposal.samples), {"cfg": cfg, "fallback": fallback})
-        self.rows, self.qp_coeffs, b_x, b_y = fns["setpoint_qp"](problem, self.proposal.samples, cfg=cfg, fallback=fallback)
-        self.args["projection"] = ((problem, self.qp_coeffs, b_x, b_y), {"cfg": cfg})
-        self.projected = fns["projection"](problem, self.qp_coeffs, b_x, b_y, cfg=cfg)
-        self.args["ranking_update"] = ((problem, self.rows, self.projected.coeffs, self.projected.residuals,
-                                        self.proposal.mean, self.proposal.cov), {"cfg": cfg, "ranking": ranking})
-        self.ranked = fns["ranking_update"](*self.args["ranking_update"][0], **self.args["ranking_update"][1])
-        self.args["fallback"] = ((problem,), {"cfg": cfg, "fallback": fallback, "ranking": ranking})
+        self.proposal = self._first("proposal_first", (problem, key_prior, prior), {"cfg": cfg})
+        self._first("proposal_next", (problem, key_loop, self.proposal.mean, self.proposal.cov), {"cfg": cfg})
+        self.rows, self.qp_coeffs, b_x, b_y = self._first("setpoint_qp", (problem, self.proposal.samples),
+                                                          {"cfg": cfg, "fallback": fallback})
+        self.projected = self._first("projection", (problem, self.qp_coeffs, b_x, b_y), {"cfg": cfg})
+        self.ranked = self._first("ranking_update", (problem, self.rows, self.projected.coeffs, self.projected.residuals,
+                                                     self.proposal.mean, self.proposal.cov), {"cfg": cfg, "ranking": ranking})
+        self._first("fallback", (problem,), {"cfg": cfg, "fallback": fallback, "ranking": ranking})
         iterations = cfg.sampler.num_iterations
         self.runs = {"proposal_first": 1, "proposal_next": iterations - 1, "setpoint_qp": iterations,
                      "projection": iterations, "ranking_update": iterations, "fallback": 1}
+
+    def _first(self, name: str, args: tuple, kwargs: dict):
+        """Compile part ``name`` for ``args`` (timed), keep the arguments for :meth:`call`, and run it once."""
+        self.compile_s[name] = _compile_s(self.fns[name], *args, **kwargs)
+        self.args[name] = (args, kwargs)
+        return self.call(name)
 
     def call(self, name: str):
         args, kwargs = self.args[name]
@@ -166,15 +170,12 @@ def profile(samples: int, calls: int, iterations: int = 5, projection_iterations
     prior, ranking, fallback = GaussianPrior.from_config(cfg.sampler, cfg.projection.v_max), FeasibilityFirst(), Fallback()
     key = jax.random.PRNGKey(0)
     pipeline = Pipeline(cfg, problem, prior, ranking, fallback, key)
-    fns, args, runs = pipeline.fns, pipeline.args, pipeline.runs
-    rows, projected = pipeline.rows, pipeline.projected
+    runs, rows, projected = pipeline.runs, pipeline.rows, pipeline.projected
     pieces = {}
-    for name, fn in fns.items():
-        a, kw = args[name]
-        compile_s = _compile_s(fn, *a, **kw)
+    for name in pipeline.fns:
         median = _median_ms(functools.partial(pipeline.call, name), calls)
         pieces[name] = {"median_ms": median, "runs_per_call": runs[name], "per_call_ms": median * runs[name],
-                        "compile_s": compile_s}
+                        "compile_s": pipeline.compile_s[name]}
 
     solve = compiled_solve()
     solve_args = (problem, key, cfg, prior, None, None, None)

@@ -8,8 +8,9 @@ per run with the same configuration and a compilation-cache folder of its own: `
 folder (it compiles the planner and writes it there), ``plan_second`` finds it there (it loads the compiled planner).
 For both, ``first_call_s`` is the first planning call as ``plan --json`` reports it (compilation or loading included),
 ``solve_s`` the median of the further calls (``--repeats``), and ``start_to_plan_s`` the wall time minus
-``--repeats`` x ``solve_s``: from the command's start to the first plan's result. The machine's load average
-(``os.getloadavg``) is recorded before and after every measurement.
+``--repeats`` x ``solve_s``: from the command's start to the first plan's result. Each run's CPU time (user +
+system, all threads) is recorded beside its wall time: on a busy machine it is the better guide to what the command
+costs. The machine's load average (``os.getloadavg``) is recorded before and after every measurement.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import importlib.metadata
 import json
 import os
 import platform
+import resource
 import statistics
 import subprocess
 import sys
@@ -31,14 +33,20 @@ LIGHT = {"help": ["--help"], "scenarios": ["scenarios"], "planners": ["planners"
 PLAN_ARGS = ["--problem", "dense-snapshot", "--repeats", "3"]
 
 
-def _run(argv: list[str], env: dict[str, str]) -> tuple[float, subprocess.CompletedProcess]:
-    start = time.perf_counter()
+def _children_cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def _run(argv: list[str], env: dict[str, str]) -> tuple[float, float]:
+    """(wall time [s], CPU time [s], user + system, of all its threads) of ``driveopt argv`` in a fresh process."""
+    cpu, start = _children_cpu_s(), time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "driveopt.cli", *argv], capture_output=True, text=True, env=env,
                           check=False)
-    wall = time.perf_counter() - start
+    wall, cpu = time.perf_counter() - start, _children_cpu_s() - cpu
     if proc.returncode != 0:
         raise SystemExit(f"startup: driveopt {' '.join(argv)} failed ({proc.returncode}): {proc.stderr.strip()[-2000:]}")
-    return wall, proc
+    return wall, cpu
 
 
 def _environment(cache: str) -> dict[str, str]:
@@ -49,15 +57,17 @@ def _environment(cache: str) -> dict[str, str]:
 def time_light(name: str, argv: list[str], runs: int) -> dict:
     """Median wall time of a command that plans nothing (with the cache off: it must not matter)."""
     load = os.getloadavg()
-    walls = [_run(argv, _environment("0"))[0] for _ in range(runs)]
-    return {"argv": argv, "runs": walls, "median_s": statistics.median(walls), "load_before": load, "load_after": os.getloadavg()}
+    runs_ = [_run(argv, _environment("0")) for _ in range(runs)]
+    walls = [wall for wall, _ in runs_]
+    return {"argv": argv, "runs": walls, "median_s": statistics.median(walls),
+            "cpu_median_s": statistics.median(cpu for _, cpu in runs_), "load_before": load, "load_after": os.getloadavg()}
 
 
 def _plan_once(plan_args: list[str], cache: Path, out: Path) -> dict:
-    wall, _ = _run(["plan", *plan_args, "--json", str(out)], _environment(str(cache)))
+    wall, cpu = _run(["plan", *plan_args, "--json", str(out)], _environment(str(cache)))
     timing = json.loads(out.read_text())["timing"]
     repeats = 0 if timing["solve_s"] is None else int(plan_args[plan_args.index("--repeats") + 1])
-    return {"wall_s": wall, "first_call_s": timing["first_call_s"], "solve_s": timing["solve_s"],
+    return {"wall_s": wall, "cpu_s": cpu, "first_call_s": timing["first_call_s"], "solve_s": timing["solve_s"],
             "start_to_plan_s": wall - repeats * (timing["solve_s"] or 0.0)}
 
 
@@ -74,7 +84,7 @@ def time_plan(plan_args: list[str], runs: int) -> dict:
             result["load"].append({"before": load, "after": os.getloadavg()})
     for which in ("plan_first", "plan_second"):
         result[f"{which}_median"] = {k: statistics.median(r[k] for r in result[which] if r[k] is not None)
-                                     for k in ("wall_s", "first_call_s", "start_to_plan_s")}
+                                     for k in ("wall_s", "cpu_s", "first_call_s", "start_to_plan_s")}
     return result
 
 
@@ -105,11 +115,13 @@ def main(argv=None) -> int:
     report: dict = {"machine": machine(), "load_before": os.getloadavg(), "commands": {}}
     for name, command in LIGHT.items():
         report["commands"][name] = time_light(name, command, args.runs)
-        print(f"driveopt {' '.join(command)}: {report['commands'][name]['median_s']:.2f} s median of {args.runs}", flush=True)
+        record = report["commands"][name]
+        print(f"driveopt {' '.join(command)}: {record['median_s']:.2f} s wall, {record['cpu_median_s']:.2f} s CPU, median of "
+              f"{args.runs}", flush=True)
     report["plan"] = time_plan(args.plan_args, args.plan_runs)
     for which in ("plan_first", "plan_second"):
         m = report["plan"][f"{which}_median"]
-        print(f"{which}: {m['wall_s']:.2f} s wall, first call {m['first_call_s']:.2f} s, start to first plan "
+        print(f"{which}: {m['wall_s']:.2f} s wall ({m['cpu_s']:.2f} s CPU), first call {m['first_call_s']:.2f} s, start to first plan "
               f"{m['start_to_plan_s']:.2f} s (median of {args.plan_runs})", flush=True)
     report["load_after"] = os.getloadavg()
     path = Path(args.json)

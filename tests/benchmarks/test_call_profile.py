@@ -51,5 +51,6 @@ def test_a_profile_is_written_with_every_part(call_profile, tmp_path):
     assert result["parts_sum_ms"] == pytest.approx(sum(result["parts_ms"].values()))
     assert sum(result["share_of_parts"].values()) == pytest.approx(1.0)
     assert result["pieces"]["setpoint_qp"]["runs_per_call"] == 2 and result["pieces"]["fallback"]["runs_per_call"] == 1
+    assert all(piece["compile_s"] > 0 for piece in result["pieces"].values())  # each timed before its first run
     assert result["whole_ms"] > 0 and result["plan_ms"] > 0 and result["whole_compile_s"] > 0
     assert result["projection_iterations_run"] == 4 and result["batch_rows"] == 26

@@ -16,7 +16,7 @@ def startup():
 
 def test_a_light_command_is_timed_in_fresh_processes(startup):
     record = startup.time_light("help", ["--help"], 2)
-    assert record["argv"] == ["--help"] and len(record["runs"]) == 2 and record["median_s"] > 0
+    assert record["argv"] == ["--help"] and len(record["runs"]) == 2 and record["median_s"] > 0 < record["cpu_median_s"]
     assert len(record["load_before"]) == 3 and len(record["load_after"]) == 3
 
 
@@ -34,7 +34,7 @@ def test_light_commands_and_a_plan_pair_are_recorded(startup, tmp_path, monkeypa
     assert plan["cache_entries"] == [["jit_solve"]]  # the first plan wrote the compiled planner
     first, second = plan["plan_first"][0], plan["plan_second"][0]
     assert first["solve_s"] > 0 and second["solve_s"] > 0
-    assert second["first_call_s"] < first["first_call_s"]  # loading, not compiling
+    assert second["first_call_s"] < first["first_call_s"] and second["cpu_s"] < first["cpu_s"]  # loading, not compiling
     assert plan["plan_second_median"]["start_to_plan_s"] == pytest.approx(second["wall_s"] - second["solve_s"])
 
 

@@ -44,8 +44,10 @@ class Run:
 
     def __init__(self, mode: str, argv: list[str], signum: int | None):
         self.signum = signum
+        # the compilation cache off: a planner loaded from it would never reach the compilation this test interrupts
+        env = {**os.environ, "SDL_VIDEODRIVER": "offscreen", "DRIVEOPT_COMPILATION_CACHE": "0"}
         self.proc = subprocess.Popen([sys.executable, str(CHILD), mode, *argv], stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True, env={**os.environ, "SDL_VIDEODRIVER": "offscreen"})
+                                     stderr=subprocess.PIPE, text=True, env=env)
         self.stderr = ""
         self.signal_to_exit_s: float | None = None
         self.thread = threading.Thread(target=self._interrupt_at_mark, daemon=True)
