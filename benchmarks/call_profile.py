@@ -27,12 +27,10 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import os
 import platform
 import sys
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -42,6 +40,7 @@ from driveopt.batch_rows import StopRows
 from driveopt.config import PlannerConfig
 from driveopt.costs import COST_TERMS, cost_terms, weighted_cost
 from driveopt.fallback import Fallback, braking_coeffs, stop_setpoints
+from driveopt.files import write_json
 from driveopt.planner import _to_result, compiled_solve, plan, project_batch, setpoint_batch
 from driveopt.problem import build_problem
 from driveopt.qp import make_model
@@ -238,11 +237,7 @@ def main(argv=None) -> int:
         print(f"{samples} x {args.iterations} x {args.projection_iterations}: {parts} ms; parts {result['parts_sum_ms']:.1f} ms, "
               f"compiled solve {result['whole_ms']:.1f} ms, plan() {result['plan_ms']:.1f} ms", flush=True)
     report["load_after"] = os.getloadavg()
-    path = Path(args.json)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(report, indent=1))
-    tmp.replace(path)
+    path = write_json(args.json, report)  # strict JSON, whole or not at all
     print(f"wrote {path} (load average {report['load_before'][0]:.2f} before, {report['load_after'][0]:.2f} after)")
     return 0
 

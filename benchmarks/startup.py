@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from driveopt.files import write_json
+
 LIGHT = {"help": ["--help"], "scenarios": ["scenarios"], "planners": ["planners"], "problems": ["problems"],
          "plan_help": ["plan", "--help"]}
 PLAN_ARGS = ["--problem", "dense-snapshot", "--repeats", "3"]
@@ -124,11 +126,7 @@ def main(argv=None) -> int:
         print(f"{which}: {m['wall_s']:.2f} s wall ({m['cpu_s']:.2f} s CPU), first call {m['first_call_s']:.2f} s, start to first plan "
               f"{m['start_to_plan_s']:.2f} s (median of {args.plan_runs})", flush=True)
     report["load_after"] = os.getloadavg()
-    path = Path(args.json)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(report, indent=1))
-    tmp.replace(path)
+    path = write_json(args.json, report)  # strict JSON, whole or not at all
     print(f"wrote {path} (load average {report['load_before'][0]:.2f} before, {report['load_after'][0]:.2f} after)")
     return 0
 
