@@ -18,7 +18,7 @@ def register_models(models) -> None:
         p.add_argument("--scenario", required=True, help="scenario name (see `driveopt scenarios`), e.g. two-lane-d1.0")
         p.add_argument("--scenario-config", help="JSON file overriding scenario fields (e.g. {\"vehicles_count\": 20})")
         p.add_argument("--steps", type=positive_int, required=True, help="env steps (1 s each) in all (P1: 5000000)")
-        p.add_argument("--out", required=True, help="output folder (rerun to resume): last.zip, best.zip, curve.csv, summary.json")
+        p.add_argument("--out", required=True, help="output folder (rerun to resume): last.zip, best.zip, curve.csv, summary.json, tensorboard/")
         p.add_argument("--envs", type=positive_int, default=1, help="parallel envs (worker processes when > 1)")
         p.add_argument("--eval-every", type=positive_int, default=10_000, help="env steps between evaluations and checkpoints")
         p.add_argument("--eval-episodes", type=positive_int, default=5, help="fixed-seed episodes per evaluation")
@@ -39,4 +39,6 @@ def run_rl(args: argparse.Namespace) -> int:
           f"{summary['train_steps_per_s'] or 0:.1f} training steps/s with {summary['envs']} env(s); "
           f"last evaluation: collision rate {last.get('collision_rate', float('nan')):.2f}, "
           f"mean return {last.get('mean_return', float('nan')):.2f}; best at step {best.get('step', '-')}: {summary['policy']}")
+    if summary.get("tensorboard"):
+        print(f"  TensorBoard: tensorboard --logdir {summary['tensorboard']}")
     return 0

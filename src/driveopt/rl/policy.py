@@ -76,9 +76,10 @@ def shipped_policy(algo: str, lanes: int) -> Path | None:
 
 
 def policy_bytes(model: Any, record: dict[str, Any]) -> bytes:
-    """The policy file of ``model`` (a Stable-Baselines3 algorithm) with ``record`` as its driveopt entry."""
+    """The policy file of ``model`` (a Stable-Baselines3 algorithm) with ``record`` as its driveopt entry; without the
+    training run's TensorBoard folder (a path of the machine it trained on)."""
     buffer = io.BytesIO()
-    model.save(buffer)
+    model.save(buffer, exclude=["tensorboard_log"])
     with zipfile.ZipFile(buffer, "a", compression=zipfile.ZIP_DEFLATED) as archive:
         archive.writestr(RECORD_ENTRY, json.dumps({"format": FORMAT, "schema_version": SCHEMA_VERSION, **record}))
     return buffer.getvalue()

@@ -23,7 +23,11 @@ Output folder:
   the one to ship (``src/driveopt/weights/{algo}-{two|four}-lane.zip``) or to pass as ``--weights``;
 - ``curve.csv``: one row per evaluation (step, collision rate, mean return, mean speed, wall time,
   steps/s), appended as training goes;
-- ``summary.json``: steps, the run's training steps per second, last and best evaluation.
+- ``summary.json``: steps, the run's training steps per second, last and best evaluation, the TensorBoard folder;
+- ``tensorboard/{algo}_1/``: TensorBoard event files (``tensorboard --logdir OUT/tensorboard``): Stable-Baselines3's
+  training scalars (``rollout/ep_rew_mean``, ``train/loss``, ...) and each evaluation's row under ``eval/``, against
+  env steps; a resumed run appends to the same run folder. Written with the ``tensorboard`` package (in the ``rl``
+  extra); without it, training runs and says once that it writes no TensorBoard logs.
 
 Every ``eval_every`` steps (at the next rollout boundary, where the parameters and the step count
 agree) the policy drives ``eval_episodes`` episodes with the fixed seeds ``EVAL_SEED + k``
@@ -41,6 +45,7 @@ import functools
 import io
 import json
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -92,6 +97,7 @@ SETTINGS: dict[str, dict[str, Any]] = {
         "n_steps": None,  # [steps per env] None: PPO_ROLLOUT // envs
     },
 }
+TENSORBOARD_DIR = "tensorboard"  # OUT/tensorboard/{algo}_1: the run's TensorBoard event files
 CURVE_FIELDS = ("step", "collision_rate", "mean_return", "mean_speed", "episodes", "wall_s", "train_steps_per_s")
 
 
@@ -225,14 +231,17 @@ def train_agent(
     stored = read_record(last) if last.exists() else None
     if stored is not None:
         _check_resume(last, algo, record, stored)
+    tensorboard_log = tensorboard_folder(out, progress)
     vec = _vec_env(scenario, envs)
     try:
         if stored is None:
-            model = algorithm_class(algo)("MlpPolicy", vec, seed=seed, device=device, verbose=0, **_model_kwargs(algo, settings))
+            model = algorithm_class(algo)("MlpPolicy", vec, seed=seed, device=device, verbose=0, tensorboard_log=tensorboard_log,
+                                          **_model_kwargs(algo, settings))
             done, stored = 0, {}
             atomic_write(curve_path, _curve_text([]).encode())
         else:
             model, stored = load_model(last, algo, env=vec, device=device)
+            model.tensorboard_log = tensorboard_log
             done = int(stored["steps"])
             if algo == "dqn":
                 _load_buffer(model, out, stored, last)
@@ -246,6 +255,19 @@ def train_agent(
     finally:
         vec.close()
     return summary
+
+
+def tensorboard_folder(out: Path, say: bool = True) -> str | None:
+    """``out/tensorboard`` where the ``tensorboard`` package (which Stable-Baselines3 writes event files with) is
+    installed, else None (and, with ``say``, one line on stderr naming the package)."""
+    import importlib.util
+
+    if importlib.util.find_spec("tensorboard") is None:
+        if say:
+            print("driveopt: no TensorBoard logs: the tensorboard package is missing (pip install 'driveopt[rl]')",
+                  file=sys.stderr)
+        return None
+    return str(out / TENSORBOARD_DIR)
 
 
 def _load_buffer(model: Any, out: Path, stored: dict[str, Any], last: Path) -> None:
@@ -263,6 +285,17 @@ def _load_buffer(model: Any, out: Path, stored: dict[str, Any], last: Path) -> N
         model.load_replay_buffer(io.BytesIO(data))
     except Exception as exc:  # unpickling raises many types on a bad file
         raise PolicyError(f"{path} cannot be loaded as a replay buffer: {exc}") from None
+
+
+def _log_evaluation(model: Any, row: dict[str, Any]) -> None:
+    """An evaluation's row in the model's logger (TensorBoard: ``eval/collision_rate``, ...) at its step, written now;
+    nothing before ``learn`` has set the logger up."""
+    logger = getattr(model, "_logger", None)
+    if logger is None:
+        return
+    for key in ("collision_rate", "mean_return", "mean_speed"):
+        logger.record(f"eval/{key}", row[key])
+    logger.dump(step=row["step"])
 
 
 def _learn(model: Any, algo: str, scenario: Scenario, steps: int, out: Path, record: dict[str, Any], stored: dict[str, Any],
@@ -287,6 +320,7 @@ def _learn(model: Any, algo: str, scenario: Scenario, steps: int, out: Path, rec
         state["eval_seconds"] += time.perf_counter() - t0
         row = {"step": step, **{k: round(v, 6) if isinstance(v, float) else v for k, v in result.items()},
                "wall_s": round(time.perf_counter() - start, 3), "train_steps_per_s": round(train_rate(), 3)}
+        _log_evaluation(model, row)
         improved = _better(result, state["best"])
         if improved:
             state["best"] = {**row}
@@ -332,7 +366,7 @@ def _learn(model: Any, algo: str, scenario: Scenario, steps: int, out: Path, rec
     with bar:
         try:
             if done < steps:
-                model.learn(total_timesteps=steps - done, reset_num_timesteps=done == 0, callback=Periodic())
+                model.learn(total_timesteps=steps - done, reset_num_timesteps=done == 0, callback=Periodic(), tb_log_name=algo)
         except KeyboardInterrupt:
             step = state["checkpoint_step"]
             kept = f"the checkpoint of step {step} in {out / 'last.zip'}" if step else "no checkpoint yet"
@@ -345,6 +379,7 @@ def _learn(model: Any, algo: str, scenario: Scenario, steps: int, out: Path, rec
                "seconds": round(time.perf_counter() - start, 3), "eval_seconds": round(state["eval_seconds"], 3),
                "train_steps_per_s": round(rate, 3) if math.isfinite(rate) else None, "envs": record["envs"],
                "last_eval": state["last_eval"], "best": state["best"], "settings": record["settings"],
-               "policy": str(out / "best.zip"), "checkpoint": str(out / "last.zip")}
+               "policy": str(out / "best.zip"), "checkpoint": str(out / "last.zip"),
+               "tensorboard": model.tensorboard_log}
     atomic_write(out / "summary.json", json.dumps(summary, indent=1).encode())
     return summary
