@@ -4,6 +4,9 @@
     scene = load_scene("static-blockage")
     result = plan(build_problem(scene), PlannerConfig(), key=jax.random.PRNGKey(0), x_offset=scene.ego.x)
 
+``import driveopt`` registers the gymnasium ids ``driveopt/highway-v0``, ``driveopt/two-way-v0``, ``driveopt/merge-v0``
+and ``driveopt/driving-v0`` without importing gymnasium (:mod:`driveopt.gym_envs`).
+
 Where things live, in layers (each imports only those before it): ``errors``, ``checks`` and ``config``;
 ``scene`` (the world), ``prediction`` (neighbours' motion), ``observation`` (the learned components'
 features), ``problem`` (arrays for the planner); the numerics ``basis``, ``qp``, ``xla``, ``trajectory``,
