@@ -61,6 +61,25 @@ def test_help_and_listings_run_without_heavy_modules():
     assert "static-blockage" in runs["problems"]["stdout"]
 
 
+def test_every_commands_help_runs_without_heavy_modules():
+    import argparse
+
+    from driveopt.cli import build_parser
+
+    def commands(parser, prefix):  # every subcommand, nested ones (train cvae, ...) included
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    yield [*prefix, name]
+                    yield from commands(sub, [*prefix, name])
+
+    every = list(commands(build_parser(), []))
+    assert ["plan"] in every and ["train", "cvae"] in every
+    report = _probe(*[[*command, "--help"] for command in every])
+    assert report["heavy"] == []
+    assert [run["status"] for run in report["runs"]] == [0] * len(every)
+
+
 def test_lazy_exports_resolve_and_unknown_names_fail():
     import driveopt
 
