@@ -24,6 +24,8 @@ import sys
 import time
 from pathlib import Path
 
+from driveopt.files import write_json
+
 # name -> XLA compiler options merged over the planner's (all are per-jit options of jaxlib 0.10's CPU compiler)
 CASES: dict[str, dict] = {
     "planner-default": {},
@@ -134,9 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     path.parent.mkdir(parents=True, exist_ok=True)
     for name in tqdm(todo, desc="compile_cost", unit="case"):
         doc["cases"].append(run_case(name, args.calls, args.samples))
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(doc, indent=1))
-        os.replace(tmp, path)
+        write_json(path, doc)  # strict JSON, whole or not at all
     for c in doc["cases"]:
         print(f"{c['case']:32s} compile {c['compile_s']:6.1f} s  steady {c['steady_median_ms']:8.1f} ms  "
               f"{c['maps_per_compilation']} maps/compilation")

@@ -11,13 +11,13 @@ writes the JSON when asked. A file that is missing, corrupted or of schema versi
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from driveopt.data.demonstrations import describe, load_demonstrations, mode_distribution
 from driveopt.data.replay import mode_lanes
 from driveopt.errors import DriveoptError
+from driveopt.files import write_json
 
 
 def summary(path: Path) -> dict:
@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {Path(name).stem} | {s['episodes']} ({s['collided_episodes']}) | {number(s['rows'])} | "
               f"{group(s['modes_per_row'])} | {group(lanes)} |")
     if args.json:
-        args.json.write_text(json.dumps(results, indent=1) + "\n")
+        write_json(args.json, results)
     return 0
 
 

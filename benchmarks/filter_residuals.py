@@ -53,7 +53,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
-import json
 import os
 import platform
 import sys
@@ -68,8 +67,8 @@ from tqdm import tqdm
 from driveopt.costs import cost_terms, weighted_cost
 from driveopt.data.demonstrations import load_demonstrations
 from driveopt.errors import DriveoptError
-from driveopt.experiments.rows_file import resume_rows
-from driveopt.files import atomic_write, file_digest
+from driveopt.experiments.rows_file import resume_rows, row_line
+from driveopt.files import file_digest, write_json
 from driveopt.learned import filter as fl
 from driveopt.planner import project_batch, setpoint_batch
 from driveopt.projection import constraint_residuals
@@ -268,13 +267,13 @@ def run(args: argparse.Namespace) -> int:
             record = {"row": row, "episode": int(data.episode[row]), "lane_change_share": float(np.mean(changes)),
                       "results": results}
             done[row] = record
-            out.write(json.dumps(record) + "\n")
+            out.write(row_line(record))
             out.flush()
-            atomic_write(summary_path, json.dumps(report(settings, tolerance, done), indent=1).encode())
+            write_json(summary_path, report(settings, tolerance, done))
             last = str(iterations[-1])
             bar.set_postfix_str(" ".join(f"{v} {results[v][last]['residual_median']:.3f}" for v in VARIANTS))
     final = report(settings, tolerance, done)
-    atomic_write(summary_path, json.dumps(final, indent=1).encode())
+    write_json(summary_path, final)
     print(f"{final['rows']} rows, {args.samples} samples each; median over rows of the median sample's residual "
           f"(share of samples within {tolerance:g}):")
     for k in iterations:

@@ -19,7 +19,6 @@ again at the end.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -32,6 +31,7 @@ from tqdm import tqdm
 
 from driveopt.cli.common import config_overrides
 from driveopt.errors import DriveoptError
+from driveopt.files import write_json
 from driveopt.planner import plan
 from driveopt.problem import build_problem
 from driveopt.registry import get_optimiser
@@ -42,9 +42,7 @@ PLANNERS = (("plain", "vqvae"), ("learned", "vqvae-filter"))
 
 def _write(path: Path, report: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(report, indent=1))
-    os.replace(tmp, path)
+    write_json(path, report)  # strict JSON, whole or not at all
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,7 +15,6 @@ not counted) and the share of keys whose chosen plan keeps moving (last speed se
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from driveopt.drivers.optimiser import adapt_to_vehicle
 from driveopt.errors import DriveoptError
 from driveopt.experiments.rollout import Rollout
 from driveopt.experiments.store import JobKey
+from driveopt.files import write_json
 from driveopt.planner import PlanStatus, RowKind, plan
 from driveopt.registry import get_planner
 from driveopt.sim import BicycleModel, get_scenario, make_env
@@ -95,7 +95,7 @@ def main(argv=None) -> int:
     path.parent.mkdir(parents=True, exist_ok=True)
     for name in args.planners:
         report["results"].append(feasibility(problem, scenario, model, name, args.samples, args.keys))
-        path.write_text(json.dumps(report, indent=1))
+        write_json(path, report)
         r = report["results"][-1]
         print(f"{name:>12}: feasible samples, first batch {r['feasible_first_median']:.0f} / {args.samples}, "
               f"last {r['feasible_last_median']:.0f}; chosen plan moving for {100 * r['moving_share']:.0f}% of keys")

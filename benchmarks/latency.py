@@ -28,6 +28,7 @@ from tqdm import tqdm
 from driveopt.cli.common import config_overrides
 from driveopt.config import PlannerConfig
 from driveopt.errors import DriveoptError
+from driveopt.files import write_json
 from driveopt.planner import plan
 from driveopt.problem import build_problem
 from driveopt.scene import load_scene
@@ -112,9 +113,7 @@ def main(argv=None) -> int:
     for batch, iterations, projection in tqdm(cases, desc="latency", unit="case"):
         result = run_case(batch, iterations, projection, args.calls, overrides)
         report["results"].append(result)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(report, indent=1))
-        tmp.replace(path)  # atomic: an interrupted run never leaves a half-written file
+        write_json(path, report)  # strict JSON, whole or not at all
         tqdm.write(
             f"{result['case']:>12}: compile {result['compile_s']:.2f} s, median {result['median_ms']:.1f} ms, "
             f"p90 {result['p90_ms']:.1f} ms, {result['samples_per_s']:.0f} samples/s"

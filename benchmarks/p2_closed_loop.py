@@ -43,6 +43,7 @@ from typing import Any, NamedTuple
 from driveopt.cli import stop_cleanly_on_signals
 from driveopt.errors import DriveoptError
 from driveopt.experiments.bench import BenchSpec, run_bench
+from driveopt.files import write_json
 
 SAMPLES = 1000  # [-] P2's sample count
 DEFAULT_ITERATIONS = 100  # [-] projection.max_iterations of vqvae, vqvae-filter and cvae-filter (P2)
@@ -247,9 +248,7 @@ def run(figure: str, out: Path, episodes: int | None, workers: int, weights: dic
             if records is not None and (out / pt.folder).is_dir():
                 _sync(out / pt.folder, records / pt.folder)
         table = figure_rows(pts, rows, out)
-        tmp = out / f".{figure}.json.tmp"
-        tmp.write_text(json.dumps(table, indent=1))
-        os.replace(tmp, out / f"{figure}.json")
+        write_json(out / f"{figure}.json", table)  # strict JSON, whole or not at all
         plot(figure, table, out / f"{figure}.png")
     return table
 

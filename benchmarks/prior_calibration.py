@@ -22,6 +22,7 @@ import jax
 import numpy as np
 
 from driveopt.data.demonstrations import DatasetError, load_demonstrations
+from driveopt.files import write_json
 from driveopt.learned.checkpoint import CheckpointError
 from driveopt.learned.cvae import load_cvae, sample_setpoints
 from driveopt.priors.cvae import shipped_weights
@@ -81,7 +82,7 @@ def main(argv=None) -> int:
             report["by_ego_speed"][f"{lo:g}-{hi:g}"] = calibration(expert[band], drawn[band])
     path = Path(args.json)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(report, indent=1))
+    write_json(path, report)
     print(json.dumps(report["all"]))
     for band, stats in report["by_ego_speed"].items():
         print(f"ego {band:>6} m/s: {stats['rows']:5d} rows, expert v4 {stats['expert_speed_mean'][3]:5.2f}, "

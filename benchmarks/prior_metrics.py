@@ -26,7 +26,6 @@ of the same command skips what is done; a rerun with other settings or data is r
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -47,8 +46,8 @@ from driveopt.experiments.prior_metrics import (
     row_metrics,
     summarise,
 )
-from driveopt.experiments.rows_file import resume_rows
-from driveopt.files import file_digest
+from driveopt.experiments.rows_file import resume_rows, row_line
+from driveopt.files import file_digest, write_json
 from driveopt.priors import cvae, vqvae
 from driveopt.registry import get_optimiser
 from driveopt.sampler import GaussianPrior
@@ -157,13 +156,13 @@ def run(args: argparse.Namespace) -> int:
                     continue
                 metrics = row_metrics(priors[name], problem, data.trajectory[row], config, key, args.best_of)
                 done[(name, row)] = metrics
-                out.write(json.dumps({"prior": name, "row": row, **metrics._asdict()}) + "\n")
+                out.write(row_line({"prior": name, "row": row, **metrics._asdict()}))
                 out.flush()
-            summary_path.write_text(json.dumps(report(settings, names, done), indent=1))
+            write_json(summary_path, report(settings, names, done))
             bar.set_postfix_str(" ".join(f"{n}: {100 * s['feasible_share']:.0f}%"
                                          for n, s in report(settings, names, done)["results"].items()))
     final = report(settings, names, done)
-    summary_path.write_text(json.dumps(final, indent=1))
+    write_json(summary_path, final)
     for name, stats in final["results"].items():
         print(f"{name:>12}: {stats['rows']} rows, best of {args.best_of} {stats['best_of_n_median']:.1f} m^2 (median), "
               f"a feasible sample in {100 * stats['feasible_share']:.0f}% of rows, "

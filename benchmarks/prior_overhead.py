@@ -20,6 +20,7 @@ import jax
 import numpy as np
 
 from driveopt.config import PlannerConfig
+from driveopt.files import write_json
 from driveopt.planner import plan
 from driveopt.priors.cvae import load_prior, shipped_weights
 from driveopt.problem import build_problem
@@ -78,9 +79,7 @@ def main(argv=None) -> int:
                 continue
             result = run_case(name, prior, samples, args.calls)
             report["results"].append(result)
-            tmp = path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(report, indent=1))
-            tmp.replace(path)
+            write_json(path, report)  # strict JSON, whole or not at all
             print(f"{result['case']:>14}: compile {result['compile_s']:.2f} s, plan median {result['median_ms']:.1f} ms "
                   f"(p90 {result['p90_ms']:.1f}), propose {result['propose_median_ms']:.2f} ms")
     print(f"wrote {path}")

@@ -12,7 +12,6 @@ and the speed-up. Results are written after every scenario.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -22,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from driveopt.experiments.rollout import Rollout
+from driveopt.files import write_json
 from driveopt.registry import get_planner
 from driveopt.sim.fast_road import FastRoad
 
@@ -68,9 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         report["results"].append({"scenario": scenario, "episodes": args.seeds, "identical": True,
                                   "upstream_ms_per_step": upstream_ms, "fast_ms_per_step": fast_ms,
                                   "speedup": upstream_ms / fast_ms})
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(report, indent=1))
-        tmp.replace(path)
+        write_json(path, report)  # strict JSON, whole or not at all
     return 0
 
 

@@ -35,6 +35,7 @@ from driveopt.errors import DriveoptError
 from driveopt.experiments.bench import check_options
 from driveopt.experiments.rollout import Rollout
 from driveopt.experiments.store import JobKey
+from driveopt.files import write_json
 from driveopt.registry import get_planner
 from driveopt.sim import get_scenario
 
@@ -130,7 +131,7 @@ def main(argv=None) -> int:
     if args.json:
         path = Path(args.json)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps({"summary": summary, "steps": rows}))
+        write_json(path, {"summary": summary, "steps": rows}, indent=None)
     return 0
 
 

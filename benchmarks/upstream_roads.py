@@ -112,6 +112,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.episodes < 1 or args.samples < 1 or args.duration <= 0:
         parser.error("--episodes, --samples and --duration must be positive")
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    from driveopt.cli import stop_cleanly_on_signals
+    from driveopt.experiments.rows_file import row_line
+    from driveopt.files import write_json
+
+    stop_cleanly_on_signals()
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "episodes.jsonl"
     settings = {"samples": args.samples, "duration": args.duration}
@@ -125,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
                     if (env_id, planner, seed) in done:
                         continue
                     record = {**run_episode(env_id, planner, seed, args.samples, args.duration), "settings": settings}
-                    out.write(json.dumps(record) + "\n")
+                    out.write(row_line(record))
                     out.flush()
                     records.append(record)
                     print(f"{env_id} {planner} seed {seed}: " + ("refused" if "refused" in record else
@@ -134,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     chosen = [r for r in records if r.get("settings") == settings and r["env"] in args.envs and r["planner"] in args.planners]
     summary = {"command": "python benchmarks/upstream_roads.py " + " ".join(argv if argv is not None else os.sys.argv[1:]),
                "settings": settings, "results": summarise(chosen)}
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    write_json(args.out / "summary.json", summary)
     print(json.dumps(summary["results"], indent=1))
     return 0
 

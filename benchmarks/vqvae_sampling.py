@@ -42,6 +42,7 @@ import numpy as np
 from tqdm import tqdm
 
 from driveopt.config import PlannerConfig
+from driveopt.files import write_json
 from driveopt.learned import pixelcnn as px
 from driveopt.learned import vqvae as vq
 from driveopt.learned.cvae import FEATURE_DIM
@@ -148,9 +149,7 @@ def main(argv=None) -> int:
         result = {"case": f"{stage}-{samples}", "stage": stage, "samples": samples, "calls": args.calls,
                   **timed(functions[samples][stage], args.calls)}
         report["results"].append(result)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(report, indent=1))
-        tmp.replace(path)  # atomic: an interrupted run never leaves a half-written file
+        write_json(path, report)  # strict JSON, whole or not at all
         tqdm.write(f"{result['case']:>18}: compile {result['compile_s']:.2f} s, median {result['median_ms']:.2f} ms, "
                    f"p90 {result['p90_ms']:.2f} ms")
     print(f"wrote {path}")
