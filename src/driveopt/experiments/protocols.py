@@ -197,6 +197,10 @@ NOT_FAITHFUL_BILEVEL = ("not like for like: no P1-faithful bi-level optimiser is
                         "ranking, fallback and guard")
 
 
+FAITHFUL_MPC_NOTE = ("P1 §V-A3's baseline without driveopt's machinery; projection iterations, grids and guesses as "
+                     "registered, not yet the authors' (100 iterations for grid, batch and vanilla; 1000 vanilla guesses)")
+
+
 def _strong(planner: str, samples: int | None = P1_SAMPLES, **kw: Any) -> Arm:
     return Arm(planner, STRENGTHENED, samples, **kw)
 
@@ -221,7 +225,7 @@ def _p1_figure7() -> FigureProtocol:
                 collisions, expect = "no explicit value (figure only)", NO_WORSE
             speed = "average speed 'either better or competitive'"
             strong_base = _strong(baseline)
-            faithful_base = Arm(f"{baseline}-p1", FAITHFUL, P1_SAMPLES, replan_every=P1_REPLAN)
+            faithful_base = Arm(f"{baseline}-p1", FAITHFUL, P1_SAMPLES, replan_every=P1_REPLAN, note=FAITHFUL_MPC_NOTE)
             for arm, base, like in ((bilevel, strong_base, True), (bilevel_p1, faithful_base, False)):
                 claims.append(Claim(scenario, arm, base, COLLISIONS, expect, collisions, like))
                 claims.append(Claim(scenario, arm, base, SPEED, NO_WORSE, speed, like))

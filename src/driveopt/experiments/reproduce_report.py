@@ -131,7 +131,7 @@ def plot_figure(figure: FigureProtocol, results: list[ClaimResult], path: Path) 
     import matplotlib.pyplot as plt
     import numpy as np
 
-    keys = list(arms)
+    keys = sorted(arms)  # by scenario, then arm
     x = np.arange(len(keys))
     fig, axes = plt.subplots(2, 1, figsize=(max(6.0, 0.45 * len(keys) + 2), 7.5), sharex=True)
 
