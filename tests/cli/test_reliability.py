@@ -224,3 +224,18 @@ def test_the_video_writer_raises_no_fork_warning(tmp_path):
 def test_drive_says_it_is_compiling(tmp_path, capsys):
     assert main(["drive", "--scenario", "two-lane-d1.0", "--planner", "grid", "--duration", "0.3", "--video", ""]) == 0
     assert "compiling" in capsys.readouterr().err
+
+
+def test_drive_exits_1_when_every_planning_call_ended_in_a_numerical_error(tmp_path, capsys, monkeypatch):
+    """The car followed the fallback throughout: the command says so and fails, after writing its JSON."""
+    from driveopt.drivers import optimiser
+    from driveopt.planner import PlanStatus
+
+    real_plan = optimiser.plan
+    monkeypatch.setattr(optimiser, "plan", lambda *args, **kwargs: real_plan(*args, **kwargs)._replace(
+        status=PlanStatus.NUMERICAL_ERROR))
+    out = tmp_path / "d.json"
+    argv = ["drive", "--scenario", "two-lane-d1.0", "--planner", "grid", "--duration", "0.3", "--video", "", "--json", str(out)]
+    assert main(argv) == 1
+    assert "every planning call of grid ended in NUMERICAL_ERROR" in capsys.readouterr().err
+    assert json.loads(out.read_text())["statuses"] == {"NUMERICAL_ERROR": 3}

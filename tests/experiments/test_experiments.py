@@ -246,8 +246,10 @@ def test_cli_bench_refuses_bad_options_without_writing_then_runs(tmp_path, capsy
     monkeypatch.setattr(bench, "run_bench", functools.partial(bench.run_bench, episode_fn=fake_episode, progress=False))
     out = tmp_path / "D"
     argv = ["bench", "--scenarios", "two-lane-d1.0", "--planners", "idm", "--episodes", "2", "--workers", "1", "--out", str(out)]
-    assert main([*argv, "--duration", "-3"]) == 2
-    assert capsys.readouterr().err == "driveopt: error: duration must be a finite number > 0 s, got -3.0\n"
+    with pytest.raises(SystemExit) as exit_:  # refused by the argument's type, when parsed
+        main([*argv, "--duration", "-3"])
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err == "driveopt: error: argument --duration: duration must be in (0, 3600] s, got -3 (see driveopt bench --help)\n"
     assert not out.exists()
     assert main([*argv, "--episode-list", "2"]) == 2
     assert "episode list [2]" in capsys.readouterr().err and not out.exists()

@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from driveopt.cli.common import config_overrides, positive_int
+from driveopt.cli.parser import duration
 
 
 def register(sub) -> None:
@@ -22,7 +23,7 @@ def register(sub) -> None:
     p.add_argument("--episodes", type=positive_int, default=50, help="episodes per scenario, planner and seed")
     p.add_argument("--episode-list", nargs="+", type=int, metavar="E",
                    help="run only these episode indices (each below --episodes), e.g. an A/B on the episodes that collided")
-    p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
+    p.add_argument("--duration", type=duration, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="override the optimisers' samples per iteration (not vanilla's single sample)")
     p.add_argument("--weights", help="learned-prior checkpoint for the cvae planner, or policy file for dqn/ppo (default: shipped weights)")
     p.add_argument("--filter-weights", help="learned safety-filter checkpoint for every optimiser (recorded with --config)")

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 
 from driveopt.cli.common import positive_int, writable_file, write_json
+from driveopt.cli.parser import duration
 
 
 def register(sub) -> None:
@@ -19,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--episodes", type=positive_int, default=10, help="episodes per scenario")
     p.add_argument("--samples", type=positive_int, default=250, help="expert samples per sampler iteration (250, as drive and bench: with 1000 the expert crashed more)")
     p.add_argument("--iterations", type=positive_int, default=5, help="expert sampler iterations")
-    p.add_argument("--duration", type=float, default=50.0, help="episode length [s]")
+    p.add_argument("--duration", type=duration, default=50.0, help="episode length [s]")
     p.add_argument("--workers", type=positive_int, default=1, help="parallel episodes")
     p.add_argument("--modes", type=positive_int, default=8,
                    help="distinct feasible plans of the expert's first and final batches stored per step (VQ-VAE training)")

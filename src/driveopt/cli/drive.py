@@ -5,15 +5,18 @@ heads-up display of time, speed, desired speed, planner, status and planning tim
 
 ``--json`` and ``--video`` are checked (a folder that can be written, ``.mp4`` for the video) before the episode
 runs; both are written whole or not at all, and a video ffmpeg could not finish (a full disk) is an error, not
-"wrote". The JSON is strict: a planner that never plans (``idm``) has null plan times.
+"wrote". The JSON is strict: a planner that never plans (``idm``) has null plan times. An episode whose every planning call
+ended in NUMERICAL_ERROR (the car followed the fallback throughout) exits with status 1 after writing its outputs.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import sys
 
 from driveopt.cli.common import config_overrides, positive_int, seed, writable_file, write_json
+from driveopt.cli.parser import duration
 
 
 def register(sub) -> None:
@@ -24,7 +27,7 @@ def register(sub) -> None:
     p.add_argument("--weights", help="learned-prior checkpoint, or policy file of dqn/ppo (default: the weights shipped for the road)")
     p.add_argument("--filter-weights", help="learned safety-filter checkpoint for any optimiser (vqvae-filter: default the shipped one)")
     p.add_argument("--seed", type=seed, default=42, help="traffic and sampling seed")
-    p.add_argument("--duration", type=float, help="episode length [s] (default: the scenario's)")
+    p.add_argument("--duration", type=duration, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="samples per sampler iteration")
     p.add_argument("--replan-every", type=positive_int, help="policy periods each plan is executed open-loop (P1: 5; default 1)")
     p.add_argument("--video", default="out/drive.mp4", help="MP4 path, ending in .mp4 ('' for none)")
@@ -85,6 +88,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"  wrote {write_json(args.json, summary)}")
     if args.video:
         print(f"  wrote {args.video}")
+    if summary["statuses"] and set(summary["statuses"]) == {"NUMERICAL_ERROR"}:
+        print(f"driveopt: error: every planning call of {spec.name} ended in NUMERICAL_ERROR (the car followed the "
+              "fallback throughout); check the planner configuration", file=sys.stderr)
+        return 1
     return 0
 
 
