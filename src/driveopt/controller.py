@@ -57,12 +57,16 @@ class Controller:
     iteration; ``config``: a :class:`~driveopt.config.PlannerConfig`, or overrides as nested sections
     (``{"cost": {"consistency": 1.0}}``); ``v_des`` [m/s]: desired speed (default: the speed limit of the ego's lane
     at ``reset``); ``route``: node names of the env's lane graph to follow (e.g. ``["0", "1", "2", "exit"]`` takes
-    exit-v0's exit; default: the ego's own route, else straight on); ``weights``: a learned prior's checkpoint.
+    exit-v0's exit; default: the ego's own route, else straight on); ``weights``: a learned prior's checkpoint;
+    ``latency``: ``"sync"`` (default: each ``act`` returns the command of the plan it just made), ``"measured"`` or a
+    compute time [ms]: each plan takes effect that many policy periods (rounded up, at least one) after the ``act``
+    that started it, and the car keeps tracking the previous plan meanwhile (:mod:`driveopt.drivers.latency`).
     """
 
     def __init__(self, planner: str | DriverSpec = "bilevel", *, samples: int | None = None,
                  config: PlannerConfig | Mapping[str, Any] | None = None, v_des: float | None = None,
-                 route: Sequence[str] | None = None, weights: str | None = None) -> None:
+                 route: Sequence[str] | None = None, weights: str | None = None,
+                 latency: str | float | None = None) -> None:
         spec = get_planner(planner) if isinstance(planner, str) else planner
         if not isinstance(spec, DriverSpec):
             raise ControllerError(f"planner must be a registered name or a DriverSpec, got {type(planner).__name__}")
@@ -78,7 +82,7 @@ class Controller:
             raise ControllerError(f"v_des must be a speed in (0, 60] m/s, got {v_des!r}")
         if route is not None and (isinstance(route, str) or not all(isinstance(node, str) for node in route)):
             raise ControllerError(f"route must be a sequence of node names of the env's lane graph, got {route!r}")
-        self.spec = spec.with_samples(samples).with_weights(weights)
+        self.spec = spec.with_samples(samples).with_weights(weights).with_latency(latency)
         self.v_des = None if v_des is None else float(v_des)
         self.route = None if route is None else tuple(route)
         self.driver: Any = None

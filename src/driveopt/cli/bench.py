@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 
 from driveopt.cli.common import config_overrides, positive_int
-from driveopt.cli.parser import duration
+from driveopt.cli.parser import duration, latency
 
 
 def register(sub) -> None:
@@ -29,6 +29,10 @@ def register(sub) -> None:
     p.add_argument("--filter-weights", help="learned safety-filter checkpoint for every optimiser (recorded with --config)")
     p.add_argument("--config", help="planner config overrides applied to every optimiser, JSON (nested sections)")
     p.add_argument("--replan-every", type=positive_int, help="policy periods each plan is executed open-loop (P1: 5; default 1)")
+    p.add_argument("--latency", type=latency, metavar="sync|measured|MS",
+                   help="sync (default): the simulator waits for every plan; measured: the car keeps executing the "
+                        "previous plan while one is computed, which takes effect after its measured time rounded up "
+                        "to policy periods; MS: a fixed compute time [ms] instead (deterministic)")
     p.add_argument("--scenario-config", help="JSON file of scenario-field overrides applied to every scenario")
     p.add_argument("--workers", type=positive_int, help="parallel episodes (default: the CPUs it may use, its affinity)")
     p.add_argument("--backend", choices=["local", "ray"], default="local",
@@ -46,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     scenario = load_overrides(args.scenario_config) if args.scenario_config else None
     given = (("duration", args.duration), ("samples", args.samples), ("weights", args.weights),
              ("config", config_overrides(args.config, args.filter_weights) or None), ("replan_every", args.replan_every),
+             ("latency", args.latency),
              ("scenario", scenario))
     options = {k: v for k, v in given if v is not None}
     spec = BenchSpec(tuple(args.scenarios), tuple(args.planners), tuple(args.seeds), args.episodes, options,

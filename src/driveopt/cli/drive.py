@@ -16,7 +16,7 @@ import contextlib
 import sys
 
 from driveopt.cli.common import config_overrides, positive_int, seed, writable_file, write_json
-from driveopt.cli.parser import duration
+from driveopt.cli.parser import duration, latency
 
 
 def register(sub) -> None:
@@ -30,6 +30,10 @@ def register(sub) -> None:
     p.add_argument("--duration", type=duration, help="episode length [s] (default: the scenario's)")
     p.add_argument("--samples", type=positive_int, help="samples per sampler iteration")
     p.add_argument("--replan-every", type=positive_int, help="policy periods each plan is executed open-loop (P1: 5; default 1)")
+    p.add_argument("--latency", type=latency, metavar="sync|measured|MS",
+                   help="sync (default): the simulator waits for every plan; measured: the car keeps executing the "
+                        "previous plan while one is computed, which takes effect after its measured time rounded up "
+                        "to policy periods; MS: a fixed compute time [ms] instead (deterministic)")
     p.add_argument("--video", default="out/drive.mp4", help="MP4 path, ending in .mp4 ('' for none)")
     p.add_argument("--json", help="write the episode summary as JSON here")
     p.add_argument("--config", help="planner config overrides, JSON (nested sections, e.g. {\"cost\": {\"consistency\": 1.0}})")
@@ -51,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
         scenario = scenario.replace(duration=args.duration)
     spec = get_planner(args.planner).with_samples(args.samples).with_weights(args.weights)
     spec = spec.with_overrides(**config_overrides(args.config, args.filter_weights)).with_replan_every(args.replan_every)
+    spec = spec.with_latency(args.latency)
     spec.check(scenario)  # missing, unusable or wrong-road weights: the error comes before the progress bar
     steps = int(round(scenario.duration * scenario.policy_frequency))
     rollout = Rollout(scenario, spec.driver(), args.seed, render=bool(args.video))
@@ -79,6 +84,9 @@ def run(args: argparse.Namespace) -> int:
     summary = episode_summary(episode)
     planning = ("no planning calls" if summary["plan_ms_median"] is None else
                 f"planning {summary['plan_ms_median']:.0f} ms median / {summary['plan_ms_p95']:.0f} ms p95")
+    if "plan_periods_median" in summary:  # real time: the plans took effect this many policy periods after they started
+        planning += (f" (in effect after {summary['plan_periods_median']:.0f} periods median, "
+                     f"{summary['plan_periods_max']} at most)")
     print(
         f"{scenario.name} / {spec.name} (seed {args.seed}): collided {episode.collided}, off-road {episode.off_road}, "
         f"{episode.sim_duration:.1f} s simulated, mean speed {episode.mean_speed:.1f} m/s, {planning}, "

@@ -33,3 +33,14 @@ def duration(text: str) -> float:
         return check_duration(value)
     except ScenarioError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def latency(text: str) -> str | float | None:
+    """Argument type of ``--latency``: ``sync`` (None: the simulator waits for every plan), ``measured``, or a compute
+    time in milliseconds in [0, MAX_LATENCY_MS] (a float); :mod:`driveopt.drivers.latency`."""
+    from driveopt.drivers.latency import LatencyError, parse_latency
+
+    try:
+        return parse_latency(text).option
+    except LatencyError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

@@ -23,13 +23,17 @@ class Decision(NamedTuple):
     """What a driver decided at one policy step."""
 
     action: np.ndarray  # (2,) highway-env ContinuousAction in [-1, 1]^2 (acceleration, steering)
-    result: PlanResult | None = None  # the planning call's result (optimisers), else None
+    result: PlanResult | None = None  # the result of the planning call that takes effect at this step, else None
     scene: Scene | None = None  # the scene it planned in
     problem: PlanningProblem | None = None  # the planning problem it solved
     plan_seconds: float = 0.0  # [s] wall time of the planning call
     guarded: bool = False  # the contact guard replaced the command by braking now (driveopt.sim.contact)
     frame: Any = None  # the road frame it planned in (driveopt.sim.road_frame.RoadFrame)
     plan_world: Any = None  # the plan it follows in world coordinates (driveopt.sim.world_plan.WorldTrajectory)
+    latency_periods: int | None = None  # [policy periods] from the step the delivered plan started to this one (None:
+    # the simulator waited for it, driveopt.drivers.latency)
+    plan_index: int | None = None  # which planning call of the episode (from 0) the action tracks; None: no plan
+    plan_elapsed: float = 0.0  # [s] how far into that plan (from the state it was made from) the action tracks it
 
 
 class Driver(Protocol):
@@ -83,4 +87,7 @@ class DriverSpec:
         return self
 
     def with_replan_every(self, periods: int | None) -> "DriverSpec":
+        return self
+
+    def with_latency(self, latency: Any) -> "DriverSpec":
         return self

@@ -12,7 +12,12 @@ and follows the fallback only on NUMERICAL_ERROR. Neighbours are predicted braki
 constant velocity), and the neighbours planned against are those that come closest within
 :data:`driveopt.prediction.SELECTION_TIME` unless ``approach_selection`` is False (P1: the nearest
 now). With ``replan_every`` N > 1 (P1 §V executes five control periods per plan) it
-plans every N-th step and tracks the same plan open-loop in between. Its PRNG key derives from the
+plans every N-th step and tracks the same plan open-loop in between. With a real-time ``latency``
+(:mod:`driveopt.drivers.latency`) the same open-loop tracking pays for planning time: a plan started at step k
+takes effect L policy periods later (its compute time rounded up, at least one) and is tracked from L periods into
+it; until then the car keeps tracking the plan in effect. A new call starts at the step the previous one is
+delivered, and no sooner than N steps after it started: one call in flight at a time. The episode's first plan is
+made synchronously (the simulator waits for it). Its PRNG key derives from the
 episode seed: same seed, same episode. A learned safety filter (P2 §III-C; ``filter_weights``, or the
 shipped weights for a spec with ``learned_filter``) sets up every batch's projection
 (:mod:`driveopt.safety.learned`). With the spec's ``contact_guard``, a command at crawling speed that would take
@@ -27,7 +32,7 @@ import dataclasses
 import math
 import time
 import warnings
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import jax
 
@@ -35,6 +40,7 @@ from driveopt.batch_rows import BatchRows, StopRows
 from driveopt.checks import check_count, check_types
 from driveopt.config import PlannerConfig
 from driveopt.drivers.base import Decision, DriverSpec
+from driveopt.drivers.latency import Latency, Synchronous, parse_latency
 from driveopt.fallback import Fallback
 from driveopt.files import pytree_digest
 from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, WarmStart, plan, previous_plan
@@ -108,6 +114,7 @@ class OptimiserSpec(DriverSpec):
     fallback: Fallback = Fallback()  # the stops weighed when nothing is feasible
     contact_guard: bool = True  # brake now when a command at crawling speed would take the ego's box within 0.1 m of a
     # car's and braking now would not (driveopt.sim.contact; not for drivers that execute infeasible plans, P1)
+    latency: Latency = Synchronous()  # how planning time delays a plan (driveopt.drivers.latency; default: the sim waits)
 
     def __post_init__(self) -> None:
         check_types(self, "")
@@ -195,6 +202,24 @@ class OptimiserSpec(DriverSpec):
         """Copy that executes each plan for ``periods`` policy periods (unchanged for ``None``)."""
         return self if periods is None else dataclasses.replace(self, replan_every=periods)
 
+    def with_latency(self, latency: Any) -> "OptimiserSpec":
+        """Copy whose plans take effect after their planning time (:func:`driveopt.drivers.latency.parse_latency`:
+        ``"sync"``, ``"measured"`` or a compute time [ms]); unchanged for ``None``. LatencyError for other values."""
+        return self if latency is None else dataclasses.replace(self, latency=parse_latency(latency))
+
+
+class _Call(NamedTuple):
+    """One planning call: its result, what it planned from, and when it takes effect."""
+
+    index: int  # [-] the episode's planning calls, counted from 0
+    result: PlanResult
+    world: Any  # the trajectory the car follows (``followed``) in world coordinates
+    scene: Any
+    problem: Any
+    frame: Any  # the road frame it planned in
+    seconds: float  # [s] measured wall time of the call
+    periods: int  # [policy periods] from the step it started to the step it takes effect (0: at once)
+
 
 class OptimiserDriver:
     """Plans every policy step; see the module docstring."""
@@ -221,7 +246,6 @@ class OptimiserDriver:
         self.safety_filter = self.spec.safety_filter(lanes)
         self.key = jax.random.PRNGKey(seed)
         self.period = 1.0 / env.unwrapped.config["policy_frequency"]  # [s] one policy period
-        self.replan_period = self.spec.replan_every * self.period  # [s] between replans
         self.carries_plan = self.config.cost.consistency > 0
         # The first call passes absent placeholders for what later calls carry: every call runs one compilation,
         # made here, outside the timed loop (the result is discarded).
@@ -232,17 +256,19 @@ class OptimiserDriver:
         plan(problem, self.config, key=jax.random.fold_in(self.key, 1), prior=self.prior, warm_start=self.warm,
              previous=self.previous, safety_filter=self.safety_filter, **self.strategies)
         self.compile_seconds = time.perf_counter() - start
-        self.executing = None
-        self.executing_world = None
-        self.executed_periods = 0
+        self.executing: _Call | None = None  # the plan in effect
+        self.executed_periods = 0  # [policy periods] into the plan in effect at the current step
+        self.pending: _Call | None = None  # a plan computed but not yet in effect (real-time latency)
+        self.steps = 0  # [-] policy steps acted this episode
+        self.started_at = 0  # [-] the step the latest planning call started at
 
     def _problem(self, perception: Perception):
         return build_problem(perception.scene, self.config.basis, ignore_followers=True, braking_time=self.spec.braking_time,
                              selection_time=self.spec.selection_time)
 
-    def _carried(self, result: PlanResult):
-        """(warm start, previous plan) handed to the next call."""
-        previous = previous_plan(result, self.replan_period) if self.carries_plan else None
+    def _carried(self, result: PlanResult, gap: float):
+        """(warm start, previous plan) handed to the next call, which starts ``gap`` [s] after ``result``'s."""
+        previous = previous_plan(result, gap) if self.carries_plan else None
         return (result.mean if self.spec.warm_start else None), previous
 
     def _executes_chosen(self, result: PlanResult) -> bool:
@@ -255,26 +281,64 @@ class OptimiserDriver:
         return result.trajectory if self._executes_chosen(result) else result.safe_trajectory
 
     def act(self, env: Any) -> Decision:
-        if self.executing is not None and self.executed_periods < self.spec.replan_every:  # P1's open-loop periods
-            perception = perceive(env, self.scenario, self.preview) if self.spec.contact_guard else None
-            tracking = perception.tracking if perception else ego_kinematics(env)
-            action, guarded = self._command(self.executing, self.executing_world, self.executed_periods * self.period,
-                                            tracking, env, perception)
-            self.executed_periods += 1
-            return Decision(action, guarded=guarded)
-        perception = perceive(env, self.scenario, self.preview)
-        scene = perception.scene
+        delivered = self._deliver()
+        perception = None
+        if self._starts_call():
+            perception = perceive(env, self.scenario, self.preview)
+            call = self._plan(perception)
+            if call.periods == 0:
+                delivered = self._take_effect(call)
+            else:
+                self.pending = call
+        elif self.spec.contact_guard:
+            perception = perceive(env, self.scenario, self.preview)
+        tracking = perception.tracking if perception else ego_kinematics(env)
+        executing, elapsed = self.executing, self.executed_periods * self.period
+        action, guarded = self._command(executing.result, executing.world, elapsed, tracking, env, perception)
+        self.executed_periods += 1
+        self.steps += 1
+        if delivered is None:
+            return Decision(action, guarded=guarded, plan_index=executing.index, plan_elapsed=elapsed)
+        periods = delivered.periods if self.spec.latency.realtime else None
+        return Decision(action, delivered.result, delivered.scene, delivered.problem, delivered.seconds, guarded,
+                        delivered.frame, delivered.world, periods, executing.index, elapsed)
+
+    def _starts_call(self) -> bool:
+        """Whether a planning call starts at this step: the episode's first, or none in flight and ``replan_every``
+        steps since the latest started."""
+        if self.executing is None:
+            return True
+        return self.pending is None and self.steps - self.started_at >= self.spec.replan_every
+
+    def _plan(self, perception: Perception) -> _Call:
+        """Plan from ``perception`` (the state now) with the carried warm start and previous plan."""
         problem = self._problem(perception)
         self.key, sub = jax.random.split(self.key)
         start = time.perf_counter()
         result = plan(problem, self.config, key=sub, prior=self.prior, warm_start=self.warm, previous=self.previous,
-                      safety_filter=self.safety_filter, x_offset=scene.ego.x, **self.strategies)
-        elapsed = time.perf_counter() - start
-        self.warm, self.previous = self._carried(result)
-        self.executing, self.executed_periods = result, 1
-        self.executing_world = to_world(self.followed(result), perception.frame)  # in world coordinates, for tracking
-        action, guarded = self._command(result, self.executing_world, 0.0, perception.tracking, env, perception)
-        return Decision(action, result, scene, problem, elapsed, guarded, perception.frame, self.executing_world)
+                      safety_filter=self.safety_filter, x_offset=perception.scene.ego.x, **self.strategies)
+        seconds = time.perf_counter() - start
+        index = 0 if self.executing is None else self.executing.index + 1
+        periods = 0 if self.executing is None else self.spec.latency.periods(seconds, self.period)
+        self.started_at = self.steps
+        world = to_world(self.followed(result), perception.frame)  # in world coordinates, for tracking
+        return _Call(index, result, world, perception.scene, problem, perception.frame, seconds, periods)
+
+    def _deliver(self) -> _Call | None:
+        """The pending plan, put into effect when its periods have passed at this step; else None."""
+        call = self.pending
+        if call is None or self.steps - self.started_at < call.periods:
+            return None
+        self.pending = None
+        return self._take_effect(call)
+
+    def _take_effect(self, call: _Call) -> _Call:
+        """Track ``call`` from ``call.periods`` into it, and carry it to the next call, which starts
+        max(``replan_every``, ``call.periods``) periods after ``call`` did."""
+        self.executing, self.executed_periods = call, call.periods
+        gap = max(self.spec.replan_every, call.periods) * self.period
+        self.warm, self.previous = self._carried(call.result, gap)
+        return call
 
     def _command(self, result: PlanResult, followed: Any, elapsed: float, tracking, env: Any,
                  perception: Perception | None = None) -> tuple[Any, bool]:

@@ -29,6 +29,7 @@ from tqdm import tqdm
 
 from driveopt.checks import check_count, check_number
 from driveopt.drivers.base import DriverSpec
+from driveopt.drivers.latency import parse_latency
 from driveopt.errors import DriveoptError
 from driveopt.experiments.rollout import run_episode
 from driveopt.experiments.runner import EpisodeFn, check_backend, execute, usable_cpus
@@ -61,7 +62,9 @@ def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
 
     options (all optional): ``duration`` [s], ``samples`` (batch-size override, see
     ``OptimiserSpec.with_samples``), ``weights`` (learned prior checkpoint), ``config`` (planner-config
-    overrides, nested sections), ``replan_every`` (policy periods each plan is executed), ``scenario``
+    overrides, nested sections), ``replan_every`` (policy periods each plan is executed), ``latency`` (``"measured"`` or
+    a compute time [ms]: plans take effect after their planning time, :mod:`driveopt.drivers.latency`; absent:
+    the simulator waits for every plan; records then carry ``plan_periods``), ``scenario``
     (scenario-field overrides applied to every scenario, e.g. ``{"traffic_reverses": false}``).
     """
     spec = planner_spec(job.planner, options)
@@ -72,10 +75,11 @@ def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
 
 
 def planner_spec(name: str, options: dict[str, Any]) -> DriverSpec:
-    """The registered planner ``name`` with the bench options (samples, weights, config, replan_every) applied."""
+    """The registered planner ``name`` with the bench options (samples, weights, config, replan_every, latency) applied."""
     samples = options.get("samples")
     spec = get_planner(name).with_samples(int(samples) if samples else None).with_weights(options.get("weights"))
-    return spec.with_overrides(**options.get("config", {})).with_replan_every(options.get("replan_every"))
+    spec = spec.with_overrides(**options.get("config", {})).with_replan_every(options.get("replan_every"))
+    return spec.with_latency(options.get("latency"))
 
 
 @dataclass(frozen=True)
@@ -100,7 +104,8 @@ class BenchSpec:
         """Refuse, as a DriveoptError, what an episode would refuse: a scenario, planner or seed given twice, a seed
         whose traffic seeds fall outside [0, MAX_ENV_SEED], an episode list with an index twice or outside
         ``episodes``, an unknown scenario or planner, a duration that is not a finite number > 0, samples that are not
-        an integer >= 1, a weights file that does not exist, config overrides the planner config rejects, weights a
+        an integer >= 1, a latency that is not ``"measured"`` or a number of ms in [0, MAX_LATENCY_MS] (``"sync"`` is
+    left out of the options: :func:`bench_latency`), a weights file that does not exist, config overrides the planner config rejects, weights a
         planner cannot use on a scenario's road (``DriverSpec.check``). Other options (those of a custom episode
         function) pass unchecked."""
         for name, values in (("scenarios", self.scenarios), ("planners", self.planners), ("seeds", self.seeds)):
@@ -150,8 +155,18 @@ def check_options(options: dict[str, Any]) -> None:
         check_number("duration", duration, 0.0, low_open=True, unit="s")
     if samples is not None:
         check_count("samples", samples)
+    if "latency" in options and bench_latency(options["latency"]) != options["latency"]:
+        raise BenchOptionError(f"latency {options['latency']!r}: give \"measured\" or a number of ms, or leave the option "
+                               "out for synchronous planning")
     if weights is not None and not Path(weights).is_file():
         raise BenchOptionError(f"weights file {weights} does not exist")
+
+
+def bench_latency(latency: Any) -> str | float | None:
+    """The bench option value of ``latency`` (``"sync"``, ``"measured"``, a compute time [ms]; see
+    :func:`driveopt.drivers.latency.parse_latency`): None for synchronous planning, so that a synchronous folder's
+    settings are those of a folder made without the option. LatencyError for an unknown or out-of-range value."""
+    return parse_latency(latency).option
 
 
 def run_bench(

@@ -6,7 +6,7 @@
     episode = rollout.episode     # collided, off-road, speeds, planning times, statuses
 
 Every policy step (``scenario.policy_frequency``, 10 Hz by default) the driver
-(:mod:`driveopt.drivers`) returns a ``Decision`` (the action, and the plan when it planned), the
+(:mod:`driveopt.drivers`) returns a ``Decision`` (the action, and the plan that takes effect at that step), the
 loop yields it, then steps the simulator and records the outcome in :class:`Episode`. Everything
 random derives from the seed: same seed, same episode. :func:`run_episode` runs a whole episode.
 """
@@ -46,14 +46,16 @@ class Episode:
     plan_seconds: float = 0.0  # wall time spent planning
     statuses: Counter = field(default_factory=Counter)
     guarded: int = 0  # [-] steps whose command the contact guard replaced by braking now
+    plan_periods: list[int] = field(default_factory=list)  # [policy periods] after which each plan took effect in real
+    # time (driveopt.drivers.latency; the first is 0: the simulator waits for it); empty when the simulator waited
 
     @property
     def mean_speed(self) -> float:
         return float(np.mean(self.speeds)) if self.speeds else 0.0
 
     def record(self) -> dict[str, Any]:
-        """JSON-ready record (one line of the bench store)."""
-        return {
+        """JSON-ready record (one line of the bench store); ``plan_periods`` only for a real-time episode."""
+        record = {
             "collided": self.collided,
             "off_road": self.off_road,
             "mean_speed": self.mean_speed,
@@ -66,6 +68,7 @@ class Episode:
             "statuses": dict(self.statuses),
             "guarded": self.guarded,
         }
+        return {**record, "plan_periods": list(self.plan_periods)} if self.plan_periods else record
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary of ``driveopt drive`` (planning-time median and p95 instead of every time)."""
@@ -75,7 +78,14 @@ class Episode:
             "off_road": self.off_road, "simulated_s": self.sim_duration, "mean_speed": self.mean_speed,
             "plan_ms_median": float(np.median(plan_ms)), "plan_ms_p95": float(np.percentile(plan_ms, 95)),
             "sim_wall_s": self.sim_seconds, "plan_wall_s": self.plan_seconds, "statuses": dict(self.statuses),
+            **self._latency_summary(),
         }
+
+    def _latency_summary(self) -> dict[str, Any]:
+        """Median and largest ``plan_periods`` of a real-time episode; nothing when the simulator waited."""
+        if not self.plan_periods:
+            return {}
+        return {"plan_periods_median": float(np.median(self.plan_periods)), "plan_periods_max": max(self.plan_periods)}
 
 
 class Step(NamedTuple):
@@ -113,6 +123,8 @@ class Rollout:
                     episode.plan_ms.append(1e3 * decision.plan_seconds)
                     episode.plan_seconds += decision.plan_seconds
                     episode.statuses[decision.result.status.name] += 1
+                if decision.latency_periods is not None:
+                    episode.plan_periods.append(decision.latency_periods)
                 episode.guarded += decision.guarded
                 yield Step(env, decision, episode)
                 start = time.perf_counter()
