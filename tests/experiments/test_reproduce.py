@@ -168,6 +168,18 @@ def test_quick_variants_and_overrides():
     assert fig9.reduced
 
 
+def test_arm_options_and_folders():
+    arm = Arm("vqvae", STRENGTHENED, 100, replan_every=5, config=(("projection.max_iterations", 0),))
+    assert arm.options(4.0) == {"samples": 100, "replan_every": 5, "config": {"projection": {"max_iterations": 0}},
+                                "duration": 4.0}
+    assert arm.folder(4.0) == "n100-r5-maxiterations0-t4s" and arm.folder(None) == "n100-r5-maxiterations0"
+    assert Arm("idm", REFERENCE).options(None) == {} and Arm("idm", REFERENCE).folder(None) == "nown"
+    assert arm.quick().samples == 10 and Arm("x", STRENGTHENED, 50).quick().samples == 10
+    (fig9,) = figures_of("p1", ["fig9"])
+    runs = fig9.runs()
+    assert set(runs) == {"n250", "n1000"} and runs["n250"][:2] == (("four-lane-d3.0",), ("cvae", "bilevel-p1"))
+
+
 @pytest.mark.parametrize("paper, names", [("p3", None), ("p1", ["fig99"]), ("p2", ["fig7", "fig7"])])
 def test_unknown_paper_or_figure(paper, names):
     with pytest.raises(ProtocolError):
