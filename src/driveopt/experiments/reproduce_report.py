@@ -31,6 +31,11 @@ def _num(value: float, digits: int = 2) -> str:
     return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
 
+def _interval(low: float, high: float, digits: int = 2) -> str:
+    """`` [low, high]`` of a difference (either sign); empty when there is none (too few pairs)."""
+    return "" if math.isnan(low) or math.isnan(high) else f" [{low:.{digits}f}, {high:.{digits}f}]"
+
+
 def _p(value: float) -> str:
     return "-" if math.isnan(value) else (f"{value:.3f}" if value >= 0.001 else f"{value:.1e}")
 
@@ -60,12 +65,12 @@ def claim_row(r: ClaimResult) -> str:
         episodes += f" (reduced: the full protocol has {r.full_pairs})"
     like = "" if r.like_for_like else " (not like for like)"
     paired = (f"collisions only arm / only baseline {r.only_arm_collided} / {r.only_baseline_collided}, McNemar p "
-              f"{_p(r.mcnemar_p)}; speed: arm faster in {r.arm_faster}/{r.speed_sign_n}, sign p {_p(r.speed_sign_p)}, "
-              f"diff {_num(r.speed_difference)} ({_num(r.speed_difference_low)}-{_num(r.speed_difference_high)}) m/s")
+              f"{_p(r.mcnemar_p)}, rate difference{_interval(r.collision_difference_low, r.collision_difference_high) or ' -'}; speed: arm faster in {r.arm_faster}/{r.speed_sign_n}, sign p {_p(r.speed_sign_p)}, "
+              f"diff {_num(r.speed_difference)}{_interval(r.speed_difference_low, r.speed_difference_high)} m/s")
     plan = r.metric == PLAN_TIME
     if plan:
         paired += (f"; plan time: arm quicker in {r.arm_quicker}/{r.plan_sign_n}, sign p {_p(r.plan_sign_p)}, diff "
-                   f"{_num(r.plan_difference, 1)} ({_num(r.plan_difference_low, 1)}-{_num(r.plan_difference_high, 1)}) ms")
+                   f"{_num(r.plan_difference, 1)}{_interval(r.plan_difference_low, r.plan_difference_high, 1)} ms")
     return (f"| {r.scenario} | {r.metric}: arm {r.expect}{like} | {r.paper} | {_arm_cell(r.arm, plan)} | "
             f"{_arm_cell(r.baseline, plan)} | {paired} | {episodes} | **{r.verdict}** |")
 
