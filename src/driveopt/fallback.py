@@ -1,10 +1,15 @@
 """Stopping plans: the two stop rows that ride in every sampler batch, and the fallback, a stop by construction.
 
 The fallback is what a planner offers when no sample is feasible (``PlanResult.fallback``). It is
-not a polynomial and it is never projected: it brakes at a constant deceleration along a path,
-so its speed ``max(v0 - d t, 0)`` [m/s] never increases and never goes below zero, and it never
-turns back (the path's heading stays within 72 degrees of the road). The path eases from the
-current lateral position and heading to a target inside the road (:func:`lateral_target`): the nearest lane centre
+not a polynomial and it is never projected: it brakes at a constant deceleration along a path
+that leads in the ego's direction of travel (:func:`travel_direction`: forwards along the road, or backwards for
+a reversing car), so its speed ``max(v0 - d t, 0)`` [m/s] never increases and never goes below zero, and its
+velocity never changes sign: a reversing car's stop brakes its backward motion to rest, as a forward stop brakes the
+forward motion, and never moves forwards. Both directions are one stop: a lateral profile over the distance
+travelled (the path length s), laid out along the road in the direction of travel; so the guarantees of the forward
+stop (speed, lateral bounds, no turning back) hold for a reversing one by construction. The path never turns back
+(its direction stays within 72 degrees of the road's, forwards or, reversing, backwards). It eases from the current
+lateral position and heading to a target inside the road (:func:`lateral_target`): the nearest lane centre
 (comfortable stop), the current position clipped to the road (emergency stop) or, with :attr:`Fallback.evasion`, one
 of :data:`EVASIONS` (emergency stops that move sideways: to a neighbouring lane line or lane centre, either way), over
 20 m or more; with :attr:`Fallback.straightens` it points along the road by the time the car stops (:func:`easing`). Where the ego
@@ -71,19 +76,26 @@ def lateral_target(problem: PlanningProblem, y: jnp.ndarray, target: str | float
     return nearest + target * 0.5 * problem.lane_width
 
 
+def travel_direction(problem: PlanningProblem) -> jnp.ndarray:
+    """() [-] the ego's direction of travel along the road: -1.0 when it reverses (vx < 0), else 1.0 (standing too).
+
+    Every stop leads this way: a stop continues the motion the car has and brakes it to rest."""
+    return jnp.where(problem.init_x[1] < 0.0, -1.0, 1.0).astype(problem.init_x.dtype)
+
+
 def _course(problem: PlanningProblem) -> jnp.ndarray:
-    """[-] the car's course as a lateral slope dy/ds, within +-0.5."""
+    """[-] the car's course as a lateral slope dy/ds (per metre travelled, either direction), within +-0.5."""
     speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
     return jnp.clip(jnp.where(speed > 1e-3, problem.init_y[1] / jnp.maximum(speed, 1e-3), 0.0), -0.5, 0.5)
 
 
 def stop_setpoints(problem: PlanningProblem, horizon: float, decel: float, target: str | float) -> jnp.ndarray:
-    """(8,) set-points describing a stop towards ``target`` (:func:`lateral_target`): speed [m/s] at each quarter's end,
-    lateral target [m]."""
+    """(8,) set-points describing a stop towards ``target`` (:func:`lateral_target`): longitudinal velocity [m/s] at each
+    quarter's end (the speed, negative for a reversing car: :func:`travel_direction`), lateral target [m]."""
     quarter = horizon / NUM_SEGMENTS
     ends = quarter * jnp.arange(1, NUM_SEGMENTS + 1, dtype=jnp.float32)
     speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
-    v = jnp.maximum(speed - decel * ends, 0.0)
+    v = travel_direction(problem) * jnp.maximum(speed - decel * ends, 0.0)
     y = lateral_target(problem, problem.init_y[0], target)
     return jnp.concatenate([v, jnp.full(NUM_SEGMENTS, y)])
 
@@ -93,12 +105,14 @@ def braking_coeffs(model: TrajectoryModel, problem: PlanningProblem, decel: floa
     """(2n,) stop at constant deceleration ``decel`` [m/s^2], easing to ``target`` (:func:`lateral_target`) in
     :data:`EASING_TIME`: the batches' stop rows.
 
-    A least-squares fit of that motion (the set-point QP's step set-points would overshoot it).
+    A least-squares fit of that motion (the set-point QP's step set-points would overshoot it), in the direction of
+    travel (:func:`travel_direction`).
     """
     t = jnp.asarray(model.t)
     speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
     moving = jnp.minimum(t, speed / decel)
-    x = problem.init_x[0] + speed * moving - 0.5 * decel * moving**2
+    direction = travel_direction(problem)
+    x = problem.init_x[0] + direction * speed * moving - direction * (0.5 * decel) * moving**2
     centre = lateral_target(problem, problem.init_y[0], target)
     tau = jnp.minimum(t / EASING_TIME, 1.0)
     y = problem.init_y[0] + (centre - problem.init_y[0]) * (3 * tau**2 - 2 * tau**3)
@@ -156,12 +170,18 @@ def _lateral_path(problem: PlanningProblem, s: jnp.ndarray, target: str | float,
 def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, target: str | float,
                     straightens: bool = False) -> Trajectory:
     """The fallback: brake at ``decel`` [m/s^2] from the current speed along the path eased to ``target``
-    (:func:`lateral_target`; planning frame).
+    (:func:`lateral_target`; planning frame), in the direction of travel (:func:`travel_direction`).
 
     t: (K,) [s] node times. Speed max(v0 - decel t, 0), path length s(t) = its integral. ``straightens``: the easing
     is done by the time the car stops where the curvature allows (:func:`easing`); otherwise it takes its full length.
+    The lateral profile is one function of s for both directions; x advances by the path's along-road part times the
+    direction, so a reversing stop is the forward stop's path laid out backwards. ``heading`` is the car body's (the
+    velocity's direction turned by half a turn when reversing: within 72 degrees of the road either way, as the
+    cost's heading term and the box growth of :func:`held_box_growth` read it); ``curvature`` is the path's, signed as
+    :func:`driveopt.trajectory.evaluate` signs it.
     """
     speed0 = jnp.hypot(problem.init_x[1], problem.init_y[1])
+    direction = travel_direction(problem)
     stop_time = speed0 / decel
     moving = jnp.minimum(t, stop_time)
     s = speed0 * moving - 0.5 * decel * moving**2
@@ -173,14 +193,14 @@ def stop_trajectory(problem: PlanningProblem, t: jnp.ndarray, decel: float, targ
     _, dy_fine, _ = _lateral_path(problem, fine, target, stop_distance)
     cos_fine = jnp.sqrt(1.0 - dy_fine**2)
     x_fine = jnp.concatenate([jnp.zeros(1), jnp.cumsum(0.5 * (cos_fine[1:] + cos_fine[:-1]) * jnp.diff(fine))])
-    x = problem.init_x[0] + jnp.interp(s, fine, x_fine)
+    x = problem.init_x[0] + direction * jnp.interp(s, fine, x_fine)
     y, dy, d2y = _lateral_path(problem, s, target, stop_distance)
-    dx = jnp.sqrt(1.0 - dy**2)
+    dx = jnp.sqrt(1.0 - dy**2)  # along-road part of the path's unit tangent, > 0; times the direction below
     d2x = -dy * d2y / dx
-    vx, vy = v * dx, v * dy
-    ax, ay = a * dx + v**2 * d2x, a * dy + v**2 * d2y
-    heading = jnp.arctan2(dy, dx)
-    curvature = (dx * d2y - dy * d2x)
+    vx, vy = direction * (v * dx), v * dy
+    ax, ay = direction * (a * dx + v**2 * d2x), a * dy + v**2 * d2y
+    heading = jnp.arctan2(direction * dy, dx)
+    curvature = direction * (dx * d2y - dy * d2x)
     return Trajectory(t, x, y, vx, vy, ax, ay, v, heading, curvature, a)
 
 

@@ -41,6 +41,8 @@ from __future__ import annotations
 
 import enum
 import functools
+import math
+import numbers
 from typing import Any, NamedTuple
 
 import jax
@@ -57,7 +59,7 @@ from driveopt.projection import FAMILIES, ProjectionResult, project
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, boundary_values, make_model, solve_setpoint_qp
 from driveopt.ranking import Candidate, FeasibilityFirst, Ranking
 from driveopt.sampler import GaussianPrior, Prior, cem_update, clip_setpoints, default_mean, sample_gaussian
-from driveopt.scene import ProblemError
+from driveopt.scene import RANGES, ProblemError
 from driveopt.trajectory import Trajectory, evaluate
 from driveopt.xla import XLA_CPU_COMPILER_OPTIONS, float32_products, supported_compiler_options
 
@@ -237,11 +239,11 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     key_score = ranking.key(score, residual, feasible)
     if placeholder is not None:  # never ranked
         key_score, residual_key = jnp.where(placeholder, jnp.inf, key_score), jnp.where(placeholder, jnp.inf, residual)
-        feasible_rows = feasible & ~placeholder
+        counted_feasible = feasible & ~placeholder
         # the median over the rows a call without the placeholder has
         median_residual = jnp.where(previous.present, jnp.median(residual), jnp.median(jnp.delete(residual, num_samples)))
     else:
-        residual_key, feasible_rows, median_residual = residual, feasible, jnp.median(residual)
+        residual_key, counted_feasible, median_residual = residual, feasible, jnp.median(residual)
     ranked = ranking.elites(key_score, residual_key, score, feasible, s.num_constraint_elites, s.num_elites)
 
     pick = ranked[jnp.argmin(key_score[ranked])]
@@ -253,7 +255,7 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
 
     stats = History(
         best_score=key_score[pick], best_feasible=feasible[pick], elite_cost=jnp.mean(score[ranked]),
-        min_residual=jnp.min(residual), median_residual=median_residual, num_feasible=jnp.sum(feasible_rows),
+        min_residual=jnp.min(residual), median_residual=median_residual, num_feasible=jnp.sum(counted_feasible),
         projection_iterations=proj.iterations, projection_status=proj.status,
     )
     snapshot = Snapshot(setpoints, qp_coeffs, proj.coeffs, residual, ranked, kind, cost)
@@ -416,7 +418,8 @@ def plan(
     """Plan one trajectory. Raises ProblemError on malformed or non-finite input; never returns NaN.
 
     problem: from ``build_problem`` (planning frame, ego at x = 0).
-    key: JAX PRNG key; split it between calls so that every call draws fresh samples.
+    key: one JAX PRNG key (``jax.random.PRNGKey``: shape (2,) uint32, or a typed ``jax.random.key``); split it
+        between calls so that every call draws fresh samples.
     prior: first-iteration proposal distribution (default: GaussianPrior from ``config.sampler``).
     warm_start: (8,) mean from a previous result (``result.mean``) to centre the first proposal.
     previous: the previous replan's plan (``previous_plan``): a candidate row and the reference of the
@@ -426,9 +429,12 @@ def plan(
     with an array are two compilations).
     safety_filter: sets the projection's barrier parameters and initialisation (:mod:`driveopt.safety`).
     ranking, fallback, batch_rows: the strategies of :func:`solve` (driveopt's by default; P1's baselines swap them).
-    x_offset: [m] added to x of the returned trajectories (the ego's road-frame x).
+    x_offset: [m] added to x of the returned trajectories (the ego's road-frame x): a finite real number within the
+        scene's position range (``driveopt.scene.RANGES["x"]``), as the command line's problem files require.
     """
     check_problem(problem, config.basis)
+    _check_key(key)
+    x_offset = _checked_x_offset(x_offset)
     if prior is None:
         prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
     if warm_start is not None:
@@ -450,7 +456,46 @@ def plan(
     if placeholder:  # the result as without a previous plan
         row = config.sampler.num_samples
         solution = solution._replace(first=_without_row(solution.first, row), last=_without_row(solution.last, row))
-    return _to_result(solution, config, fallback, float(x_offset))
+    return _to_result(solution, config, fallback, x_offset)
+
+
+def _shown(value: Any) -> str:
+    """A one-line, at most 60-character description of ``value`` for an error message."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _checked_x_offset(value: Any) -> float:
+    """``value`` [m] as a float when it is a real number (a Python or numpy number, or a 0-d array of one; not a bool),
+    finite and within the scene's position range (``RANGES["x"]``, where the float32 road-frame positions of a
+    trajectory keep centimetres); ProblemError otherwise."""
+    real = isinstance(value, numbers.Real) or (isinstance(value, (np.ndarray, jax.Array)) and np.ndim(value) == 0
+                                                and np.asarray(value).dtype.kind in "iuf")
+    if not real or isinstance(value, (bool, np.bool_)):
+        raise ProblemError(f"x_offset must be a real number [m], got {_shown(value)}")
+    try:
+        offset = float(value)
+    except OverflowError:  # an integer beyond float's range
+        offset = math.inf if value > 0 else -math.inf
+    if not math.isfinite(offset):
+        raise ProblemError(f"x_offset must be finite, got {offset}")
+    low, high, unit = RANGES["x"]
+    if not low <= offset <= high:
+        raise ProblemError(f"x_offset must be within [{low:g}, {high:g}] {unit}, got {offset:g}")
+    return offset
+
+
+def _check_key(key: Any) -> None:
+    """ProblemError unless ``key`` is one JAX PRNG key: a typed key of shape () (``jax.random.key``) or a (2,) uint32
+    array (``jax.random.PRNGKey``, numpy's copy of one too)."""
+    if isinstance(key, jax.Array) and jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
+        if key.shape != ():
+            raise ProblemError(f"key must be one PRNG key, got a batch of shape {key.shape}: pass one of them")
+        return
+    if not (isinstance(key, (np.ndarray, jax.Array)) and key.shape == (2,) and key.dtype == np.uint32):
+        described = f"{type(key).__name__} of shape {key.shape} and dtype {key.dtype}" if hasattr(key, "dtype") else _shown(key)
+        raise ProblemError(f"key must be a JAX PRNG key (jax.random.PRNGKey(seed): shape (2,) uint32, or "
+                           f"jax.random.key(seed)), got {described}")
 
 
 def _flag(value: Any, name: str) -> np.ndarray:

@@ -9,6 +9,8 @@ non-finite values.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from typing import NamedTuple
 
 import jax.numpy as jnp
@@ -17,9 +19,14 @@ import numpy as np
 from driveopt.config import BasisConfig
 from driveopt.observation import OBSERVATION_DIM, observation_vector
 from driveopt.prediction import (
-    BRAKING_TIME, SELECTION_TIME, ego_box_growth, ellipse_semi_axes, predict_neighbour, relevant_neighbours,
+    BRAKING_TIME,
+    SELECTION_TIME,
+    ego_box_growth,
+    ellipse_semi_axes,
+    predict_neighbour,
+    relevant_neighbours,
 )
-from driveopt.scene import ProblemError, Scene
+from driveopt.scene import EgoState, ProblemError, Scene
 
 
 class PlanningProblem(NamedTuple):
@@ -43,8 +50,17 @@ class PlanningProblem(NamedTuple):
     obstacle_b: jnp.ndarray  # (N,) [m] lateral semi-axis
     obstacle_mask: jnp.ndarray  # (N,) 1.0 for a real obstacle, 0.0 for padding
     ellipse_growth: jnp.ndarray  # (2, K) [m] added to every ellipse's (longitudinal, lateral) semi-axis per node: the ego turned
-    ego_heading: jnp.ndarray  # () [rad] heading of the ego's box now (EgoState.box_heading), whose growth ellipse_growth[:, 0] is
+    ego_heading: jnp.ndarray  # () [rad] heading of the ego's box now (:func:`box_heading`), whose growth ellipse_growth[:, 0] is
     observation: jnp.ndarray  # (55,) the learned priors' input (driveopt.observation)
+
+
+def box_heading(ego: EgoState) -> float:
+    """[rad] heading of the ego's box (:attr:`EgoState.box_heading`) within [-pi/2, pi/2]: a box turned by half a turn
+    is the same box, so a reversing car, whose direction of travel is near pi, is along the road, not turned across
+    it (its turned-box growth fades from its body's turn, not through pi/2 on the way from pi to 0). Headings within
+    the interval are returned unchanged."""
+    heading = ego.box_heading
+    return heading - math.pi * round(heading / math.pi)
 
 
 def build_problem(
@@ -66,6 +82,7 @@ def build_problem(
         raise ProblemError("max_obstacles must be >= 1")
     t = np.linspace(0.0, basis.horizon, basis.num_nodes)
     ego = scene.ego
+    body = dataclasses.replace(ego, yaw=box_heading(ego))  # the same box, its heading within [-pi/2, pi/2]
     y_lb, y_ub = scene.lateral_bounds
     K, N = basis.num_nodes, max_obstacles
     # Padding: far behind the ego, masked out; values stay moderate for float32.
@@ -95,8 +112,8 @@ def build_problem(
         obstacle_a=f32(oa),
         obstacle_b=f32(ob),
         obstacle_mask=f32(mask),
-        ellipse_growth=f32(ego_box_growth(ego, t)),
-        ego_heading=f32(ego.box_heading),
+        ellipse_growth=f32(ego_box_growth(body, t)),
+        ego_heading=f32(body.box_heading),
         observation=f32(observation_vector(scene)),
     )
 

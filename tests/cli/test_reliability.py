@@ -1,5 +1,5 @@
-"""Reliability promises (README "Reliability"): the fallback is a stop, no NaN for any accepted input,
-inputs beyond the physical ranges and mistyped JSON are refused with one clear line."""
+"""Reliability promises (README "Reliability"): the fallback is a stop that never changes the sign of the velocity, no
+NaN for any accepted input, inputs beyond the physical ranges and mistyped JSON are refused with one clear line."""
 
 import json
 import math
@@ -20,6 +20,7 @@ from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, ProblemError, Road, Scene, load_scene, scene_from_dict
 
 TOLERANCE = 1e-3  # [m/s], [m] float32 slack of the checks below
+STOP_COURSE = 0.5  # [-] |vy| / speed up to which a stop starts on the ego's course (driveopt.fallback._course)
 
 
 def assert_finite(result):
@@ -29,15 +30,28 @@ def assert_finite(result):
 
 
 def assert_fallback_is_a_stop(result, scene):
-    """Speed never rises and never goes below zero, the car never turns back, the lateral motion stays
-    on the road (or, off it, never moves further away), and it starts where the ego is."""
-    fb = result.fallback
+    """Speed never rises and never goes below zero, and the velocity never changes sign: the stop starts with the ego's
+    speed in its direction of travel (with its velocity, where its course is within the stop's), ends at rest where
+    the horizon allows, and never moves against the direction of travel (a reversing ego brakes its backward motion
+    and never moves forwards); the car never turns back, the lateral motion stays on the road (or, off it, never moves
+    further away), and it starts where the ego is. An ego whose vx is within TOLERANCE of 0 has no direction to keep:
+    its stop may go either way, but one way only."""
+    fb, ego = result.fallback, scene.ego
+    if abs(ego.vx) > TOLERANCE:
+        direction = math.copysign(1.0, ego.vx)
+    else:
+        direction = -1.0 if fb.x[-1] < fb.x[0] else 1.0
     assert np.all(np.diff(fb.speed) <= TOLERANCE) and np.all(fb.speed >= -TOLERANCE)
-    assert fb.speed[0] == pytest.approx(scene.ego.speed, abs=TOLERANCE)
-    assert np.all(np.diff(fb.x) >= -TOLERANCE)  # never backwards
-    assert fb.x[0] == pytest.approx(scene.ego.x, abs=TOLERANCE) and fb.y[0] == pytest.approx(scene.ego.y, abs=TOLERANCE)
+    assert fb.speed[0] == pytest.approx(ego.speed, abs=TOLERANCE)
+    if abs(ego.vy) <= STOP_COURSE * ego.speed:
+        assert (fb.vx[0], fb.vy[0]) == pytest.approx((ego.vx, ego.vy), abs=TOLERANCE)
+    assert np.all(direction * fb.vx >= -TOLERANCE)  # never against the direction of travel, forwards or backwards
+    assert np.all(direction * np.diff(fb.x) >= -TOLERANCE)
+    if ego.speed <= result.fallback_deceleration * fb.t[-1]:
+        assert fb.speed[-1] <= TOLERANCE and abs(fb.vx[-1]) <= TOLERANCE
+    assert fb.x[0] == pytest.approx(ego.x, abs=TOLERANCE) and fb.y[0] == pytest.approx(ego.y, abs=TOLERANCE)
     low, high = scene.lateral_bounds
-    if low <= scene.ego.y <= high:
+    if low <= ego.y <= high:
         assert np.all((fb.y >= low - TOLERANCE) & (fb.y <= high + TOLERANCE))
     else:
         distance = np.maximum(low - fb.y, 0.0) + np.maximum(fb.y - high, 0.0)
@@ -55,7 +69,7 @@ neighbour = st.builds(
 @settings(max_examples=200, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(
     lanes=st.integers(1, 5), lane_width=st.floats(3.0, 5.0), curvature=st.floats(-0.02, 0.02),
-    ego_y=st.floats(-15.0, 30.0), ego_v=st.floats(-2.0, 40.0), ego_vy=st.floats(-3.0, 3.0),
+    ego_y=st.floats(-15.0, 30.0), ego_v=st.floats(-40.0, 40.0), ego_vy=st.floats(-3.0, 3.0),
     ego_ax=st.floats(-6.0, 6.0), ego_ay=st.floats(-3.0, 3.0),
     neighbours=st.lists(neighbour, max_size=16), v_des=st.floats(0.0, 40.0),
 )
@@ -74,7 +88,7 @@ def test_any_accepted_problem_gives_finite_results_and_a_stopping_fallback(
 
 
 @settings(max_examples=60, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
-@given(
+@given(  # reversing egos' stops: the property above and test_behaviours' mirrored stops
     ego_y=st.floats(-15.0, 30.0), ego_v=st.floats(-2.0, 40.0), ego_vy=st.floats(-3.0, 3.0),
     neighbours=st.lists(neighbour, max_size=8),
 )
@@ -89,6 +103,16 @@ def test_a_straightening_fallback_is_a_stop_too(small_config, ego_y, ego_v, ego_
     standing = np.asarray(fb.speed) <= 1e-6
     # a path still turning at the stop: only where the curvature bound cannot straighten a steep course in time
     assert np.all(np.abs(np.asarray(fb.heading)[standing]) <= np.abs(fb.heading[0]) + TOLERANCE)
+
+
+@pytest.mark.xfail(strict=True, reason="open: a stop shorter than the 1 m easing ends still turned (here 1.6 degrees); "
+                   "easing over the stop distance fixes it but changes forward stops, which needs a closed-loop A/B")
+def test_a_straightening_stop_shorter_than_its_easing_ends_along_the_road(small_config):
+    """Found by the property above over egos at -40 to 40 m/s: 1 m/s, 1 m beside a lane centre, stops in 0.17 m."""
+    scene = Scene(ego=EgoState(x=0.0, y=1.0, vx=1.0), road=Road(num_lanes=3))
+    fb = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0),
+              fallback=Fallback(straightens=True)).fallback
+    assert np.all(np.abs(np.asarray(fb.heading)[np.asarray(fb.speed) <= 1e-6]) <= TOLERANCE)
 
 
 def test_the_fallback_stops_where_the_projected_stop_reversed(small_config):
@@ -109,6 +133,17 @@ def test_an_off_road_ego_gets_a_stop_that_does_not_speed_up(small_config):
     scene = Scene(ego=EgoState(x=0.0, y=100.0, vx=15.0), road=Road(num_lanes=4))
     result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0))
     assert result.fallback.speed.max() <= 15.0 + TOLERANCE
+    assert_fallback_is_a_stop(result, scene)
+
+
+@pytest.mark.parametrize("vx, vy", [(-15.0, 0.0), (-95.0, 2.0), (-0.5, 1.5)])
+def test_a_reversing_ego_gets_a_stop_that_brakes_its_backward_motion(small_config, vx, vy):
+    """A reversing ego's fallback started forwards at its speed: from vx -15 m/s at +15 m/s, from -95 m/s at up to
+    118 m/s for 519 m forwards. It brakes the backward motion to rest now, and never moves forwards."""
+    scene = Scene(ego=EgoState(x=50.0, y=4.0, vx=vx, vy=vy), road=Road(num_lanes=3))
+    result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0), x_offset=scene.ego.x)
+    fb = result.fallback
+    assert fb.vx[0] < 0.0 and fb.x[-1] < scene.ego.x and fb.speed.max() <= scene.ego.speed + TOLERANCE
     assert_fallback_is_a_stop(result, scene)
 
 

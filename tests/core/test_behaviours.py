@@ -94,6 +94,59 @@ def test_a_feasible_stop_beats_infeasible_samples(small_config):
     assert float(jnp.max(jnp.asarray(result.trajectory.x))) < 25.0 - 7.0  # stops before the wall's ellipses
 
 
+def test_a_standing_ego_before_a_wall_keeps_standing_with_success(small_config):
+    """The same wall 10 m ahead of a standing ego: a stop from rest is no motion at all, which a polynomial fits
+    exactly, so the stop rows are plans and one is reported as SUCCESS."""
+    wall = tuple(Neighbour(x=10.0, y=y, vx=0.0) for y in (0.0, 4.0, 8.0, 12.0))
+    scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=0.0), neighbours=wall)
+    result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0))
+    assert result.status == PlanStatus.SUCCESS
+    assert np.ptp(result.trajectory.x) < 0.01 and np.all(np.abs(result.trajectory.vx) < 1e-3)
+
+
+@pytest.mark.parametrize("vy, ax", [(0.0, 0.0), (0.5, 1.0), (-1.0, -2.0)])
+def test_a_reversing_stop_is_the_forward_stop_mirrored(vy, ax):
+    """A reversing ego (vx -15 m/s) brakes its backward motion to rest along the same path as an ego driving forwards
+    at 15 m/s, mirrored: x and vx change sign, y, vy and the speed are the same, and the body's heading (the path's
+    direction turned by half a turn) is mirrored; the stop rows and their set-points mirror too."""
+    from driveopt.fallback import LANE_CENTRE, stop_setpoints, stop_trajectory
+
+    model = make_model()
+    forward, reversing = (build_problem(Scene(ego=EgoState(x=0.0, y=5.0, vx=sign * 15.0, vy=vy, ax=sign * ax),
+                                              road=Road(num_lanes=3))) for sign in (1.0, -1.0))
+    t = jnp.asarray(model.t)
+    for decel, target in ((3.0, LANE_CENTRE), (18.0, "hold"), (18.0, 2.0)):
+        ahead, back = (stop_trajectory(p, t, decel, target, straightens=True) for p in (forward, reversing))
+        for field in ("x", "vx", "ax", "heading", "curvature"):
+            np.testing.assert_allclose(getattr(back, field), -np.asarray(getattr(ahead, field)), atol=1e-5, err_msg=field)
+        for field in ("y", "vy", "ay", "speed", "acceleration"):
+            np.testing.assert_allclose(getattr(back, field), getattr(ahead, field), atol=1e-5, err_msg=field)
+        assert (float(back.vx[0]), float(back.vy[0])) == pytest.approx((-15.0, vy), abs=1e-4)  # the ego's velocity
+        assert np.all(np.diff(np.asarray(back.x)) <= 0.0) and np.all(np.asarray(back.vx) <= 0.0)
+        ahead_rows, back_rows = (stop_setpoints(p, 15.0, decel, target) for p in (forward, reversing))
+        np.testing.assert_allclose(back_rows[:4], -np.asarray(ahead_rows[:4]))
+        np.testing.assert_allclose(back_rows[4:], ahead_rows[4:])
+        b_forward, b_reversing = (boundary_values(p.init_x, p.init_y, QPConfig()) for p in (forward, reversing))
+        n = model.W.shape[1]
+        fit_ahead = braking_coeffs(model, forward, decel, *b_forward, target)
+        fit_back = braking_coeffs(model, reversing, decel, *b_reversing, target)
+        np.testing.assert_allclose(fit_back[:n], -np.asarray(fit_ahead[:n]), atol=1e-3)
+        np.testing.assert_allclose(fit_back[n:], fit_ahead[n:], atol=1e-3)
+
+
+def test_a_reversing_ego_is_along_the_road_not_turned_across_it():
+    """A car reversing straight down the road (direction of travel pi) has its box along the road: its collision
+    ellipses do not grow, as those of a car driving forwards do not; reversing on a slant it has the turn of a forward
+    car on the mirrored slant."""
+    straight, forwards = (build_problem(Scene(ego=EgoState(x=0.0, y=4.0, vx=v))) for v in (-15.0, 15.0))
+    assert float(straight.ego_heading) == 0.0 and float(np.max(straight.ellipse_growth)) == 0.0
+    np.testing.assert_array_equal(straight.ellipse_growth, forwards.ellipse_growth)
+    slanted, mirrored = (build_problem(Scene(ego=EgoState(x=0.0, y=4.0, vx=v, vy=2.0))) for v in (-10.0, 10.0))
+    assert float(slanted.ego_heading) == pytest.approx(-float(mirrored.ego_heading), abs=1e-6)
+    assert float(mirrored.ego_heading) == pytest.approx(np.arctan2(2.0, 10.0), abs=1e-6)
+    np.testing.assert_allclose(slanted.ellipse_growth, mirrored.ellipse_growth, atol=1e-6)
+
+
 def test_braking_neighbour_is_predicted_to_keep_braking_and_stop():
     t = np.linspace(0.0, 15.0, 301)
     road = (-2.0, 14.0)

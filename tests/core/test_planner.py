@@ -143,3 +143,47 @@ def test_off_road_start_plans_back_onto_the_road(small_config, lanes, side):
     never_relaxed = small_config.replace(projection={"recovery_time": 0.0})
     stuck = plan(problem, never_relaxed, key=jax.random.PRNGKey(0))
     assert stuck.status == PlanStatus.INFEASIBLE
+
+
+@pytest.mark.parametrize("x_offset, needle", [
+    (float("nan"), "x_offset must be finite, got nan"),
+    (float("inf"), "x_offset must be finite, got inf"),
+    (1e39, r"x_offset must be within \[-100000, 100000\] m, got 1e\+39"),
+    (-2e5, r"x_offset must be within \[-100000, 100000\] m"),
+    (10**400, "x_offset must be finite"),
+    ("5", "x_offset must be a real number"),
+    (True, "x_offset must be a real number"),
+    ([1.0], "x_offset must be a real number"),
+    (np.zeros(3), "x_offset must be a real number"),
+    (None, "x_offset must be a real number"),
+])
+def test_a_bad_x_offset_is_a_one_line_problem_error(small_config, x_offset, needle):
+    problem = build_problem(load_scene("static-blockage"), small_config.basis)
+    with pytest.raises(ProblemError, match=needle) as exc:
+        plan(problem, small_config, key=jax.random.PRNGKey(0), x_offset=x_offset)
+    assert "\n" not in str(exc.value)
+
+
+@pytest.mark.parametrize("key, needle", [
+    (0, "key must be a JAX PRNG key .* got 0"),
+    ([0, 0], r"got \[0, 0\]"),
+    (np.zeros(2, np.int32), "got ndarray of shape \\(2,\\) and dtype int32"),
+    (jnp.zeros(3, jnp.uint32), "shape \\(3,\\)"),
+    (jax.random.split(jax.random.PRNGKey(0), 4), "shape \\(4, 2\\)"),
+    (jax.random.split(jax.random.key(0), 4), "key must be one PRNG key, got a batch of shape \\(4,\\)"),
+    ("seed", "got 'seed'"),
+])
+def test_a_bad_key_is_a_one_line_problem_error(small_config, key, needle):
+    problem = build_problem(load_scene("static-blockage"), small_config.basis)
+    with pytest.raises(ProblemError, match=needle) as exc:
+        plan(problem, small_config, key=key)
+    assert "\n" not in str(exc.value)
+
+
+def test_typed_keys_numpy_keys_and_real_offsets_plan(small_config):
+    """What the checks accept: jax.random.key, a (2,) uint32 array of numpy, an int or a numpy float as x_offset."""
+    problem = build_problem(load_scene("static-blockage"), small_config.basis)
+    reference = plan(problem, small_config, key=jax.random.PRNGKey(3), x_offset=100.0)
+    same = plan(problem, small_config, key=np.asarray(jax.random.PRNGKey(3)), x_offset=np.float32(100.0))
+    np.testing.assert_array_equal(same.trajectory.x, reference.trajectory.x)
+    assert plan(problem, small_config, key=jax.random.key(3), x_offset=-100000).x_offset == -100000.0
