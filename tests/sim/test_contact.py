@@ -120,6 +120,8 @@ def test_the_driver_guards_only_when_configured(contact_guard):
     driver = spec.driver()
     driver.model = MODEL
     env = SimpleNamespace(unwrapped=SimpleNamespace(vehicle=SimpleNamespace(speed=0.0)))
-    action, guarded = driver._command(result, 0.0, EgoKinematics(0.0, -0.3), env, _beside_a_stopped_car(4.75))
+    now = EgoKinematics(0.0, -0.3)  # a straight road along +x: world and road frame agree
+    perception = SimpleNamespace(kinematics=now, scene=_beside_a_stopped_car(4.75))
+    action, guarded = driver._command(result, driver.followed(result), 0.0, now, env, perception)
     assert guarded == contact_guard
     assert (action[0] == 0.0) == contact_guard  # [-1, 1] action: 0 is no acceleration

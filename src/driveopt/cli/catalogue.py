@@ -1,72 +1,13 @@
-"""The names the listing commands print, without importing what they name: ``driveopt scenarios`` and ``driveopt
-planners`` answer in a fraction of a second, where the registries behind them (:mod:`driveopt.sim.scenarios`,
-:mod:`driveopt.registry`) load highway-env, JAX and Flax first (seconds).
+"""The planners ``driveopt planners`` prints, without importing them: the registry behind them
+(:mod:`driveopt.registry`) loads JAX and Flax first (seconds), the listing answers in a fraction of a second.
 
-A copy of the registries' listing fields, kept equal to them by ``tests/cli/test_catalogue.py``, which fails naming
-the rows to paste here when a scenario or planner is added, removed or changed.
+A copy of the registry's names and descriptions, kept equal to it by ``tests/cli/test_catalogue.py``, which fails
+naming the rows to paste here when a planner is added, removed or changed. (Scenarios are listed from their registry,
+:mod:`driveopt.sim.scenarios`, which loads nothing heavy.)
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
-
-class ScenarioLine(NamedTuple):
-    """What ``driveopt scenarios`` prints of one scenario (:class:`driveopt.sim.scenarios.Scenario`)."""
-
-    name: str
-    road: str  # highway, two-way or merge
-    lanes: int  # [-]
-    density: float  # [-] highway-env's vehicles_density
-    speed_limit: float  # [m/s] the neighbours' limit
-    target_speeds: tuple[float, float]  # [m/s] range of the neighbours' IDM target speeds
-    duration: float  # [s] episode length
-
-
-SCENARIOS: tuple[ScenarioLine, ...] = (
-    ScenarioLine("two-lane-d1.0", "highway", 2, 1.0, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("two-lane-d1.5", "highway", 2, 1.5, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("two-lane-d2.0", "highway", 2, 2.0, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("two-lane-d2.5", "highway", 2, 2.5, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("two-lane-d3.0", "highway", 2, 3.0, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("four-lane-d1.0", "highway", 4, 1.0, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("four-lane-d1.5", "highway", 4, 1.5, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("four-lane-d2.0", "highway", 4, 2.0, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("four-lane-d2.5", "highway", 4, 2.5, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("four-lane-d3.0", "highway", 4, 3.0, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("two-lane-d1.0-slow", "highway", 2, 1.0, 7.0, (4.8999999999999995, 5.6000000000000005), 50.0),
-    ScenarioLine("two-lane-d1.5-slow", "highway", 2, 1.5, 7.0, (4.8999999999999995, 5.6000000000000005), 50.0),
-    ScenarioLine("two-lane-d2.0-slow", "highway", 2, 2.0, 7.0, (4.8999999999999995, 5.6000000000000005), 50.0),
-    ScenarioLine("two-lane-d2.5-slow", "highway", 2, 2.5, 7.0, (4.8999999999999995, 5.6000000000000005), 50.0),
-    ScenarioLine("two-lane-d3.0-slow", "highway", 2, 3.0, 7.0, (4.8999999999999995, 5.6000000000000005), 50.0),
-    ScenarioLine("four-lane-d1.0-slow", "highway", 4, 1.0, 7.0, (4.8999999999999995, 5.6000000000000005), 50.0),
-    ScenarioLine("four-lane-d1.5-slow", "highway", 4, 1.5, 7.0, (4.8999999999999995, 5.6000000000000005), 50.0),
-    ScenarioLine("four-lane-d2.0-slow", "highway", 4, 2.0, 7.0, (4.8999999999999995, 5.6000000000000005), 50.0),
-    ScenarioLine("four-lane-d2.5-slow", "highway", 4, 2.5, 7.0, (4.8999999999999995, 5.6000000000000005), 50.0),
-    ScenarioLine("four-lane-d3.0-slow", "highway", 4, 3.0, 7.0, (4.8999999999999995, 5.6000000000000005), 50.0),
-    ScenarioLine("three-lane-d1.0", "highway", 3, 1.0, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("three-lane-d1.5", "highway", 3, 1.5, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("three-lane-d2.0", "highway", 3, 2.0, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("three-lane-d2.5", "highway", 3, 2.5, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("three-lane-d3.0", "highway", 3, 3.0, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("five-lane-d1.0", "highway", 5, 1.0, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("five-lane-d1.5", "highway", 5, 1.5, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("five-lane-d2.0", "highway", 5, 2.0, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("five-lane-d2.5", "highway", 5, 2.5, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("five-lane-d3.0", "highway", 5, 3.0, 15.0, (10.5, 12.0), 50.0),
-    ScenarioLine("p2-four-lane-d1.0", "highway", 4, 1.0, 15.0, (0.0, 15.0), 50.0),
-    ScenarioLine("p2-four-lane-d1.5", "highway", 4, 1.5, 15.0, (0.0, 15.0), 50.0),
-    ScenarioLine("p2-four-lane-d2.0", "highway", 4, 2.0, 15.0, (0.0, 15.0), 50.0),
-    ScenarioLine("p2-four-lane-d2.5", "highway", 4, 2.5, 15.0, (0.0, 15.0), 50.0),
-    ScenarioLine("p2-four-lane-d3.0", "highway", 4, 3.0, 15.0, (0.0, 15.0), 50.0),
-    ScenarioLine("p2-four-lane-d1.0-slow", "highway", 4, 1.0, 7.0, (0.0, 7.0), 50.0),
-    ScenarioLine("p2-four-lane-d1.5-slow", "highway", 4, 1.5, 7.0, (0.0, 7.0), 50.0),
-    ScenarioLine("p2-four-lane-d2.0-slow", "highway", 4, 2.0, 7.0, (0.0, 7.0), 50.0),
-    ScenarioLine("p2-four-lane-d2.5-slow", "highway", 4, 2.5, 7.0, (0.0, 7.0), 50.0),
-    ScenarioLine("p2-four-lane-d3.0-slow", "highway", 4, 3.0, 7.0, (0.0, 7.0), 50.0),
-    ScenarioLine("two-way", "two-way", 2, 1.0, 15.0, (10.5, 12.0), 30.0),
-    ScenarioLine("merge", "merge", 2, 1.0, 15.0, (10.5, 12.0), 30.0),
-)
 PLANNERS: tuple[tuple[str, str], ...] = (
     ("bilevel", "P1 bi-level optimiser: Gaussian start, 5 CEM iterations x 20 projection iterations"),
     ("bilevel-p1", "P1's Gaussian start exactly: independent set-points, no warm start (Fig. 9's baseline)"),

@@ -10,40 +10,41 @@
     command = track(world, 0.0, perception.tracking, BicycleModel.from_env(env))
     outcome = step_env(env, command.action)
 
-This package knows no planner. The episode loop that runs a driver in it is :mod:`driveopt.experiments.rollout`.
+Names are imported on first use, so that ``import driveopt.sim.scenarios`` loads no highway-env. This package
+knows no planner. The episode loop that runs a driver in it is :mod:`driveopt.experiments.rollout`.
 """
 
-from driveopt.sim.control import (
-    BicycleModel,
-    Command,
-    ControlError,
-    EgoKinematics,
-    command_from_env,
-    ego_kinematics,
-    sample_trajectory,
-    track,
-)
-from driveopt.sim.env import ENV_IDS, StepOutcome, env_config, is_off_road, make_env, sim_time, step_env
-from driveopt.sim.perception import Perception, RoadPreview, Task, perceive, scene_from_env
-from driveopt.sim.rewards import gym_make
-from driveopt.sim.road_frame import RoadFrame, RoadFrameError, build_frame, ego_frame
-from driveopt.sim.world_plan import WorldTrajectory, to_world
-from driveopt.sim.scenarios import (
-    Scenario,
-    ScenarioError,
-    apply_overrides,
-    get_scenario,
-    list_scenarios,
-    load_overrides,
-    resolve_scenario,
-)
+import importlib
+from typing import Any
 
-__all__ = [
-    "BicycleModel", "Command", "ControlError", "EgoKinematics", "command_from_env", "ego_kinematics", "sample_trajectory",
-    "track",
-    "ENV_IDS", "StepOutcome", "env_config", "is_off_road", "make_env", "sim_time", "step_env",
-    "Perception", "RoadPreview", "Task", "perceive", "scene_from_env",
-    "gym_make", "RoadFrame", "RoadFrameError", "build_frame", "ego_frame", "WorldTrajectory", "to_world",
-    "Scenario", "ScenarioError", "apply_overrides", "get_scenario", "list_scenarios", "load_overrides",
-    "resolve_scenario",
-]
+# Module -> the public names it defines, imported on first use.
+_MODULES = {
+    "driveopt.sim.control": (
+        "BicycleModel", "Command", "ControlError", "EgoKinematics", "command_from_env", "ego_kinematics",
+        "sample_trajectory", "track",
+    ),
+    "driveopt.sim.env": ("ENV_IDS", "StepOutcome", "env_config", "is_off_road", "make_env", "sim_time", "step_env"),
+    "driveopt.sim.perception": ("Perception", "RoadPreview", "Task", "perceive", "scene_from_env"),
+    "driveopt.sim.rewards": ("gym_make",),
+    "driveopt.sim.road_frame": ("RoadFrame", "RoadFrameError", "build_frame", "ego_frame"),
+    "driveopt.sim.world_plan": ("WorldTrajectory", "to_world"),
+    "driveopt.sim.scenarios": (
+        "Scenario", "ScenarioError", "apply_overrides", "get_scenario", "list_scenarios", "load_overrides",
+        "resolve_scenario",
+    ),
+}
+_EXPORTS = {name: module for module, names in _MODULES.items() for name in names}
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'driveopt.sim' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # looked up once
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
