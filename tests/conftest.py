@@ -48,9 +48,37 @@ SLOW = {
     # PixelCNN's incremental sampler: the [tiny] case
     **{f"tests/learned/test_pixelcnn_sampling.py::test_incremental_sampling_draws_what_the_full_network_draws[{name}]":
        "the [tiny] case" for name in ("short-kernel", "default")},
-    # benchmark scripts that plan with learned filters: the filter's planning tests in tests/training/test_filter.py
-    "tests/benchmarks/test_filter_timing.py": "test_filter",
-    "tests/benchmarks/test_filter_residuals.py": "test_filter",
+    # benchmark scripts: their records are committed; the library paths they call are tested in the default suite
+    **{f"tests/benchmarks/test_{name}.py": "benchmark script" for name in (
+        "filter_timing", "filter_residuals", "call_profile", "latency_bench", "closed_loop_ab", "trace_episode",
+        "compile_cost")},
+    "tests/experiments/test_prior_metrics.py::test_the_script_writes_json_resumes_and_refuses_other_settings":
+        "benchmark script",
+    # gradients through solve and the projection: test_cvae's finite-difference check of the QP layer
+    "tests/core/test_solve.py::test_grad_through_solve_with_respect_to_the_initial_coefficients_is_finite": "gradients",
+    # row kinds and carried inputs: test_the_placeholder_row_is_in_solve_s_batch_but_never_ranked, test_rollout's
+    # test_a_closed_loop_compiles_its_planner_once[bilevel] (warm start and previous plan carried)
+    "tests/core/test_solve.py::test_appended_rows_carry_their_kind": "placeholder row",
+    "tests/core/test_solve.py::test_a_warm_start_and_a_previous_plan_reach_the_result_whichever_way_they_are_passed":
+        "closed loop carries both",
+    # sideways emergency stops: the reliability property's stops and test_the_fallback_is_the_stop_that_reaches_...
+    "tests/core/test_behaviours.py::test_the_far_lane_stop_leaves_the_lane_of_the_car_it_would_meet": "fallback choice",
+    "tests/experiments/test_rollout.py::test_every_planner_runs_on_every_road_layout_and_lane_count[cvae]":
+        "the [vqvae-filter] case (a learned prior)",
+    # consistency: test_behaviours' test_the_previous_plan_keeps_winning_between_equal_manoeuvres
+    "tests/experiments/test_rollout.py::test_the_loop_carries_the_executed_plan_when_consistency_is_weighed[bilevel]":
+        "consistency",
+    # the cache's switch, kept folder and concurrent writers: the other tests of test_compilation_cache.py;
+    # its start-up time: benchmarks/startup.py
+    "tests/cli/test_compilation_cache.py::test_a_second_plan_loads_the_planner_from_the_cache": "startup benchmark",
+    # resuming collect: test_collect_resumes_without_duplicates; stopping on signals: tests/cli/test_interrupts.py
+    "tests/data/test_demonstrations.py::test_terminated_collect_keeps_finished_episodes_and_resumes": "resume, signals",
+    "tests/training/test_cvae.py::test_file_order_changes_neither_split_nor_training": "test_harness's split",
+    "tests/cli/test_reliability.py::test_plan_with_no_repeats_says_it_timed_nothing": "CLI message",
+    # shipped weights plan feasibly: the two-lane case of each
+    "tests/training/test_filter.py::test_shipped_filter_weights_load_by_default_and_plan_feasibly[4-slow-leader-four-lane]":
+        "the two-lane case",    "tests/training/test_vqvae.py::test_shipped_vqvae_weights_load_by_default_and_plan_feasibly[4-slow-leader-four-lane]":
+        "the two-lane case",
 }
 
 
