@@ -70,6 +70,10 @@ class Controller:
         spec = get_planner(planner) if isinstance(planner, str) else planner
         if not isinstance(spec, DriverSpec):
             raise ControllerError(f"planner must be a registered name or a DriverSpec, got {type(planner).__name__}")
+        if spec.needs_scenario:
+            raise ControllerError(f"planner '{spec.name}' drives only driveopt's scenarios (its policy was trained on "
+                                  f"their observation and car): use `driveopt drive --planner {spec.name}`; the "
+                                  "controller drives the optimisers and idm")
         if isinstance(config, PlannerConfig):
             if not spec.is_optimiser:
                 raise ControllerError(f"planner '{spec.name}' does not plan with the optimiser: it takes no config")

@@ -113,6 +113,8 @@ def test_roundabout_rewards_accept_array_actions():
 @pytest.mark.parametrize("settings, message", [
     ({"v_des": -1.0}, "v_des"), ({"samples": 0}, "samples"), ({"route": "0123"}, "route"),
     ({"planner": "no-such-planner"}, "unknown planner"),
+    ({"planner": "dqn"}, "planner 'dqn' drives only driveopt's scenarios"),
+    ({"planner": "ppo"}, "use `driveopt drive --planner ppo`"),
 ])
 def test_bad_settings_raise_one_clear_error(settings, message):
     with pytest.raises(driveopt.DriveoptError, match=message):

@@ -62,6 +62,12 @@ class DriverSpec:
     def is_optimiser(self) -> bool:
         return False
 
+    @property
+    def needs_scenario(self) -> bool:
+        """Whether its driver needs a driveopt scenario (its car, timing and lane count) rather than any highway-env
+        env with a task (:class:`driveopt.sim.perception.Task`): False by default."""
+        return False
+
     def driver(self) -> Driver:
         raise NotImplementedError
 

@@ -49,6 +49,11 @@ class RLSpec(DriverSpec):
     def __post_init__(self) -> None:
         check_algo(self.algo)
 
+    @property
+    def needs_scenario(self) -> bool:
+        """The policy was trained on a driveopt scenario's observation, car and timing, for its lane count."""
+        return True
+
     def check(self, scenario: Scenario) -> None:
         self.policy(scenario)
 
