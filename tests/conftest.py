@@ -79,6 +79,35 @@ SLOW = {
     "tests/training/test_filter.py::test_shipped_filter_weights_load_by_default_and_plan_feasibly[4-slow-leader-four-lane]":
         "the two-lane case",    "tests/training/test_vqvae.py::test_shipped_vqvae_weights_load_by_default_and_plan_feasibly[4-slow-leader-four-lane]":
         "the two-lane case",
+    # learned priors planning: test_cvae_filter's static blockage (the CVAE prior), test_rollout's [vqvae-filter]
+    "tests/training/test_cvae.py::test_cvae_prior_in_the_planner": "test_cvae_filter",
+    "tests/training/test_vqvae.py::test_vqvae_planners_without_weights_warn_and_plan": "test_cvae's warnings",
+    # training data and resumes: tests/training/test_harness.py (split, resume), tests/data/test_demonstrations.py
+    "tests/training/test_cvae.py::test_training_resumes_to_the_same_weights": "test_harness",
+    "tests/training/test_cvae.py::test_train_episodes_shrinks_training_set_and_keeps_validation": "test_harness",
+    "tests/training/test_vqvae.py::test_collect_writes_schema_2_modes": "test_demonstrations",
+    "tests/training/test_filter.py::test_gamma_one_and_zero_initialisation_reproduce_the_plain_projection_exactly":
+        "test_filter's other tests of the trained filter",
+    # the fallback's choice: test_the_fallback_is_the_stop_that_reaches_an_obstacle_later
+    "tests/core/test_behaviours.py::test_evasion_offers_a_stop_past_a_car_that_every_stop_in_the_lane_would_touch":
+        "fallback choice",
+    "tests/core/test_behaviours.py::test_a_stop_is_feasible_curvature_is_not_applied_at_standstill":
+        "test_a_feasible_stop_beats_infeasible_samples",
+    # P1's ranking: test_behaviours' test_p1_baselines_rank_by_residual_first_as_the_authors_code
+    "tests/core/test_solve.py::test_p1_ranking_picks_the_lowest_cost_plus_residual_even_when_infeasible": "P1 ranking",
+    # accepted keys and offsets: the refusals in test_planner and every other test's PRNGKey
+    "tests/core/test_planner.py::test_typed_keys_numpy_keys_and_real_offsets_plan": "key checks",
+    "tests/core/test_projection.py::test_unrolled_equals_early_stopping_loop[0.35-0.001-0.01]": "the other case",
+    # closed loops: every scenario builds and steps (tests/sim/test_sim_env.py); bench options (test_experiments);
+    # a curved road driven by the controller: tests/viz/test_plan_overlay.py (racetrack-v0) and the slow six-env test
+    "tests/experiments/test_rollout.py::test_every_scenario_runs": "test_sim_env",
+    "tests/experiments/test_rollout.py::test_bench_config_overrides_reach_every_optimiser_and_fix_the_folder":
+        "test_experiments' bench options",
+    "tests/experiments/test_experiments.py::test_scenario_overrides_and_replan_period_are_bench_options":
+        "bench options",
+    "tests/core/test_controller.py::test_racetrack_is_driven_for_20_s_without_leaving_the_track": "overlay test",
+    "tests/experiments/test_prior_metrics.py::test_row_metrics_of_a_hand_made_prior_on_an_empty_road": "prior metrics",
+    "tests/benchmarks/test_stop_property.py": "benchmark script",
 }
 
 

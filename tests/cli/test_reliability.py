@@ -66,7 +66,7 @@ neighbour = st.builds(
 )
 
 
-@settings(max_examples=100, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=50, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(
     lanes=st.integers(1, 5), lane_width=st.floats(3.0, 5.0), curvature=st.floats(-0.02, 0.02),
     ego_y=st.floats(-15.0, 30.0), ego_v=st.floats(-40.0, 40.0), ego_vy=st.floats(-3.0, 3.0),
