@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from driveopt.batch_rows import StopRows
+from driveopt.cli.common import positive_int
 from driveopt.config import PlannerConfig
 from driveopt.costs import COST_TERMS, cost_terms, weighted_cost
 from driveopt.fallback import Fallback, braking_coeffs, stop_setpoints
@@ -213,20 +214,13 @@ def machine() -> dict:
             "compiler_options": supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else {}}
 
 
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
-    return value
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", default="out/call-profile.json", help="results file")
-    parser.add_argument("--samples", type=_positive, nargs="+", default=[250, 1000], help="samples per sampler iteration")
-    parser.add_argument("--calls", type=_positive, default=30, help="timed calls per part after its compilation (>= 20)")
-    parser.add_argument("--iterations", type=_positive, default=5, help="sampler iterations")
-    parser.add_argument("--projection-iterations", type=_positive, default=20, help="projection iterations")
+    parser.add_argument("--samples", type=positive_int, nargs="+", default=[250, 1000], help="samples per sampler iteration")
+    parser.add_argument("--calls", type=positive_int, default=30, help="timed calls per part after its compilation (>= 20)")
+    parser.add_argument("--iterations", type=positive_int, default=5, help="sampler iterations")
+    parser.add_argument("--projection-iterations", type=positive_int, default=20, help="projection iterations")
     args = parser.parse_args(argv)
     jax.config.update("jax_enable_compilation_cache", False)  # compile times are compilations, not cache loads
     report = {"machine": machine(), "problem": PROBLEM, "load_before": os.getloadavg(), "results": []}

@@ -28,6 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from driveopt.cli.common import positive_int
 from driveopt.files import write_json
 
 LIGHT = {"help": ["--help"], "scenarios": ["scenarios"], "planners": ["planners"], "problems": ["problems"],
@@ -96,18 +97,11 @@ def machine() -> dict:
             "jax": importlib.metadata.version("jax")}
 
 
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
-    return value
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", default="out/startup.json", help="results file")
-    parser.add_argument("--runs", type=_positive, default=5, help="runs of each light command (--help, listings)")
-    parser.add_argument("--plan-runs", type=_positive, default=3, help="first/second plan pairs")
+    parser.add_argument("--runs", type=positive_int, default=5, help="runs of each light command (--help, listings)")
+    parser.add_argument("--plan-runs", type=positive_int, default=3, help="first/second plan pairs")
     parser.add_argument("--plan-args", nargs=argparse.REMAINDER, default=PLAN_ARGS,
                         help=f"arguments of driveopt plan, last on the line (default: {' '.join(PLAN_ARGS)}); "
                              "must include --repeats")

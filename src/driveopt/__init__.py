@@ -18,8 +18,7 @@ and ``plan``); ``files``; ``learned/`` (networks), ``priors/``, ``safety/``, ``d
 highway-env env); ``viz/``, ``cli/``.
 """
 
-import importlib
-from typing import Any
+from driveopt.lazy import lazy_exports
 
 # Public name -> the module that defines it. Imported on first use (``driveopt.plan``, ``from driveopt import plan``),
 # so that ``import driveopt`` and the command line's help and listings load neither JAX nor highway-env.
@@ -43,17 +42,7 @@ _EXPORTS = {
 __all__ = list(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'driveopt' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value  # looked up once
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_exports("driveopt", _EXPORTS, globals())
 
 
 __version__ = "0.1.0"

@@ -14,8 +14,7 @@ Names are imported on first use, so that ``import driveopt.sim.scenarios`` loads
 knows no planner. The episode loop that runs a driver in it is :mod:`driveopt.experiments.rollout`.
 """
 
-import importlib
-from typing import Any
+from driveopt.lazy import lazy_exports
 
 # Module -> the public names it defines, imported on first use.
 _MODULES = {
@@ -37,14 +36,4 @@ _EXPORTS = {name: module for module, names in _MODULES.items() for name in names
 __all__ = list(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'driveopt.sim' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value  # looked up once
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_exports("driveopt.sim", _EXPORTS, globals())

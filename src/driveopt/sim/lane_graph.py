@@ -86,15 +86,8 @@ def junctions(network: Any, road: Road) -> list[tuple[Road, float | None]]:
 def _continues(network: Any, current: Road, following: Road) -> float | None:
     """[rad] |change of heading| where ``following`` continues ``current`` (one of its lanes starts where one of
     ``current``'s ends), or None when it does not continue it (no joined lanes, a U-turn or a sharp turn)."""
-    best = None
-    for lane in network.graph[current[0]][current[1]]:
-        end, heading = lane_end(lane), lane.heading_at(lane.length)
-        for nxt in network.graph[following[0]][following[1]]:
-            if np.linalg.norm(lane_start(nxt) - end) <= JOIN_DISTANCE:
-                turn = abs(wrap_angle(nxt.heading_at(0.0) - heading))
-                if turn <= MAX_TURN and (best is None or turn < best):
-                    best = turn
-    return best
+    turn = _turn(network, current, following)
+    return turn if turn is not None and turn <= MAX_TURN else None
 
 
 def _all_forbidden(network: Any, road: Road) -> bool:
