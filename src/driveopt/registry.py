@@ -4,26 +4,25 @@ Every optimiser is an :class:`~driveopt.drivers.optimiser.OptimiserSpec` (a ``Pl
 prior factory) run by the same ``plan()``; ``idm`` hands the ego to highway-env's IDM/MOBIL driver;
 ``dqn`` and ``ppo`` are P1's RL baselines (:mod:`driveopt.drivers.rl`: a learned policy, ``--weights``).
 A new planner is one entry of :data:`PLANNERS`; ``driveopt plan``, ``drive``, ``bench`` and
-``collect`` all look names up here. ``random-p1``, ``grid-p1``, ``vanilla-p1`` and ``batch-p1`` are
-the MPC baselines as P1 §V-A3 ran them (:func:`_p1_faithful`): none of the machinery driveopt adds.
+``collect`` all look names up here. ``random-p1``, ``grid-p1``, ``vanilla-p1`` and ``batch-p1`` are driveopt's
+MPC baselines without the machinery driveopt adds (:func:`_p1_faithful`), at driveopt's budgets, each plan executed
+for five periods. The ``*-faithful`` planners (:mod:`driveopt.faithful`) are P1's and P2's planners as the papers and
+their authors' code ran them: the authors' samples, grids, guesses, iterations and ranking, a plan every period.
 """
 
 from __future__ import annotations
 
-import dataclasses
-
-from driveopt.batch_rows import SamplesOnly
+from driveopt import faithful
 from driveopt.config import PlannerConfig
 from driveopt.drivers.base import DriverSpec
 from driveopt.drivers.idm import IDMSpec
 from driveopt.drivers.optimiser import OptimiserSpec
 from driveopt.drivers.rl import RLSpec
 from driveopt.errors import UnknownNameError
-from driveopt.fallback import Fallback
+from driveopt.faithful import P1_RANKING_COST_WEIGHT, without_driveopt_machinery
 from driveopt.priors.cvae import cvae_prior
 from driveopt.priors.grids import GoalGridPrior, GridPrior, VanillaPrior
 from driveopt.priors.vqvae import vqvae_prior
-from driveopt.ranking import CostPlusResidual
 
 
 class UnknownPlannerError(UnknownNameError):
@@ -34,30 +33,17 @@ def _single_iteration(config: PlannerConfig, samples: int) -> PlannerConfig:
     return config.with_samples(samples).replace(sampler={"num_iterations": 1})
 
 
-P1_RANKING_COST_WEIGHT = 1e-5  # [-] P1's authors' code ranks by residual + 1e-5 x the L2 norm of the speed error over
-# the nodes (+ 1e-2 x steering terms): on driveopt's cost scale (means of squares, ~100 for a 10 m/s speed error)
-# 1e-5 gives the driving cost the same small share, so the residual leads and the cost separates equal residuals.
-
-
-P1_MATHS = {"sampler": {"structured_fraction": 0.0}, "qp": {"initial_lateral_acceleration": True},
-            "cost": {"consistency": 0.0}, "projection": {"course_max": 0.0, "ego_turn_rate": 0.0}}
-# P1's planner maths where driveopt's differs: independent set-points, both initial accelerations imposed, no
-# plan-consistency cost, course bound or per-sample turned box.
-
-
 def _p1_faithful(spec: OptimiserSpec, p1_name: str) -> OptimiserSpec:
-    """``spec`` (same prior, samples and iterations) as P1 ran its ``p1_name``: P1's ranking (cost + residual, the
-    residual leading as in the authors' code: :data:`P1_RANKING_COST_WEIGHT`), P1's batch (no stop rows), a fallback
-    without straightening or sideways stops, no contact guard, :data:`P1_MATHS`, its plan executed feasible or not for
-    five periods, constant-velocity prediction of the nearest neighbours now."""
+    """``spec`` (same prior, samples and iterations) without driveopt's machinery, as P1 describes its ``p1_name``:
+    P1's ranking (:data:`P1_RANKING_COST_WEIGHT`), P1's batch (no stop rows), a fallback without straightening or
+    sideways stops, no contact guard, :data:`P1_MATHS`, constant-velocity prediction of the nearest neighbours now,
+    its plan executed feasible or not for five periods (0.5 s). Not the authors' runs: their samples, grids, guesses
+    and iterations, and a plan every period, are the ``*-faithful`` planners' (:mod:`driveopt.faithful`)."""
     description = (f"P1-faithful {p1_name}: {spec.name} without feasibility-first ranking, stop rows, structured first "
                    "batch, free lateral start, plan consistency, course bound, per-sample turned box, brake-now fallback "
                    "(nor its straightening or sideways stops), contact guard, braking prediction or approach-ranked neighbours; 5 periods per plan")
-    return dataclasses.replace(spec, name=f"{spec.name}-p1", description=description, config=spec.config.replace(**P1_MATHS),
-                               ranking=CostPlusResidual(P1_RANKING_COST_WEIGHT), batch_rows=SamplesOnly(),
-                               fallback=Fallback(straightens=False, evasion=False), contact_guard=False,
-                               executes_infeasible=True, braking_prediction=False, approach_selection=False,
-                               replan_every=5)
+    return without_driveopt_machinery(spec, name=f"{spec.name}-p1", description=description,
+                                      cost_weight=P1_RANKING_COST_WEIGHT, replan_every=5)
 
 
 _BASE = PlannerConfig()
@@ -72,33 +58,39 @@ _MPC_BASELINES = {  # P1 §V-A3's name -> driveopt's version
                                _single_iteration(_BASE.replace(qp={"terminal_position": True}), 200),
                                lambda c, *_: GoalGridPrior(v_max=c.projection.v_max)),
 }
+_OPTIMISERS = (
+    OptimiserSpec("bilevel", "P1 bi-level optimiser: Gaussian start, 5 CEM iterations x 20 projection iterations",
+                  _BASE, warm_start=True),
+    OptimiserSpec("bilevel-p1", "P1's Gaussian start exactly: independent set-points, no warm start (Fig. 9's baseline)",
+                  _BASE.replace(sampler={"structured_fraction": 0.0})),
+    OptimiserSpec("cvae", "P1 bi-level optimiser started from the learned CVAE only (shipped weights; Gaussian if none)",
+                  _BASE, cvae_prior(0.0)),
+    OptimiserSpec("cvae-mix", "bi-level optimiser: half the first batch from the CVAE, half from the bilevel Gaussian (warm start)",
+                  _BASE, cvae_prior(0.5), warm_start=True),
+    OptimiserSpec("vqvae", "P2: 1000 PixelCNN/VQ-VAE samples, one pass of the barrier projection (100 iterations), "
+                           "least-cost feasible (shipped weights; Gaussian if none)",
+                  _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
+                                projection={"max_iterations": 100, "barrier": True}), vqvae_prior()),
+    OptimiserSpec("vqvae-filter", "P2's full pipeline: vqvae with the learned safety filter setting up the barrier projection "
+                                  "(shipped weights; without filter weights the plain filter, without VQ-VAE weights the Gaussian)",
+                  _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
+                                projection={"max_iterations": 100, "barrier": True}), vqvae_prior(), learned_filter=True),
+    OptimiserSpec("vqvae-cem", "P1 bi-level optimiser started from PixelCNN/VQ-VAE samples (shipped weights; Gaussian if none)",
+                  _BASE, vqvae_prior()),
+    OptimiserSpec("cvae-filter", "P2's baseline: 1000 CVAE samples through vqvae's one pass (barrier projection, 100 iterations), "
+                                 "least-cost feasible; differs from vqvae only in the prior (shipped weights; Gaussian if none)",
+                  _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
+                                projection={"max_iterations": 100, "barrier": True}), cvae_prior(0.0)),
+    *_MPC_BASELINES.values(),
+    *(_p1_faithful(spec, p1_name) for p1_name, spec in _MPC_BASELINES.items()),
+)
+_P2_PIPELINES = ("vqvae", "vqvae-filter", "cvae-filter")  # P2's one-pass pipelines, each with a faithful version
 PLANNERS: dict[str, DriverSpec] = {
     spec.name: spec
     for spec in (
-        OptimiserSpec("bilevel", "P1 bi-level optimiser: Gaussian start, 5 CEM iterations x 20 projection iterations",
-                      _BASE, warm_start=True),
-        OptimiserSpec("bilevel-p1", "P1's Gaussian start exactly: independent set-points, no warm start (Fig. 9's baseline)",
-                      _BASE.replace(sampler={"structured_fraction": 0.0})),
-        OptimiserSpec("cvae", "P1 bi-level optimiser started from the learned CVAE only (shipped weights; Gaussian if none)",
-                      _BASE, cvae_prior(0.0)),
-        OptimiserSpec("cvae-mix", "bi-level optimiser: half the first batch from the CVAE, half from the bilevel Gaussian (warm start)",
-                      _BASE, cvae_prior(0.5), warm_start=True),
-        OptimiserSpec("vqvae", "P2: 1000 PixelCNN/VQ-VAE samples, one pass of the barrier projection (100 iterations), "
-                               "least-cost feasible (shipped weights; Gaussian if none)",
-                      _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
-                                    projection={"max_iterations": 100, "barrier": True}), vqvae_prior()),
-        OptimiserSpec("vqvae-filter", "P2's full pipeline: vqvae with the learned safety filter setting up the barrier projection "
-                                      "(shipped weights; without filter weights the plain filter, without VQ-VAE weights the Gaussian)",
-                      _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
-                                    projection={"max_iterations": 100, "barrier": True}), vqvae_prior(), learned_filter=True),
-        OptimiserSpec("vqvae-cem", "P1 bi-level optimiser started from PixelCNN/VQ-VAE samples (shipped weights; Gaussian if none)",
-                      _BASE, vqvae_prior()),
-        OptimiserSpec("cvae-filter", "P2's baseline: 1000 CVAE samples through vqvae's one pass (barrier projection, 100 iterations), "
-                                     "least-cost feasible; differs from vqvae only in the prior (shipped weights; Gaussian if none)",
-                      _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
-                                    projection={"max_iterations": 100, "barrier": True}), cvae_prior(0.0)),
-        *_MPC_BASELINES.values(),
-        *(_p1_faithful(spec, p1_name) for p1_name, spec in _MPC_BASELINES.items()),
+        *_OPTIMISERS,
+        *faithful.p1_planners(_BASE),
+        *(faithful.p2_planner(spec) for spec in _OPTIMISERS if spec.name in _P2_PIPELINES),
         IDMSpec("idm", "highway-env's IDM/MOBIL driver on the ego (rule-based reference)"),
         RLSpec("dqn", "P1's DQN baseline: one of five behaviours every 1 s, tracked by upstream's set-point controller "
                       "(shipped policy for the road's lane count, or --weights)", algo="dqn"),

@@ -5,11 +5,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from driveopt import faithful
 from driveopt.batch_rows import SamplesOnly, StopRows
 from driveopt.errors import UnknownNameError
+from driveopt.faithful import P1_MATHS
 from driveopt.fallback import Fallback
 from driveopt.planner import goal_from_setpoints, plan
 from driveopt.priors.grids import GoalGridPrior, GridPrior
+from driveopt.priors.p1_authors import FixedGaussian, SpeedOffsetGrid, VanillaGuesses, lateral_noise_factor, spread_indices
 from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
 from driveopt.ranking import CostPlusResidual, FeasibilityFirst
@@ -85,3 +88,134 @@ def test_goal_grid_trajectories_reach_their_goals():
     end_x, end_y = c[:, :11] @ model.W[-1], c[:, 11:] @ model.W[-1]
     np.testing.assert_allclose(end_x, goal[:, 0], atol=1e-2 * float(jnp.max(goal[:, 0])))
     np.testing.assert_allclose(end_y, goal[:, 1], atol=1e-3)
+
+
+# ---------------------------------------------------------------------------------------------- faithful planners
+
+P1_FAITHFUL = ("bilevel", "cvae", "random", "grid", "vanilla", "batch")
+P2_FAITHFUL = ("vqvae", "vqvae-filter", "cvae-filter")
+
+
+def test_faithful_planners_are_registered_beside_the_strengthened_ones():
+    names = set(list_planners())
+    for name in P1_FAITHFUL + P2_FAITHFUL:
+        assert {name, f"{name}-faithful"} <= names
+
+
+@pytest.mark.parametrize("name", P1_FAITHFUL + P2_FAITHFUL)
+def test_faithful_planners_have_no_driveopt_machinery_and_replan_every_period(name):
+    spec, strong = get_optimiser(f"{name}-faithful"), get_optimiser(name)
+    assert isinstance(spec.ranking, CostPlusResidual) and spec.batch_rows == SamplesOnly()
+    assert spec.fallback == Fallback(straightens=False, evasion=False)
+    assert not spec.contact_guard and spec.executes_infeasible and not spec.braking_prediction
+    assert not spec.approach_selection and not spec.warm_start
+    # the bi-level optimiser and every baseline plan with one period: the strengthened bilevel's
+    assert spec.replan_every == strong.replan_every == get_optimiser("bilevel").replan_every == faithful.AUTHORS_REPLAN_EVERY == 1
+    c = spec.config
+    assert (c.sampler.structured_fraction, c.cost.consistency, c.projection.course_max, c.projection.ego_turn_rate) == (0, 0, 0, 0)
+    assert c.qp.initial_lateral_acceleration and spec.description
+
+
+@pytest.mark.parametrize("name, iterations, projection, elites, weight", [
+    ("bilevel", 5, 20, 150, faithful.P1_BILEVEL_COST_WEIGHT),
+    ("cvae", 5, 20, 150, faithful.P1_BILEVEL_COST_WEIGHT),
+    ("random", 1, 100, 150, P1_RANKING_COST_WEIGHT),
+    ("grid", 1, 100, 150, faithful.P1_GRID_COST_WEIGHT),
+    ("vanilla", 1, 100, 300, P1_RANKING_COST_WEIGHT),
+    ("batch", 1, 100, 150, faithful.P1_GRID_COST_WEIGHT),
+])
+def test_p1_faithful_budgets_are_the_authors(name, iterations, projection, elites, weight):
+    s = get_optimiser(f"{name}-faithful")
+    assert s.config.sampler.num_samples == 1000 and s.config.sampler.num_iterations == iterations
+    assert s.config.projection.max_iterations == projection and s.config.sampler.num_constraint_elites == elites
+    assert s.config.sampler.num_elites == 50 and s.ranking == CostPlusResidual(weight)
+    assert s.config.qp.terminal_position == (name == "batch")
+    assert not s.fixed_batch and s.with_samples(100).config.sampler.num_samples == 100  # --quick can shrink them
+    if name in ("grid", "batch", "vanilla"):  # driveopt's versions: a fifth of the iterations, coarser grids, one sample
+        assert get_optimiser(f"{name}-p1").config.projection.max_iterations < projection or name == "vanilla"
+        assert get_optimiser(f"{name}-p1").config.sampler.num_samples < 1000
+
+
+def test_the_faithful_grid_is_the_authors_50_speeds_by_20_offsets():
+    problem = build_problem(load_scene("dense-snapshot"))
+    spec = get_optimiser("grid-faithful")
+    prior = spec.prior(4)
+    assert isinstance(prior, SpeedOffsetGrid) and spec.prior(4) == get_optimiser("batch-faithful").prior(4)
+    p = np.asarray(prior.propose(problem, jax.random.PRNGKey(0), 1000).samples)
+    assert p.shape == (1000, 8) and len({tuple(row) for row in p.round(4)}) == 1000
+    np.testing.assert_array_equal(p[:, :4], p[:, :1].repeat(4, axis=1))  # every pair held over the horizon
+    np.testing.assert_array_equal(p[:, 4:], p[:, 4:5].repeat(4, axis=1))
+    v_des = float(problem.v_des)
+    speeds, offsets = np.unique(p[:, 0].round(4)), np.unique(p[:, 4].round(4))
+    assert len(speeds) == 50 and len(offsets) == 20
+    np.testing.assert_allclose([speeds[0], speeds[-1]], [max(v_des - 16, 0), v_des + 16], atol=1e-4)
+    np.testing.assert_allclose([offsets[0], offsets[-1]], [float(problem.y_lb), float(problem.y_ub)], atol=1e-4)
+    q = np.asarray(prior.propose(problem, jax.random.PRNGKey(9), 1000).samples)
+    np.testing.assert_array_equal(p, q)  # a fixed grid
+    fewer = np.asarray(prior.propose(problem, jax.random.PRNGKey(0), 100).samples)
+    assert len(np.unique(fewer[:, 4].round(4))) == 20  # a smaller batch keeps evenly spread rows, every offset
+
+
+def test_spread_indices_cover_the_table_or_cycle_it():
+    np.testing.assert_array_equal(spread_indices(10, 5), [0, 2, 4, 6, 8])
+    np.testing.assert_array_equal(spread_indices(3, 7), [0, 1, 2, 0, 1, 2, 0])
+
+
+def test_the_faithful_vanilla_keeps_the_1000_least_obstructed_of_30000_guesses():
+    problem = build_problem(load_scene("dense-snapshot"))
+    prior = get_optimiser("vanilla-faithful").prior(4)
+    assert isinstance(prior, VanillaGuesses) and (prior.oversampling, prior.num_guess_speeds, prior.speed_spread) == (30, 30, 12.0)
+    key = jax.random.PRNGKey(3)
+    p = np.asarray(prior.propose(problem, key, 1000).samples)
+    assert p.shape == (1000, 8)
+    v_des = float(problem.v_des)
+    np.testing.assert_array_equal(p[:, :4], p[:, :1].repeat(4, axis=1))  # one speed per guess, no behavioural layer
+    assert np.all(p[:, 0] >= v_des - 12 - 1e-4) and np.all(p[:, 0] <= min(v_des + 12, 30.0) + 1e-4)
+    assert np.all(p[:, 4:] >= float(problem.y_lb) - 1e-4) and np.all(p[:, 4:] <= float(problem.y_ub) + 1e-4)
+    assert len({tuple(row) for row in p.round(3)}) > 900  # 1000 different guesses, not one sample
+    # the kept guesses are exactly the least intruding of the 30 x 100 candidates
+    v, x, y = prior.candidates(problem, key, 30 * 100)
+    assert len(np.unique(np.asarray(v).round(4))) == 30
+    intrusion = np.asarray(prior.intrusion(problem, x, y))
+    _, kept = prior.guesses(problem, key, 100)
+    kept_rows = {tuple(row) for row in np.asarray(kept).round(4)}
+    best = {tuple(row) for row in np.asarray(y)[np.argsort(intrusion)[:100]].round(4)}
+    assert kept_rows == best and intrusion.max() > np.sort(intrusion)[99]
+    # lateral guesses: the road's centre plus smooth noise pinned at both ends (about 7 m std mid-horizon)
+    factor = lateral_noise_factor(100)
+    std = np.sqrt((factor**2).sum(axis=1))
+    assert std[0] < 0.2 and std[-1] < 0.2 and 6.5 < std[50] < 8.0
+
+
+def test_faithful_gaussians_are_the_authors_and_their_key_advances():
+    problem = build_problem(load_scene("dense-snapshot"))
+    random_prior, start = get_optimiser("random-faithful").prior(4), get_optimiser("bilevel-faithful").prior(4)
+    assert isinstance(random_prior, FixedGaussian) and isinstance(start, FixedGaussian)
+    a = np.asarray(random_prior.propose(problem, jax.random.PRNGKey(0), 4000).samples)
+    b = np.asarray(random_prior.propose(problem, jax.random.PRNGKey(1), 4000).samples)
+    assert not np.allclose(a, b)  # the authors' MPC-Random drew one key for ever; driveopt's key advances
+    np.testing.assert_allclose(a[:, :4].mean(axis=0), float(problem.v_des), atol=0.3)  # N(v_des, 16)
+    np.testing.assert_allclose(a[:, :4].std(axis=0), 4.0, atol=0.3)
+    np.testing.assert_allclose(a[:, 4:].mean(axis=0), float(problem.init_y[0]), atol=0.5)  # N(y0, 46)
+    np.testing.assert_allclose(a[:, 4:].std(axis=0), np.sqrt(46.0), atol=0.4)
+    assert start.speed_mean == 5.0 and start.speed_var == (30.0,) * 4 and start.lateral_var == (30.0, 46.0, 46.0, 46.0)
+    cvae = get_optimiser("cvae-faithful")
+    assert cvae.config == get_optimiser("bilevel-faithful").config and cvae.make_prior is not None
+
+
+@pytest.mark.parametrize("name", P2_FAITHFUL)
+def test_p2_faithful_pipelines_keep_samples_prior_and_filter_and_take_p2s_ranking(name):
+    strong, spec = get_optimiser(name), get_optimiser(f"{name}-faithful")
+    assert spec.config == strong.config.replace(**P1_MATHS)
+    assert spec.config.sampler.num_constraint_elites == 150 and spec.config.projection.max_iterations == 100
+    assert spec.make_prior is strong.make_prior and spec.learned_filter == strong.learned_filter
+    assert spec.ranking == CostPlusResidual(faithful.P2_RANKING_COST_WEIGHT) and strong.ranking == FeasibilityFirst()
+
+
+@pytest.mark.parametrize("name", ["grid-faithful", "vanilla-faithful", "bilevel-faithful"])
+def test_faithful_planners_plan_finite_trajectories(name):
+    spec = get_optimiser(name).with_samples(60).with_overrides(projection={"max_iterations": 5})
+    problem = build_problem(load_scene("dense-snapshot"), spec.config.basis)
+    result = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=spec.prior(), **spec.strategies)
+    for arr in (*result.trajectory, result.coeffs, result.setpoints):
+        assert np.all(np.isfinite(arr))

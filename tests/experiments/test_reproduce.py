@@ -14,7 +14,10 @@ from driveopt.experiments import paired_stats as ps
 from driveopt.experiments.protocols import (
     BETTER,
     COLLISIONS,
+    DRIVEOPT_ROW,
     FAITHFUL,
+    FAITHFUL_ROW,
+    MIXED_ROW,
     NO_WORSE,
     REFERENCE,
     SPEED,
@@ -150,10 +153,38 @@ def test_every_figure_of_both_papers_is_declared_with_registered_planners():
                 get_planner(arm.planner)
                 assert arm.version in (FAITHFUL, STRENGTHENED, REFERENCE)
             assert claim.paper and claim.expect in (BETTER, WORSE, NO_WORSE)
-    # P1 Fig. 7 compares like for like (strengthened with strengthened) and in P1's setting, marked otherwise
+            assert claim.like_for_like == (claim.kind != MIXED_ROW)
+    # every figure with claims compares the faithful methods and driveopt's side by side (the RL agents of Figs. 8
+    # and 12 are P1's own, so driveopt's optimiser meets them in mixed rows)
+    for figure in p1 + p2:
+        if figure.claims:
+            kinds = {c.kind for c in figure.claims}
+            assert FAITHFUL_ROW in kinds and kinds & {DRIVEOPT_ROW, MIXED_ROW}, figure.figure
+    # P1 Fig. 7: driveopt's bilevel against driveopt's baselines, the faithful MPC-Bi-Level against the faithful ones
     fig7 = p1[0]
-    assert any(c.like_for_like and c.baseline.planner == "grid" and c.arm.planner == "bilevel" for c in fig7.claims)
-    assert all(not c.like_for_like for c in fig7.claims if c.baseline.version == FAITHFUL)
+    for baseline in ("random", "grid", "batch", "vanilla"):
+        strong = [c for c in fig7.claims if c.baseline.planner == baseline]
+        faithful = [c for c in fig7.claims if c.baseline.planner == f"{baseline}-faithful"]
+        assert len(strong) == len(faithful) == 8  # 4 roads x (collisions, speed)
+        assert all(c.arm.planner == "bilevel" and c.kind == DRIVEOPT_ROW for c in strong)
+        assert all(c.arm.planner == "cvae-faithful" and c.kind == FAITHFUL_ROW for c in faithful)
+        assert all(c.baseline.samples == 1000 and c.arm.samples == 250 for c in faithful)  # the authors' batches
+    # P2 Fig. 9's no-filter under P2's ranking: the faithful pipelines at 0 filter iterations
+    fig9 = p2[-1]
+    assert any(c.kind == FAITHFUL_ROW and c.baseline.planner == "vqvae-filter-faithful"
+               and c.baseline.config == (("projection.max_iterations", 0),) for c in fig9.claims)
+
+
+def test_the_faithful_arms_replan_with_one_period_like_driveopts():
+    """The bi-level optimiser and its baselines plan with the same period in every comparison: no arm overrides it,
+    and every registered planner an arm names plans every policy period."""
+    for figure in figures_of("p1") + figures_of("p2"):
+        for claim in figure.claims:
+            for arm in (claim.arm, claim.baseline):
+                assert arm.replan_every is None
+                spec = get_planner(arm.planner)
+                if spec.is_optimiser:
+                    assert spec.replan_every == 1, arm.planner
 
 
 def test_quick_variants_and_overrides():
@@ -177,7 +208,8 @@ def test_arm_options_and_folders():
     assert arm.quick().samples == 10 and Arm("x", STRENGTHENED, 50).quick().samples == 10
     (fig9,) = figures_of("p1", ["fig9"])
     runs = fig9.runs()
-    assert set(runs) == {"n250", "n1000"} and runs["n250"][:2] == (("four-lane-d3.0",), ("cvae", "bilevel-p1"))
+    assert set(runs) == {"n250", "n1000"}
+    assert runs["n250"][:2] == (("four-lane-d3.0",), ("cvae", "bilevel-p1", "cvae-faithful", "bilevel-faithful"))
 
 
 @pytest.mark.parametrize("paper, names", [("p3", None), ("p1", ["fig99"]), ("p2", ["fig7", "fig7"])])
@@ -194,7 +226,8 @@ CALLS = {"n": 0}
 def fake_episode(job, options):
     """The proposed methods never collide and drive 9 m/s; the others collide in even episodes and drive 7 m/s."""
     CALLS["n"] += 1
-    proposed = job.planner in ("bilevel", "bilevel-p1", "cvae", "vqvae-filter", "vqvae") and "max_iterations" not in str(options)
+    proposed = job.planner in ("bilevel", "bilevel-p1", "cvae", "cvae-faithful", "bilevel-faithful", "vqvae-filter", "vqvae",
+                               "vqvae-filter-faithful") and "max_iterations" not in str(options)
     collided = (not proposed) and job.episode % 2 == 0
     return {"collided": collided, "off_road": False, "mean_speed": 9.0 if proposed else 7.0 + 0.01 * job.episode,
             "plan_ms": [20.0, 21.0], "sim_seconds": 0.01, "plan_seconds": 0.01, "steps": 2}
@@ -221,8 +254,13 @@ def test_report_has_every_claim_row_and_resume_reuses_records(tmp_path, cheap_be
     rows = [line for line in report.splitlines() if line.startswith("| ") and "| scenario |" not in line]
     assert len(rows) == claims
     assert "Not run: an illustration" in report and "reduced: the full protocol has 100" in report
+    kinds = {r.kind for r in results}
+    assert kinds == {FAITHFUL_ROW, DRIVEOPT_ROW, MIXED_ROW}
+    assert all(f"| {r.scenario} | {r.kind} | {r.metric}" in report for r in results)  # every row says which it is
+    assert "- faithful rows: " in report and "- driveopt rows: " in report
     data = json.loads((tmp_path / "report.json").read_text())
     assert sum(len(f["claims"]) for f in data["figures"]) == claims
+    assert {c["kind"] for f in data["figures"] for c in f["claims"]} == kinds
     assert {f["figure"] for f in data["figures"]} == {"fig7", "fig8", "fig9", "fig10", "fig11", "fig12"}
     for figure in ("fig7", "fig8", "fig9", "fig10", "fig12"):
         assert (tmp_path / f"{figure}.png").stat().st_size > 0
@@ -238,7 +276,7 @@ def test_report_has_every_claim_row_and_resume_reuses_records(tmp_path, cheap_be
     # more episodes run only the missing ones
     _, more = reproduce("p1", tmp_path, figures=["fig9"], episodes=4, seeds=(42,), workers=1, episode_fn=fake_episode,
                         progress=False)
-    assert CALLS["n"] == 2 * 2  # (cvae, bilevel-p1) x (n250, n1000) folders, one new episode each
+    assert CALLS["n"] == 4 * 2  # (cvae, bilevel-p1, cvae-faithful, bilevel-faithful) x (n250, n1000), one new episode each
     assert {r.pairs for r in more} == {4}
 
 

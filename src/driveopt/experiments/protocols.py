@@ -2,28 +2,36 @@
 
 A :class:`FigureProtocol` holds a figure's claims, its seeds, episodes and episode duration; a :class:`Claim`
 compares one :class:`Arm` (a registered planner with its bench options) with another on the same episodes and names
-the paper's value or stated direction. Each arm says whether it is the paper-faithful version of the method
-(``FAITHFUL``), driveopt's strengthened version (``STRENGTHENED``) or a reference (``REFERENCE``: highway-env's IDM
-driver). A figure that cannot be run with the registered planners declares why (``not_run``) and has no claims.
+the paper's value or stated direction. Each arm says whether it is the paper's method as the paper and its authors'
+code ran it (``FAITHFUL``: the ``*-faithful`` planners of :mod:`driveopt.faithful`, and P1's RL agents), driveopt's
+strengthened version (``STRENGTHENED``) or a reference (``REFERENCE``: highway-env's IDM driver); each claim is a
+faithful row, a driveopt row or a mixed one (:attr:`Claim.kind`), and every figure compares the faithful methods and
+driveopt's side by side. A figure that cannot be run with the registered planners declares why (``not_run``) and has
+no claims.
 
 Choices where the papers are silent (each also listed in ``docs/reproduction/README.md``):
 
 * Seeds 42 and 123 for every figure (DESIGN.md: the authors' seeds), 50 episodes per seed, 50 s episodes.
-* P1 Figs. 7, 8: 250 samples per sampler iteration (P1 §V-F: the benchmarks of §V-C and V-D used 250).
-* P1 Fig. 7 is compared twice. Like for like, driveopt's ``bilevel`` against driveopt's ``random``, ``grid``,
-  ``batch``, ``vanilla`` (all strengthened, replanning every 0.1 s). In P1's setting, ``bilevel-p1`` executing each
-  plan for 5 periods (0.5 s, as P1 §V-A3) against the P1-faithful ``-p1`` baselines, which replan as often; that
-  row is marked not like for like, because no P1-faithful bi-level optimiser is registered (``bilevel-p1`` keeps
-  driveopt's ranking, fallback and guard).
+* P1 Figs. 7, 8: 250 samples per sampler iteration for the bi-level optimisers (P1 §V-F: the benchmarks of §V-C and
+  V-D used 250); the faithful MPC baselines run their authors' 1000 (every expert of the authors' ``expert_mpc/``).
+* P1's faithful MPC-Bi-Level in Figs. 7, 8, 12 is ``cvae-faithful``: the authors' ``main_bilevel.py``, which their
+  README names as the script of the main results, starts Alg. 1 from the CVAE. Fig. 9 compares it with
+  ``bilevel-faithful`` (Alg. 1's Gaussian start as the authors' code draws it).
+* P1 Fig. 7 twice: driveopt's ``bilevel`` against driveopt's ``random``, ``grid``, ``batch``, ``vanilla``, and
+  ``cvae-faithful`` against ``random-faithful``, ``grid-faithful``, ``batch-faithful``, ``vanilla-faithful``; all of
+  them plan every 0.1 s (the authors' loops plan once per simulator step for every method).
 * P1's densities: ``two-lane-d1.0`` and ``two-lane-d2.5``, ``four-lane-d1.5`` and ``four-lane-d3.0``; P1 Fig. 8 on
   ``two-lane-d1.0`` (P1: the RL agents worked only in sparse two-lane traffic) and ``four-lane-d3.0``; P1 Fig. 9 on
   ``four-lane-d3.0``; P1 Fig. 12 on ``two-way``.
 * P2 Fig. 7's settings: densities 1.5 and 3.0 at neighbour speed limits 15 and 7 m/s on four lanes (P2's text
   names density 3 and the two limits only).
-* P2's baseline [5] is stood in for by ``cvae-filter`` (P1's CVAE through P2's one-pass filter): the CVAE of [5],
-  trained through the projection and predicting its multipliers, is not registered.
-* P2 Fig. 9's "without filter" is ``projection.max_iterations`` 0: the samples ranked as drawn, feasibility first
-  (driveopt's ranking), which is rejection sampling rather than P2's pick by cost.
+* P2's baseline [5] is stood in for by ``cvae-filter`` and ``cvae-filter-faithful`` (P1's CVAE through P2's one-pass
+  filter): the CVAE of [5], trained through the projection and predicting its multipliers, is not registered.
+* P2 Fig. 9's "without filter" is ``projection.max_iterations`` 0: for driveopt's pipelines the samples ranked as
+  drawn, feasibility first, which is rejection sampling; for the faithful ones P2's pick by cost + residual,
+  executed whatever its residual, which is P2's no-filter.
+* P2 Figs. 8a, 8b: the faithful pipeline enters the text's claim (the reduced budget against the full one); the
+  learned against the plain filter at every point is compared for driveopt's pipelines only.
 
 Quick variants (:meth:`FigureProtocol.quick`): seed 42 only, 2 episodes of 4 s, a tenth of the samples (at least
 10); the claims and arms are those of the full protocol.
@@ -38,6 +46,7 @@ from typing import Any
 from driveopt.errors import DriveoptError
 
 FAITHFUL, STRENGTHENED, REFERENCE = "paper-faithful", "driveopt-strengthened", "reference"
+FAITHFUL_ROW, DRIVEOPT_ROW, MIXED_ROW = "faithful", "driveopt", "driveopt vs faithful"  # Claim.kind
 COLLISIONS, SPEED, PLAN_TIME = "collisions", "speed", "plan time"
 BETTER, WORSE, NO_WORSE = "better", "worse", "no worse"  # of the claim's arm against its baseline, on its metric
 
@@ -121,7 +130,7 @@ class Claim:
     """``arm`` against ``baseline`` on ``scenario``, on the same episodes: the paper says ``arm`` is ``expect``
     (BETTER, WORSE or NO_WORSE) on ``metric`` (COLLISIONS: fewer is better; SPEED, collision-free episodes: higher
     is better; PLAN_TIME per call: lower is better). ``paper``: the paper's value or stated direction, as it gives
-    it. ``like_for_like``: both arms are the same kind of version (both faithful or both strengthened)."""
+    it."""
 
     scenario: str
     arm: Arm
@@ -129,7 +138,20 @@ class Claim:
     metric: str
     expect: str
     paper: str
-    like_for_like: bool = True
+
+    @property
+    def kind(self) -> str:
+        """FAITHFUL_ROW when both arms are faithful (a reference aside), DRIVEOPT_ROW when both are driveopt's
+        strengthened planners (or a reference), MIXED_ROW otherwise."""
+        versions = {self.arm.version, self.baseline.version} - {REFERENCE}
+        if versions == {FAITHFUL}:
+            return FAITHFUL_ROW
+        return DRIVEOPT_ROW if versions <= {STRENGTHENED} else MIXED_ROW
+
+    @property
+    def like_for_like(self) -> bool:
+        """Both arms are the same kind of version (both faithful or both driveopt's)."""
+        return self.kind != MIXED_ROW
 
     @property
     def name(self) -> str:
@@ -188,27 +210,35 @@ class FigureProtocol:
 
 
 # ---------------------------------------------------------------------------------------------------------- P1
-P1_SAMPLES = 250  # [-] P1 §V-F: the batch of the benchmarks of §V-C and V-D
-P1_REPLAN = 5  # [policy periods] P1 §V-A3: the first five elements of each plan run open loop
+P1_SAMPLES = 250  # [-] P1 §V-F: the batch of the bi-level optimiser in the benchmarks of §V-C and V-D
+P1_BASELINE_SAMPLES = 1000  # [-] the faithful MPC baselines' batch (their authors' num_batch; given so --quick divides it)
 P1_DENSE = ("four-lane-d3.0", "two-lane-d2.5")
 P1_SPARSE = ("four-lane-d1.5", "two-lane-d1.0")
 IDM = Arm("idm", REFERENCE)
-NOT_FAITHFUL_BILEVEL = ("not like for like: no P1-faithful bi-level optimiser is registered; bilevel-p1 keeps driveopt's "
-                        "ranking, fallback and guard")
-
-
-FAITHFUL_MPC_NOTE = ("P1 §V-A3's baseline without driveopt's machinery; projection iterations, grids and guesses as "
-                     "registered, not yet the authors' (100 iterations for grid, batch and vanilla; 1000 vanilla guesses)")
+FAITHFUL_BILEVEL = "cvae-faithful"  # P1's MPC-Bi-Level: its authors' main_bilevel.py starts Alg. 1 from the CVAE
+FAITHFUL_BILEVEL_NOTE = ("P1's MPC-Bi-Level as its authors' main_bilevel.py runs it: CVAE start (driveopt's shipped "
+                         "weights), 5 x 20 iterations, P1's ranking, a plan every 0.1 s")
+FAITHFUL_MPC_NOTES = {  # P1 §V-A3's baselines as the authors' expert_mpc/ runs them; all: P1's ranking, a plan every 0.1 s
+    "random": "1000 samples from N((v_des, y0), diag(16, 46)), 100 projection iterations, P1's ranking, a plan every 0.1 s",
+    "grid": "the authors' 50 speeds x 20 offsets, 100 projection iterations, P1's ranking, a plan every 0.1 s",
+    "batch": ("goals on the authors' 50 x 20 grid (their Batch-MPC file is not public), 100 projection iterations, "
+              "P1's ranking, a plan every 0.1 s"),
+    "vanilla": ("v_des only, the 1000 least obstructed of 30000 guesses, 100 projection iterations, P1's ranking, a "
+                "plan every 0.1 s"),
+}
 
 
 def _strong(planner: str, samples: int | None = P1_SAMPLES, **kw: Any) -> Arm:
     return Arm(planner, STRENGTHENED, samples, **kw)
 
 
+def _faithful(planner: str, samples: int | None = P1_SAMPLES, note: str = "") -> Arm:
+    return Arm(planner, FAITHFUL, samples, note=note)
+
+
 def _p1_figure7() -> FigureProtocol:
     bilevel = _strong("bilevel")
-    bilevel_p1 = _strong("bilevel-p1", replan_every=P1_REPLAN, note="P1's Gaussian start and 0.5 s replanning, driveopt's "
-                         "ranking, fallback and guard")
+    ours = _faithful(FAITHFUL_BILEVEL, note=FAITHFUL_BILEVEL_NOTE)
     claims = []
     for scenario in P1_DENSE + P1_SPARSE:
         dense = scenario in P1_DENSE
@@ -224,11 +254,10 @@ def _p1_figure7() -> FigureProtocol:
             else:
                 collisions, expect = "no explicit value (figure only)", NO_WORSE
             speed = "average speed 'either better or competitive'"
-            strong_base = _strong(baseline)
-            faithful_base = Arm(f"{baseline}-p1", FAITHFUL, P1_SAMPLES, replan_every=P1_REPLAN, note=FAITHFUL_MPC_NOTE)
-            for arm, base, like in ((bilevel, strong_base, True), (bilevel_p1, faithful_base, False)):
-                claims.append(Claim(scenario, arm, base, COLLISIONS, expect, collisions, like))
-                claims.append(Claim(scenario, arm, base, SPEED, NO_WORSE, speed, like))
+            faithful_base = _faithful(f"{baseline}-faithful", P1_BASELINE_SAMPLES, FAITHFUL_MPC_NOTES[baseline])
+            for arm, base in ((bilevel, _strong(baseline)), (ours, faithful_base)):
+                claims.append(Claim(scenario, arm, base, COLLISIONS, expect, collisions))
+                claims.append(Claim(scenario, arm, base, SPEED, NO_WORSE, speed))
     return FigureProtocol("p1", "fig7", "MPC baselines against the bi-level optimiser, two and four lanes, two densities",
                           tuple(claims))
 
@@ -238,27 +267,33 @@ def _p1_rl(figure: str, title: str, scenarios: tuple[str, ...], paper: dict[str,
     for scenario in scenarios:
         for agent in ("dqn", "ppo"):
             rl = Arm(agent, FAITHFUL, note="P1's agent, trained 10 000 of P1's 5 M steps (shipped policy)")
-            for arm, like in ((_strong("bilevel"), False),
-                              (_strong("bilevel-p1", replan_every=P1_REPLAN), False)):
-                claims.append(Claim(scenario, arm, rl, COLLISIONS, BETTER, paper["collisions"], like))
-                claims.append(Claim(scenario, arm, rl, SPEED, BETTER, paper["speed"], like))
+            for arm in (_strong("bilevel"), _faithful(FAITHFUL_BILEVEL, note=FAITHFUL_BILEVEL_NOTE)):
+                claims.append(Claim(scenario, arm, rl, COLLISIONS, BETTER, paper["collisions"]))
+                claims.append(Claim(scenario, arm, rl, SPEED, BETTER, paper["speed"]))
     return FigureProtocol("p1", figure, title, tuple(claims))
+
+
+def _p1_start_pairs(samples: int) -> tuple[tuple[Arm, Arm], ...]:
+    """(CVAE start, Gaussian start) at ``samples``: driveopt's and the faithful pair."""
+    return ((_strong("cvae", samples), _strong("bilevel-p1", samples, note="P1's Gaussian start, driveopt's machinery")),
+            (_faithful(FAITHFUL_BILEVEL, samples, FAITHFUL_BILEVEL_NOTE),
+             _faithful("bilevel-faithful", samples, "P1's Gaussian start as its authors' code draws it")))
 
 
 def _p1_figure9() -> FigureProtocol:
     claims = []
     for samples, paper in ((250, "4x fewer collisions with the CVAE start at 250 samples"),
                            (1000, "fewer collisions with the CVAE start at 1000 samples; the gap shrinks")):
-        cvae, gauss = _strong("cvae", samples), _strong("bilevel-p1", samples, note="P1's Gaussian start")
-        claims.append(Claim("four-lane-d3.0", cvae, gauss, COLLISIONS, BETTER, paper))
-        claims.append(Claim("four-lane-d3.0", cvae, gauss, SPEED, NO_WORSE, "not stated"))
+        for cvae, gauss in _p1_start_pairs(samples):
+            claims.append(Claim("four-lane-d3.0", cvae, gauss, COLLISIONS, BETTER, paper))
+            claims.append(Claim("four-lane-d3.0", cvae, gauss, SPEED, NO_WORSE, "not stated"))
     return FigureProtocol("p1", "fig9", "CVAE start against the Gaussian start, 250 and 1000 samples", tuple(claims))
 
 
 def _p1_figure10() -> FigureProtocol:
-    claims = tuple(Claim("four-lane-d3.0", _strong("cvae", n), _strong("bilevel-p1", n), PLAN_TIME, NO_WORSE,
+    claims = tuple(Claim("four-lane-d3.0", cvae, gauss, PLAN_TIME, NO_WORSE,
                          f"CVAE inference overhead 'very minimal'; {t} s per call on an RTX 3080")
-                   for n, t in ((250, "0.03"), (1000, "< 0.06")))
+                   for n, t in ((250, "0.03"), (1000, "< 0.06")) for cvae, gauss in _p1_start_pairs(n))
     return FigureProtocol("p1", "fig10", "planning time per call, CVAE against Gaussian start (closed-loop calls)", claims,
                           runs_of="fig9")
 
@@ -283,39 +318,59 @@ def p1_figures() -> tuple[FigureProtocol, ...]:
 P2_SAMPLES = 1000  # [-] P2's batch
 P2_ITERATIONS = 100  # [-] filter iterations of P2's pipeline
 CVAE_BASELINE_NOTE = "stands in for P2's baseline [5] with P1's CVAE (the CVAE of [5] is not registered)"
+FAITHFUL_P2_NOTE = "P2's ranking (cost + residual), executed whatever its residual, no driveopt safety machinery"
+NO_FILTER_NOTES = {STRENGTHENED: "no filter: feasibility-first ranking (rejection sampling)",
+                   FAITHFUL: "no filter"}  # the faithful arms' note adds P2's ranking
+
+
+def _p2_arm(planner: str, version: str = STRENGTHENED, samples: int = P2_SAMPLES, iterations: int | None = None,
+            note: str = "") -> Arm:
+    """driveopt's pipeline ``planner`` (STRENGTHENED) or its faithful version (FAITHFUL: ``<planner>-faithful``, its
+    note adding P2's ranking); ``iterations``: filter iterations (None: the planner's 100)."""
+    if version == FAITHFUL:
+        planner, note = f"{planner}-faithful", "; ".join(part for part in (note, FAITHFUL_P2_NOTE) if part)
+    config = () if iterations is None else (("projection.max_iterations", iterations),)
+    return Arm(planner, version, samples, config=config, note=note)
 
 
 def _p2(planner: str, samples: int = P2_SAMPLES, iterations: int | None = None, note: str = "") -> Arm:
-    config = () if iterations is None else (("projection.max_iterations", iterations),)
-    return Arm(planner, STRENGTHENED, samples, config=config, note=note)
+    return _p2_arm(planner, STRENGTHENED, samples, iterations, note)
 
 
 def _p2_figure7() -> FigureProtocol:
     claims = []
-    full, plain = _p2("vqvae-filter", note="P2's pipeline with the learned filter"), _p2("vqvae", note="plain filter")
-    cvae = _p2("cvae-filter", note=CVAE_BASELINE_NOTE)
+    cvae, cvae_faithful = _p2("cvae-filter", note=CVAE_BASELINE_NOTE), _p2_arm("cvae-filter", FAITHFUL, note=CVAE_BASELINE_NOTE)
+    pairs = ((_p2("vqvae-filter", note="P2's pipeline with the learned filter"), cvae), (_p2("vqvae", note="plain filter"), cvae),
+             (_p2_arm("vqvae-filter", FAITHFUL, note="P2's pipeline with the learned filter"), cvae_faithful))
     for scenario in ("p2-four-lane-d1.5", "p2-four-lane-d3.0", "p2-four-lane-d1.5-slow", "p2-four-lane-d3.0-slow"):
         paper = ("up to 12x fewer collisions than the CVAE baseline (density 3)" if "d3.0" in scenario
                  else "fewer collisions than the CVAE baseline as density rises or traffic slows")
-        for arm in (full, plain):
-            claims.append(Claim(scenario, arm, cvae, COLLISIONS, BETTER, paper))
-            claims.append(Claim(scenario, arm, cvae, SPEED, NO_WORSE, "similar velocity profiles"))
+        for arm, base in pairs:
+            claims.append(Claim(scenario, arm, base, COLLISIONS, BETTER, paper))
+            claims.append(Claim(scenario, arm, base, SPEED, NO_WORSE, "similar velocity profiles"))
     return FigureProtocol("p2", "fig7", "VQ-VAE against the CVAE baseline, two densities and two speed limits",
                           tuple(claims))
 
 
 def _p2_budget(figure: str, title: str, points: tuple[tuple[int, int], ...], reduced: tuple[int, int],
                paper: str) -> FigureProtocol:
-    """Fig. 8a/8b: (samples, iterations) points; the reduced budget against P2's full one, and the learned filter
-    against the plain one at each point."""
+    """Fig. 8a/8b: (samples, iterations) points; the reduced budget against P2's full one (driveopt's pipeline and the
+    faithful one), and driveopt's learned filter against its plain one at each point."""
     scenario = "p2-four-lane-d3.0"
 
-    def learned(n: int, k: int) -> Arm:
-        return _p2("vqvae-filter", n, None if k == P2_ITERATIONS else k)
+    def iterations(k: int) -> int | None:
+        return None if k == P2_ITERATIONS else k
 
-    claims = [Claim(scenario, learned(*reduced), learned(P2_SAMPLES, P2_ITERATIONS), COLLISIONS, NO_WORSE, paper)]
+    def learned(n: int, k: int) -> Arm:
+        return _p2("vqvae-filter", n, iterations(k))
+
+    def faithful(n: int, k: int) -> Arm:
+        return _p2_arm("vqvae-filter", FAITHFUL, n, iterations(k))
+
+    claims = [Claim(scenario, pipeline(*reduced), pipeline(P2_SAMPLES, P2_ITERATIONS), COLLISIONS, NO_WORSE, paper)
+              for pipeline in (learned, faithful)]
     for n, k in points:
-        claims.append(Claim(scenario, learned(n, k), _p2("vqvae", n, None if k == P2_ITERATIONS else k), COLLISIONS,
+        claims.append(Claim(scenario, learned(n, k), _p2("vqvae", n, iterations(k)), COLLISIONS,
                             NO_WORSE, "learned filter proposed to enhance safety (no value stated)"))
     return FigureProtocol("p2", figure, title, tuple(claims))
 
@@ -324,16 +379,20 @@ def _p2_figure9() -> FigureProtocol:
     claims = []
     for density in ("1.0", "1.5", "3.0"):
         scenario = f"p2-four-lane-d{density}"
-        vq, vq0 = _p2("vqvae-filter"), _p2("vqvae-filter", iterations=0, note="no filter: feasibility-first ranking")
-        cv, cv0 = _p2("cvae-filter", note=CVAE_BASELINE_NOTE), _p2("cvae-filter", iterations=0,
-                                                                   note="no filter: feasibility-first ranking")
-        if density != "3.0":
-            claims.append(Claim(scenario, vq0, cv0, COLLISIONS, BETTER, "CVAE without filter 8x more collisions"))
-        else:
-            for arm, base in ((vq, vq0), (cv, cv0)):
-                claims.append(Claim(scenario, arm, base, COLLISIONS, BETTER, "the filter is needed at high density"))
-        for arm, base in ((vq, vq0), (cv, cv0)):
-            claims.append(Claim(scenario, arm, base, SPEED, WORSE, "the filter makes the car more conservative (slower)"))
+        for version in (STRENGTHENED, FAITHFUL):
+            vq = _p2_arm("vqvae-filter", version)
+            vq0 = _p2_arm("vqvae-filter", version, iterations=0, note=NO_FILTER_NOTES[version])
+            cv = _p2_arm("cvae-filter", version, note=CVAE_BASELINE_NOTE)
+            cv0 = _p2_arm("cvae-filter", version, iterations=0, note=f"{CVAE_BASELINE_NOTE}; {NO_FILTER_NOTES[version]}")
+            if density != "3.0":
+                claims.append(Claim(scenario, vq0, cv0, COLLISIONS, BETTER, "CVAE without filter 8x more collisions"))
+            else:
+                for with_filter, without in ((vq, vq0), (cv, cv0)):
+                    claims.append(Claim(scenario, with_filter, without, COLLISIONS, BETTER,
+                                        "the filter is needed at high density"))
+            for with_filter, without in ((vq, vq0), (cv, cv0)):
+                claims.append(Claim(scenario, with_filter, without, SPEED, WORSE,
+                                    "the filter makes the car more conservative (slower)"))
     return FigureProtocol("p2", "fig9", "with and without the safety filter, densities 1.0, 1.5, 3.0", tuple(claims))
 
 

@@ -1,6 +1,7 @@
 """The report of ``driveopt reproduce``: ``report.md`` and ``report.json`` (the same numbers, strict JSON) with one
 row per claim, and one PNG per figure (collision rate with its 95% Wilson interval and collision-free mean speed with
-its 95% bootstrap interval, per scenario and arm). Every file is replaced whole."""
+its 95% bootstrap interval, per scenario and arm). Every row says whether it compares the papers' methods as their
+authors ran them ("faithful"), driveopt's planners ("driveopt") or one with the other. Every file is replaced whole."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from driveopt.experiments.protocols import PLAN_TIME, FigureProtocol
+from driveopt.experiments.protocols import DRIVEOPT_ROW, FAITHFUL_ROW, MIXED_ROW, PLAN_TIME, FigureProtocol
 from driveopt.experiments.verdicts import (
     ALPHA,
     COLLISION_MARGIN,
@@ -71,8 +72,15 @@ def claim_row(r: ClaimResult) -> str:
     if plan:
         paired += (f"; plan time: arm quicker in {r.arm_quicker}/{r.plan_sign_n}, sign p {_p(r.plan_sign_p)}, diff "
                    f"{_num(r.plan_difference, 1)}{_interval(r.plan_difference_low, r.plan_difference_high, 1)} ms")
-    return (f"| {r.scenario} | {r.metric}: arm {r.expect}{like} | {r.paper} | {_arm_cell(r.arm, plan)} | "
+    return (f"| {r.scenario} | {r.kind} | {r.metric}: arm {r.expect}{like} | {r.paper} | {_arm_cell(r.arm, plan)} | "
             f"{_arm_cell(r.baseline, plan)} | {paired} | {episodes} | **{r.verdict}** |")
+
+
+def _verdict_counts(results: list[ClaimResult]) -> str:
+    counts: dict[str, int] = {}
+    for r in results:
+        counts[r.verdict] = counts.get(r.verdict, 0) + 1
+    return ", ".join(f"{v}: {n}" for v, n in sorted(counts.items())) or "none"
 
 
 def markdown(paper: str, figures: tuple[FigureProtocol, ...], results: list[ClaimResult]) -> str:
@@ -84,13 +92,18 @@ def markdown(paper: str, figures: tuple[FigureProtocol, ...], results: list[Clai
              f"time) for 'better'/'worse' claims; for 'no worse' claims the paired difference's interval against a "
              f"margin of {COLLISION_MARGIN:.2f} in collision rate or {RELATIVE_MARGIN:.0%} of the baseline's mean speed "
              f"or plan time (at least {MIN_PAIRS} pairs). See docs/reproduction/README.md.", ""]
-    counts: dict[str, int] = {}
-    for r in results:
-        counts[r.verdict] = counts.get(r.verdict, 0) + 1
-    lines.append("Verdicts: " + (", ".join(f"{v}: {n}" for v, n in sorted(counts.items())) or "none") + ".")
+    lines.append("Rows: **faithful** compares the papers' methods as the papers and their authors' code ran them "
+                 "(the `*-faithful` planners, P1's RL agents), **driveopt** compares driveopt's strengthened planners, "
+                 f"**{MIXED_ROW}** one with the other.")
     lines.append("")
-    head = ("| scenario | claim | paper | arm | baseline | paired tests | episodes | verdict |\n"
-            "|---|---|---|---|---|---|---|---|")
+    lines.append(f"Verdicts: {_verdict_counts(results)}.")
+    for kind in (FAITHFUL_ROW, DRIVEOPT_ROW, MIXED_ROW):
+        rows = [r for r in results if r.kind == kind]
+        if rows:
+            lines.append(f"- {kind} rows: {_verdict_counts(rows)}.")
+    lines.append("")
+    head = ("| scenario | row | claim | paper | arm | baseline | paired tests | episodes | verdict |\n"
+            "|---|---|---|---|---|---|---|---|---|")
     for figure in figures:
         lines.append(f"## {figure.figure}: {figure.title}")
         lines.append("")

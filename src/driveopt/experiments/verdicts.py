@@ -82,6 +82,7 @@ class ClaimResult:
     expect: str
     paper: str
     like_for_like: bool
+    kind: str  # faithful, driveopt, or driveopt vs faithful (protocols.Claim.kind)
     arm: ArmStats
     baseline: ArmStats
     seeds: tuple[int, ...]
@@ -173,7 +174,7 @@ def evaluate(figure: str, claim: Claim, arm_records: dict[Episode, dict[str, Any
         raise ValueError(f"unknown metric {claim.metric!r}")
     verdict = decide(claim.expect, better_count, worse_count, p, interval, margin)
     return ClaimResult(
-        figure, claim.scenario, claim.metric, claim.expect, claim.paper, claim.like_for_like,
+        figure, claim.scenario, claim.metric, claim.expect, claim.paper, claim.like_for_like, claim.kind,
         arm_stats(claim.arm, a if keys else list(arm_records.values())),
         arm_stats(claim.baseline, b if keys else list(baseline_records.values())),
         tuple(seeds), len(keys), full_pairs, reduced or len(keys) < full_pairs,
