@@ -43,7 +43,7 @@ from driveopt.checks import check_number, check_types
 from driveopt.config import MAX_ACCELERATION, PlannerConfig
 from driveopt.costs import COST_TERMS, cost_terms, nearest_lane_center, weighted_cost
 from driveopt.prediction import turned_box_growth
-from driveopt.problem import PlanningProblem, ellipse_axes
+from driveopt.problem import PlanningProblem, ellipse_axes, travel_direction
 from driveopt.projection import constraint_residuals
 from driveopt.qp import NUM_SEGMENTS, TrajectoryModel, boundary_values, fit_positions
 from driveopt.ranking import Candidate, Ranking
@@ -74,13 +74,6 @@ def lateral_target(problem: PlanningProblem, y: jnp.ndarray, target: str | float
     if not isinstance(target, (int, float, jax.Array)):  # a traced number too: the sideways stops are vmapped
         raise ValueError(f"unknown stop target {target!r}")
     return nearest + target * 0.5 * problem.lane_width
-
-
-def travel_direction(problem: PlanningProblem) -> jnp.ndarray:
-    """() [-] the ego's direction of travel along the road: -1.0 when it reverses (vx < 0), else 1.0 (standing too).
-
-    Every stop leads this way: a stop continues the motion the car has and brakes it to rest."""
-    return jnp.where(problem.init_x[1] < 0.0, -1.0, 1.0).astype(problem.init_x.dtype)
 
 
 def _course(problem: PlanningProblem) -> jnp.ndarray:
@@ -133,7 +126,9 @@ def easing(slope0: jnp.ndarray, y0: jnp.ndarray, target: jnp.ndarray,
     """
     k, slope, shift = EASING_CURVATURE, jnp.abs(slope0), target - y0
     gentle = jnp.maximum(MIN_EASING_DISTANCE, EASING_DISTANCE_PER_METRE * jnp.abs(shift))
-    straighten = jnp.maximum(2.0 * slope / k, 1.0)  # [m] shortest that turns the slope to 0 (1 m at standstill)
+    # [m] shortest that turns the slope to 0; from 1 m at standstill down to the stop's own distance for a shorter stop
+    # (1 cm at least), so that a stop under a metre still ends along the road
+    straighten = jnp.maximum(2.0 * slope / k, jnp.clip(stop_distance, 0.01, 1.0))
     length = jnp.minimum(gentle, jnp.maximum(stop_distance, straighten))
     # the cubic Hermite's |y''| peaks at an end: |6 D - 4 L slope0| / L^2 at the start and |6 D - 2 L slope0| / L^2 at
     # the end, for a move D; both <= k bound D to an interval on the course's side, from L slope0 / 3 (the path turns

@@ -63,6 +63,14 @@ def box_heading(ego: EgoState) -> float:
     return heading - math.pi * round(heading / math.pi)
 
 
+def travel_direction(problem: PlanningProblem) -> jnp.ndarray:
+    """() [-] the ego's direction of travel along the road: -1.0 when it reverses (vx < 0), else 1.0 (standing too).
+
+    A stop continues the motion the car has and brakes it to rest (:mod:`driveopt.fallback`), and no plan moves against
+    this direction (the projection's course bound, :mod:`driveopt.projection`)."""
+    return jnp.where(problem.init_x[1] < 0.0, -1.0, 1.0).astype(problem.init_x.dtype)
+
+
 def build_problem(
     scene: Scene, basis: BasisConfig = BasisConfig(), max_obstacles: int = 10, ignore_followers: bool = False,
     braking_time: float = BRAKING_TIME, selection_time: float = SELECTION_TIME,

@@ -40,7 +40,7 @@ import jax
 import jax.numpy as jnp
 
 from driveopt.config import ProjectionConfig
-from driveopt.problem import PlanningProblem, ellipse_axes
+from driveopt.problem import PlanningProblem, ellipse_axes, travel_direction
 from driveopt.qp import TrajectoryModel, split
 from driveopt.xla import float32_products
 
@@ -108,6 +108,7 @@ class _Operators(NamedTuple):
     lane_rows: jnp.ndarray  # (K,) 1 at the nodes that carry a lane row (all but node 0)
     lane_bounds: jnp.ndarray  # (2, K) upper-row and lower-row bounds e of the row at each node (node 0: unused); (2, B, K) per sample
     course: jnp.ndarray  # (2, K) cosine and sine of the course-angle bound at each node (:func:`course_bounds`)
+    direction: jnp.ndarray  # () [-] the ego's direction of travel along x: 1 forwards, -1 reversing
     obstacle_floor: jnp.ndarray  # (N, K) lowest ellipse ratio allowed per obstacle and node (:func:`obstacle_floor`)
     inverse_axes: jnp.ndarray  # (2, N, K) [1/m] 1 / the ellipses' longitudinal and lateral semi-axes per node
     per_sample: _SampleY | None  # the y axis's per-sample changes when gamma_lane is per sample, else None
@@ -152,18 +153,22 @@ def lane_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: Projectio
 
 
 def course_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
-    """[rad] bound on |course angle| (the velocity's angle to the road) at every node (K,): ``cfg.course_max``,
+    """[rad] bound on |course angle| (the velocity's angle to the ego's direction of travel along the road,
+    :func:`~driveopt.problem.travel_direction`) at every node (K,): ``cfg.course_max``,
     except near t = 0 when the car's course already exceeds it: then the bound starts at the current course and
     narrows linearly to ``course_max`` by ``recovery_time`` (as the lane bounds do for a car off the road), so a
     car that is turned across the road plans its way back instead of finding every plan infeasible.
 
     The bound keeps the projection from turning a blocked plan into a sideways swerve: in dense traffic a plan
     pushed around a stopped car by the obstacle rows alone crossed three lanes in 3 s at 6 m/s (course up to
-    0.95 rad), and the lateral speed it built up could not be undone before the next car."""
+    0.95 rad), and the lateral speed it built up could not be undone before the next car.
+
+    Below ``cfg.course_min_speed`` the bound is a right angle (:func:`_analysis_step`): a slow plan may move sideways
+    but never against the direction of travel, so a plan braked to rest does not roll back."""
     t = jnp.asarray(model.t)
     vx0, vy0 = problem.init_x[1], problem.init_y[1]
     moving = vx0 * vx0 + vy0 * vy0 > CURVATURE_MIN_SPEED ** 2
-    course0 = jnp.where(moving, jnp.abs(jnp.arctan2(vy0, vx0)), 0.0)
+    course0 = jnp.where(moving, jnp.abs(jnp.arctan2(vy0, travel_direction(problem) * vx0)), 0.0)
     excess = jnp.maximum(course0 - cfg.course_max, 0.0)
     fade = jnp.clip(1.0 - t / cfg.recovery_time, 0.0, 1.0) if cfg.recovery_time > 0 else jnp.zeros_like(t)
     return cfg.course_max + excess * fade
@@ -294,6 +299,7 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
         lane_rows=(jnp.arange(W.shape[0]) > 0).astype(W.dtype),
         lane_bounds=bounds,  # (2, K), or (2, B, K) per sample
         course=jnp.stack([jnp.cos(course), jnp.sin(course)]),
+        direction=travel_direction(problem),
         obstacle_floor=obstacle_floor(model, problem, cfg),
         inverse_axes=1.0 / jnp.stack(ellipse_axes(problem)),
         per_sample=sample_y,
@@ -408,17 +414,21 @@ def _analysis_step(
         v_lo = jnp.where(turning, jnp.maximum(v_lo, _safe_sqrt(d_acc_prev * sin_va / cfg.kappa_max)), v_lo)
     road_k = jnp.abs(problem.road_curvature)
     v_hi = jnp.minimum(cfg.v_max, jnp.sqrt(cfg.centripetal_max / jnp.maximum(uvx * uvx * road_k, _EPS)))
-    # Course bound: a velocity turned further from the road than the bound goes to the nearest point of the
-    # bound's ray, of length |v| cos(course - bound) (then the speed bounds apply); no bound (P1): as it is.
-    # It applies above ``course_min_speed`` (by default CURVATURE_MIN_SPEED, as the curvature bound).
+    # Course bound: a velocity turned further from the direction of travel (s = +-1 along x) than the bound goes to
+    # the nearest point of the bound's ray, of length |v| cos(course - bound) (then the speed bounds apply); no
+    # bound (P1): as it is. Above ``course_min_speed`` (by default CURVATURE_MIN_SPEED, as the curvature bound) the
+    # bound is ``course_max``; below it a right angle: a velocity against the direction of travel goes to its
+    # sideways part (0, vy), so a plan braked to rest does not roll back.
     along = speed
     dir_x, dir_y = uvx, uvy
     if cfg.course_max > 0:
-        cos_b, sin_b = ops.course[0], ops.course[1]
-        turned = (uvx < cos_b) & (speed > cfg.course_min_speed)
-        dir_x = jnp.where(turned, cos_b, uvx)
+        s = ops.direction
+        fast = speed > cfg.course_min_speed
+        cos_b, sin_b = jnp.where(fast, ops.course[0], 0.0), jnp.where(fast, ops.course[1], 1.0)
+        turned = s * uvx < cos_b
+        dir_x = jnp.where(turned, s * cos_b, uvx)
         dir_y = jnp.where(turned, jnp.where(uvy < 0, -sin_b, sin_b), uvy)
-        along = jnp.where(turned, jnp.maximum(vx * cos_b + jnp.abs(vy) * sin_b, 0.0), speed)
+        along = jnp.where(turned, jnp.maximum(s * vx * cos_b + jnp.abs(vy) * sin_b, 0.0), speed)
     d_vel = jnp.minimum(jnp.maximum(along, v_lo), v_hi)
     a_hi = jnp.full_like(acc, cfg.a_max)
     if cfg.kappa_max > 0:

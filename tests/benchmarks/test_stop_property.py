@@ -10,6 +10,7 @@ import benchmark_scripts
 import numpy as np
 import pytest
 
+from driveopt.config import PlannerConfig
 from driveopt.planner import PlanStatus
 from driveopt.scene import EgoState, Road, Scene
 from driveopt.trajectory import Trajectory
@@ -71,10 +72,12 @@ def test_the_checks_catch_a_stop_that_drives_forwards_and_a_success_that_rolls_b
     driving = Scene(ego=EgoState(x=0.0, y=4.0, vx=15.0), road=Road(num_lanes=3))
     rolled_back = ahead - np.where(t > 10.0, 0.5, 0.0)
     success = SimpleNamespace(status=PlanStatus.SUCCESS, x_offset=0.0, trajectory=_stop(t, rolled_back, speed, speed))
+    limits = stop_property.reversal_limits(PlannerConfig())
     back, _ = stop_property.success_reversal(success, driving)
-    assert back == pytest.approx(0.5) and stop_property.is_reversal(back, 0.0)
+    assert back == pytest.approx(0.5) and stop_property.is_reversal(back, 0.0, limits)
     assert not stop_property.is_reversal(*stop_property.success_reversal(
-        SimpleNamespace(**{**vars(success), "trajectory": _stop(t, ahead, speed, speed)}), driving))
+        SimpleNamespace(**{**vars(success), "trajectory": _stop(t, ahead, speed, speed)}), driving), limits)
+    assert stop_property.is_reversal(0.0, 0.06, limits) and not stop_property.is_reversal(0.0, 0.04, limits)
 
 
 @pytest.mark.parametrize("argv, needle", [(["--random", "-1"], "--random"), (["--samples", "0"], "--samples")])

@@ -11,7 +11,7 @@ from driveopt.config import ProjectionConfig, QPConfig
 from driveopt.fallback import Fallback, braking_coeffs
 from driveopt.planner import PreviousPlan, previous_plan
 from driveopt.prediction import is_follower, predict_neighbour, relevant_neighbours
-from driveopt.projection import constraint_residuals
+from driveopt.projection import constraint_residuals, project
 from driveopt.qp import boundary_values, make_model
 from driveopt.ranking import CostPlusResidual
 from driveopt.sampler import GaussianPrior
@@ -74,12 +74,17 @@ def test_structured_prior_draws_whole_horizon_behaviours():
 
 
 def test_a_stop_is_feasible_curvature_is_not_applied_at_standstill():
+    """The batch's stop row (a polynomial fit of braking at 3 m/s^2 from 10 m/s) is feasible once projected as the
+    planner projects it: the curvature bound does not hold the standing car, and the fit's ringing backwards after the
+    stop (about 0.1 m/s) is projected out by the course bound's right angle below course_min_speed."""
     model = make_model()
     problem = build_problem(Scene(ego=EgoState(x=0.0, y=4.3, vx=10.0)))
     b_x, b_y = boundary_values(problem.init_x, problem.init_y, QPConfig())
     stop = braking_coeffs(model, problem, 3.0, b_x, b_y)[None]
-    res = constraint_residuals(model, problem, stop, ProjectionConfig(a_max=4.5, kappa_max=0.16))
-    assert float(res.total[0]) < 0.05
+    cfg = ProjectionConfig(a_max=4.5, kappa_max=0.16)
+    res = constraint_residuals(model, problem, stop, cfg)
+    assert float(res.obstacle[0] + res.acceleration[0] + res.lane[0]) < 0.05 and float(res.velocity[0]) > 0.05
+    assert float(project(model, problem, stop, b_x, b_y, cfg).residuals.total[0]) < 0.05
     speed = np.hypot(stop[0, :11] @ np.asarray(model.Wd).T, stop[0, 11:] @ np.asarray(model.Wd).T)
     assert abs(speed[0] - 10.0) < 1e-3
     assert speed[np.searchsorted(np.asarray(model.t), 5.0)] < 0.5  # stopped after 10 / 3 s

@@ -178,13 +178,14 @@ def test_a_car_turned_across_the_road_plans_its_way_back_within_the_course_bound
 
 def test_a_crawling_car_is_held_to_the_course_bound_only_above_course_min_speed():
     """A 2 m lateral move from 0.5 m/s. With the default ``course_min_speed`` (1 m/s, as the curvature bound) the
-    nodes below it have no course bound, and the projection settles on a path that moves sideways, even backwards, at
-    a crawl (course up to about 3 rad) with no residual: the diagonal crawls seen in P2's traffic. With 0.1 m/s every
-    node moving faster than that keeps within the bound, and the move is mostly given up."""
+    nodes below it are held only to a right angle (never backwards), and the projection settles on a path that moves
+    sideways at a crawl (course up to pi/2) with no residual: the diagonal crawls seen in P2's traffic. With 0.1 m/s
+    every node moving faster than that keeps within the bound, and the move is mostly given up."""
     problem, target, b_x, b_y = setup(empty_scene(vx=0.5, y=4.0), [[0.5] * 4 + [6.0] * 4])
     bounded = dataclasses.replace(LOOSE, course_max=0.35)
     loose = project(MODEL, problem, target, b_x, b_y, bounded)
-    assert float(loose.residuals.velocity[0]) < 0.05 and course(evaluate(MODEL, loose.coeffs)).max() > 1.5
+    crawl = course(evaluate(MODEL, loose.coeffs))
+    assert float(loose.residuals.velocity[0]) < 0.05 and 1.5 < crawl.max() < np.pi / 2 + 0.01
     held = project(MODEL, problem, target, b_x, b_y, dataclasses.replace(bounded, course_min_speed=0.1))
     traj = evaluate(MODEL, held.coeffs)
     moving = np.hypot(np.asarray(traj.vx), np.asarray(traj.vy))[0] > 0.1
@@ -192,6 +193,26 @@ def test_a_crawling_car_is_held_to_the_course_bound_only_above_course_min_speed(
     assert course(traj)[0][moving].max() < 0.35 + 0.05
     assert float(traj.y[0, -1]) < 5.0
     check_boundary(problem, held.coeffs)
+
+
+@pytest.mark.parametrize("vx0, speed_setpoint", [(2.0, -3.0), (-2.0, 3.0)])
+def test_no_node_moves_against_the_direction_of_travel(vx0, speed_setpoint):
+    """Set-points that turn the motion round (a forward car told to reverse, a reversing one told to drive forwards):
+    with the course bound, the projected plan keeps every node's velocity within a right angle of the direction of
+    travel (at a crawl too), so it stops instead; without it (P1) the plan turns round with no residual."""
+    problem, target, b_x, b_y = setup(empty_scene(vx=vx0, y=4.0), [[speed_setpoint] * 4 + [4.0] * 4])
+    direction = np.sign(vx0)
+    assert (direction * np.asarray(evaluate(MODEL, target).vx)).min() < -2.0
+    bounded = dataclasses.replace(LOOSE, course_max=0.35)
+    assert float(constraint_residuals(MODEL, problem, target, bounded).velocity[0]) > 1.0
+    out = project(MODEL, problem, target, b_x, b_y, bounded)
+    traj = evaluate(MODEL, out.coeffs)
+    assert float(out.residuals.velocity[0]) < 0.05
+    assert (direction * np.asarray(traj.vx)).min() > -0.05
+    check_boundary(problem, out.coeffs)
+    free = project(MODEL, problem, target, b_x, b_y, LOOSE)
+    assert float(free.residuals.velocity[0]) < 0.05
+    assert (direction * np.asarray(evaluate(MODEL, free.coeffs).vx)).min() < -2.0
 
 
 @pytest.fixture(scope="module")

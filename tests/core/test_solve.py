@@ -87,12 +87,16 @@ class FixedPrior:
 P1_BATCH = PlannerConfig().replace(sampler={"num_samples": 2, "num_iterations": 1, "num_constraint_elites": 2, "num_elites": 2})
 
 
+STOP_SPEEDS = [5.0, 0.0, 0.0, 0.0]  # [m/s] a stop in the lane that the projection makes feasible (set-points of 0 from
+# the first quarter on ring backwards, which the course bound refuses)
+
+
 def _blockage_rows():
     """static-blockage (the ego's lane blocked 40 m ahead, v_des 20 m/s): (problem, prior) with row 0 holding
     v_des in the lane (cheap, runs into the blockage: infeasible) and row 1 stopping in it (feasible, slow: costly)."""
     problem = build_problem(load_scene("static-blockage"), P1_BATCH.basis)
     y0 = float(problem.init_y[0])
-    rows = jnp.asarray([[float(problem.v_des)] * 4 + [y0] * 4, [0.0] * 4 + [y0] * 4], jnp.float32)
+    rows = jnp.asarray([[float(problem.v_des)] * 4 + [y0] * 4, STOP_SPEEDS + [y0] * 4], jnp.float32)
     return problem, FixedPrior(rows)
 
 
@@ -105,7 +109,7 @@ def test_p1_ranking_picks_the_lowest_cost_plus_residual_even_when_infeasible():
     assert residual[0] > P1_BATCH.sampler.residual_tolerance >= residual[1]  # the case is what it claims
 
     feasible_first = results[True]  # the feasible stop, though it costs more
-    assert feasible_first.status == PlanStatus.SUCCESS and feasible_first.setpoints[0] == 0.0
+    assert feasible_first.status == PlanStatus.SUCCESS and feasible_first.setpoints[0] == STOP_SPEEDS[0]
     p1 = results[False]  # the fast row: lower cost + residual, infeasible
     assert p1.status == PlanStatus.INFEASIBLE and p1.setpoints[0] == float(problem.v_des)
     assert p1.costs["total"] + p1.residuals["total"] < feasible_first.costs["total"] + feasible_first.residuals["total"]
@@ -189,7 +193,7 @@ def test_the_placeholder_row_is_in_solve_s_batch_but_never_ranked(small_config):
     np.testing.assert_array_equal(placeheld.first.setpoints[2], placeheld.first.setpoints[0])
     assert int(plain.history.num_feasible[0]) == int(placeheld.history.num_feasible[0]) == 1
     assert sorted(placeheld.first.elite_index.tolist()) == [0, 1]  # both elite places go to the samples
-    assert float(placeheld.best.setpoints[0]) == 0.0 and float(placeheld.best.terms[-1]) == 0.0  # the stop; no consistency
+    assert float(placeheld.best.setpoints[0]) == STOP_SPEEDS[0] and float(placeheld.best.terms[-1]) == 0.0  # the stop; no consistency
 
 
 def test_a_warm_start_and_a_previous_plan_reach_the_result_whichever_way_they_are_passed(small_config):
