@@ -4,7 +4,7 @@ real time (plans take effect after their measured compute time), on the dense fo
     python benchmarks/realtime_table.py --json out/realtime_table.json [--out out/realtime] [--episodes 50]
         [--duration S] [--seed 42] [--workers 1] [--configs bilevel-250 ...] [--latencies sync measured]
 
-Each configuration (``bilevel`` at 250 and 1000 samples, ``vqvae-filter`` at its own sample count) runs once per
+Each configuration (``bilevel`` at its default, 250 and 1000 samples, ``vqvae-filter`` at its own sample count) runs once per
 latency as a ``driveopt bench`` into a folder of its own under ``--out`` (``NAME-LATENCY``): the same as
 
     driveopt bench --scenarios four-lane-d3.0 --planners bilevel --samples 250 --latency measured \\
@@ -36,6 +36,7 @@ from driveopt.files import write_json
 
 SCENARIO = "four-lane-d3.0"
 CONFIGS: dict[str, tuple[str, int | None]] = {  # name -> (planner, samples; None: the planner's own)
+    "bilevel": ("bilevel", None),  # the default planner at its real-time default (driveopt.registry.REALTIME_SAMPLES)
     "bilevel-250": ("bilevel", 250),
     "bilevel-1000": ("bilevel", 1000),
     "vqvae-filter": ("vqvae-filter", None),

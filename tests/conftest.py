@@ -1,10 +1,18 @@
+import atexit
 import gc
 import os
+import shutil
+import tempfile
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-# JAX's persistent compilation cache stays off in tests: it saved under 10% of the suite's time (CI starts from a
-# clean clone), and a warm cache would skip compilations that tests observe. Tests that want it turn it on.
-os.environ.setdefault("DRIVEOPT_COMPILATION_CACHE", "0")
+# JAX's persistent compilation cache in a folder of this test run's own: empty when the run starts (so every test sees
+# what a fresh install sees, compilations included), shared by the xdist workers and the commands that tests start in
+# subprocesses (they inherit the environment), so that a configuration compiled by one process loads in the others;
+# removed when the run ends. The user's own cache is never read or written. Tests of the cache set their own folders.
+if "DRIVEOPT_COMPILATION_CACHE" not in os.environ:
+    _cache = tempfile.mkdtemp(prefix="driveopt-tests-jax-")
+    os.environ["DRIVEOPT_COMPILATION_CACHE"] = _cache
+    atexit.register(shutil.rmtree, _cache, ignore_errors=True)
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
@@ -108,6 +116,19 @@ SLOW = {
     "tests/core/test_controller.py::test_racetrack_is_driven_for_20_s_without_leaving_the_track": "overlay test",
     "tests/experiments/test_prior_metrics.py::test_row_metrics_of_a_hand_made_prior_on_an_empty_road": "prior metrics",
     "tests/benchmarks/test_stop_property.py": "benchmark script",
+    "tests/training/test_vqvae.py::test_demonstrations_table_counts_modes_and_lanes_and_refuses_bad_files":
+        "benchmark script",
+    # the fallback's choice: test_the_fallback_is_the_stop_that_reaches_an_obstacle_later; its stops' promises with
+    # evasion on (the default): tests/cli/test_reliability.py's property
+    "tests/core/test_behaviours.py::test_evasion_leaves_the_fallback_alone_where_no_stop_in_the_lane_touches_a_car":
+        "fallback choice",
+    # the optimiser driver plans from the car's state at every step of test_rollout's closed loops, whose plans the
+    # tracker follows (tests/sim/test_sim_control.py's open-loop tracking of a lane and speed change)
+    "tests/drivers/test_drivers.py::test_optimiser_driver_plans_from_the_current_state_and_returns_a_valid_action":
+        "closed loops",
+    "tests/sim/test_sim_control.py::test_open_loop_tracking_of_a_planner_result": "closed loops",
+    "tests/core/test_registry.py::test_faithful_planners_plan_finite_trajectories[vanilla-faithful]":
+        "test_rollout's [vanilla-faithful] case",
 }
 
 

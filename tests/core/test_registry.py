@@ -16,7 +16,7 @@ from driveopt.priors.p1_authors import FixedGaussian, SpeedOffsetGrid, VanillaGu
 from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
 from driveopt.ranking import CostPlusResidual, FeasibilityFirst
-from driveopt.registry import P1_RANKING_COST_WEIGHT, get_optimiser, get_planner, list_planners
+from driveopt.registry import P1_RANKING_COST_WEIGHT, REALTIME_SAMPLES, get_optimiser, get_planner, list_planners
 from driveopt.scene import load_scene
 
 
@@ -36,6 +36,21 @@ def test_batch_size_override_caps_elites_and_keeps_vanilla_single():
     assert get_planner("vanilla").with_samples(250).config.sampler.num_samples == 1  # one sample is the method
     assert get_planner("grid").with_samples(None) == get_planner("grid")
     assert get_planner("idm").with_samples(250) == get_planner("idm")
+
+
+def test_the_default_planner_plans_the_real_time_sample_count_and_the_readme_says_so():
+    """bilevel's samples per iteration, which drive, bench, plan and Controller use unless told otherwise, are the
+    real-time count (its measurement: docs/results/speed.md), and the README states that count."""
+    from pathlib import Path
+
+    from driveopt.controller import Controller
+
+    sampler = get_planner("bilevel").config.sampler
+    assert (sampler.num_samples, sampler.num_constraint_elites, sampler.num_elites) == (REALTIME_SAMPLES, 100, 40)
+    assert Controller().spec.config.sampler.num_samples == REALTIME_SAMPLES
+    readme = (Path(__file__).parents[2] / "README.md").read_text()
+    assert f"run `bilevel` at {REALTIME_SAMPLES} samples per iteration by default" in readme
+    assert f"the registered `bilevel` plans {REALTIME_SAMPLES}" in readme
 
 
 @pytest.mark.parametrize("name", ["random", "grid", "vanilla", "batch"])

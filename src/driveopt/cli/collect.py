@@ -18,7 +18,7 @@ def register(sub) -> None:
     p.add_argument("--scenarios", nargs="+", default=["four-lane-d3.0", "two-lane-d2.5"])
     p.add_argument("--seed", type=int, default=7, help="traffic seed (keep it apart from evaluation seeds)")
     p.add_argument("--episodes", type=positive_int, default=10, help="episodes per scenario")
-    p.add_argument("--samples", type=positive_int, default=250, help="expert samples per sampler iteration (250, as drive and bench: with 1000 the expert crashed more)")
+    p.add_argument("--samples", type=positive_int, default=250, help="expert samples per sampler iteration (250, the shipped demonstrations' setting: with 1000 the expert crashed more)")
     p.add_argument("--iterations", type=positive_int, default=5, help="expert sampler iterations")
     p.add_argument("--duration", type=duration, default=50.0, help="episode length [s]")
     p.add_argument("--workers", type=positive_int, default=1, help="parallel episodes")
