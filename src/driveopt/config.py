@@ -108,9 +108,10 @@ class ProjectionConfig:
     gamma_lane: float = 1.0  # [-] in (0, 1]: lane barrier parameter with ``barrier`` (1: the plain bound; P2: 0.9); likewise
     recovery_time: float = 3.0  # [s] a car off the lane bounds (or drifting past them), or whose course exceeds
     # ``course_max``, must be back within them by then (0: never relaxed)
-    course_max: float = 0.35  # [rad] bound on the angle between the velocity and the road (0: no bound, P1)
+    course_max: float = 0.35  # [rad] bound on the angle between the velocity and the direction of travel along the road (0: no
+    # bound, P1)
     course_min_speed: float = 1.0  # [m/s] the course bound applies where the speed exceeds this (below it a stopping
-    # car's direction means little; a car that crawls sideways below it is not held to the bound)
+    # car's direction means little: a car that crawls sideways is held only to a right angle, never backwards)
     ego_turn_rate: float = 0.179  # [rad/m] > 0: the lateral growth of the ellipses for the ego's turned box lasts, per
     # sample, until its heading has fallen this much per metre the sample travels along the road (a plan that stands keeps
     # it), and at least over the plan's first seconds (problem.ellipse_growth; 0: only those); 0.179 is
