@@ -5,10 +5,10 @@ import shutil
 import tempfile
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-# JAX's persistent compilation cache in a folder of this test run's own: empty when the run starts (so every test sees
-# what a fresh install sees, compilations included), shared by the xdist workers and the commands that tests start in
-# subprocesses (they inherit the environment), so that a configuration compiled by one process loads in the others;
-# removed when the run ends. The user's own cache is never read or written. Tests of the cache set their own folders.
+# JAX's persistent compilation cache in a folder of this test run's own: empty when the run starts (nothing carried
+# over from earlier runs or from the user's cache, which is never read or written), shared by the xdist workers and
+# the commands that tests start in subprocesses (they inherit the environment), so that a configuration compiled by
+# one process loads in the others; removed when the run ends. Tests of the cache set their own folders.
 if "DRIVEOPT_COMPILATION_CACHE" not in os.environ:
     _cache = tempfile.mkdtemp(prefix="driveopt-tests-jax-")
     os.environ["DRIVEOPT_COMPILATION_CACHE"] = _cache
