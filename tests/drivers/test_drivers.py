@@ -15,7 +15,6 @@ from driveopt.problem import build_problem
 from driveopt.registry import get_planner
 from driveopt.scene import EgoState, Neighbour, Road, Scene
 from driveopt.sim.control import BicycleModel, EgoKinematics, brake_at_least, track
-from driveopt.sim.perception import Perception
 from driveopt.sim.scenarios import get_scenario
 from driveopt.trajectory import Trajectory
 
@@ -98,7 +97,7 @@ def test_p1_driver_executes_its_plan_unless_it_is_not_finite(status):
     for name in ("grid", "grid-p1"):
         driver = get_planner(name).driver()
         driver.model = model
-        actions[name] = driver._command(result, driver.followed(result), 0.0, state, env)[0]  # a road along +x: world
+        actions[name] = driver._command(result, driver.followed(result), 0.0, state, env)[0].action  # a road along +x: world
     np.testing.assert_array_equal(actions["grid"], brakes_now.action)
     expected = follows_plan if status == PlanStatus.INFEASIBLE else brakes_now
     np.testing.assert_array_equal(actions["grid-p1"], expected.action)
@@ -113,7 +112,7 @@ def test_p1_driver_predicts_neighbours_at_constant_velocity():
         spec = get_planner(name)
         driver = spec.driver()
         driver.config = spec.config
-        rows[name] = np.asarray(driver._problem(Perception(scene, None)).obstacle_x[0])
+        rows[name] = np.asarray(driver._problem(scene).obstacle_x[0])
     t = np.linspace(0.0, spec.config.basis.horizon, spec.config.basis.num_nodes)
     np.testing.assert_allclose(rows["grid-p1"], 25.0 + 10.0 * t, rtol=1e-6, atol=1e-4)  # planning frame: ego at x = 0
     assert rows["grid"][-1] == pytest.approx(25.0 + 12.5, abs=1e-3)  # stopped 12.5 m on

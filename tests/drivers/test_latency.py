@@ -66,8 +66,8 @@ def test_sync_is_the_closed_loop_that_waits_for_every_plan():
 
 def test_a_fixed_latency_delivers_each_plan_periods_after_it_started(monkeypatch):
     """250 ms at 10 Hz: the first plan is waited for; then a plan starts at step 1 and every 3 steps (when the
-    previous is delivered), takes effect 3 steps after it started, made from the state at its start and tracked from
-    0.3 s into it; meanwhile the car tracks the plan in effect further along."""
+    previous is delivered) and takes effect 3 steps after it started, made from the state predicted for that step
+    (where the car then is) and tracked from its start; meanwhile the car tracks the plan in effect further along."""
     from driveopt.drivers import optimiser
 
     calls = []
@@ -83,17 +83,19 @@ def test_a_fixed_latency_delivers_each_plan_periods_after_it_started(monkeypatch
     delivered = [i for i, s in enumerate(steps) if s["delivered"]]
     assert delivered == [0, 4, 7] and [steps[i]["periods"] for i in delivered] == [0, 3, 3]
     assert [s["index"] for s in steps] == [0, 0, 0, 0, 1, 1, 1, 2, 2, 2]
-    assert [round(s["elapsed"] / PERIOD) for s in steps] == [0, 1, 2, 3, 3, 4, 5, 3, 4, 5]
+    assert [round(s["elapsed"] / PERIOD) for s in steps] == [0, 1, 2, 3, 0, 1, 2, 0, 1, 2]
     started = [i - steps[i]["periods"] for i in delivered]
     assert started == [0, 1, 4]
-    assert all(steps[i]["planned_x"] == pytest.approx(steps[j]["ego_x"]) for i, j in zip(delivered, started))
+    assert all(steps[i]["planned_x"] == pytest.approx(steps[i]["ego_x"], abs=0.05) for i in delivered)
     record = rollout.episode.record()
     assert record["plan_periods"] == [0, 3, 3] and len(record["plan_ms"]) == 3
     assert rollout.episode.summary()["plan_periods_max"] == 3
 
 
 def test_measured_latency_rounds_the_measured_compute_time_up(monkeypatch):
-    """Every call timed at 130 ms (a fake clock): each plan takes effect 2 periods after it started."""
+    """Every call timed at 130 ms (a fake clock): each plan takes effect 2 periods after it started. The first
+    real-time call expected one period (it planned from the state a period ahead: tracked from 0.1 s into it when it
+    arrives a period later), the others two (tracked from their start)."""
     from driveopt.drivers import optimiser
 
     clock = SimpleNamespace(now=0.0)
@@ -108,17 +110,18 @@ def test_measured_latency_rounds_the_measured_compute_time_up(monkeypatch):
     assert delivered == [0, 3, 5, 7, 9]
     assert rollout.episode.plan_periods == [0, 2, 2, 2, 2]
     assert rollout.episode.plan_ms == pytest.approx([130.0] * 5)
-    assert [round(s["elapsed"] / PERIOD) for s in steps] == [0, 1, 2, 2, 3, 2, 3, 2, 3, 2]
+    assert [round(s["elapsed"] / PERIOD) for s in steps] == [0, 1, 2, 1, 2, 0, 1, 0, 1, 0]
 
 
 def test_latency_and_replan_every_start_a_call_no_sooner_than_every_n_steps():
     """100 ms (1 period) with plans executed for 3 periods: calls start at steps 0, 3, 6, 9, each taking effect a
-    period later; the plan in effect is tracked on until then."""
+    period later (planned from the state predicted for then: tracked from its start); the plan in effect is tracked
+    on until then."""
     _, steps = _drive(_spec(100).with_replan_every(3))
     delivered = [i for i, s in enumerate(steps) if s["delivered"]]
     assert delivered == [0, 4, 7]
     assert [s["index"] for s in steps] == [0, 0, 0, 0, 1, 1, 1, 2, 2, 2]
-    assert [round(s["elapsed"] / PERIOD) for s in steps] == [0, 1, 2, 3, 1, 2, 3, 1, 2, 3]
+    assert [round(s["elapsed"] / PERIOD) for s in steps] == [0, 1, 2, 3, 0, 1, 2, 0, 1, 2]
 
 
 def test_latency_is_a_bench_option_and_a_folder_refuses_mixing(tmp_path, capsys, monkeypatch):

@@ -122,6 +122,7 @@ def test_the_driver_guards_only_when_configured(contact_guard):
     env = SimpleNamespace(unwrapped=SimpleNamespace(vehicle=SimpleNamespace(speed=0.0)))
     now = EgoKinematics(0.0, -0.3)  # a straight road along +x: world and road frame agree
     perception = SimpleNamespace(kinematics=now, scene=_beside_a_stopped_car(4.75))
-    action, guarded = driver._command(result, driver.followed(result), 0.0, now, env, perception)
+    command, guarded = driver._command(result, driver.followed(result), 0.0, now, env, perception)
+    action = command.action
     assert guarded == contact_guard
     assert (action[0] == 0.0) == contact_guard  # [-1, 1] action: 0 is no acceleration

@@ -14,9 +14,14 @@ constant velocity), and the neighbours planned against are those that come close
 now). With ``replan_every`` N > 1 (P1 §V executes five control periods per plan) it
 plans every N-th step and tracks the same plan open-loop in between. With a real-time ``latency``
 (:mod:`driveopt.drivers.latency`) the same open-loop tracking pays for planning time: a plan started at step k
-takes effect L policy periods later (its compute time rounded up, at least one) and is tracked from L periods into
-it; until then the car keeps tracking the plan in effect. A new call starts at the step the previous one is
-delivered, and no sooner than N steps after it started: one call in flight at a time. The episode's first plan is
+takes effect L policy periods later (its compute time rounded up, at least one); until then the car keeps tracking
+the plan in effect. So that the new plan starts where the car will be when it takes effect, a call started at step
+k plans from the scene predicted P periods ahead (P: the periods the previous call took, or the fixed latency's;
+the ego moved by this step's command, then as the plan in effect moves it; the neighbours at constant velocity): it takes effect after
+max(L, P) periods and is tracked from max(L - P, 0) into it. (Planned from the state at step k, each plan would
+meet the car a period away from its start, and the tracker's correction within one period would make the loop
+alternate between full throttle and full braking.) A new call starts at the step the previous one is delivered, and no sooner
+than N steps after it started: one call in flight at a time. The episode's first plan is
 made synchronously (the simulator waits for it). Its PRNG key derives from the
 episode seed: same seed, same episode. A learned safety filter (P2 §III-C; ``filter_weights``, or the
 shipped weights for a spec with ``learned_filter``) sets up every batch's projection
@@ -35,6 +40,7 @@ import warnings
 from typing import Any, Callable, NamedTuple
 
 import jax
+import numpy as np
 
 from driveopt.batch_rows import BatchRows, StopRows
 from driveopt.checks import check_count, check_types
@@ -48,9 +54,9 @@ from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
 from driveopt.ranking import FeasibilityFirst, Ranking
 from driveopt.sim.contact import guard
-from driveopt.sim.control import BicycleModel, brake_at_least, ego_kinematics, track
+from driveopt.sim.control import BicycleModel, Command, EgoKinematics, brake_at_least, ego_kinematics, predict, sample_trajectory, track
 from driveopt.sim.perception import Perception, RoadPreview, perceive
-from driveopt.sim.road_frame import RoadFrameError
+from driveopt.sim.road_frame import RoadFrameError, slip_angle
 from driveopt.sim.scenarios import Scenario
 from driveopt.sim.world_plan import to_world
 
@@ -218,7 +224,13 @@ class _Call(NamedTuple):
     problem: Any
     frame: Any  # the road frame it planned in
     seconds: float  # [s] measured wall time of the call
-    periods: int  # [policy periods] from the step it started to the step it takes effect (0: at once)
+    periods: int  # [policy periods] its compute time, rounded up (0: it takes effect at the step it started)
+    ahead: int  # [policy periods] from the step it started to its plan's t = 0 (the scene it planned from)
+
+    @property
+    def delivered_after(self) -> int:
+        """[policy periods] from the step it started to the step it takes effect."""
+        return max(self.periods, self.ahead)
 
 
 class OptimiserDriver:
@@ -252,7 +264,7 @@ class OptimiserDriver:
         self.warm = WarmStart.absent() if self.spec.warm_start else None
         self.previous = PreviousPlan.absent(self.config.basis.num_nodes) if self.carries_plan else None
         start = time.perf_counter()
-        problem = self._problem(first)
+        problem = self._problem(first.scene)
         plan(problem, self.config, key=jax.random.fold_in(self.key, 1), prior=self.prior, warm_start=self.warm,
              previous=self.previous, safety_filter=self.safety_filter, **self.strategies)
         self.compile_seconds = time.perf_counter() - start
@@ -261,9 +273,10 @@ class OptimiserDriver:
         self.pending: _Call | None = None  # a plan computed but not yet in effect (real-time latency)
         self.steps = 0  # [-] policy steps acted this episode
         self.started_at = 0  # [-] the step the latest planning call started at
+        self.expected = self.spec.latency.periods(0.0, self.period)  # [policy periods] a call's expected compute time
 
-    def _problem(self, perception: Perception):
-        return build_problem(perception.scene, self.config.basis, ignore_followers=True, braking_time=self.spec.braking_time,
+    def _problem(self, scene: Any):
+        return build_problem(scene, self.config.basis, ignore_followers=True, braking_time=self.spec.braking_time,
                              selection_time=self.spec.selection_time)
 
     def _carried(self, result: PlanResult, gap: float):
@@ -283,18 +296,22 @@ class OptimiserDriver:
     def act(self, env: Any) -> Decision:
         delivered = self._deliver()
         perception = None
+        command = None
         if self._starts_call():
             perception = perceive(env, self.scenario, self.preview)
-            call = self._plan(perception)
+            if self._ahead():  # the plan in effect carries the car until the new one takes effect: command it first
+                command, guarded = self._step_command(env, perception)
+            call = self._plan(perception, command)
             if call.periods == 0:
                 delivered = self._take_effect(call)
             else:
                 self.pending = call
         elif self.spec.contact_guard:
             perception = perceive(env, self.scenario, self.preview)
-        tracking = perception.tracking if perception else ego_kinematics(env)
         executing, elapsed = self.executing, self.executed_periods * self.period
-        action, guarded = self._command(executing.result, executing.world, elapsed, tracking, env, perception)
+        if command is None:
+            command, guarded = self._step_command(env, perception)
+        action = command.action
         self.executed_periods += 1
         self.steps += 1
         if delivered is None:
@@ -310,47 +327,91 @@ class OptimiserDriver:
             return True
         return self.pending is None and self.steps - self.started_at >= self.spec.replan_every
 
-    def _plan(self, perception: Perception) -> _Call:
-        """Plan from ``perception`` (the state now) with the carried warm start and previous plan."""
-        problem = self._problem(perception)
+    def _ahead(self) -> int:
+        """[policy periods] how far ahead of now a call started now plans: 0 synchronously and for the episode's first
+        call, else the expected compute time."""
+        return 0 if self.executing is None or not self.spec.latency.realtime else self.expected
+
+    def _step_command(self, env: Any, perception: Perception | None) -> tuple[Command, bool]:
+        """(the command of this step for the plan in effect, whether the contact guard replaced it)."""
+        tracking = perception.tracking if perception else ego_kinematics(env)
+        return self._command(self.executing.result, self.executing.world, self.executed_periods * self.period, tracking,
+                             env, perception)
+
+    def _plan(self, perception: Perception, command: Command | None = None) -> _Call:
+        """Plan from ``perception`` (the state now, or predicted :meth:`_ahead` when ``command``, this step's, is
+        given) with the carried warm start and previous plan."""
+        ahead = self._ahead() if command is not None else 0
+        scene = self._predicted(perception, ahead, command) if ahead else perception.scene
+        problem = self._problem(scene)
         self.key, sub = jax.random.split(self.key)
         start = time.perf_counter()
         result = plan(problem, self.config, key=sub, prior=self.prior, warm_start=self.warm, previous=self.previous,
-                      safety_filter=self.safety_filter, x_offset=perception.scene.ego.x, **self.strategies)
+                      safety_filter=self.safety_filter, x_offset=scene.ego.x, **self.strategies)
         seconds = time.perf_counter() - start
         index = 0 if self.executing is None else self.executing.index + 1
         periods = 0 if self.executing is None else self.spec.latency.periods(seconds, self.period)
         self.started_at = self.steps
         world = to_world(self.followed(result), perception.frame)  # in world coordinates, for tracking
-        return _Call(index, result, world, perception.scene, problem, perception.frame, seconds, periods)
+        return _Call(index, result, world, scene, problem, perception.frame, seconds, periods, ahead)
+
+    def _predicted(self, perception: Perception, ahead: int, command: Command) -> Any:
+        """The scene of ``perception`` (the road frame now) ``ahead`` policy periods later, as a plan started now meets
+        it: the ego moved by this step's ``command`` over the first period (upstream's bicycle integration), then as
+        the plan in effect moves it; the neighbours moved at their velocity (their prediction then starts there)."""
+        scene, ego = perception.scene, perception.scene.ego
+        road_angle = perception.tracking.heading - perception.kinematics.heading  # [rad] the road's direction, world axes
+        moved, after = predict(EgoKinematics(perception.tracking.speed, perception.tracking.heading), command.acceleration,
+                               command.steering, self.model)
+        c, s = math.cos(road_angle), math.sin(road_angle)
+        course = after.heading + slip_angle(command.steering) - road_angle  # [rad] of the velocity, road axes
+        x, y = ego.x + c * moved[0] + s * moved[1], ego.y - s * moved[0] + c * moved[1]
+        vx, vy = after.speed * math.cos(course), after.speed * math.sin(course)
+        ax, ay = command.acceleration * math.cos(course), command.acceleration * math.sin(course)
+        if ahead > 1:  # the periods after this one: as the plan in effect moves the car
+            now = (self.executed_periods + 1) * self.period  # [s] the plan in effect's time after this step
+            followed = self.followed(self.executing.result)
+            reading = sample_trajectory(followed, [now, now + (ahead - 1) * self.period])
+            t = np.asarray(followed.t, float)
+            x, y = x + float(reading.x[1] - reading.x[0]), y + float(reading.y[1] - reading.y[0])
+            vx, vy = vx + float(reading.vx[1] - reading.vx[0]), vy + float(reading.vy[1] - reading.vy[0])
+            ax = float(np.interp(now + (ahead - 1) * self.period, t, np.asarray(followed.ax, float)))
+            ay = float(np.interp(now + (ahead - 1) * self.period, t, np.asarray(followed.ay, float)))
+        horizon = ahead * self.period
+        ego = dataclasses.replace(ego, x=x, y=y, vx=vx, vy=vy, ax=ax, ay=ay)
+        neighbours = tuple(dataclasses.replace(n, x=n.x + n.vx * horizon, y=n.y + n.vy * horizon) for n in scene.neighbours)
+        return dataclasses.replace(scene, ego=ego, neighbours=neighbours)
 
     def _deliver(self) -> _Call | None:
         """The pending plan, put into effect when its periods have passed at this step; else None."""
         call = self.pending
-        if call is None or self.steps - self.started_at < call.periods:
+        if call is None or self.steps - self.started_at < call.delivered_after:
             return None
         self.pending = None
         return self._take_effect(call)
 
     def _take_effect(self, call: _Call) -> _Call:
-        """Track ``call`` from ``call.periods`` into it, and carry it to the next call, which starts
-        max(``replan_every``, ``call.periods``) periods after ``call`` did."""
-        self.executing, self.executed_periods = call, call.periods
-        gap = max(self.spec.replan_every, call.periods) * self.period
-        self.warm, self.previous = self._carried(call.result, gap)
+        """Track ``call`` from where the car is in it (its delivery less the periods it planned ahead), and carry it to
+        the next call, which starts max(``replan_every``, its delivery) periods after ``call`` did and plans
+        :meth:`_ahead` of that."""
+        self.executing, self.executed_periods = call, call.delivered_after - call.ahead
+        if call.periods:
+            self.expected = call.periods
+        gap = max(self.spec.replan_every, call.delivered_after) + self._ahead() - call.ahead
+        self.warm, self.previous = self._carried(call.result, gap * self.period)
         return call
 
     def _command(self, result: PlanResult, followed: Any, elapsed: float, tracking, env: Any,
-                 perception: Perception | None = None) -> tuple[Any, bool]:
-        """(the action that tracks ``followed`` (:meth:`followed` of ``result`` in world coordinates) ``elapsed`` [s]
+                 perception: Perception | None = None) -> tuple[Command, bool]:
+        """(the command that tracks ``followed`` (:meth:`followed` of ``result`` in world coordinates) ``elapsed`` [s]
         after it was planned, whether the contact guard replaced it by braking now); ``tracking``: the ego's speed and
         world heading; ``perception``: the world now, read when the configuration guards."""
         command = track(followed, elapsed, tracking, self.model)
         if self._executes_chosen(result):  # P1: the chosen plan, feasible or not
-            return command.action, False
+            return command, False
         if result.status != PlanStatus.SUCCESS:  # executing the fallback: brake now, not after a ramp
             command = brake_at_least(command, result.fallback_deceleration, self.model, float(env.unwrapped.vehicle.speed))
         guarded = False
         if self.spec.contact_guard and perception is not None:
             command, guarded = guard(command, perception.kinematics, perception.scene, self.model)
-        return command.action, guarded
+        return command, guarded
