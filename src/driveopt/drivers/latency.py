@@ -5,7 +5,7 @@ step it was started from, however long it took. The real-time strategies let the
 being computed the car keeps executing the previous one, and the new plan takes effect after its compute time
 rounded up to policy periods, at least one (:func:`periods_after`). :class:`Measured` takes the call's measured wall
 time, :class:`Fixed` a given time in milliseconds (deterministic: same seed, same episode). A plan is made from the
-state at the step it started, so when it takes effect L periods later it is tracked from L periods into it
+state predicted for the step it will take effect, and tracked from its start when it arrives then
 (:class:`driveopt.drivers.optimiser.OptimiserDriver`).
 
 :func:`parse_latency` reads the spellings of ``--latency`` and of the bench option: ``"sync"``, ``"measured"`` or a
