@@ -4,8 +4,8 @@ real time (plans take effect after their measured compute time), on the dense fo
     python benchmarks/realtime_table.py --json out/realtime_table.json [--out out/realtime] [--episodes 50]
         [--duration S] [--seed 42] [--workers 1] [--configs bilevel-250 ...] [--latencies sync measured]
 
-Each configuration (``bilevel`` at its default, 250 and 1000 samples, ``vqvae-filter`` at its own sample count) runs once per
-latency as a ``driveopt bench`` into a folder of its own under ``--out`` (``NAME-LATENCY``): the same as
+Each configuration (``bilevel`` at its default, 250 and 1000 samples, ``vqvae-filter`` at its own sample count) runs
+once per latency as a ``driveopt bench`` into a folder of its own under ``--out`` (``NAME-LATENCY``): the same as
 
     driveopt bench --scenarios four-lane-d3.0 --planners bilevel --samples 250 --latency measured \\
         --episodes 50 --workers 1 --out out/realtime/bilevel-250-measured

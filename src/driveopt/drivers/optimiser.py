@@ -17,11 +17,11 @@ plans every N-th step and tracks the same plan open-loop in between. With a real
 takes effect L policy periods later (its compute time rounded up, at least one); until then the car keeps tracking
 the plan in effect. So that the new plan starts where the car will be when it takes effect, a call started at step
 k plans from the scene predicted P periods ahead (P: the periods the previous call took, or the fixed latency's;
-the ego moved by this step's command, then as the plan in effect moves it; the neighbours at constant velocity): it takes effect after
-max(L, P) periods and is tracked from max(L - P, 0) into it. (Planned from the state at step k, each plan would
-meet the car a period away from its start, and the tracker's correction within one period would make the loop
-alternate between full throttle and full braking.) A new call starts at the step the previous one is delivered, and no sooner
-than N steps after it started: one call in flight at a time. The episode's first plan is
+the ego moved by this step's command, then as the plan in effect moves it; the neighbours at constant velocity):
+it takes effect after max(L, P) periods and is tracked from max(L - P, 0) into it. (Planned from the state at step
+k, each plan would meet the car a period away from its start, and the tracker's correction within one period would
+make the loop alternate between full throttle and full braking.) A new call starts at the step the previous one is
+delivered, and no sooner than N steps after it started: one call in flight at a time. The episode's first plan is
 made synchronously (the simulator waits for it). Its PRNG key derives from the
 episode seed: same seed, same episode. A learned safety filter (P2 §III-C; ``filter_weights``, or the
 shipped weights for a spec with ``learned_filter``) sets up every batch's projection
