@@ -55,8 +55,8 @@ class Controller:
 
     ``planner``: a registered name or a :class:`~driveopt.drivers.base.DriverSpec`; ``samples``: samples per sampler
     iteration (default: the planner's own; ``bilevel``: 150, real time on two CPU cores); ``config``: a
-    :class:`~driveopt.config.PlannerConfig`, or overrides as nested sections (``{"cost": {"consistency": 1.0}}``); ``v_des`` [m/s]: desired speed (default: the speed limit of the ego's lane
-    at ``reset``); ``route``: node names of the env's lane graph to follow (e.g. ``["0", "1", "2", "exit"]`` takes
+    :class:`~driveopt.config.PlannerConfig`, or overrides as nested sections (``{"cost": {"consistency": 1.0}}``);
+    ``v_des`` [m/s]: desired speed (default: the speed limit of the ego's lane at ``reset``); ``route``: node names of the env's lane graph to follow (e.g. ``["0", "1", "2", "exit"]`` takes
     exit-v0's exit; default: the ego's own route, else straight on); ``weights``: a learned prior's checkpoint;
     ``latency``: ``"sync"`` (default: each ``act`` returns the command of the plan it just made), ``"measured"`` or a
     compute time [ms]: each plan takes effect that many policy periods (rounded up, at least one) after the ``act``
