@@ -8,7 +8,9 @@ per run with the same configuration and a compilation-cache folder of its own: `
 folder (it compiles the planner and writes it there), ``plan_second`` finds it there (it loads the compiled planner).
 For both, ``first_call_s`` is the first planning call as ``plan --json`` reports it (compilation or loading included),
 ``solve_s`` the median of the further calls (``--repeats``), and ``start_to_plan_s`` the wall time minus
-``--repeats`` x ``solve_s``: from the command's start to the first plan's result. Each run's CPU time (user +
+``--repeats`` x ``solve_s``: from the command's start to the first plan's result, writing the JSON and exiting
+included. ``plan_second_once`` is the wall time of the second ``plan`` run again with ``--repeats 0`` and no
+``--json``: the whole command, from its start to its exit after one plan. Each run's CPU time (user +
 system, all threads) is recorded beside its wall time: on a busy machine it is the better guide to what the command
 costs. The machine's load average (``os.getloadavg``) is recorded before and after every measurement.
 """
@@ -76,7 +78,8 @@ def _plan_once(plan_args: list[str], cache: Path, out: Path) -> dict:
 
 def time_plan(plan_args: list[str], runs: int) -> dict:
     """``plan`` from an empty cache folder, then again from the folder it filled; ``runs`` times, each with a new one."""
-    result: dict = {"args": plan_args, "plan_first": [], "plan_second": [], "cache_entries": [], "load": []}
+    result: dict = {"args": plan_args, "plan_first": [], "plan_second": [], "plan_second_once": [], "cache_entries": [],
+                    "load": []}
     for _ in range(runs):
         with tempfile.TemporaryDirectory(prefix="driveopt-startup-") as tmp:
             cache, out = Path(tmp) / "cache", Path(tmp) / "plan.json"
@@ -84,11 +87,20 @@ def time_plan(plan_args: list[str], runs: int) -> dict:
             result["plan_first"].append(_plan_once(plan_args, cache, out))
             result["cache_entries"].append(sorted(p.name.split("-")[0] for p in cache.glob("*-cache")))
             result["plan_second"].append(_plan_once(plan_args, cache, out))
+            result["plan_second_once"].append(_run(["plan", *_once(plan_args)], _environment(str(cache)))[0])
             result["load"].append({"before": load, "after": os.getloadavg()})
     for which in ("plan_first", "plan_second"):
         result[f"{which}_median"] = {k: statistics.median(r[k] for r in result[which] if r[k] is not None)
                                      for k in ("wall_s", "cpu_s", "first_call_s", "start_to_plan_s")}
+    result["plan_second_once_median_s"] = statistics.median(result["plan_second_once"])
     return result
+
+
+def _once(plan_args: list[str]) -> list[str]:
+    """``plan_args`` with ``--repeats 0``: the command plans once and exits."""
+    args = list(plan_args)
+    args[args.index("--repeats") + 1] = "0"
+    return args
 
 
 def machine() -> dict:
@@ -119,6 +131,8 @@ def main(argv=None) -> int:
         m = report["plan"][f"{which}_median"]
         print(f"{which}: {m['wall_s']:.2f} s wall ({m['cpu_s']:.2f} s CPU), first call {m['first_call_s']:.2f} s, start to first plan "
               f"{m['start_to_plan_s']:.2f} s (median of {args.plan_runs})", flush=True)
+    print(f"plan_second with --repeats 0 and no --json, the whole command: {report['plan']['plan_second_once_median_s']:.2f} s "
+          f"wall (median of {args.plan_runs})", flush=True)
     report["load_after"] = os.getloadavg()
     path = write_json(args.json, report)  # strict JSON, whole or not at all
     print(f"wrote {path} (load average {report['load_before'][0]:.2f} before, {report['load_after'][0]:.2f} after)")

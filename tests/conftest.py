@@ -143,6 +143,19 @@ def small_config() -> PlannerConfig:
     return SMALL
 
 
+@pytest.fixture(autouse=True, scope="session")
+def plan_without_exports():
+    """The tests' planning calls run ``solve`` as a plain jit, not through exported graphs: in a suite where almost every
+    graph is new, exporting costs about 0.8 s per graph and saves nothing (results are bit-identical either way:
+    tests/core/test_solve_export.py, which points the export at a folder of its own)."""
+    from driveopt import solve_export
+
+    folder = solve_export.export_folder
+    solve_export.export_folder = lambda: None
+    yield
+    solve_export.export_folder = folder
+
+
 def mapped_regions() -> int:
     """Memory mappings of this process (Linux; 0 where /proc is missing)."""
     try:

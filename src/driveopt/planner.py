@@ -60,6 +60,7 @@ from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, boundary_values, make_model,
 from driveopt.ranking import Candidate, FeasibilityFirst, Ranking
 from driveopt.sampler import GaussianPrior, Prior, cem_update, clip_setpoints, default_mean, sample_gaussian
 from driveopt.scene import RANGES, ProblemError
+from driveopt.solve_export import ExportedCalls
 from driveopt.trajectory import Trajectory, evaluate
 from driveopt.xla import XLA_CPU_COMPILER_OPTIONS, float32_products, supported_compiler_options
 
@@ -339,11 +340,25 @@ def solve(
                     fallback_trajectory, emergency)
 
 
+_STATIC = ("config", "unroll", "ranking", "fallback", "batch_rows")
+
+
+def _jit_options() -> dict[str, Any]:
+    """On the CPU, the projection's compiler options (a per-jit setting)."""
+    return {"compiler_options": supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else None}
+
+
 @functools.cache
 def compiled_solve():
-    """:func:`solve`, jitted; on the CPU with the projection's compiler options (a per-jit setting)."""
-    options = supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else None
-    return jax.jit(solve, static_argnames=("config", "unroll", "ranking", "fallback", "batch_rows"), compiler_options=options)
+    """:func:`solve`, jitted."""
+    return jax.jit(solve, static_argnames=_STATIC, **_jit_options())
+
+
+@functools.cache
+def exported_solve() -> ExportedCalls:
+    """:func:`solve` as :func:`plan` runs it: jitted, through graphs exported to the compilation cache's folder, so
+    that a later process skips tracing and lowering (:mod:`driveopt.solve_export`); static arguments by keyword."""
+    return ExportedCalls(solve, _STATIC, _jit_options())
 
 
 _TRAJECTORY_KEYS = ("t", "x", "y", "speed", "heading", "curvature", "acceleration", "vx", "vy")
@@ -451,8 +466,9 @@ def plan(
         if shapes != ((SETPOINT_DIM,), (config.basis.num_nodes,)) or not all(np.all(np.isfinite(a)) for a in previous[:2]):
             raise ProblemError(f"previous plan must be finite with shapes (8,) and ({config.basis.num_nodes},), got {shapes}")
         placeholder = not present
-    solution = jax.device_get(compiled_solve()(problem, key, config, prior, warm_start, previous, safety_filter,
-                                               ranking=ranking, fallback=fallback, batch_rows=batch_rows))
+    solution = jax.device_get(exported_solve()(problem, key, prior=prior, warm_start=warm_start, previous=previous,
+                                               safety_filter=safety_filter, config=config, ranking=ranking,
+                                               fallback=fallback, batch_rows=batch_rows))
     if placeholder:  # the result as without a previous plan
         row = config.sampler.num_samples
         solution = solution._replace(first=_without_row(solution.first, row), last=_without_row(solution.last, row))

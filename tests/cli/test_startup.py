@@ -97,3 +97,13 @@ def test_usage_errors_stay_one_line_without_heavy_modules():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert proc.stdout.strip() == "2 []"
     assert proc.stderr.count("\n") == 1 and proc.stderr.startswith("driveopt: error: argument --samples")
+
+
+def test_planning_loads_no_simulator():
+    """What ``driveopt plan`` imports to plan (the registry, whose drivers import the simulator's modules, and the
+    planner) leaves highway-env, gymnasium, matplotlib and torch unloaded: a second ``plan`` starts in seconds."""
+    code = ("import sys; from driveopt.registry import get_optimiser; import driveopt.planner, driveopt.problem; "
+            f"get_optimiser('bilevel').prior(4); print(sorted(m for m in {HEAVY!r} if m in sys.modules))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines() == ["['jax', 'jaxlib']"]

@@ -25,7 +25,6 @@ from typing import Any
 from driveopt.drivers.base import Decision, DriverSpec
 from driveopt.drivers.idm import IDLE_ACTION
 from driveopt.files import file_digest
-from driveopt.rl.env import ACTIONS, POLICY_PERIOD, apply_behaviour, hand_ego_to_behaviours, policy_observation
 from driveopt.rl.policy import PolicyError, cached_policy, check_algo, lane_word, shipped_policy
 from driveopt.sim.perception import perceive
 from driveopt.sim.scenarios import Scenario
@@ -86,6 +85,14 @@ class RLSpec(DriverSpec):
         return cached_policy(self.policy_file(scenario), self.algo, scenario.lanes)
 
 
+def _policy_env() -> Any:
+    """:mod:`driveopt.rl.env`, imported when a driver first runs: it imports gymnasium and highway-env, which the
+    registry (and so ``driveopt plan``) should not pay for."""
+    from driveopt.rl import env
+
+    return env
+
+
 class RLDriver:
     """Runs an :class:`RLSpec`'s policy at 1 s period inside the standard rollout (see the module docstring)."""
 
@@ -100,8 +107,9 @@ class RLDriver:
         start = time.perf_counter()
         self.policy = self.spec.policy(scenario)
         self.scenario = scenario
-        self.car = hand_ego_to_behaviours(env, scenario)
-        self.every = max(1, round(POLICY_PERIOD * scenario.policy_frequency))  # [policy steps] between decisions
+        policy_env = _policy_env()
+        self.car = policy_env.hand_ego_to_behaviours(env, scenario)
+        self.every = max(1, round(policy_env.POLICY_PERIOD * scenario.policy_frequency))  # [policy steps] between decisions
         self.steps = 0
         self.behaviours = []
         self.compile_seconds = time.perf_counter() - start
@@ -110,9 +118,10 @@ class RLDriver:
         elapsed = 0.0
         if self.steps % self.every == 0:
             start = time.perf_counter()
-            action, _ = self.policy.predict(policy_observation(perceive(env, self.scenario).scene), deterministic=True)
-            apply_behaviour(self.car, int(action))
-            self.behaviours.append(ACTIONS[int(action)])
+            policy_env = _policy_env()
+            action, _ = self.policy.predict(policy_env.policy_observation(perceive(env, self.scenario).scene), deterministic=True)
+            policy_env.apply_behaviour(self.car, int(action))
+            self.behaviours.append(policy_env.ACTIONS[int(action)])
             elapsed = time.perf_counter() - start
         self.steps += 1
         return Decision(IDLE_ACTION, plan_seconds=elapsed)

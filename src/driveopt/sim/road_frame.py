@@ -40,18 +40,17 @@ import weakref
 from typing import Any, NamedTuple, Sequence
 
 import numpy as np
-from highway_env.road.lane import CircularLane, SineLane, StraightLane
 
 from driveopt.errors import DriveoptError
 from driveopt.scene import Road
 from driveopt.sim.lane_graph import (
     driving_lanes,
+    junctions,
     lane_end,
     lane_start,
     next_road,
     previous_road,
     route_roads,
-    junctions,
     wrap_angle,
 )
 
@@ -93,15 +92,28 @@ def slip_angle(steering: float) -> float:
     return math.atan(0.5 * math.tan(steering))
 
 
+def _lane_types() -> Any:
+    """highway-env's lane module, imported on first use: only a simulated road has lanes, and ``driveopt plan``
+    (which imports this module through the registry) should not pay for importing highway-env."""
+    from highway_env.road import lane
+
+    return lane
+
+
+def _is_circular(lane: Any) -> bool:
+    return isinstance(lane, _lane_types().CircularLane)
+
+
 def _is_straight(lane: Any) -> bool:
-    return isinstance(lane, StraightLane) and not isinstance(lane, SineLane)
+    types = _lane_types()
+    return isinstance(lane, types.StraightLane) and not isinstance(lane, types.SineLane)
 
 
 def lane_curvature(lane: Any, longitudinal: float) -> float:
     """[1/m] signed curvature of a lane's centre line at ``longitudinal`` [m] (positive: turning left, towards +d)."""
     if _is_straight(lane):
         return 0.0
-    if isinstance(lane, CircularLane):
+    if _is_circular(lane):
         return lane.direction / lane.radius
     h = _CURVATURE_STEP
     return wrap_angle(lane.heading_at(longitudinal + h) - lane.heading_at(longitudinal - h)) / (2.0 * h)
@@ -254,7 +266,7 @@ class RoadFrame:
             hi = min(s_to - piece.s_start, piece.hi)
             if lo > hi or piece.straight:
                 continue
-            samples = [lo] if isinstance(piece.lane, CircularLane) else np.arange(lo, hi + 1e-9, _CURVATURE_STEP)
+            samples = [lo] if _is_circular(piece.lane) else np.arange(lo, hi + 1e-9, _CURVATURE_STEP)
             curves += [(piece.s_start + float(x) - s_from, abs(lane_curvature(piece.lane, float(x)))) for x in samples]
         return curves
 
