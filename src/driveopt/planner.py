@@ -349,16 +349,15 @@ def _jit_options() -> dict[str, Any]:
 
 
 @functools.cache
-def compiled_solve():
-    """:func:`solve`, jitted."""
-    return jax.jit(solve, static_argnames=_STATIC, **_jit_options())
-
-
-@functools.cache
 def exported_solve() -> ExportedCalls:
     """:func:`solve` as :func:`plan` runs it: jitted, through graphs exported to the compilation cache's folder, so
     that a later process skips tracing and lowering (:mod:`driveopt.solve_export`); static arguments by keyword."""
     return ExportedCalls(solve, _STATIC, _jit_options())
+
+
+def compiled_solve():
+    """:func:`solve`, jitted (the same jit that :func:`exported_solve` runs graphs it does not export with)."""
+    return exported_solve().plain
 
 
 _TRAJECTORY_KEYS = ("t", "x", "y", "speed", "heading", "curvature", "acceleration", "vx", "vy")

@@ -108,7 +108,7 @@ class ExportedCalls:
 
     def __init__(self, fun: Callable[..., Any], static_argnames: tuple[str, ...], jit_options: dict[str, Any]) -> None:
         self.fun, self.static_argnames, self.jit_options = fun, static_argnames, jit_options
-        self.plain = jax.jit(fun, static_argnames=static_argnames, **jit_options)  # for graphs that cannot be exported
+        self.plain = jax.jit(fun, static_argnames=static_argnames, **jit_options)  # graphs not exported run through it
         self.calls: dict[Any, Callable[..., Any]] = {}  # (static, structure, avals) -> callable of the flat leaves
 
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
