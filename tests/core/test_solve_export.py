@@ -14,14 +14,14 @@ from driveopt.sampler import GaussianPrior
 from driveopt.scene import load_scene
 from driveopt.solve_export import ExportedCalls, ExportWarning, graph_key
 
-TINY = dict(sampler=dict(num_samples=19, num_iterations=2, num_constraint_elites=8, num_elites=4),
-            projection=dict(max_iterations=3))  # 19 samples: a graph no other test compiles
+TINY = dict(sampler=dict(num_samples=19, num_iterations=1, num_constraint_elites=8, num_elites=4),
+            projection=dict(max_iterations=2))  # 19 samples: a graph no other test compiles; one iteration: a small one
 
 
 @pytest.fixture(scope="module")
 def inputs(small_config):
     config = small_config.replace(**TINY)
-    problem = build_problem(load_scene("dense-snapshot"), config.basis, max_obstacles=2)  # a smaller graph: compiles faster
+    problem = build_problem(load_scene("dense-snapshot"), config.basis, max_obstacles=1)  # a smaller graph: compiles faster
     return problem, GaussianPrior.from_config(config.sampler, config.projection.v_max), config
 
 
