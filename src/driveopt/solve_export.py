@@ -5,20 +5,21 @@ JAX's persistent compilation cache (:mod:`driveopt.compilation_cache`) saves the
 lowered program: a second process still traces ``solve`` (about 1 s on two cores) and lowers it to StableHLO (about
 1 s) before the cache can answer. Here the lowered program itself is kept (``jax.export``, serialized StableHLO), in
 the ``driveopt-solve`` folder inside the compilation cache's folder, one file per graph: a later process reads it
-(tens of milliseconds), and compiling it is a hit in the compilation cache.
+(milliseconds), and compiling it is a hit in the compilation cache.
 
 A graph is named by everything that shapes it: driveopt's source files, the versions of JAX, Flax and numpy, the
 backend and numerical settings, the static arguments (configuration and strategies, by their ``repr``: frozen
 dataclasses), the structure of the arguments (pytree types with their static fields) and every argument's shape and
 dtype. Values (the problem, network weights, keys) are arguments of the exported program, never part of it. A graph
 with an argument or strategy of a type defined outside driveopt and those libraries (a user's own prior, filter or
-ranking) is never exported: its code could change without changing the name, so it is traced as usual. A file that cannot be read or loaded
-is exported again and replaced; a graph that cannot be exported runs as a plain ``jax.jit``, with one warning.
+ranking) is never exported: its code could change without changing the name, so it is traced as usual. A file that
+cannot be read or loaded is exported again and replaced; a graph that cannot be exported runs as a plain ``jax.jit``,
+with one warning.
 
 The files hold pickled pytree structures: as with JAX's own cache, anyone who can write to the folder can run code in
 the processes that read it, so it lives in driveopt's private cache folder. With the compilation cache off
 (``DRIVEOPT_COMPILATION_CACHE=0``) nothing is exported or read. The folder keeps at most :data:`MAX_FILES` files
-(the least recently written go first).
+(the least recently used go first).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from driveopt.files import atomic_write
 
 FORMAT = 1  # bumped when the file layout changes: older files are then never read
 FOLDER = "driveopt-solve"  # inside the compilation cache's folder
-MAX_FILES = 64  # [files] one per graph (a configuration at a batch size): about 1-3 MB each
+MAX_FILES = 64  # [files] one per graph (a configuration at a batch size): about 250 kB each
 SUFFIX = ".export"
 TRUSTED_MODULES = ("builtins", "collections", "driveopt", "flax", "jax", "jaxlib", "numpy", "optax")
 
