@@ -66,9 +66,10 @@ def source_digest() -> str:
     return digest.hexdigest()
 
 
-def _type_name(kind: type) -> str | None:
-    """``module.qualname`` of ``kind``; None when its module is not one whose code the key covers (driveopt, whose
-    sources it digests, and the versioned libraries): a user's own prior or strategy may change without a trace here."""
+def _type_name(kind: type | Callable[..., Any]) -> str | None:
+    """``module.qualname`` of a type or function; None when its module is not one whose code the key covers
+    (driveopt, whose sources it digests, and the versioned libraries): a user's own prior or strategy may change
+    without a trace here."""
     module = kind.__module__ or ""
     return f"{module}.{kind.__qualname__}" if module.split(".")[0] in TRUSTED_MODULES else None
 
@@ -90,12 +91,12 @@ def graph_key(fun: Callable[..., Any], static: dict[str, Any], in_tree: Any, ava
     values ``avals`` (shapes, dtypes and weak types, not values) lowers to; None when ``fun`` or an argument's type
     comes from code the name does not cover (it is then never exported)."""
     tree = _tree_text(in_tree)
-    names = [_type_name(type(value)) for value in static.values()]
-    if tree is None or None in names or fun.__module__.split(".")[0] not in TRUSTED_MODULES:
+    names = [_type_name(fun), *(_type_name(type(value)) for value in static.values())]
+    if tree is None or None in names:
         return None
     versions = {name: getattr(sys.modules[name], "__version__", "") for name in TRUSTED_MODULES if name in sys.modules}
     parts = [
-        f"format {FORMAT}", f"{fun.__module__}.{fun.__qualname__}", source_digest(), repr(sorted(versions.items())),
+        f"format {FORMAT}", names[0], source_digest(), repr(sorted(versions.items())),
         jax.default_backend(), f"x64 {jax.config.jax_enable_x64}", f"precision {jax.config.jax_default_matmul_precision}",
         repr(sorted(static.items())), tree, *map(repr, avals),
     ]
@@ -131,10 +132,10 @@ class ExportedCalls:
         path = folder / f"{key}{SUFFIX}"
         loaded = _read(path)
         if loaded is None:
-            exported = self._export(static, in_tree, avals)
-            if exported is None:
+            made = self._export(static, in_tree, avals)
+            if made is None:
                 return self._plain(static, in_tree)
-            loaded, blob = exported
+            loaded, blob = made
             _write(path, blob)
         exported, out_tree = loaded
 

@@ -370,13 +370,12 @@ class OptimiserDriver:
         ax, ay = command.acceleration * math.cos(course), command.acceleration * math.sin(course)
         if ahead > 1:  # the periods after this one: as the plan in effect moves the car
             now = (self.executed_periods + 1) * self.period  # [s] the plan in effect's time after this step
+            later = now + (ahead - 1) * self.period  # [s] its time where the new plan takes effect
             followed = self.followed(self.executing.result)
-            reading = sample_trajectory(followed, [now, now + (ahead - 1) * self.period])
-            t = np.asarray(followed.t, float)
+            reading = sample_trajectory(followed, [now, later])
             x, y = x + float(reading.x[1] - reading.x[0]), y + float(reading.y[1] - reading.y[0])
             vx, vy = vx + float(reading.vx[1] - reading.vx[0]), vy + float(reading.vy[1] - reading.vy[0])
-            ax = float(np.interp(now + (ahead - 1) * self.period, t, np.asarray(followed.ax, float)))
-            ay = float(np.interp(now + (ahead - 1) * self.period, t, np.asarray(followed.ay, float)))
+            ax, ay = (float(np.interp(later, followed.t, getattr(followed, name))) for name in ("ax", "ay"))
         horizon = ahead * self.period
         ego = dataclasses.replace(ego, x=x, y=y, vx=vx, vy=vy, ax=ax, ay=ay)
         neighbours = tuple(dataclasses.replace(n, x=n.x + n.vx * horizon, y=n.y + n.vy * horizon) for n in scene.neighbours)
