@@ -33,8 +33,8 @@ candidates: projected and ranked like every sample, so a feasible stop can be th
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -62,18 +62,34 @@ EVASIONS = (-2.0, -1.0, 1.0, 2.0)  # [half-lanes] the sideways targets of ``Fall
 # settles on one instead of turning further at every step, as targets relative to its own position let it)
 
 
-def lateral_target(problem: PlanningProblem, y: jnp.ndarray, target: str | float) -> jnp.ndarray:
+class StopTarget(NamedTuple):
+    """A stop's lateral target as numbers, so that stops towards different targets share one traced (vmapped) copy:
+    ``hold`` the current lateral position, or else ``offset`` half-lane widths from the nearest lane centre."""
+
+    hold: jnp.ndarray | bool  # [-] the stop keeps its lateral position
+    offset: jnp.ndarray | float  # [half-lanes] from the nearest lane centre (0: the centre; +-1 lane lines; +-2 centres)
+
+
+def stop_target(target: str | float | StopTarget) -> StopTarget:
+    """``target`` as a :class:`StopTarget`: ``LANE_CENTRE``, ``HOLD``, a number of half-lane widths from the nearest
+    lane centre (a traced one too), or a StopTarget already."""
+    if isinstance(target, StopTarget):
+        return target
+    if isinstance(target, str):
+        if target not in (LANE_CENTRE, HOLD):
+            raise ValueError(f"unknown stop target {target!r}")
+        return StopTarget(target == HOLD, 0.0)
+    if not isinstance(target, (int, float, jax.Array)):
+        raise ValueError(f"unknown stop target {target!r}")
+    return StopTarget(False, target)
+
+
+def lateral_target(problem: PlanningProblem, y: jnp.ndarray, target: str | float | StopTarget) -> jnp.ndarray:
     """[m] where a stop from lateral position ``y`` [m] eases to: ``LANE_CENTRE`` the nearest lane centre, ``HOLD`` y;
     a number, that many half-lane widths from the nearest lane centre (a lane line at +-1, the next centre at +-2;
-    the stop's path clips every target to the road)."""
-    if target == HOLD:
-        return y
-    nearest = nearest_lane_center(problem, y)
-    if target == LANE_CENTRE:
-        return nearest
-    if not isinstance(target, (int, float, jax.Array)):  # a traced number too: the sideways stops are vmapped
-        raise ValueError(f"unknown stop target {target!r}")
-    return nearest + target * 0.5 * problem.lane_width
+    the stop's path clips every target to the road); or a :class:`StopTarget`."""
+    hold, offset = stop_target(target)
+    return jnp.where(hold, y, nearest_lane_center(problem, y) + offset * 0.5 * problem.lane_width)
 
 
 def _course(problem: PlanningProblem) -> jnp.ndarray:
@@ -283,10 +299,12 @@ class Fallback:
             return (stop_trajectory(problem, t, decel, target, self.straightens),
                     stop_setpoints(problem, cfg.basis.horizon, decel, target))
 
-        parts = [jax.tree_util.tree_map(lambda a: a[None], stop(*s)) for s in standard]
-        if self.evasion:  # the sideways stops in one traced copy (numeric targets), not one each
-            parts.append(jax.vmap(functools.partial(stop, cfg.projection.a_max))(jnp.asarray(EVASIONS, dtype=jnp.float32)))
-        every, setpoints = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)  # (stops, K) fields, (stops, 8)
+        weighed = [*standard, *((cfg.projection.a_max, offset) for offset in EVASIONS if self.evasion)]
+        targets = [stop_target(target) for _, target in weighed]
+        # every stop in one traced copy (a copy per stop tripled the fallback's share of the planner's compile time)
+        every, setpoints = jax.vmap(stop)(jnp.asarray([decel for decel, _ in weighed], dtype=jnp.float32),
+                                          StopTarget(jnp.asarray([c.hold for c in targets]),
+                                                     jnp.asarray([c.offset for c in targets], dtype=jnp.float32)))
         goal = jnp.stack([every.x[:, -1], every.y[:, -1]], axis=-1) if cfg.qp.terminal_position else None
         b_x, b_y = boundary_values(problem.init_x, problem.init_y, cfg.qp, goal)
         n = every.x.shape[0]
