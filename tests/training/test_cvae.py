@@ -46,17 +46,22 @@ def test_qp_layer_gradient_through_decoder_matches_finite_differences(data_file)
         _, positions = qp_layer(model, CFG.qp, sp, batch.init_x, batch.init_y)
         return jnp.mean(jnp.sum((positions - batch.trajectory) ** 2, -1))
 
-    direction = jax.tree_util.tree_map(lambda p: jax.random.normal(jax.random.PRNGKey(3), p.shape), params["decoder"])
-    norm2 = sum(jnp.sum(d**2) for d in jax.tree_util.tree_leaves(direction))
-    direction = jax.tree_util.tree_map(lambda d: d / jnp.sqrt(norm2), direction)  # unit step in parameter space
-    grad = jax.grad(reconstruction)(params["decoder"])
-    analytic = sum(jnp.vdot(g, d) for g, d in zip(jax.tree_util.tree_leaves(grad), jax.tree_util.tree_leaves(direction)))
+    # the direction, steps and products on the host (numpy), the model's functions jitted: a handful of compilations
+    # instead of one per operation
+    rng = np.random.default_rng(3)
+    decoder = jax.tree_util.tree_map(np.asarray, params["decoder"])
+    direction = jax.tree_util.tree_map(lambda p: rng.normal(size=p.shape).astype(np.float32), decoder)
+    norm2 = sum(np.sum(d**2) for d in jax.tree_util.tree_leaves(direction))
+    direction = jax.tree_util.tree_map(lambda d: d / np.sqrt(norm2), direction)  # unit step in parameter space
+    reconstruction = jax.jit(reconstruction)
+    grad = jax.jit(jax.grad(reconstruction))(decoder)
+    analytic = sum(np.vdot(g, d) for g, d in zip(jax.tree_util.tree_leaves(grad), jax.tree_util.tree_leaves(direction)))
     eps = 1e-3  # float32: curvature dominates above, rounding below (float64 agrees to 1e-8)
-    shifted = lambda s: jax.tree_util.tree_map(lambda p, d: p + s * eps * d, params["decoder"], direction)  # noqa: E731
+    shifted = lambda s: jax.tree_util.tree_map(lambda p, d: p + np.float32(s * eps) * d, decoder, direction)  # noqa: E731
     numeric = (reconstruction(shifted(1.0)) - reconstruction(shifted(-1.0))) / (2 * eps)
     assert float(analytic) == pytest.approx(float(numeric), rel=2e-2)
     # The QP layer itself: d positions / d set-points equals the QP's speed and lateral maps.
-    jac = jax.jacobian(lambda sp: qp_layer(model, CFG.qp, sp, batch.init_x[:1], batch.init_y[:1])[1])(jnp.asarray(data.setpoints[:1]))
+    jac = jax.jit(jax.jacobian(lambda sp: qp_layer(model, CFG.qp, sp, batch.init_x[:1], batch.init_y[:1])[1]))(jnp.asarray(data.setpoints[:1]))
     assert np.allclose(np.asarray(jac)[0, :, 1, 0, 4:], np.asarray(model.W @ model.lateral_map), atol=1e-4)
 
 
