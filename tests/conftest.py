@@ -33,8 +33,8 @@ SLOW = {
     # every registered planner still drives in test_every_planner_runs_... for bilevel, cvae, vqvae-filter, grid-p1, idm,
     # dqn, ppo (one of each kind: Gaussian, learned prior, learned filter, P1-faithful baseline, rule-based, RL)
     **{f"tests/experiments/test_rollout.py::test_every_planner_runs_on_every_road_layout_and_lane_count[{name}]": "rollout"
-       for name in ("bilevel-p1", "cvae-mix", "vqvae", "vqvae-cem", "cvae-filter", "random", "grid", "vanilla", "batch",
-                    "random-p1", "vanilla-p1", "batch-p1")},
+       for name in ("bilevel-p1", "cvae-mix", "vqvae", "vqvae-cem", "cvae-filter", "cvae-multipliers", "random", "grid",
+                    "vanilla", "batch", "random-p1", "vanilla-p1", "batch-p1")},
     "tests/experiments/test_rollout.py::test_a_closed_loop_compiles_its_planner_once[vqvae]": "the [bilevel] case",
     "tests/experiments/test_rollout.py::test_the_loop_carries_the_executed_plan_when_consistency_is_weighed[grid]":
         "the [bilevel] case",
@@ -44,6 +44,8 @@ SLOW = {
     # gradients: test_solve's test_grad_through_solve_... and test_cvae's finite-difference check of the QP layer
     "tests/training/test_filter.py::test_grad_of_the_eq9_loss_is_finite_and_matches_finite_differences": "gradients",
     "tests/core/test_projection.py::test_unrolled_projection_is_differentiable": "gradients",
+    "tests/learned/test_cvae_multipliers_network.py::test_gradients_of_the_loss_are_finite_and_reach_every_part":
+        "gradients: tests/training/test_cvae_multipliers.py's falling loss",
     # per-sample and zero-iteration filters: test_gamma_one_and_zero_initialisation_reproduce_the_plain_projection_exactly
     "tests/training/test_filter.py::test_per_sample_gammas_project_each_sample_as_alone": "gamma one and zero",
     "tests/training/test_filter.py::test_zero_projection_iterations_return_the_sampled_trajectories_unchanged":

@@ -14,12 +14,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.learned import cvae, pixelcnn, vqvae
+from driveopt.learned import cvae, cvae_multipliers, pixelcnn, vqvae
 from driveopt.learned.checkpoint import save_checkpoint
 
 CVAE_CFG = cvae.CVAEConfig(hidden=(16,))
 VQVAE_CFG = vqvae.VQVAEConfig(decoder_hidden=(16,), encoder_channels=(8, 8))
 PIXELCNN_CFG = pixelcnn.PixelCNNConfig(channels=8, layers=1, kernel_size=3, condition_hidden=(16,))
+MULTIPLIERS_CFG = cvae_multipliers.MultiplierCVAEConfig(cvae=CVAE_CFG, multiplier_hidden=(16,))
 
 
 def random_params(init, cfg, seed: int):
@@ -60,6 +61,15 @@ def tiny_pixelcnn(path: str | Path, lanes: tuple[int, ...] = (4,), seed: int = 0
     state = {"params": random_params(pixelcnn.init_params, PIXELCNN_CFG, seed + 1), "vqvae": {"params": params, "normaliser": normaliser}}
     meta = {"config": PIXELCNN_CFG.to_dict(), "vqvae_config": VQVAE_CFG.to_dict(), "lanes": list(lanes)}
     return save_checkpoint(path, pixelcnn.CHECKPOINT_KIND, state, meta)
+
+
+def tiny_cvae_multipliers(path: str | Path, lanes: tuple[int, ...] = (4,), seed: int = 0) -> Path:
+    """A freshly drawn cvae-multipliers model (its multiplier head not zero, so its multipliers are not) with an
+    identity normaliser, recorded as trained for ``lanes``-lane roads."""
+    n2 = MULTIPLIERS_CFG.num_coeffs
+    normaliser = cvae_multipliers.Normaliser(*_unit(cvae.FEATURE_DIM), *_unit(CVAE_CFG.trajectory_features), *_unit(n2))
+    state = {"params": random_params(cvae_multipliers.init_params, MULTIPLIERS_CFG, seed), "normaliser": normaliser}
+    return save_checkpoint(path, cvae_multipliers.CHECKPOINT_KIND, state, {"config": MULTIPLIERS_CFG.to_dict(), "lanes": list(lanes)})
 
 
 def with_meta(path: Path, dest: Path, change: Callable[[dict[str, Any]], None]) -> Path:

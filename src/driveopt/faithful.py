@@ -47,6 +47,9 @@ P2_RANKING_COST_WEIGHT = 5e-3  # [-] P2's authors' code (DOptimizerJax.py comput
 # exp(-2 residual) x ||x - v_des T|| + 1e-2 x steering terms: between plans at 10 and at 20 m/s that term differs by
 # about 0.56, where driveopt's speed cost differs by 100 (the gate exp(-2 residual) is not carried)
 
+SHRESTHA_PROJECTION = 75  # [-] [5]'s planning projection iterations (main_diffproj.py --maxiter default; training unrolls 20)
+SHRESTHA_CONSTRAINT_ELITES, SHRESTHA_ELITES = 10, 5  # [-] expert_cvae.py ellite_num_projection, ellite_num
+
 P1_MATHS = {"sampler": {"structured_fraction": 0.0}, "qp": {"initial_lateral_acceleration": True},
             "cost": {"consistency": 0.0}, "projection": {"course_max": 0.0, "ego_turn_rate": 0.0}}
 # P1's planner maths where driveopt's differs: independent set-points, both initial accelerations imposed, no
@@ -134,3 +137,13 @@ def p2_planner(spec: OptimiserSpec) -> OptimiserSpec:
                    "least cost + residual of the 150 lowest residuals executed whatever its residual, no driveopt "
                    "safety machinery, a plan every 0.1 s")
     return _faithful(dataclasses.replace(spec, description=description), P2_RANKING_COST_WEIGHT)
+
+
+def shrestha_planner(spec: OptimiserSpec) -> OptimiserSpec:
+    """``cvae-multipliers`` as [5]'s authors ran it (main_diffproj.py, expert_mpc/expert_cvae.py): the same samples
+    and multipliers, the 10 lowest residuals ranked by residual + 1e-3 x speed error, executed whatever the residual,
+    no driveopt safety machinery, a plan every 0.1 s."""
+    description = ("cvae-multipliers as [5]'s authors ran it (main_diffproj.py): the same samples and multipliers, the least "
+                   "residual + 1e-3 speed error of the 10 lowest residuals executed whatever its residual, no driveopt "
+                   "safety machinery, a plan every 0.1 s")
+    return _faithful(dataclasses.replace(spec, description=description), P1_BILEVEL_COST_WEIGHT)

@@ -21,8 +21,10 @@ from driveopt.drivers.rl import RLSpec
 from driveopt.errors import UnknownNameError
 from driveopt.faithful import P1_RANKING_COST_WEIGHT, without_driveopt_machinery
 from driveopt.priors.cvae import cvae_prior
+from driveopt.priors.cvae_multipliers import prior_for as cvae_multipliers_prior
 from driveopt.priors.grids import GoalGridPrior, GridPrior, VanillaPrior
 from driveopt.priors.vqvae import vqvae_prior
+from driveopt.safety.cvae_multipliers import filter_for as cvae_multipliers_filter
 
 
 class UnknownPlannerError(UnknownNameError):
@@ -84,6 +86,13 @@ _OPTIMISERS = (
                                  "least-cost feasible; differs from vqvae only in the prior (shipped weights; Gaussian if none)",
                   _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
                                 projection={"max_iterations": 100, "barrier": True}), cvae_prior(0.0)),
+    OptimiserSpec("cvae-multipliers", "P2's CVAE baseline as its reference [5] built it: 1000 CVAE samples of set-points, each "
+                                      "projected (75 iterations) from the initial multipliers the model predicts for it, one pass "
+                                      "(--weights from `driveopt train cvae-multipliers`; none ship: Gaussian, zero multipliers)",
+                  _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": faithful.SHRESTHA_CONSTRAINT_ELITES,
+                                         "num_elites": faithful.SHRESTHA_ELITES},
+                                projection={"max_iterations": faithful.SHRESTHA_PROJECTION}),
+                  cvae_multipliers_prior, make_filter=cvae_multipliers_filter),
     *_MPC_BASELINES.values(),
     *(_p1_faithful(spec, p1_name) for p1_name, spec in _MPC_BASELINES.items()),
 )
@@ -94,6 +103,7 @@ PLANNERS: dict[str, DriverSpec] = {
         *_OPTIMISERS,
         *faithful.p1_planners(_BASE),
         *(faithful.p2_planner(spec) for spec in _OPTIMISERS if spec.name in _P2_PIPELINES),
+        *(faithful.shrestha_planner(spec) for spec in _OPTIMISERS if spec.name == "cvae-multipliers"),
         IDMSpec("idm", "highway-env's IDM/MOBIL driver on the ego (rule-based reference)"),
         RLSpec("dqn", "P1's DQN baseline: one of five behaviours every 1 s, tracked by upstream's set-point controller "
                       "(shipped policy for the road's lane count, or --weights)", algo="dqn"),

@@ -5,9 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import pytest
-
 import benchmark_scripts
+import pytest
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import json
 
-import pytest
-
 import benchmark_scripts
+import pytest
 
 
 @pytest.fixture(scope="module")

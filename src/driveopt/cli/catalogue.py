@@ -23,6 +23,10 @@ PLANNERS: tuple[tuple[str, str], ...] = (
     ("cvae-filter",
      ("P2's baseline: 1000 CVAE samples through vqvae's one pass (barrier projection, 100 iterations), "
       "least-cost feasible; differs from vqvae only in the prior (shipped weights; Gaussian if none)")),
+    ("cvae-multipliers",
+     ("P2's CVAE baseline as its reference [5] built it: 1000 CVAE samples of set-points, each projected (75 "
+      "iterations) from the initial multipliers the model predicts for it, one pass (--weights from `driveopt train "
+      "cvae-multipliers`; none ship: Gaussian, zero multipliers)")),
     ("random", "one Gaussian draw of set-points, no adaptation (MPC-Random)"),
     ("grid", "fixed grid: constant speed x target lane x change quarter (MPC-Grid)"),
     ("vanilla", "single speed set-point v_des in the current lane, no behavioural layer (MPC-Vanilla)"),
@@ -81,6 +85,10 @@ PLANNERS: tuple[tuple[str, str], ...] = (
     ("cvae-filter-faithful",
      ("cvae-filter as P2's authors ran it (inferenceJax3.py): the same samples, prior and filter, the least"
       " cost + residual of the 150 lowest residuals executed whatever its residual, no driveopt safety "
+      "machinery, a plan every 0.1 s")),
+    ("cvae-multipliers-faithful",
+     ("cvae-multipliers as [5]'s authors ran it (main_diffproj.py): the same samples and multipliers, the least "
+      "residual + 1e-3 speed error of the 10 lowest residuals executed whatever its residual, no driveopt safety "
       "machinery, a plan every 0.1 s")),
     ("idm", "highway-env's IDM/MOBIL driver on the ego (rule-based reference)"),
     ("dqn",

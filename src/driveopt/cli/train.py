@@ -1,4 +1,5 @@
-"""``driveopt train MODEL``: fit a learned component to demonstrations, resumable (cvae, vqvae, pixelcnn, filter, dqn, ppo).
+"""``driveopt train MODEL``: fit a learned component to demonstrations, resumable (cvae, vqvae, pixelcnn, filter,
+cvae-multipliers, dqn, ppo).
 
 The settings are checked (:class:`~driveopt.training.cvae.TrainConfig`,
 :class:`~driveopt.learned.cvae.CVAEConfig`: NaN, infinite and out-of-range values are refused) before
@@ -10,13 +11,14 @@ from __future__ import annotations
 import argparse
 
 from driveopt.cli.common import positive_int
+from driveopt.cli.train_cvae_multipliers import register_models as register_cvae_multipliers
 from driveopt.cli.train_filter import register_models as register_filter
 from driveopt.cli.train_rl import register_models as register_rl
 from driveopt.cli.train_vqvae import register_models
 
 
 def register(sub) -> None:
-    p = sub.add_parser("train", help="train a learned component (cvae, vqvae, pixelcnn, filter, dqn, ppo); resumable")
+    p = sub.add_parser("train", help="train a learned component (cvae, vqvae, pixelcnn, filter, cvae-multipliers, dqn, ppo); resumable")
     models = p.add_subparsers(dest="model", required=True)
     p = models.add_parser("cvae", help="CVAE warm start (P1 §III-D) from demonstrations of `driveopt collect`")
     p.add_argument("--data", nargs="+", required=True, help="demonstration HDF5 files")
@@ -35,6 +37,7 @@ def register(sub) -> None:
     p.set_defaults(func=run_cvae)
     register_models(models)  # vqvae, pixelcnn
     register_filter(models)  # P2's learned safety filter
+    register_cvae_multipliers(models)  # P2's CVAE baseline, its reference [5]
     register_rl(models)  # dqn, ppo: P1's RL baselines
 
 

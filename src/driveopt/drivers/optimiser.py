@@ -64,6 +64,7 @@ SAFETY_FACTOR = 0.9  # [-] plans use at most this fraction of the simulator's ac
 MIN_PLANNING_CURVATURE = 0.02  # [1/m] path curvature a plan must keep on top of the road's (a 50 m radius)
 
 PriorFactory = Callable[[PlannerConfig, int, "str | None"], Any]  # (config, lanes, weights file) -> prior
+FilterFactory = Callable[[PlannerConfig, int, "str | None"], Any]  # (config, lanes, weights file) -> safety filter or None
 
 
 def vehicle_acceleration(model: BicycleModel) -> float:
@@ -115,6 +116,8 @@ class OptimiserSpec(DriverSpec):
     approach_selection: bool = True  # plan against the neighbours closest within SELECTION_TIME (False: nearest now, P1)
     learned_filter: bool = False  # project with the learned safety filter shipped for the road (none: the plain filter, warned)
     filter_weights: str | None = None  # learned safety filter checkpoint for any optimiser (default: none, or the shipped one)
+    make_filter: FilterFactory | None = None  # a filter that comes with the prior's ``weights`` (cvae-multipliers:
+    # the multiplier head of the same checkpoint); ``filter_weights`` replaces it with P2's learned filter
     ranking: Ranking = FeasibilityFirst()  # how the planner ranks a batch's rows (P1: CostPlusResidual)
     batch_rows: BatchRows = StopRows()  # what rides in every batch besides the samples (P1: SamplesOnly)
     fallback: Fallback = Fallback()  # the stops weighed when nothing is feasible
@@ -155,9 +158,10 @@ class OptimiserSpec(DriverSpec):
 
     def safety_filter(self, lanes: int = 4) -> Any:
         """The learned safety filter for a road with ``lanes`` lanes (``filter_weights``, or the shipped weights when
-        ``learned_filter``), or None: the projection as configured. CheckpointError for unusable or wrong-road weights."""
+        ``learned_filter``), or the one ``make_filter`` makes from ``weights``, or None: the projection as configured.
+        CheckpointError for unusable or wrong-road weights."""
         if self.filter_weights is None and not self.learned_filter:
-            return None
+            return None if self.make_filter is None else self.make_filter(self.config, lanes, self.weights)
         from driveopt.safety.learned import filter_for
 
         learned = filter_for(lanes, self.filter_weights)

@@ -26,7 +26,8 @@ Choices where the papers are silent (each also listed in ``docs/reproduction/REA
 * P2 Fig. 7's settings: densities 1.5 and 3.0 at neighbour speed limits 15 and 7 m/s on four lanes (P2's text
   names density 3 and the two limits only).
 * P2's baseline [5] is stood in for by ``cvae-filter`` and ``cvae-filter-faithful`` (P1's CVAE through P2's one-pass
-  filter): the CVAE of [5], trained through the projection and predicting its multipliers, is not registered.
+  filter). The CVAE of [5], trained through the projection and predicting its multipliers, is the ``cvae-multipliers``
+  planner, but no weights ship for it (``driveopt train cvae-multipliers``), so the protocols keep the stand-in.
 * P2 Fig. 9's "without filter" is ``projection.max_iterations`` 0: for driveopt's pipelines the samples ranked as
   drawn, feasibility first, which is rejection sampling; for the faithful ones P2's pick by cost + residual,
   executed whatever its residual, which is P2's no-filter.

@@ -105,13 +105,18 @@ class Batch(NamedTuple):
 
 
 class MLP(nn.Module):
+    """Hidden layers with LayerNorm and ReLU, then a linear output layer (``zero_output``: initialised at zero)."""
+
     hidden: tuple[int, ...]
     out: int
+    zero_output: bool = False
 
     @nn.compact
     def __call__(self, x):
         for width in self.hidden:
             x = nn.relu(nn.LayerNorm()(nn.Dense(width)(x)))
+        if self.zero_output:
+            return nn.Dense(self.out, kernel_init=nn.initializers.zeros, bias_init=nn.initializers.zeros)(x)
         return nn.Dense(self.out)(x)
 
 
