@@ -318,7 +318,7 @@ def p1_figures() -> tuple[FigureProtocol, ...]:
 # ---------------------------------------------------------------------------------------------------------- P2
 P2_SAMPLES = 1000  # [-] P2's batch
 P2_ITERATIONS = 100  # [-] filter iterations of P2's pipeline
-CVAE_BASELINE_NOTE = "stands in for P2's baseline [5] with P1's CVAE (the CVAE of [5] is not registered)"
+CVAE_BASELINE_NOTE = "stands in for P2's baseline [5] with P1's CVAE (the CVAE of [5], cvae-multipliers, has no weights yet)"
 FAITHFUL_P2_NOTE = "P2's ranking (cost + residual), executed whatever its residual, no driveopt safety machinery"
 NO_FILTER_NOTES = {STRENGTHENED: "no filter: feasibility-first ranking (rejection sampling)",
                    FAITHFUL: "no filter"}  # the faithful arms' note adds P2's ranking
