@@ -4,6 +4,7 @@ import dataclasses
 import json
 import os
 import re
+import threading
 
 import numpy as np
 import pytest
@@ -55,6 +56,19 @@ def test_interrupted_run_resumes_without_loss_or_duplicates(tmp_path):
     assert sum(r["episodes"] for r in rows) == 24
     assert (tmp_path / "summary.md").read_text().count("\n") == 2 + 4
     assert (tmp_path / "summary.png").stat().st_size > 5000
+
+
+def test_a_run_stopped_in_its_workers_leaves_no_pool_thread_behind():
+    """The pool's manager thread has ended when the exception leaves ``execute``: one still running at interpreter exit
+    races concurrent.futures' exit hook, which then prints a traceback after the command's last line."""
+    from concurrent.futures.process import _ExecutorManagerThread
+
+    def stop(record):
+        raise Interrupt()
+
+    with pytest.raises(Interrupt):
+        execute(SPEC.jobs(), {}, fake_episode, stop, workers=2)
+    assert not [t for t in threading.enumerate() if isinstance(t, _ExecutorManagerThread) and t.is_alive()]
 
 
 def test_parallel_workers_give_the_same_records_as_serial(tmp_path):

@@ -42,6 +42,7 @@ BACKENDS = ("local", "ray")
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 ORPHAN_POLL_S = 0.5  # [s] how often a worker checks that its parent is alive
 RAY_POLL_S = 0.1  # [s] how long one wait for a Ray task lasts at most
+MANAGER_JOIN_S = 0.5  # [s] what a stopped pool's manager thread gets to end (it sees its workers killed at once)
 RAY_SHUTDOWN_S = 0.4  # [s] what a stopped command gives Ray's shutdown of its local instance before killing it
 
 
@@ -141,15 +142,20 @@ def _ctrl_c_held_from_workers():
 
 
 def _kill_workers(pool: cf.ProcessPoolExecutor) -> None:
-    """Cancel the queued jobs and kill the workers now (what ``kill_workers`` does from Python 3.14)."""
+    """Cancel the queued jobs and kill the workers now (what ``kill_workers`` does from Python 3.14), then give the
+    pool's manager thread up to MANAGER_JOIN_S to end: one still running at interpreter exit races
+    ``concurrent.futures``' exit hook, which can print a traceback (a closed wake-up pipe: "Bad file descriptor")."""
+    manager = getattr(pool, "_executor_manager_thread", None)
     if hasattr(pool, "kill_workers"):
         pool.kill_workers()
-        return
-    processes = list((pool._processes or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for process in processes:
-        with contextlib.suppress(ProcessLookupError, ValueError):  # already ended, or closed
-            process.kill()
+    else:
+        processes = list((pool._processes or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            with contextlib.suppress(ProcessLookupError, ValueError):  # already ended, or closed
+                process.kill()
+    if manager is not None:
+        manager.join(MANAGER_JOIN_S)
 
 
 def _bind_to_parent(parent: int, shares: Any) -> None:
