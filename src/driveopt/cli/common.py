@@ -27,6 +27,15 @@ def _int_at_least(text: str, low: int) -> int:
     return value
 
 
+def add_split_arguments(p) -> None:
+    """The trainers' options for the validation split, the training subset and the seed."""
+    p.add_argument("--validation", type=float, default=0.1, help="share of episodes held out for validation")
+    p.add_argument("--validation-data", nargs="+", help="hold out these demonstration files instead (--validation unused)")
+    p.add_argument("--train-episodes", type=int, default=0,
+                   help="learn from only this many of the other episodes (0: all; the held-out ones stay the same)")
+    p.add_argument("--seed", type=int, default=0)
+
+
 def positive_int(text: str) -> int:
     return _int_at_least(text, 1)
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from driveopt.cli.common import positive_int
+from driveopt.cli.common import add_split_arguments, positive_int
 from driveopt.cli.train_cvae_multipliers import register_models as register_cvae_multipliers
 from driveopt.cli.train_filter import register_models as register_filter
 from driveopt.cli.train_rl import register_models as register_rl
@@ -29,11 +29,7 @@ def register(sub) -> None:
     p.add_argument("--beta", type=float, default=1.0, help="KL weight after annealing")
     p.add_argument("--latent", type=positive_int, default=2, help="latent dimension")
     p.add_argument("--hidden", type=positive_int, nargs="+", default=[256, 256, 256], help="MLP widths")
-    p.add_argument("--validation", type=float, default=0.1, help="share of episodes held out for validation")
-    p.add_argument("--validation-data", nargs="+", help="hold out these demonstration files instead (--validation unused)")
-    p.add_argument("--train-episodes", type=int, default=0,
-                   help="learn from only this many of the other episodes (0: all; the held-out ones stay the same)")
-    p.add_argument("--seed", type=int, default=0)
+    add_split_arguments(p)
     p.set_defaults(func=run_cvae)
     register_models(models)  # vqvae, pixelcnn
     register_filter(models)  # P2's learned safety filter

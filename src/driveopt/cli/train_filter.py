@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from driveopt.cli.common import positive_int
+from driveopt.cli.common import add_split_arguments, positive_int
 
 
 def register_models(models) -> None:
@@ -31,11 +31,7 @@ def register_models(models) -> None:
     p.add_argument("--hidden", type=positive_int, nargs="+", default=[256, 256, 256, 256], help="MLP widths")
     p.add_argument("--gamma-min", type=float, default=0.5,
                    help="lowest gamma the filter may predict, in (0, 1) (small gammas converge slowly)")
-    p.add_argument("--validation", type=float, default=0.1, help="share of episodes held out for validation")
-    p.add_argument("--validation-data", nargs="+", help="hold out these demonstration files instead (--validation unused)")
-    p.add_argument("--train-episodes", type=int, default=0,
-                   help="learn from only this many of the other episodes (0: all; the held-out ones stay the same)")
-    p.add_argument("--seed", type=int, default=0)
+    add_split_arguments(p)
     p.add_argument("--save-every", type=positive_int, default=300,
                    help="seconds between the saves of last.ckpt inside an epoch (what an interruption can lose)")
     p.set_defaults(func=run_filter)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from driveopt.cli.common import positive_int
+from driveopt.cli.common import add_split_arguments, positive_int
 
 
 def _common(p: argparse.ArgumentParser, weights: str) -> None:
@@ -18,11 +18,7 @@ def _common(p: argparse.ArgumentParser, weights: str) -> None:
     p.add_argument("--epochs", type=positive_int, default=60)
     p.add_argument("--batch-size", type=positive_int, default=256, help="modes per step")
     p.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate (x0.1 every 20 epochs)")
-    p.add_argument("--validation", type=float, default=0.1, help="share of episodes held out for validation")
-    p.add_argument("--validation-data", nargs="+", help="hold out these demonstration files instead (--validation unused)")
-    p.add_argument("--train-episodes", type=int, default=0,
-                   help="learn from only this many of the other episodes (0: all; the held-out ones stay the same)")
-    p.add_argument("--seed", type=int, default=0)
+    add_split_arguments(p)
 
 
 def register_models(models) -> None:
