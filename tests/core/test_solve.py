@@ -119,13 +119,15 @@ def test_p1_ranking_picks_the_lowest_cost_plus_residual_even_when_infeasible():
 
 
 def test_without_stop_rows_the_batch_is_the_samples_alone():
+    """The call the placeholder test below makes without a previous plan (one compilation for both)."""
     problem, prior = _blockage_rows()
     config = P1_BATCH
-    result = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior, ranking=CostPlusResidual(), batch_rows=SamplesOnly())
+    result = compiled_solve()(problem, jax.random.PRNGKey(0), config, prior, batch_rows=SamplesOnly())
     for snapshot in (result.first, result.last):
         assert list(snapshot.kind) == [RowKind.SAMPLE] * config.sampler.num_samples
         assert snapshot.setpoints.shape[0] == len(snapshot.residual) == config.sampler.num_samples
-    assert np.all(np.isfinite(result.fallback.x)) and np.all(np.diff(result.fallback.speed) <= 1e-5)  # still offered
+    stop = result.fallback_trajectory
+    assert np.all(np.isfinite(stop.x)) and np.all(np.diff(stop.speed) <= 1e-5)  # still offered
 
 
 def test_every_matrix_product_of_the_planner_is_traced_at_float32(small_config):
