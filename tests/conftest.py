@@ -158,6 +158,29 @@ def plan_without_exports():
     solve_export.export_folder = folder
 
 
+class _RecordedGraphs(dict):
+    """``exported_solve().calls`` that records the graph every call looks up."""
+
+    def __init__(self, graphs, used: list):
+        super().__init__(graphs)
+        self.used = used
+
+    def get(self, graph, default=None):
+        self.used.append(graph)
+        return super().get(graph, default)
+
+
+@pytest.fixture
+def solve_graphs(monkeypatch) -> list:
+    """The graphs (``exported_solve().calls``' keys: static arguments, argument structure and shapes) that the test's
+    planning calls run, one entry per call: one distinct entry means one compilation."""
+    from driveopt.planner import exported_solve
+
+    used: list = []
+    monkeypatch.setattr(exported_solve(), "calls", _RecordedGraphs(exported_solve().calls, used))
+    return used
+
+
 def mapped_regions() -> int:
     """Memory mappings of this process (Linux; 0 where /proc is missing)."""
     try:

@@ -435,12 +435,14 @@ def plan(
     key: one JAX PRNG key (``jax.random.PRNGKey``: shape (2,) uint32, or a typed ``jax.random.key``); split it
         between calls so that every call draws fresh samples.
     prior: first-iteration proposal distribution (default: GaussianPrior from ``config.sampler``).
-    warm_start: (8,) mean from a previous result (``result.mean``) to centre the first proposal.
+    warm_start: (8,) mean from a previous result (``result.mean``) to centre the first proposal, a ``WarmStart``, or
+        None: the prior's own centre, run as ``WarmStart.absent()`` (the same result), so that calls with and without
+        a warm start share one compilation.
     previous: the previous replan's plan (``previous_plan``): a candidate row and the reference of the
-        ``consistency`` cost term (weighted by ``config.cost.consistency``).
-    A closed loop passes ``WarmStart.absent()`` and ``PreviousPlan.absent(num_nodes)`` on its first call instead of
-    None: the result is the same, and every call of the loop runs one compiled function (a call with None and one
-    with an array are two compilations).
+        ``consistency`` cost term (weighted by ``config.cost.consistency``). A closed loop passes
+        ``PreviousPlan.absent(num_nodes)`` on its first call instead of None, so that every call of the loop runs one
+        compiled function (the absent plan's placeholder row makes the batch one row longer, which can change the
+        result's rounding: a call with None does not have it).
     safety_filter: sets the projection's barrier parameters and initialisation (:mod:`driveopt.safety`).
     ranking, fallback, batch_rows: the strategies of :func:`solve` (driveopt's by default; P1's baselines swap them).
     x_offset: [m] added to x of the returned trajectories (the ego's road-frame x): a finite real number within the
@@ -451,12 +453,13 @@ def plan(
     x_offset = _checked_x_offset(x_offset)
     if prior is None:
         prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
-    if warm_start is not None:
-        warm_start = warm_start if isinstance(warm_start, WarmStart) else WarmStart(warm_start)
-        mean = np.asarray(warm_start.mean, dtype=np.float32)
-        if mean.shape != (SETPOINT_DIM,) or not np.all(np.isfinite(mean)):
-            raise ProblemError(f"warm_start must be {SETPOINT_DIM} finite numbers, got shape {mean.shape}")
-        warm_start = WarmStart(mean, _flag(warm_start.present, "warm_start.present"))
+    if warm_start is None:
+        warm_start = WarmStart.absent()
+    warm_start = warm_start if isinstance(warm_start, WarmStart) else WarmStart(warm_start)
+    mean = np.asarray(warm_start.mean, dtype=np.float32)
+    if mean.shape != (SETPOINT_DIM,) or not np.all(np.isfinite(mean)):
+        raise ProblemError(f"warm_start must be {SETPOINT_DIM} finite numbers, got shape {mean.shape}")
+    warm_start = WarmStart(mean, _flag(warm_start.present, "warm_start.present"))
     placeholder = False
     if previous is not None:
         present = _flag(previous.present, "previous.present")

@@ -10,6 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from driveopt import EgoState, Neighbour, PlanStatus, ProblemError, Road, Scene, build_problem, load_scene, plan
+from driveopt.planner import WarmStart
 
 
 def collides(traj, scene: Scene) -> bool:
@@ -49,7 +50,7 @@ def test_same_key_same_plan_different_key_different_samples(small_config):
     assert not np.allclose(a.first.setpoints, a.last.setpoints)
 
 
-def test_warm_start_and_dense_snapshot_is_collision_free(small_config):
+def test_warm_start_and_dense_snapshot_is_collision_free(small_config, solve_graphs):
     scene = load_scene("dense-snapshot")
     problem = build_problem(scene, small_config.basis)
     first = plan(problem, small_config, key=jax.random.PRNGKey(0), x_offset=scene.ego.x)
@@ -57,6 +58,11 @@ def test_warm_start_and_dense_snapshot_is_collision_free(small_config):
     for result in (first, second):
         assert result.status == PlanStatus.SUCCESS
         assert not collides(result.trajectory, scene)
+    # A call without a warm start is one with an absent one: the same graph (one compilation) and the same result.
+    absent = plan(problem, small_config, key=jax.random.PRNGKey(0), warm_start=WarmStart.absent(), x_offset=scene.ego.x)
+    assert len(solve_graphs) == 3 and len(set(solve_graphs)) == 1
+    for a, b in zip(jax.tree_util.tree_leaves(first), jax.tree_util.tree_leaves(absent), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     with pytest.raises(ProblemError, match="warm_start"):
         plan(problem, small_config, key=jax.random.PRNGKey(1), warm_start=np.zeros(5))
 

@@ -49,7 +49,7 @@ from driveopt.drivers.base import Decision, DriverSpec
 from driveopt.drivers.latency import Latency, Synchronous, parse_latency
 from driveopt.fallback import Fallback
 from driveopt.files import pytree_digest
-from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, WarmStart, plan, previous_plan
+from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, plan, previous_plan
 from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
 from driveopt.ranking import FeasibilityFirst, Ranking
@@ -263,9 +263,10 @@ class OptimiserDriver:
         self.key = jax.random.PRNGKey(seed)
         self.period = 1.0 / env.unwrapped.config["policy_frequency"]  # [s] one policy period
         self.carries_plan = self.config.cost.consistency > 0
-        # The first call passes absent placeholders for what later calls carry: every call runs one compilation,
-        # made here, outside the timed loop (the result is discarded).
-        self.warm = WarmStart.absent() if self.spec.warm_start else None
+        # The first call passes the absent placeholder of the previous plan that later calls carry (plan() runs a
+        # missing warm start as an absent one): every call runs one compilation, made here, outside the timed loop
+        # (the result is discarded).
+        self.warm = None
         self.previous = PreviousPlan.absent(self.config.basis.num_nodes) if self.carries_plan else None
         start = time.perf_counter()
         problem = self._problem(first.scene)
