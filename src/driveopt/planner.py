@@ -453,9 +453,8 @@ def plan(
     x_offset = _checked_x_offset(x_offset)
     if prior is None:
         prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
-    if warm_start is None:
-        warm_start = WarmStart.absent()
-    warm_start = warm_start if isinstance(warm_start, WarmStart) else WarmStart(warm_start)
+    if not isinstance(warm_start, WarmStart):
+        warm_start = WarmStart.absent() if warm_start is None else WarmStart(warm_start)
     mean = np.asarray(warm_start.mean, dtype=np.float32)
     if mean.shape != (SETPOINT_DIM,) or not np.all(np.isfinite(mean)):
         raise ProblemError(f"warm_start must be {SETPOINT_DIM} finite numbers, got shape {mean.shape}")

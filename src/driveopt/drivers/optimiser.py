@@ -263,9 +263,9 @@ class OptimiserDriver:
         self.key = jax.random.PRNGKey(seed)
         self.period = 1.0 / env.unwrapped.config["policy_frequency"]  # [s] one policy period
         self.carries_plan = self.config.cost.consistency > 0
-        # The first call passes the absent placeholder of the previous plan that later calls carry (plan() runs a
-        # missing warm start as an absent one): every call runs one compilation, made here, outside the timed loop
-        # (the result is discarded).
+        # The first call passes the absent placeholder of the previous plan that later calls carry (a missing warm
+        # start plan() runs as an absent one itself): every call runs one compilation, made here, outside the timed
+        # loop (the result is discarded).
         self.warm = None
         self.previous = PreviousPlan.absent(self.config.basis.num_nodes) if self.carries_plan else None
         start = time.perf_counter()
