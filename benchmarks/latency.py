@@ -52,11 +52,13 @@ def run_case(batch: int, iterations: int, projection: int, calls: int, overrides
     start = time.perf_counter()
     plan(problem, config, key=jax.random.PRNGKey(0))
     first = time.perf_counter() - start
-    times = []
+    times, statuses, residuals = [], {}, []
     for i in range(calls):
         start = time.perf_counter()
-        plan(problem, config, key=jax.random.PRNGKey(i + 1))
+        result = plan(problem, config, key=jax.random.PRNGKey(i + 1))
         times.append(time.perf_counter() - start)
+        statuses[result.status.name] = statuses.get(result.status.name, 0) + 1
+        residuals.append(result.residuals["total"])
     median = float(np.median(times))
     return {
         "case": case_name(batch, iterations, projection),
@@ -70,6 +72,9 @@ def run_case(batch: int, iterations: int, projection: int, calls: int, overrides
         "median_ms": 1e3 * median,
         "p90_ms": 1e3 * float(np.percentile(times, 90)),
         "samples_per_s": batch * iterations / median,
+        "statuses": statuses,  # what the timed calls returned: the answers behind the times
+        "median_residual": float(np.median(residuals)),
+        "load_average": os.getloadavg(),  # 1, 5, 15 min, at the end of the case
     }
 
 

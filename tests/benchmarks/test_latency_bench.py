@@ -30,6 +30,8 @@ def test_a_case_runs_with_the_overrides_and_is_recorded_with_them(latency, tmp_p
     report = json.loads(out.read_text())
     assert report["config"] == {"projection": {"course_max": 0.0}}
     assert [r["case"] for r in report["results"]] == ["50x1x2"]
+    assert sum(report["results"][0]["statuses"].values()) == 2  # what each timed call returned
+    assert report["results"][0]["median_residual"] >= 0.0
     assert seen and all(c.projection.course_max == 0.0 and c.sampler.num_samples == 50 for c in seen)
 
 

@@ -24,6 +24,7 @@ from driveopt.qp import qp_layer
 from driveopt.scene import load_scene
 from driveopt.training.cvae import TrainConfig, make_batch, train_cvae
 from driveopt.training.harness import TrainingError, road_lanes, training_rows
+from driveopt.xla import float32_products
 
 CFG = CVAEConfig(hidden=(32, 32))
 TCFG = TrainConfig(epochs=10, batch_size=32, learning_rate=3e-3, anneal_epochs=2, decay_every=8)
@@ -53,7 +54,7 @@ def test_qp_layer_gradient_through_decoder_matches_finite_differences(data_file)
     direction = jax.tree_util.tree_map(lambda p: rng.normal(size=p.shape).astype(np.float32), decoder)
     norm2 = sum(np.sum(d**2) for d in jax.tree_util.tree_leaves(direction))
     direction = jax.tree_util.tree_map(lambda d: d / np.sqrt(norm2), direction)  # unit step in parameter space
-    reconstruction = jax.jit(reconstruction)
+    reconstruction = jax.jit(float32_products(reconstruction))  # an accelerator's default (TF32) is too coarse for eps
     grad = jax.jit(jax.grad(reconstruction))(decoder)
     analytic = sum(np.vdot(g, d) for g, d in zip(jax.tree_util.tree_leaves(grad), jax.tree_util.tree_leaves(direction)))
     eps = 1e-3  # float32: curvature dominates above, rounding below (float64 agrees to 1e-8)
