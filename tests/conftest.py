@@ -2,9 +2,16 @@ import atexit
 import gc
 import os
 import shutil
+import sys
 import tempfile
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+# The run starts dozens of Python processes (the xdist workers, the commands tests run in subprocesses): let them cache
+# the bytecode of what they import, also where the environment sets PYTHONDONTWRITEBYTECODE, so that each module is
+# compiled to bytecode once rather than in every process (the README's test command installs with --no-compile, so
+# that only the modules the tests import are compiled).
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+sys.dont_write_bytecode = False
 # JAX's persistent compilation cache in a folder of this test run's own: empty when the run starts (nothing carried
 # over from earlier runs or from the user's cache, which is never read or written), shared by the xdist workers and
 # the commands that tests start in subprocesses (they inherit the environment), so that a configuration compiled by
