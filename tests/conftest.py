@@ -68,7 +68,7 @@ SLOW = {
     # benchmark scripts: their records are committed; the library paths they call are tested in the default suite
     **{f"tests/benchmarks/test_{name}.py": "benchmark script" for name in (
         "filter_timing", "filter_residuals", "call_profile", "latency_bench", "closed_loop_ab", "trace_episode",
-        "compile_cost", "projection_split", "matmul_peak")},
+        "compile_cost", "projection_split", "matmul_peak", "suite_compiles")},
     "tests/experiments/test_prior_metrics.py::test_the_script_writes_json_resumes_and_refuses_other_settings":
         "benchmark script",
     # gradients through solve and the projection: test_cvae's finite-difference check of the QP layer
