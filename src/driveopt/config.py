@@ -7,10 +7,13 @@ Defaults follow P1 (bi-level planner) unless a comment says otherwise.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
+
+import numpy as np
 
 from driveopt.checks import ConfigError, check_budget, check_types, require
 
@@ -257,6 +260,44 @@ _SECTIONS = {
     "sampler": SamplerConfig,
     "cost": CostConfig,
 }
+
+
+# Fields that are inputs of the compiled planner rather than constants compiled into it: configurations that differ
+# only in these share one compilation (a sweep over the cost weights, a car with another acceleration bound). Each is
+# read only by array arithmetic inside the planner, and the results are bit for bit those of the value compiled in
+# (tests/core/test_runtime_fields.py). The others stay constants: counts and switches shape the program, some bounds
+# turn a constraint off at 0 (kappa_max, course_max, recovery_time, ego_turn_rate), and XLA rounds arithmetic on some
+# compiled-in values differently (sampler.temperature, a divisor; the projection's penalty weights): their results
+# would differ in the last bits, and a closed loop amplifies that into another episode.
+RUNTIME_FIELDS: dict[str, tuple[str, ...]] = {
+    "projection": ("v_min", "a_max"),
+    "cost": ("speed", "lateral_acceleration", "heading", "curvature", "lane_centering", "consistency"),
+}
+
+
+def split_runtime(config: PlannerConfig) -> tuple[PlannerConfig, dict[str, dict[str, np.float32]]]:
+    """(``config`` with its :data:`RUNTIME_FIELDS` at their defaults, their values as float32 by section and name):
+    what the compiled planner is specialised to, and what it takes as inputs."""
+    default = PlannerConfig()
+    values = {section: {name: np.float32(getattr(getattr(config, section), name)) for name in names}
+              for section, names in RUNTIME_FIELDS.items()}
+    static = config.replace(**{section: {name: getattr(getattr(default, section), name) for name in names}
+                               for section, names in RUNTIME_FIELDS.items()})
+    return static, values
+
+
+def with_runtime(config: PlannerConfig, values: Mapping[str, Mapping[str, Any]]) -> PlannerConfig:
+    """``config`` holding ``values`` (by section and field name, from :func:`split_runtime`) in its runtime fields.
+    The values may be arrays or JAX tracers, so they are not validated: they come from a checked configuration."""
+    sections = {}
+    for section, fields in values.items():
+        sections[section] = part = copy.copy(getattr(config, section))
+        for name, value in fields.items():
+            object.__setattr__(part, name, value)
+    whole = copy.copy(config)
+    for section, part in sections.items():
+        object.__setattr__(whole, section, part)
+    return whole
 
 
 def from_dict(data: Mapping[str, Any], base: PlannerConfig | None = None) -> PlannerConfig:

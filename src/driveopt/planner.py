@@ -43,14 +43,14 @@ import enum
 import functools
 import math
 import numbers
-from typing import Any, NamedTuple
+from typing import Any, Mapping, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from driveopt.batch_rows import BatchRows, StopRows
-from driveopt.config import PlannerConfig
+from driveopt.config import PlannerConfig, split_runtime, with_runtime
 from driveopt.costs import COST_TERMS, cost_terms, weighted_cost
 from driveopt.fallback import Fallback, braking_coeffs, stop_setpoints
 from driveopt.filtering import SafetyFilter, check_filter_init
@@ -284,6 +284,7 @@ def solve(
     ranking: Ranking = FeasibilityFirst(),
     fallback: Fallback = Fallback(),
     batch_rows: BatchRows = StopRows(),
+    runtime: Mapping[str, Mapping[str, jax.Array]] | None = None,
 ) -> Solution:
     """The bi-level optimiser as a pure function; jit it with ``config``, ``unroll``, ``ranking``, ``fallback`` and
     ``batch_rows`` static.
@@ -297,8 +298,12 @@ def solve(
     ranking: how rows are ranked (:mod:`driveopt.ranking`); fallback: the stops weighed as fallback
     (:class:`driveopt.fallback.Fallback`); batch_rows: what rides in every batch besides the samples
     (:mod:`driveopt.batch_rows`).
+    runtime: values of the configuration's runtime fields (:func:`driveopt.config.split_runtime`) that replace
+    ``config``'s, as inputs of the compiled call, so that configurations that differ only in them share a compilation.
     No validation happens here: :func:`plan` checks its input first.
     """
+    if runtime is not None:
+        config = with_runtime(config, runtime)
     model = make_model(config.basis, config.qp)
     s = config.sampler
     key_prior, key_loop = jax.random.split(key)
@@ -467,9 +472,10 @@ def plan(
         if shapes != ((SETPOINT_DIM,), (config.basis.num_nodes,)) or not all(np.all(np.isfinite(a)) for a in previous[:2]):
             raise ProblemError(f"previous plan must be finite with shapes (8,) and ({config.basis.num_nodes},), got {shapes}")
         placeholder = not present
+    compiled_config, runtime = split_runtime(config)
     solution = jax.device_get(exported_solve()(problem, key, prior=prior, warm_start=warm_start, previous=previous,
-                                               safety_filter=safety_filter, config=config, ranking=ranking,
-                                               fallback=fallback, batch_rows=batch_rows))
+                                               safety_filter=safety_filter, config=compiled_config, ranking=ranking,
+                                               fallback=fallback, batch_rows=batch_rows, runtime=runtime))
     if placeholder:  # the result as without a previous plan
         row = config.sampler.num_samples
         solution = solution._replace(first=_without_row(solution.first, row), last=_without_row(solution.last, row))

@@ -55,7 +55,7 @@ def test_the_default_planner_plans_the_real_time_sample_count_and_the_readme_say
 
 @pytest.mark.parametrize("name", ["random", "grid", "vanilla", "batch"])
 def test_baselines_plan_finite_trajectories(name):
-    spec = get_planner(name).with_overrides(projection={"max_iterations": 10})
+    spec = get_planner(name)  # grid as registered: the configuration tests/cli/test_cli.py's plan compiles too
     scene = load_scene("dense-snapshot")
     result = plan(build_problem(scene, spec.config.basis), spec.config, key=jax.random.PRNGKey(0), prior=spec.prior())
     for arr in (*result.trajectory, result.coeffs, result.setpoints):

@@ -336,9 +336,10 @@ def test_cli_module_imports_no_jax():
 
 
 def test_small_real_run(tmp_path):
-    """idm against one optimiser through highway-env: 1 episode of 1.5 s, 10 samples."""
+    """idm against one optimiser through highway-env: 1 episode of 1.5 s, 20 samples (grid at 20 samples is what
+    tests/drivers/test_latency.py drives too: one compilation for both)."""
     figure = FigureProtocol("p1", "tiny", "idm against grid", (
-        Claim("two-lane-d1.0", Arm("grid", STRENGTHENED, 10), Arm("idm", REFERENCE), SPEED, NO_WORSE, "competitive"),
+        Claim("two-lane-d1.0", Arm("grid", STRENGTHENED, 20), Arm("idm", REFERENCE), SPEED, NO_WORSE, "competitive"),
     ), seeds=(42,), episodes=1, duration=1.5, reduced=True)
     start = time.perf_counter()
     (result,) = run_figures("p1", (figure,), tmp_path, workers=1, progress=False)
@@ -346,7 +347,7 @@ def test_small_real_run(tmp_path):
     assert result.pairs == 1 and result.verdict == INCONCLUSIVE and result.reduced
     assert result.arm.plan_ms > 0 and math.isnan(result.baseline.plan_ms)  # idm does not plan
     assert "tiny" in (tmp_path / "report.md").read_text()
-    assert (tmp_path / "runs" / "tiny" / "n10-t1.5s" / "episodes.jsonl").exists()
+    assert (tmp_path / "runs" / "tiny" / "n20-t1.5s" / "episodes.jsonl").exists()
 
 
 @pytest.mark.slow

@@ -437,7 +437,7 @@ def test_any_optimiser_takes_a_filter_checkpoint_and_wrong_roads_are_refused(tra
     assert get_optimiser("random").filter_weights is None  # the copies leave the registered planners alone
 
 
-def test_plan_command_plans_with_a_filter_checkpoint(trained, tmp_path, capsys):
+def test_plan_command_plans_with_a_filter_checkpoint(trained, tmp_path):
     out = tmp_path / "plan.json"
     code = main(["plan", "--problem", "static-blockage", "--planner", "vqvae-filter", "--samples", "16",
                  "--projection-iterations", "6", "--filter-weights", str(trained[0] / "filter.ckpt"), "--repeats", "0",
@@ -446,6 +446,9 @@ def test_plan_command_plans_with_a_filter_checkpoint(trained, tmp_path, capsys):
     report = json.loads(out.read_text())
     assert report["planner"] == "vqvae-filter" and report["config"]["projection"]["gamma_obs"] == 1.0
     assert np.all(np.isfinite(report["trajectory"]["x"]))
+
+
+def test_plan_and_bench_commands_refuse_a_missing_or_mismatched_filter_checkpoint(trained, tmp_path, capsys):
     assert main(["plan", "--problem", "static-blockage", "--filter-weights", str(tmp_path / "missing.ckpt")]) == 2
     assert "cannot read checkpoint" in capsys.readouterr().err
     # bench checks the filter of every optimiser before its folder is touched (and records it with the config).
