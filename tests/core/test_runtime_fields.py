@@ -14,8 +14,7 @@ from driveopt.problem import build_problem
 from driveopt.sampler import GaussianPrior
 from driveopt.scene import load_scene
 
-TINY = PlannerConfig().replace(sampler=dict(num_samples=19, num_iterations=2, num_constraint_elites=8, num_elites=4),
-                               projection=dict(max_iterations=3))
+TINY = PlannerConfig().replace(sampler=dict(num_samples=19, num_iterations=2, num_constraint_elites=8, num_elites=4))
 # every runtime field at another value than TINY's
 OTHER = {"projection": {"v_min": 0.5, "a_max": 4.5},
          "cost": {"speed": 2.0, "lateral_acceleration": 0.1, "heading": 10.0, "curvature": 5.0, "lane_centering": 1.0,
@@ -40,18 +39,21 @@ def test_split_keeps_every_other_field_and_joins_back_to_the_configuration():
     assert static.sampler == changed.sampler and static.basis == changed.basis  # no other field moves
 
 
-def test_a_plan_with_runtime_fields_is_bit_for_bit_the_plan_compiled_with_them_and_shares_one_compilation(solve_graphs):
-    problem = build_problem(load_scene("dense-snapshot"), TINY.basis)
-    changed = TINY.replace(**OTHER)
+def test_a_plan_with_runtime_fields_is_bit_for_bit_the_plan_compiled_with_them_and_shares_one_compilation(small_config,
+                                                                                                          solve_graphs):
+    """The shared small configuration (its runtime fields at their defaults) with a previous plan: the graph the
+    behaviour tests compile; the reference compiles the changed configuration in as constants."""
+    problem = build_problem(load_scene("dense-snapshot"), small_config.basis)
+    changed = small_config.replace(**OTHER)
     prior = GaussianPrior.from_config(changed.sampler, changed.projection.v_max)
-    first = plan(problem, TINY, key=jax.random.PRNGKey(0), prior=prior, previous=PreviousPlan.absent(TINY.basis.num_nodes))
+    first = plan(problem, small_config, key=jax.random.PRNGKey(0), prior=prior,
+                 previous=PreviousPlan.absent(small_config.basis.num_nodes))
     previous = previous_plan(first, 0.1)  # so that the consistency weight acts
     kwargs = dict(key=jax.random.PRNGKey(1), prior=prior, previous=previous)
     result = plan(problem, changed, **kwargs)
-    default = plan(problem, TINY, **kwargs)
-    assert len(set(solve_graphs)) == 1  # TINY and its changed copy: one compiled planner
+    default = plan(problem, small_config, **kwargs)
+    assert len(set(solve_graphs)) == 1  # the configuration and its changed copy: one compiled planner
 
-    # the reference: the whole configuration compiled in, as a constant of the jitted function
     reference = _to_result(jax.device_get(compiled_solve()(problem, kwargs["key"], changed, prior, WarmStart.absent(),
                                                            previous)), changed, Fallback(), 0.0)
     assert result.status == reference.status and result.status != PlanStatus.NUMERICAL_ERROR

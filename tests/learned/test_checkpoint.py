@@ -14,7 +14,7 @@ import pytest
 from driveopt.checks import ConfigError
 from driveopt.learned import cvae, pixelcnn, vqvae
 from driveopt.learned import filter as learned_filter
-from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, parameter_shapes, save_checkpoint
 
 WEIGHTS = Path(__file__).resolve().parents[2] / "src" / "driveopt" / "weights"
 SHIPPED = sorted(WEIGHTS.glob("*.ckpt"))
@@ -37,6 +37,20 @@ def test_every_shipped_checkpoint_loads(path):
     kind = _kind(path)
     loaded = LOADERS[kind](path)
     assert loaded
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.name)
+def test_loading_a_checkpoint_again_reuses_its_network_structure_and_gives_the_same_weights(path):
+    """A benchmark builds the same planners' priors hundreds of times: the network's structure is traced once."""
+    import jax
+
+    load = LOADERS[_kind(path)]
+    first = load(path)
+    misses = parameter_shapes.cache_info().misses
+    again = load(path)
+    assert parameter_shapes.cache_info().misses == misses
+    for a, b in zip(jax.tree_util.tree_leaves(first), jax.tree_util.tree_leaves(again), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 def _shipped(kind: str) -> tuple[dict, dict]:

@@ -44,9 +44,9 @@ from driveopt.training.filter import (
 )
 
 CFG = fl.FilterConfig(hidden=(16, 16))
-TCFG = TrainConfig(epochs=4, batch_size=4, samples=8, unroll=2, samples_from="gaussian", learning_rate=1e-2,
+TCFG = TrainConfig(epochs=4, batch_size=4, samples=8, unroll=1, samples_from="gaussian", learning_rate=1e-2,
                    validation_fraction=0.34)
-TRAIN_ARGS = ["--samples-from", "gaussian", "--epochs", "4", "--batch-size", "4", "--samples", "8", "--unroll", "2",
+TRAIN_ARGS = ["--samples-from", "gaussian", "--epochs", "4", "--batch-size", "4", "--samples", "8", "--unroll", "1",
               "--lr", "1e-2", "--hidden", "16", "16", "--validation", "0.34"]  # TCFG and CFG on the command line
 PLANNER = get_optimiser("vqvae-filter")
 PLAN = PLANNER.with_samples(16).with_overrides(projection={"max_iterations": 6})  # what `driveopt plan` below runs

@@ -18,10 +18,11 @@ It raises :class:`CheckpointError` with the reason, never returns a partly read 
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from flax import serialization
@@ -111,6 +112,16 @@ def header_config(meta: dict[str, Any], path: str | Path, config_type: Any, what
         return config_type.from_dict(meta[key])
     except (KeyError, TypeError, ValueError) as exc:
         raise CheckpointError(f"{path}: invalid {what} config in the header: {exc}") from None
+
+
+@functools.cache
+def parameter_shapes(init_params: Callable[[Any, Any], Any], cfg: Any) -> Any:
+    """The structure of ``init_params(cfg, key)``: its arrays' shapes and dtypes, traced once per network and
+    configuration (``cfg`` hashable), not computed; the target that :func:`restore` fills from a checkpoint (a
+    benchmark builds the same planners' priors many times: each load reuses it)."""
+    import jax
+
+    return jax.eval_shape(lambda key: init_params(cfg, key), jax.random.PRNGKey(0))
 
 
 def restore(target: Any, state: dict[str, Any], path: str | Path, what: str) -> Any:

@@ -33,7 +33,7 @@ import numpy as np
 
 from driveopt.checks import ConfigError, check_count, check_number, check_parameters, dense_parameters
 from driveopt.config import BasisConfig, ProjectionConfig, QPConfig
-from driveopt.learned.checkpoint import check_scales, header_config, load_checkpoint, restore
+from driveopt.learned.checkpoint import check_scales, header_config, load_checkpoint, parameter_shapes, restore
 from driveopt.observation import EGO_FEATURES, NEIGHBOUR_FEATURES, NUM_NEIGHBOURS, OBSERVATION_DIM, neighbour_mask
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, TrajectoryModel, make_model, qp_layer
 
@@ -222,7 +222,7 @@ def sample_setpoints(params, cfg: CVAEConfig, norm: Normaliser, obs: jnp.ndarray
 def empty_state(cfg: CVAEConfig) -> dict[str, Any]:
     """The structure of a CVAE checkpoint's state (parameters and normaliser; shapes only, traced, not computed), for restoring."""
     zeros = lambda n: jax.ShapeDtypeStruct((n,), jnp.float32)  # noqa: E731
-    return {"params": jax.eval_shape(lambda key: init_params(cfg, key), jax.random.PRNGKey(0)),
+    return {"params": parameter_shapes(init_params, cfg),
             "normaliser": Normaliser(zeros(FEATURE_DIM), zeros(FEATURE_DIM), zeros(cfg.trajectory_features),
                                      zeros(cfg.trajectory_features))}
 

@@ -41,7 +41,7 @@ from driveopt.checks import ConfigError, check_count, check_number, check_parame
 from driveopt.config import PlannerConfig
 from driveopt.filtering import FilterError
 from driveopt.learned import cvae
-from driveopt.learned.checkpoint import check_scales, header_config, load_checkpoint, restore
+from driveopt.learned.checkpoint import check_scales, header_config, load_checkpoint, parameter_shapes, restore
 from driveopt.planner import setpoint_batch
 from driveopt.problem import PlanningProblem
 from driveopt.projection import project
@@ -210,7 +210,7 @@ def empty_state(cfg: MultiplierCVAEConfig) -> dict[str, Any]:
     """The structure of a checkpoint's state (parameters and normaliser; shapes only, traced), for restoring."""
     vec = lambda n: jax.ShapeDtypeStruct((n,), jnp.float32)  # noqa: E731
     traj = cfg.cvae.trajectory_features
-    return {"params": jax.eval_shape(lambda key: init_params(cfg, key), jax.random.PRNGKey(0)),
+    return {"params": parameter_shapes(init_params, cfg),
             "normaliser": Normaliser(vec(cvae.FEATURE_DIM), vec(cvae.FEATURE_DIM), vec(traj), vec(traj),
                                      vec(cfg.num_coeffs), vec(cfg.num_coeffs))}
 

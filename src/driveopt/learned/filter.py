@@ -37,7 +37,7 @@ import numpy as np
 from driveopt.checks import ConfigError, check_count, check_number, check_parameters, dense_parameters
 from driveopt.config import BasisConfig
 from driveopt.filtering import FilterError, FilterInit
-from driveopt.learned.checkpoint import check_scales, header_config, load_checkpoint, restore
+from driveopt.learned.checkpoint import check_scales, header_config, load_checkpoint, parameter_shapes, restore
 from driveopt.observation import EGO_FEATURES, NEIGHBOUR_FEATURES, OBSERVATION_DIM
 from driveopt.problem import PlanningProblem
 
@@ -189,7 +189,7 @@ def initialise(params, cfg: FilterConfig, norm: Normaliser, problem: PlanningPro
 def empty_state(cfg: FilterConfig) -> dict[str, Any]:
     """The structure of a filter checkpoint's state (parameters and normaliser; shapes only, traced), for restoring."""
     vector = jax.ShapeDtypeStruct((cfg.input_dim,), jnp.float32)
-    return {"params": jax.eval_shape(lambda key: init_params(cfg, key), jax.random.PRNGKey(0)),
+    return {"params": parameter_shapes(init_params, cfg),
             "normaliser": Normaliser(vector, vector)}
 
 

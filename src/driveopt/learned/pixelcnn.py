@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import optax
 
 from driveopt.checks import ConfigError, check_count, check_parameters, dense_parameters
-from driveopt.learned.checkpoint import CheckpointError, check_scales, header_config, load_checkpoint, restore
+from driveopt.learned.checkpoint import CheckpointError, check_scales, header_config, load_checkpoint, parameter_shapes, restore
 from driveopt.learned.cvae import FEATURE_DIM, MLP, normaliser_scales
 from driveopt.learned.vqvae import Normaliser, VQVAEConfig, empty_state
 
@@ -257,7 +257,7 @@ def load_vqvae_prior(path: str | Path, lanes: int | None = None) -> dict[str, An
     if (cfg.num_latents, cfg.codebook_size) != (vq_cfg.num_latents, vq_cfg.codebook_size):
         raise CheckpointError(f"{path}: the PixelCNN ({cfg.num_latents} x {cfg.codebook_size} codes) does not match its "
                               f"VQ-VAE ({vq_cfg.num_latents} x {vq_cfg.codebook_size})")
-    target = {"params": jax.eval_shape(lambda key: init_params(cfg, key), jax.random.PRNGKey(0)), "vqvae": empty_state(vq_cfg)}
+    target = {"params": parameter_shapes(init_params, cfg), "vqvae": empty_state(vq_cfg)}
     restored = restore(target, {k: state.get(k) for k in target}, path, "the PixelCNN state")
     norm = Normaliser(*restored["vqvae"]["normaliser"])
     check_scales(path, "the PixelCNN state", normaliser_scales(norm))

@@ -37,7 +37,7 @@ import numpy as np
 
 from driveopt.checks import ConfigError, check_count, check_number, check_parameters, dense_parameters
 from driveopt.config import BasisConfig, ProjectionConfig, QPConfig
-from driveopt.learned.checkpoint import check_scales, header_config, load_checkpoint, restore
+from driveopt.learned.checkpoint import check_scales, header_config, load_checkpoint, parameter_shapes, restore
 from driveopt.learned.cvae import FEATURE_DIM, MLP, Batch, normaliser_scales, observation_features
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, TrajectoryModel, make_model, qp_layer
 
@@ -249,7 +249,7 @@ def empty_state(cfg: VQVAEConfig) -> dict[str, Any]:
     """The structure of a VQ-VAE checkpoint's state (parameters and normaliser; shapes only), for restoring."""
     zeros = lambda *shape: jax.ShapeDtypeStruct(shape, jnp.float32)  # noqa: E731
     nodes = cfg.basis.num_nodes
-    return {"params": jax.eval_shape(lambda key: init_params(cfg, key), jax.random.PRNGKey(0)),
+    return {"params": parameter_shapes(init_params, cfg),
             "normaliser": Normaliser(zeros(FEATURE_DIM), zeros(FEATURE_DIM), zeros(nodes, 2), zeros(nodes, 2))}
 
 
