@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
@@ -275,9 +276,11 @@ RUNTIME_FIELDS: dict[str, tuple[str, ...]] = {
 }
 
 
+@functools.lru_cache(maxsize=64)
 def split_runtime(config: PlannerConfig) -> tuple[PlannerConfig, dict[str, dict[str, np.float32]]]:
     """(``config`` with its :data:`RUNTIME_FIELDS` at their defaults, their values as float32 by section and name):
-    what the compiled planner is specialised to, and what it takes as inputs."""
+    what the compiled planner is specialised to, and what it takes as inputs (cached: a closed loop splits the same
+    configuration at every step; treat the values as read-only)."""
     default = PlannerConfig()
     values = {section: {name: np.float32(getattr(getattr(config, section), name)) for name in names}
               for section, names in RUNTIME_FIELDS.items()}

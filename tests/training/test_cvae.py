@@ -27,7 +27,8 @@ from driveopt.training.harness import TrainingError, road_lanes, training_rows
 from driveopt.xla import float32_products
 
 CFG = CVAEConfig(hidden=(32, 32))
-TCFG = TrainConfig(epochs=10, batch_size=32, learning_rate=3e-3, anneal_epochs=2, decay_every=8)
+TCFG = TrainConfig(epochs=10, batch_size=32, learning_rate=3e-3, anneal_epochs=2)
+CLI_SETTINGS = ["--hidden", "32", "32", "--batch-size", "32", "--lr", "3e-3"]  # CFG and TCFG: the same compiled steps
 
 
 data_file = file_fixture(write_synthetic, "demo.h5")
@@ -175,7 +176,7 @@ def test_missing_weights_fall_back_to_gaussian_with_notice():
 
 def test_train_cli_and_errors(data_file, tmp_path, capsys):
     out = tmp_path / "cli"
-    assert main(["train", "cvae", "--data", str(data_file), "--out", str(out), "--epochs", "2", "--hidden", "16", "16"]) == 0
+    assert main(["train", "cvae", "--data", str(data_file), "--out", str(out), "--epochs", "2", *CLI_SETTINGS]) == 0
     assert (out / "cvae.ckpt").exists() and json.loads((out / "history.json").read_text())[-1]["epoch"] == 2
     assert main(["train", "cvae", "--data", str(tmp_path / "missing.h5"), "--out", str(out)]) == 2
     assert "does not exist" in capsys.readouterr().err

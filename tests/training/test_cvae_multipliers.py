@@ -17,7 +17,7 @@ from driveopt.registry import get_optimiser
 from driveopt.training.cvae_multipliers import TrainConfig, train_cvae_multipliers
 
 CFG = cm.MultiplierCVAEConfig(cvae=CVAEConfig(hidden=(16,)), multiplier_hidden=(16,))
-TCFG = TrainConfig(epochs=4, batch_size=8, unroll=2, learning_rate=1e-2, beta=0.1, anneal_epochs=1, validation_fraction=0.34)
+TCFG = TrainConfig(epochs=4, batch_size=8, unroll=1, learning_rate=1e-2, beta=0.1, anneal_epochs=1, validation_fraction=0.34)
 CONFIG = get_optimiser("cvae-multipliers").config
 
 data_file = file_fixture(lambda path: write_scenes(path, episodes=3, rows=8), "scenes.h5")
