@@ -156,8 +156,9 @@ def test_a_reversing_ego_gets_a_stop_that_brakes_its_backward_motion(small_confi
 
 
 def test_the_fallback_brakes_to_a_stop_in_closed_loop():
-    """A speed bound no plan can meet from 10 m/s: every step that executes the fallback slows the car
-    down (never below zero, never backwards) until a plan is feasible again near the bound."""
+    """A speed floor no plan can meet (the car starts below it, so every plan's first node breaks it): every step
+    that executes the fallback slows the car down, never below zero, never backwards. (A floor rather than a ceiling:
+    ``projection.v_min`` is an input of the compiled planner, so this loop runs the registered grid's compilation.)"""
     rollout = Rollout("two-lane-d1.0", _unreachable_speed_bound().driver(), seed=3, duration=3.0)
     fallback_steps = []
     for step in rollout:
@@ -173,7 +174,7 @@ def test_the_fallback_brakes_to_a_stop_in_closed_loop():
 def _unreachable_speed_bound():
     from driveopt.registry import get_planner
 
-    return get_planner("grid").with_overrides(projection={"v_max": 1.0})
+    return get_planner("grid").with_overrides(projection={"v_min": 29.9})
 
 
 @pytest.mark.parametrize("field, value, needle", [
