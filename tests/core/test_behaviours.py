@@ -4,18 +4,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import box_corners
+from conftest import RUNTIME_CHANGES, box_corners
 
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, build_problem, plan
 from driveopt.config import ProjectionConfig, QPConfig
 from driveopt.fallback import Fallback, braking_coeffs
-from driveopt.planner import PreviousPlan, previous_plan
+from driveopt.planner import PreviousPlan, WarmStart, _to_result, compiled_solve, previous_plan
 from driveopt.prediction import is_follower, predict_neighbour, relevant_neighbours
 from driveopt.projection import constraint_residuals, project
 from driveopt.qp import boundary_values, make_model
 from driveopt.ranking import CostPlusResidual
 from driveopt.sampler import GaussianPrior
-from driveopt.scene import ProblemError
+from driveopt.scene import ProblemError, load_scene
 
 
 def test_same_lane_followers_can_be_left_out():
@@ -208,6 +208,35 @@ def test_the_previous_plan_keeps_winning_between_equal_manoeuvres(small_config, 
         assert result.status == PlanStatus.SUCCESS
         assert abs(float(result.trajectory.y[-1]) - target) < 2.0
         assert result.costs["consistency"] < 4.0  # [m^2] mean squared lateral deviation (the other side: ~64)
+
+
+def test_a_plan_with_runtime_fields_is_bit_for_bit_the_plan_compiled_with_them_and_shares_one_compilation(small_config,
+                                                                                                          solve_graphs):
+    """The configuration's runtime fields (driveopt.config.RUNTIME_FIELDS) changed, with a previous plan: the graph of
+    the test above (the small configuration, whose runtime fields are at their defaults); the reference compiles the
+    changed configuration in as constants."""
+    problem = build_problem(load_scene("dense-snapshot"), small_config.basis)
+    changed = small_config.replace(**RUNTIME_CHANGES)
+    prior = GaussianPrior.from_config(changed.sampler, changed.projection.v_max)
+    first = plan(problem, small_config, key=jax.random.PRNGKey(0), prior=prior,
+                 previous=PreviousPlan.absent(small_config.basis.num_nodes))
+    previous = previous_plan(first, 0.1)  # so that the consistency weight acts
+    kwargs = dict(key=jax.random.PRNGKey(1), prior=prior, previous=previous)
+    result = plan(problem, changed, **kwargs)
+    default = plan(problem, small_config, **kwargs)
+    assert len(set(solve_graphs)) == 1  # the configuration and its changed copy: one compiled planner
+
+    reference = _to_result(jax.device_get(compiled_solve()(problem, kwargs["key"], changed, prior, WarmStart.absent(),
+                                                           previous)), changed, Fallback(), 0.0)
+    assert result.status == reference.status and result.status != PlanStatus.NUMERICAL_ERROR
+    leaves, want = jax.tree_util.tree_flatten_with_path(result)[0], jax.tree_util.tree_leaves(reference)
+    assert len(leaves) == len(want) > 50
+    for (path, got), expected in zip(leaves, want):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(expected), err_msg=jax.tree_util.keystr(path))
+
+    # and the values act: TINY's own give another plan, weighed by other weights
+    assert result.costs != default.costs
+    assert not np.array_equal(result.coeffs, default.coeffs)
 
 
 def test_previous_plan_is_the_executed_plan_shifted_by_the_replan_period(small_config):
