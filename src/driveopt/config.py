@@ -266,7 +266,7 @@ _SECTIONS = {
 # Fields that are inputs of the compiled planner rather than constants compiled into it: configurations that differ
 # only in these share one compilation (a sweep over the cost weights, a car with another acceleration bound). Each is
 # read only by array arithmetic inside the planner, and the results are bit for bit those of the value compiled in
-# (tests/core/test_runtime_fields.py). The others stay constants: counts and switches shape the program, some bounds
+# (tests/core/test_behaviours.py). The others stay constants: counts and switches shape the program, some bounds
 # turn a constraint off at 0 (kappa_max, course_max, recovery_time, ego_turn_rate), and XLA rounds arithmetic on some
 # compiled-in values differently (sampler.temperature, a divisor; the projection's penalty weights): their results
 # would differ in the last bits, and a closed loop amplifies that into another episode.
