@@ -234,7 +234,7 @@ def test_a_plan_with_runtime_fields_is_bit_for_bit_the_plan_compiled_with_them_a
     for (path, got), expected in zip(leaves, want):
         np.testing.assert_array_equal(np.asarray(got), np.asarray(expected), err_msg=jax.tree_util.keystr(path))
 
-    # and the values act: TINY's own give another plan, weighed by other weights
+    # and the values act: the small configuration's own give another plan, weighed by other weights
     assert result.costs != default.costs
     assert not np.array_equal(result.coeffs, default.coeffs)
 
