@@ -31,7 +31,7 @@ from driveopt.experiments.protocols import (
 )
 from driveopt.experiments.reproduce import reproduce, run_figures
 from driveopt.experiments.summary import wilson_interval
-from driveopt.experiments.verdicts import CONTRADICTED, INCONCLUSIVE, REPRODUCED, decide, evaluate
+from driveopt.experiments.verdicts import CONTRADICTED, INCONCLUSIVE, NOT_RUN, REPRODUCED, decide, evaluate
 from driveopt.registry import get_planner
 
 # ---------------------------------------------------------------------------------------------- statistics
@@ -288,6 +288,38 @@ def test_enough_episodes_reproduce_the_fake_direction(tmp_path, cheap_bench):
     results = run_figures("p1", (figure,), tmp_path, workers=1, episode_fn=fake_episode, progress=False)
     assert [r.verdict for r in results] == [REPRODUCED, REPRODUCED]  # 8 only-baseline collisions: p = 2/256
     assert not results[0].reduced and results[0].seeds == (42, 123)
+
+
+def test_chosen_scenarios_and_planners_run_alone_and_the_report_keeps_every_claim(tmp_path, cheap_bench):
+    CALLS["n"] = 0
+    _, results = reproduce("p1", tmp_path, figures=["fig7"], episodes=2, seeds=(42,), scenarios=("four-lane-d3.0",),
+                           planners=("bilevel", "grid"), workers=1, episode_fn=fake_episode, progress=False)
+    assert CALLS["n"] == 2 * 2  # bilevel and grid, two episodes each, nothing else
+    ran = [r for r in results if r.pairs]
+    assert [(r.scenario, r.arm.planner, r.baseline.planner) for r in ran] == [("four-lane-d3.0", "bilevel", "grid")] * 2
+    assert {r.verdict for r in results if not r.pairs} == {NOT_RUN}
+    assert len(results) == len(figures_of("p1", ["fig7"])[0].claims)
+    report = (tmp_path / "report.md").read_text()
+    assert report.count(f"**{NOT_RUN}**") == len(results) - 2
+    # the report alone: nothing runs, the same rows
+    CALLS["n"] = 0
+    (tmp_path / "report.md").unlink()
+    reproduce("p1", tmp_path, figures=["fig7"], episodes=2, seeds=(42,), report_only=True, episode_fn=fake_episode,
+              progress=False)
+    assert CALLS["n"] == 0 and (tmp_path / "report.md").read_text() == report
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"scenarios": ("two-way",)}, "no scenarios two-way"),
+    ({"planners": ("bilevel", "ppo")}, "no planners ppo"),
+    ({"report_only": True}, "holds no runs"),
+    ({"report_only": True, "planners": ("bilevel",)}, "runs nothing"),
+])
+def test_bad_choices_of_what_to_run_fail_before_anything_is_written(tmp_path, kwargs, message):
+    out = tmp_path / "out"
+    with pytest.raises(DriveoptError, match=message):
+        reproduce("p1", out, figures=["fig7"], episode_fn=fake_episode, progress=False, **kwargs)
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("kwargs", [

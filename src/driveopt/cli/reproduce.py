@@ -21,6 +21,12 @@ def register(sub) -> None:
                    help="the quick variants: seed 42, 2 episodes of 4 s, a tenth of the samples (minutes, not hours)")
     p.add_argument("--seeds", nargs="+", type=seed, help="traffic seeds of every figure (default: 42 123)")
     p.add_argument("--episodes", type=positive_int, help="episodes per scenario, planner and seed (default: 50)")
+    p.add_argument("--scenarios", nargs="+", metavar="S",
+                   help="run only these scenarios' episodes (the report still has every claim of the figures)")
+    p.add_argument("--planners", nargs="+", metavar="P",
+                   help="run only these planners' episodes (the report still has every claim of the figures)")
+    p.add_argument("--report-only", action="store_true",
+                   help="run nothing: write the report of the episodes recorded under --out")
     p.add_argument("--workers", type=positive_int, help="parallel episodes (default: the CPUs it may use)")
     p.add_argument("--backend", choices=["local", "ray"], default="local",
                    help="local processes, or Ray (RAY_ADDRESS names the cluster; needs driveopt[ray])")
@@ -34,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         _, results = reproduce(args.paper, args.out, figures=args.figures, quick=args.quick,
                                seeds=tuple(args.seeds) if args.seeds else None, episodes=args.episodes,
-                               workers=args.workers, backend=args.backend)
+                               scenarios=_names(args.scenarios), planners=_names(args.planners),
+                               report_only=args.report_only, workers=args.workers, backend=args.backend)
     except KeyboardInterrupt:
         raise KeyboardInterrupt(f"finished episodes kept under {args.out}/runs; rerun the same command to resume") from None
     counts: dict[str, int] = {}
@@ -43,3 +50,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{len(results)} claims: " + (", ".join(f"{n} {v}" for v, n in sorted(counts.items())) or "none"))
     print(f"wrote {args.out}/report.md, report.json and one PNG per figure")
     return 0
+
+
+def _names(values: list[str] | None) -> tuple[str, ...] | None:
+    return tuple(values) if values else None

@@ -16,7 +16,7 @@ protocol as run (seeds and episodes per seed), read back from the folders and ch
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -70,27 +70,57 @@ def check(figures: tuple[FigureProtocol, ...], out: Path, backend: str, workers:
     return runs
 
 
+def restrict(runs: list[BenchRun], scenarios: tuple[str, ...] | None, planners: tuple[str, ...] | None) -> list[BenchRun]:
+    """``runs`` cut to the episodes of ``scenarios`` and ``planners`` (None: all); a run left with none is dropped.
+    ReproduceError for a name that none of the runs has."""
+    for names, field in ((scenarios, "scenarios"), (planners, "planners")):
+        known = {name for run in runs for name in getattr(run.spec, field)}
+        unknown = [name for name in names or () if name not in known]
+        if unknown:
+            raise ReproduceError(f"the chosen figures have no {field} {', '.join(unknown)}; theirs: {', '.join(sorted(known))}")
+    kept = []
+    for run in runs:
+        spec = run.spec
+        cut = replace(spec, scenarios=tuple(s for s in spec.scenarios if scenarios is None or s in scenarios),
+                      planners=tuple(p for p in spec.planners if planners is None or p in planners))
+        if cut.scenarios and cut.planners:
+            kept.append(replace(run, spec=cut))
+    return kept
+
+
 def reproduce(paper: str, out: str | Path, *, figures: list[str] | None = None, quick: bool = False,
-              seeds: tuple[int, ...] | None = None, episodes: int | None = None, workers: int | None = None,
-              backend: str = "local", episode_fn: EpisodeFn = episode_record, progress: bool = True,
+              seeds: tuple[int, ...] | None = None, episodes: int | None = None,
+              scenarios: tuple[str, ...] | None = None, planners: tuple[str, ...] | None = None,
+              report_only: bool = False, workers: int | None = None, backend: str = "local",
+              episode_fn: EpisodeFn = episode_record, progress: bool = True,
               ) -> tuple[tuple[FigureProtocol, ...], list[ClaimResult]]:
     """Run what is missing of ``paper``'s protocols (``figures``: only those; ``quick``: their quick variants;
-    ``seeds``/``episodes``: replace every figure's), then write ``DIR/report.md``, ``report.json`` and one PNG per
-    figure. Returns the protocols and the claim rows. A DriveoptError before anything is written when an option,
-    figure, planner, scenario or weights file is wrong; KeyboardInterrupt keeps the finished episodes."""
+    ``seeds``/``episodes``: replace every figure's; ``scenarios``/``planners``: run only their episodes), then write
+    ``DIR/report.md``, ``report.json`` and one PNG per figure. The report always covers every claim of the chosen
+    figures, each over the episodes recorded for both its arms (a claim with none says "not run"); ``report_only``
+    runs nothing and writes the report of what ``DIR`` holds. Returns the protocols and the claim rows. A
+    DriveoptError before anything is written when an option, figure, planner, scenario or weights file is wrong;
+    KeyboardInterrupt keeps the finished episodes."""
     chosen = figures_of(paper, figures, quick=quick, seeds=seeds, episodes=episodes)
-    return chosen, run_figures(paper, chosen, out, workers=workers, backend=backend, episode_fn=episode_fn,
-                               progress=progress)
+    return chosen, run_figures(paper, chosen, out, scenarios=scenarios, planners=planners, report_only=report_only,
+                               workers=workers, backend=backend, episode_fn=episode_fn, progress=progress)
 
 
-def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path, *, workers: int | None = None,
-                backend: str = "local", episode_fn: EpisodeFn = episode_record, progress: bool = True,
-                ) -> list[ClaimResult]:
+def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path, *,
+                scenarios: tuple[str, ...] | None = None, planners: tuple[str, ...] | None = None,
+                report_only: bool = False, workers: int | None = None, backend: str = "local",
+                episode_fn: EpisodeFn = episode_record, progress: bool = True) -> list[ClaimResult]:
     """:func:`reproduce` for protocols given as objects (e.g. a protocol of one's own)."""
     from driveopt.experiments.reproduce_report import write_report
 
     out = Path(out)
-    runs = check(figures, out, backend, workers)
+    runs = restrict(check(figures, out, backend, workers), scenarios, planners)
+    if report_only:
+        if scenarios or planners:
+            raise ReproduceError("a report-only run runs nothing; scenarios and planners choose what to run")
+        if not (out / RUNS).is_dir():
+            raise ReproduceError(f"{out} holds no runs to report on ({out / RUNS} is missing); run without report-only first")
+        runs = []
     out = make_output_folder(out, ReproduceError, "the runs and the report")
     with lock_output_folder(out):
         for i, run in enumerate(runs, start=1):

@@ -49,6 +49,7 @@ COLLISION_MARGIN = 0.10  # [rate points] non-inferiority margin on the paired co
 RELATIVE_MARGIN = 0.10  # [-] non-inferiority margin on speed and plan time, as a share of the baseline's mean
 MIN_PAIRS = 10  # [-] pairs a bootstrap interval of a paired difference needs
 REPRODUCED, CONTRADICTED, INCONCLUSIVE = "reproduced in direction", "contradicted", "inconclusive at this sample size"
+NOT_RUN = "not run"  # no episode recorded for both arms
 
 Episode = tuple[int, int]  # (seed, episode)
 
@@ -172,7 +173,7 @@ def evaluate(figure: str, claim: Claim, arm_records: dict[Episode, dict[str, Any
         margin = RELATIVE_MARGIN * float(np.mean([y for _, y in plans])) if plans else math.nan
     else:
         raise ValueError(f"unknown metric {claim.metric!r}")
-    verdict = decide(claim.expect, better_count, worse_count, p, interval, margin)
+    verdict = decide(claim.expect, better_count, worse_count, p, interval, margin) if keys else NOT_RUN
     return ClaimResult(
         figure, claim.scenario, claim.metric, claim.expect, claim.paper, claim.like_for_like, claim.kind,
         arm_stats(claim.arm, a if keys else list(arm_records.values())),

@@ -1,0 +1,67 @@
+#!/usr/bin/env bash
+# The full protocols of `driveopt reproduce p1` and `p2`, run a slice at a time in priority order, into the committed
+# records under benchmarks/results/reproduction/{p1,p2}; then the reports over everything recorded, copied to
+# docs/reproduction/p1.md and p2.md (with their figures).
+#
+#   nohup bash benchmarks/reproduce_campaign.sh [WORKERS] > LOG 2>&1 &     # run (or resume) the stages, then report
+#   bash benchmarks/reproduce_campaign.sh --report                          # only the reports
+#
+# Resumable: every stage is a `driveopt reproduce` run, which skips the episodes its folders hold, so rerunning this
+# script continues where it stopped (SIGTERM or Ctrl-C keep the finished episodes). A stage asks for the first N
+# episodes of each seed; later stages ask for more, so the headline comparisons reach two seeds first and every
+# row grows over sessions. The whole of both protocols is about 300 hours of the 2-core machine
+# (docs/reproduction/README.md); each line below states its own cost there.
+# Records carry no code version: when the planning code changes its numbers, move the folders aside and start again.
+# The body is one function, read whole before it runs, so editing this file never changes a campaign in flight.
+set -euo pipefail
+
+main() {
+    repo=$(cd "$(dirname "$0")/.." && pwd)
+    records="$repo/benchmarks/results/reproduction"
+    workers=2
+    report_only=0
+    case "${1:-}" in
+        --report) report_only=1 ;;
+        "") ;;
+        *) workers=$1 ;;
+    esac
+
+    stage() {  # PAPER EPISODES FIGURE [driveopt reproduce options]
+        local paper=$1 episodes=$2 figure=$3
+        shift 3
+        echo "== $paper $figure, $episodes episodes per seed: $*  ($(date -u +%H:%M))"
+        python -m driveopt.cli reproduce "$paper" --figures "$figure" --episodes "$episodes" --workers "$workers" \
+            --out "$records/$paper" "$@"
+    }
+
+    report() {  # PAPER: the report of the full protocol over every recorded episode, and its copy in docs/
+        local paper=$1
+        [ -d "$records/$paper/runs" ] || return 0
+        python -m driveopt.cli reproduce "$paper" --report-only --out "$records/$paper"
+        sed -E "s#\]\((fig[0-9a-z]+\.png)\)#](${paper}-\1)#" "$records/$paper/report.md" > "$repo/docs/reproduction/$paper.md"
+        for png in "$records/$paper"/fig*.png; do
+            cp "$png" "$repo/docs/reproduction/$paper-$(basename "$png")"
+        done
+    }
+
+    if [ "$report_only" = 0 ]; then
+        # 1. P1 Fig. 7, dense roads, driveopt's rows (about 50 min).
+        stage p1 10 fig7 --scenarios four-lane-d3.0 two-lane-d2.5 --planners bilevel random grid batch vanilla
+        # 2. P2 Fig. 7, density 3, driveopt's pipelines (about 50 min at 1000 samples).
+        stage p2 10 fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-filter
+        # 3. P2 Fig. 7, density 3, the faithful pipelines (about 35 min).
+        stage p2 10 fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter-faithful cvae-filter-faithful
+        # 4. P1 Fig. 7, dense roads, the faithful MPC-Bi-Level (about 30 min) and the authors' MPC baselines at their
+        #    1000 samples x 100 iterations (5-7 min per episode: about 4 h for 2 episodes per seed).
+        stage p1 10 fig7 --scenarios four-lane-d3.0 two-lane-d2.5 --planners cvae-faithful
+        stage p1 2 fig7 --scenarios four-lane-d3.0 two-lane-d2.5
+        # 5. The headline rows to 25 episodes per seed (about 4 h without the faithful MPC baselines).
+        stage p1 25 fig7 --scenarios four-lane-d3.0 two-lane-d2.5 --planners bilevel random grid batch vanilla cvae-faithful
+        stage p2 25 fig7 --scenarios p2-four-lane-d3.0
+    fi
+    report p1
+    report p2
+}
+
+main "$@"
+exit
