@@ -135,7 +135,7 @@ def test_evaluate_pairs_episodes_and_reaches_each_verdict():
     similar = evaluate("fig", Claim("s", arm, arm, COLLISIONS, NO_WORSE, "same"), a, a, (42,), 20, False)
     assert similar.verdict == INCONCLUSIVE  # 20 pairs cannot bound the difference within 0.10
     none = evaluate("fig", Claim("s", arm, base, COLLISIONS, BETTER, "fewer"), {}, b, (42,), 20, False)
-    assert none.pairs == 0 and none.verdict == INCONCLUSIVE
+    assert none.pairs == 0 and none.verdict == NOT_RUN
 
 
 # ---------------------------------------------------------------------------------------------- protocols
@@ -301,6 +301,7 @@ def test_chosen_scenarios_and_planners_run_alone_and_the_report_keeps_every_clai
     assert len(results) == len(figures_of("p1", ["fig7"])[0].claims)
     report = (tmp_path / "report.md").read_text()
     assert report.count(f"**{NOT_RUN}**") == len(results) - 2
+    assert "Records: 4 episodes, 4 without a code digest." in report  # the fake episodes name no code
     # the report alone: nothing runs, the same rows
     CALLS["n"] = 0
     (tmp_path / "report.md").unlink()
@@ -378,8 +379,14 @@ def test_small_real_run(tmp_path):
     assert time.perf_counter() - start < 120
     assert result.pairs == 1 and result.verdict == INCONCLUSIVE and result.reduced
     assert result.arm.plan_ms > 0 and math.isnan(result.baseline.plan_ms)  # idm does not plan
-    assert "tiny" in (tmp_path / "report.md").read_text()
-    assert (tmp_path / "runs" / "tiny" / "n20-t1.5s" / "episodes.jsonl").exists()
+    from driveopt.solve_export import source_digest
+
+    code = source_digest()[:16]
+    assert f"Records: 2 episodes, 2 on driveopt source `{code}`." in (tmp_path / "report.md").read_text()
+    assert json.loads((tmp_path / "report.json").read_text())["figures"][0]["code"] == {code: 2}
+    for folder in ("n20-t1.5s", "nown-t1.5s"):  # grid's and idm's
+        (record,) = (tmp_path / "runs" / "tiny" / folder / "episodes.jsonl").read_text().splitlines()
+        assert json.loads(record)["code"] == code
 
 
 @pytest.mark.slow

@@ -51,10 +51,14 @@ from driveopt.experiments.summary import markdown_table, plot_summary, summarise
 from driveopt.files import atomic_write, json_text, lock_output_folder, make_output_folder, write_json
 from driveopt.registry import get_planner
 from driveopt.sim.scenarios import resolve_scenario
+from driveopt.solve_export import source_digest
 
 
 class BenchOptionError(DriveoptError):
     """A bench option naming a file that does not exist (weights); ranges are ConfigErrors (driveopt.config)."""
+
+
+CODE_DIGITS = 16  # hex digits of the source digest a record keeps
 
 
 def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
@@ -70,8 +74,9 @@ def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
     spec = planner_spec(job.planner, options)
     scenario = resolve_scenario(job.scenario, overrides=options.get("scenario"))
     record = run_episode(scenario, spec, job.env_seed, duration=options.get("duration")).record()
-    # where it planned, and on how many CPUs (the worker's share, see driveopt.experiments.runner): its plan_ms are theirs
-    return {**record, "device": jax.default_backend(), "cpus": len(usable_cpus())}
+    # where it planned, and on how many CPUs (the worker's share, see driveopt.experiments.runner): its plan_ms are
+    # theirs; and which driveopt sources ran it, so that records of other code are told apart
+    return {**record, "device": jax.default_backend(), "cpus": len(usable_cpus()), "code": source_digest()[:CODE_DIGITS]}
 
 
 def planner_spec(name: str, options: dict[str, Any]) -> DriverSpec:

@@ -130,7 +130,7 @@ def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path
                       f"-> {run.path}", flush=True)
             run_bench(run.spec, run.path, workers=workers, backend=backend, episode_fn=episode_fn, progress=progress)
         results = judge(figures, out)
-        write_report(paper, figures, results, out)
+        write_report(paper, figures, results, out, code_versions(figures, out))
     return results
 
 
@@ -143,21 +143,47 @@ def records_by_arm(path: Path) -> dict[tuple[str, str], dict[tuple[int, int], di
     return out
 
 
+def _protocol_records(figure: FigureProtocol, out: Path, cache: dict[Path, Any]):
+    """``arm_records(arm, scenario)``: the records of ``figure``'s protocol as run (its seeds, episodes 0 .. episodes - 1)
+    of one arm on one scenario, keyed by (seed, episode); folders are read once per ``cache``."""
+    wanted = {(s, e) for s in figure.seeds for e in range(figure.episodes)}
+
+    def arm_records(arm, scenario):
+        path = out / RUNS / figure.runs_folder / arm.folder(figure.duration)
+        if path not in cache:
+            cache[path] = records_by_arm(path)  # StoreError for a corrupted or foreign folder
+        found = cache[path].get((scenario, arm.planner), {})
+        return {k: r for k, r in found.items() if k in wanted}
+
+    return arm_records
+
+
+def code_versions(figures: tuple[FigureProtocol, ...], out: Path) -> dict[str, dict[str, int]]:
+    """``{figure: {code: episodes}}``: how many of the episodes each figure judges ran on which driveopt sources (the
+    records' ``code`` digest; "unrecorded" for records without one)."""
+    cache: dict[Path, Any] = {}
+    versions: dict[str, dict[str, int]] = {}
+    for figure in figures:
+        arm_records, seen = _protocol_records(figure, out, cache), set()
+        counts = versions.setdefault(figure.figure, {})
+        for claim in figure.claims:
+            for arm in (claim.arm, claim.baseline):
+                for key, record in arm_records(arm, claim.scenario).items():
+                    episode = (arm.folder(figure.duration), arm.planner, claim.scenario, key)
+                    if episode not in seen:
+                        seen.add(episode)
+                        code = record.get("code", "unrecorded")
+                        counts[code] = counts.get(code, 0) + 1
+    return versions
+
+
 def judge(figures: tuple[FigureProtocol, ...], out: Path) -> list[ClaimResult]:
     """Every claim of ``figures`` measured on the records under ``out``: only the episodes of the protocol as run
     (its seeds, episodes 0 .. episodes - 1)."""
     cache: dict[Path, Any] = {}
     results = []
     for figure in figures:
-        wanted = {(s, e) for s in figure.seeds for e in range(figure.episodes)}
-
-        def arm_records(arm, scenario):
-            path = out / RUNS / figure.runs_folder / arm.folder(figure.duration)
-            if path not in cache:
-                cache[path] = records_by_arm(path)  # StoreError for a corrupted or foreign folder
-            found = cache[path].get((scenario, arm.planner), {})
-            return {k: r for k, r in found.items() if k in wanted}
-
+        arm_records = _protocol_records(figure, out, cache)
         for claim in figure.claims:
             results.append(evaluate(figure.figure, claim, arm_records(claim.arm, claim.scenario),
                                     arm_records(claim.baseline, claim.scenario), figure.seeds, figure.full_episodes,

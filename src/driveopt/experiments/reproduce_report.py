@@ -83,7 +83,18 @@ def _verdict_counts(results: list[ClaimResult]) -> str:
     return ", ".join(f"{v}: {n}" for v, n in sorted(counts.items())) or "none"
 
 
-def markdown(paper: str, figures: tuple[FigureProtocol, ...], results: list[ClaimResult]) -> str:
+def _code_line(versions: dict[str, int]) -> str:
+    """Which driveopt sources ran a figure's episodes: more than one means its rows mix code versions."""
+    if not versions:
+        return "Records: none yet."
+    parts = [f"{n} on driveopt source `{code}`" if code != "unrecorded" else f"{n} without a code digest"
+             for code, n in sorted(versions.items(), key=lambda item: -item[1])]
+    mixed = " (**more than one code version**)" if len(versions) > 1 else ""
+    return f"Records: {sum(versions.values())} episodes, {', '.join(parts)}{mixed}."
+
+
+def markdown(paper: str, figures: tuple[FigureProtocol, ...], results: list[ClaimResult],
+             code: dict[str, dict[str, int]] | None = None) -> str:
     lines = [f"# Reproduction of {PAPER_TITLES.get(paper, paper)}", "",
              "Written by `driveopt reproduce`. Each row compares the arm with the baseline on the same episodes (same "
              "scenario, seed and episode). Rates with 95% Wilson intervals, speeds (collision-free episodes) with 95% "
@@ -115,6 +126,8 @@ def markdown(paper: str, figures: tuple[FigureProtocol, ...], results: list[Clai
                     f"episodes of {'the scenario' if figure.duration is None else f'{figure.duration:g} s'}"
                     f"{'; reduced (quick or fewer episodes than the full protocol)' if figure.reduced else ''}.")
         rows = [r for r in results if r.figure == figure.figure]
+        if code is not None:
+            protocol += " " + _code_line(code.get(figure.figure, {}))
         lines += [protocol, "", "Arms ([F] paper-faithful, [S] driveopt-strengthened, [R] reference):", *_arms_legend(rows),
                   "", head]
         lines += [claim_row(r) for r in rows]
@@ -122,13 +135,15 @@ def markdown(paper: str, figures: tuple[FigureProtocol, ...], results: list[Clai
     return "\n".join(lines) + "\n"
 
 
-def report_json(paper: str, figures: tuple[FigureProtocol, ...], results: list[ClaimResult]) -> dict[str, Any]:
+def report_json(paper: str, figures: tuple[FigureProtocol, ...], results: list[ClaimResult],
+                code: dict[str, dict[str, int]] | None = None) -> dict[str, Any]:
     return {
         "paper": paper,
         "rule": {"alpha": ALPHA, "collision_margin": COLLISION_MARGIN, "relative_margin": RELATIVE_MARGIN,
                  "min_pairs": MIN_PAIRS},
         "figures": [{"figure": f.figure, "title": f.title, "seeds": list(f.seeds), "episodes": f.episodes,
                      "duration_s": f.duration, "reduced": f.reduced, "not_run": f.not_run or None,
+                     "code": (code or {}).get(f.figure, {}),
                      "claims": [r.to_dict() for r in results if r.figure == f.figure]} for f in figures],
     }
 
@@ -175,9 +190,11 @@ def plot_figure(figure: FigureProtocol, results: list[ClaimResult], path: Path) 
     return path
 
 
-def write_report(paper: str, figures: tuple[FigureProtocol, ...], results: list[ClaimResult], out: Path) -> None:
-    """report.md, report.json and ``<figure>.png`` of every figure with claims, in ``out``."""
-    atomic_write(out / "report.md", markdown(paper, figures, results).encode())
-    write_json(out / "report.json", report_json(paper, figures, results))
+def write_report(paper: str, figures: tuple[FigureProtocol, ...], results: list[ClaimResult], out: Path,
+                 code: dict[str, dict[str, int]] | None = None) -> None:
+    """report.md, report.json and ``<figure>.png`` of every figure with claims, in ``out``. code: ``{figure: {source
+    digest: episodes}}`` (:func:`driveopt.experiments.reproduce.code_versions`)."""
+    atomic_write(out / "report.md", markdown(paper, figures, results, code).encode())
+    write_json(out / "report.json", report_json(paper, figures, results, code))
     for figure in figures:
         plot_figure(figure, results, out / f"{figure.figure}.png")

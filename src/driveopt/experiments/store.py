@@ -79,6 +79,7 @@ _OPTIONAL: tuple[tuple[str, str, Callable[[Any], bool]], ...] = (
     ("plan_ms", "a list of finite numbers", lambda v: isinstance(v, list) and all(_is_number(x) for x in v)),
     ("device", "a string", lambda v: isinstance(v, str)),
     ("settings", "a string", lambda v: isinstance(v, str)),
+    ("code", "a string", lambda v: isinstance(v, str)),  # digest of the driveopt sources that ran the episode
 )
 
 
