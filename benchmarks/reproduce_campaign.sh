@@ -11,13 +11,20 @@
 # episodes of each seed; later stages ask for more, so the headline comparisons reach two seeds first and every
 # row grows over sessions. The whole of both protocols is about 300 hours of the 2-core machine
 # (docs/reproduction/README.md); each line below states its own cost there.
-# Records carry no code version: when the planning code changes its numbers, move the folders aside and start again.
+# One code version for every session: the episodes run the sources of commit CODE (a git worktree beside the
+# checkout), whose digest every record names and each report states. When the planning code changes its numbers,
+# set CODE to the new commit and move the record folders aside (a report that mixes digests says so).
 # The body is one function, read whole before it runs, so editing this file never changes a campaign in flight.
 set -euo pipefail
+
+CODE=d621f34
 
 main() {
     repo=$(cd "$(dirname "$0")/.." && pwd)
     records="$repo/benchmarks/results/reproduction"
+    code_tree="$repo/../driveopt-campaign-$CODE"
+    [ -d "$code_tree/src/driveopt" ] || git -C "$repo" worktree add --detach "$code_tree" "$CODE"
+    export PYTHONPATH="$code_tree/src"
     workers=2
     report_only=0
     case "${1:-}" in
@@ -45,19 +52,28 @@ main() {
     }
 
     if [ "$report_only" = 0 ]; then
-        # 1. P1 Fig. 7, dense roads, driveopt's rows (about 50 min).
-        stage p1 10 fig7 --scenarios four-lane-d3.0 two-lane-d2.5 --planners bilevel random grid batch vanilla
-        # 2. P2 Fig. 7, density 3, driveopt's pipelines (about 50 min at 1000 samples).
-        stage p2 10 fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-filter
-        # 3. P2 Fig. 7, density 3, the faithful pipelines (about 35 min).
-        stage p2 10 fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter-faithful cvae-filter-faithful
-        # 4. P1 Fig. 7, dense roads, the faithful MPC-Bi-Level (about 30 min) and the authors' MPC baselines at their
-        #    1000 samples x 100 iterations (5-7 min per episode: about 4 h for 2 episodes per seed).
-        stage p1 10 fig7 --scenarios four-lane-d3.0 two-lane-d2.5 --planners cvae-faithful
-        stage p1 2 fig7 --scenarios four-lane-d3.0 two-lane-d2.5
-        # 5. The headline rows to 25 episodes per seed (about 4 h without the faithful MPC baselines).
-        stage p1 25 fig7 --scenarios four-lane-d3.0 two-lane-d2.5 --planners bilevel random grid batch vanilla cvae-faithful
-        stage p2 25 fig7 --scenarios p2-four-lane-d3.0
+        local p1_dense="four-lane-d3.0 two-lane-d2.5" p1_driveopt="bilevel random grid batch vanilla"
+        for episodes in 5 10; do
+            # P1 Fig. 7, dense roads, driveopt's rows (about 5 min per episode of both seeds and roads, two workers).
+            stage p1 $episodes fig7 --scenarios $p1_dense --planners $p1_driveopt
+            # P2 Fig. 7, density 3: driveopt's pipelines, then the faithful ones (about 4 min per episode of both seeds).
+            stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-filter
+            stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter-faithful cvae-filter-faithful
+            # P1 Fig. 7, dense roads, the faithful MPC-Bi-Level.
+            stage p1 $episodes fig7 --scenarios $p1_dense --planners cvae-faithful
+        done
+        # The authors' MPC baselines at their 1000 samples x 100 iterations: 5-7 min per episode, about 4 h for 2
+        # episodes per seed on both dense roads.
+        stage p1 2 fig7 --scenarios $p1_dense
+        for episodes in 25 50; do
+            stage p1 $episodes fig7 --scenarios $p1_dense --planners $p1_driveopt cvae-faithful
+            stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0
+        done
+        # Then every other figure at its full protocol.
+        stage p1 50 fig7
+        stage p2 50 fig7
+        for figure in fig8 fig9 fig10 fig12; do stage p1 50 $figure; done
+        for figure in fig8a fig8b fig9; do stage p2 50 $figure; done
     fi
     report p1
     report p2
