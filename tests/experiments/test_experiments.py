@@ -427,6 +427,7 @@ def _without(name):
     (_without("collided"), "no field 'collided'"),
     (json.dumps({**GOOD_LINE, "seed": "x"}).encode(), "'seed' must be an integer >= 0, got 'x'"),
     (json.dumps({**GOOD_LINE, "collided": "no"}).encode(), "'collided' must be true or false"),
+    (json.dumps({**GOOD_LINE, "code": 7}).encode(), "'code' must be a string, got 7"),
     (json.dumps({**GOOD_LINE, "mean_speed": float("nan")}).encode(), "corrupted line (not JSON: NaN is not a JSON value)"),
     ("{\"schema\": 1, \"planner\": \"caf\xe9\"}".encode("latin-1"), "corrupted line (not UTF-8 text)"),
     (b"[1, 2]", "not a JSON object"),
