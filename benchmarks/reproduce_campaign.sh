@@ -12,7 +12,7 @@
 # row grows over sessions. The whole of both protocols is about 300 hours of the 2-core machine
 # (docs/reproduction/README.md); each line below states its own cost there.
 # One code version for every session: the episodes run the sources of commit CODE (a git worktree beside the
-# checkout), whose digest every record names and each report states. When the planning code changes its numbers,
+# checkout), whose digest every record names and each report states; the reports are written by this checkout. When the planning code changes its numbers,
 # set CODE to the new commit and move the record folders aside (a report that mixes digests says so).
 # The body is one function, read whole before it runs, so editing this file never changes a campaign in flight.
 set -euo pipefail
@@ -24,7 +24,6 @@ main() {
     records="$repo/benchmarks/results/reproduction"
     code_tree="$repo/../driveopt-campaign-$CODE"
     [ -d "$code_tree/src/driveopt" ] || git -C "$repo" worktree add --detach "$code_tree" "$CODE"
-    export PYTHONPATH="$code_tree/src"
     workers=2
     report_only=0
     case "${1:-}" in
@@ -37,11 +36,12 @@ main() {
         local paper=$1 episodes=$2 figure=$3
         shift 3
         echo "== $paper $figure, $episodes episodes per seed: $*  ($(date -u +%H:%M))"
-        python -m driveopt.cli reproduce "$paper" --figures "$figure" --episodes "$episodes" --workers "$workers" \
-            --out "$records/$paper" "$@"
+        PYTHONPATH="$code_tree/src" python -m driveopt.cli reproduce "$paper" --figures "$figure" --episodes "$episodes" \
+            --workers "$workers" --out "$records/$paper" "$@"
     }
 
-    report() {  # PAPER: the report of the full protocol over every recorded episode, and its copy in docs/
+    report() {  # PAPER: the report of the full protocol over every recorded episode (by this checkout's code, whose
+                # protocols name the claims), and its copy in docs/
         local paper=$1
         [ -d "$records/$paper/runs" ] || return 0
         python -m driveopt.cli reproduce "$paper" --report-only --out "$records/$paper"

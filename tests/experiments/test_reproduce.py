@@ -19,6 +19,7 @@ from driveopt.experiments.protocols import (
     FAITHFUL_ROW,
     MIXED_ROW,
     NO_WORSE,
+    PLAN_TIME,
     REFERENCE,
     SPEED,
     STRENGTHENED,
@@ -169,6 +170,10 @@ def test_every_figure_of_both_papers_is_declared_with_registered_planners():
         assert all(c.arm.planner == "bilevel" and c.kind == DRIVEOPT_ROW for c in strong)
         assert all(c.arm.planner == "cvae-faithful" and c.kind == FAITHFUL_ROW for c in faithful)
         assert all(c.baseline.samples == 1000 and c.arm.samples == 250 for c in faithful)  # the authors' batches
+    # P2 Fig. 7 also judges the learned filter against the plain one on its episodes, every metric
+    learned = [c for c in p2[1].claims if (c.arm.planner, c.baseline.planner) == ("vqvae-filter", "vqvae")]
+    assert {(c.scenario, c.metric) for c in learned} == {(c.scenario, m) for c in p2[1].claims for m in (COLLISIONS, SPEED, PLAN_TIME)}
+    assert all(c.expect == NO_WORSE and c.kind == DRIVEOPT_ROW for c in learned)
     # P2 Fig. 9's no-filter under P2's ranking: the faithful pipelines at 0 filter iterations
     fig9 = p2[-1]
     assert any(c.kind == FAITHFUL_ROW and c.baseline.planner == "vqvae-filter-faithful"
