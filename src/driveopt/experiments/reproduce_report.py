@@ -45,6 +45,8 @@ VERSION_MARK = {"paper-faithful": "F", "driveopt-strengthened": "S", "reference"
 
 
 def _arm_cell(a: ArmStats, plan: bool) -> str:
+    if not a.episodes:
+        return f"`{a.label}` [{VERSION_MARK.get(a.version, a.version)}]: no episodes"
     cell = (f"`{a.label}` [{VERSION_MARK.get(a.version, a.version)}]: {a.collisions}/{a.episodes} collided, "
             f"{_num(a.collision_rate)} ({_num(a.collision_low)}-{_num(a.collision_high)}); {_num(a.speed)} "
             f"({_num(a.speed_low)}-{_num(a.speed_high)}) m/s")
@@ -69,7 +71,9 @@ def claim_row(r: ClaimResult) -> str:
               f"{_p(r.mcnemar_p)}, rate difference{_interval(r.collision_difference_low, r.collision_difference_high) or ' -'}; speed: arm faster in {r.arm_faster}/{r.speed_sign_n}, sign p {_p(r.speed_sign_p)}, "
               f"diff {_num(r.speed_difference)}{_interval(r.speed_difference_low, r.speed_difference_high)} m/s")
     plan = r.metric == PLAN_TIME
-    if plan:
+    if not r.pairs:
+        paired = "-"
+    elif plan:
         paired += (f"; plan time: arm quicker in {r.arm_quicker}/{r.plan_sign_n}, sign p {_p(r.plan_sign_p)}, diff "
                    f"{_num(r.plan_difference, 1)}{_interval(r.plan_difference_low, r.plan_difference_high, 1)} ms")
     return (f"| {r.scenario} | {r.kind} | {r.metric}: arm {r.expect}{like} | {r.paper} | {_arm_cell(r.arm, plan)} | "
