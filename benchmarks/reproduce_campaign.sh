@@ -9,11 +9,12 @@
 # Resumable: every stage is a `driveopt reproduce` run, which skips the episodes its folders hold, so rerunning this
 # script continues where it stopped (SIGTERM or Ctrl-C keep the finished episodes). A stage asks for the first N
 # episodes of each seed; later stages ask for more, so the headline comparisons reach two seeds first and every
-# row grows over sessions. The whole of both protocols is about 300 hours of the 2-core machine
-# (docs/reproduction/README.md); each line below states its own cost there.
+# row grows over sessions. Both protocols whole are some 500 hours of the 2-core machine (docs/reproduction/README.md:
+# P2's 1000-sample pipelines take about 3.5 min per episode with two workers); the stages below state their costs.
 # One code version for every session: the episodes run the sources of commit CODE (a git worktree beside the
-# checkout), whose digest every record names and each report states; the reports are written by this checkout. When the planning code changes its numbers,
-# set CODE to the new commit and move the record folders aside (a report that mixes digests says so).
+# checkout), whose digest every record names and each report states; the reports are written by this checkout. When
+# the planning code changes its numbers, set CODE to the new commit and move the record folders aside (a report that
+# mixes digests says so).
 # The body is one function, read whole before it runs, so editing this file never changes a campaign in flight.
 set -euo pipefail
 
@@ -54,9 +55,9 @@ main() {
     if [ "$report_only" = 0 ]; then
         local p1_dense="four-lane-d3.0 two-lane-d2.5" p1_driveopt="bilevel random grid batch vanilla"
         for episodes in 5 10; do
-            # P1 Fig. 7, dense roads, driveopt's rows (about 5 min per episode of both seeds and roads, two workers).
+            # P1 Fig. 7, dense roads, driveopt's rows (about 7 min per episode index of both seeds and roads).
             stage p1 $episodes fig7 --scenarios $p1_dense --planners $p1_driveopt
-            # P2 Fig. 7, density 3: driveopt's pipelines, then the faithful ones (about 4 min per episode of both seeds).
+            # P2 Fig. 7, density 3: driveopt's pipelines, then the faithful ones (about 3.5 min per episode).
             stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-filter
             stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter-faithful cvae-filter-faithful
             # P1 Fig. 7, dense roads, the faithful MPC-Bi-Level.
