@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from driveopt import faithful
+from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, faithful
 from driveopt.batch_rows import SamplesOnly, StopRows
 from driveopt.errors import UnknownNameError
 from driveopt.faithful import P1_MATHS
@@ -81,15 +81,44 @@ def test_p1_faithful_baselines_differ_only_in_what_p1_did_not_have(name):
     assert p1.with_replan_every(1).replan_every == 1  # bench --replan-every still overrides it
 
 
-def test_grid_prior_covers_lanes_speeds_and_only_valid_lanes():
-    problem = build_problem(load_scene("dense-snapshot"))  # 4 lanes centred at 0, 4, 8, 12
-    p = np.asarray(GridPrior(num_speeds=10).propose(problem, jax.random.PRNGKey(0), 160).samples)
+def test_grid_prior_fills_the_batch_and_changes_lane_from_its_quarter_on():
+    scene = Scene(ego=EgoState(x=0.0, y=5.0, vx=10.0), road=Road(num_lanes=4))  # 1 m off the centre at 4 m
+    problem = build_problem(scene)
+    p = np.asarray(GridPrior().propose(problem, jax.random.PRNGKey(0), 160).samples)
     assert p.shape == (160, 8)
-    assert set(np.round(p[:, 7], 3)) == {0.0, 4.0, 8.0, 12.0}  # every lane is a target, nothing else
-    assert len(set(np.round(p[:, 0], 3))) == 10
+    assert len({tuple(row) for row in np.round(p, 4)}) == 160  # 10 speeds x 4 lanes x 4 quarters, no repeats
+    assert np.allclose(p[:, :4], p[:, :1])  # one speed held over the horizon
+    np.testing.assert_allclose(np.unique(p[:, 0]), np.linspace(0.0, 30.0, 10), rtol=1e-6)
+    assert set(np.round(p[:, 7], 3)) == {0.0, 4.0, 8.0, 12.0}  # every lane is a target, and the plan ends there
+    held = []
+    for lateral in p[:, 4:]:
+        at_target = np.isclose(lateral, lateral[-1])
+        assert np.all(np.diff(at_target.astype(int)) >= 0)  # the current position first, then the target to the end
+        assert np.allclose(lateral[~at_target], 5.0)
+        held.append(int((~at_target).sum()))
+    assert set(held) == {0, 1, 2, 3}  # the change in each quarter
+    # Two lanes, 250 samples: 31 speeds 1 m/s apart; the 2 rows beyond the whole grid repeat its slowest speed.
+    two = build_problem(Scene(ego=EgoState(x=0.0, y=4.0, vx=10.0), road=Road(num_lanes=2)))
+    q = np.asarray(GridPrior().propose(two, jax.random.PRNGKey(0), 250).samples)
+    np.testing.assert_allclose(np.unique(q[:, 0]), np.arange(31.0), atol=1e-5)
+    assert set(np.round(q[:, 7], 3)) == {0.0, 4.0}
     # The same problem always gives the same grid (no randomness).
-    q = np.asarray(GridPrior(num_speeds=10).propose(problem, jax.random.PRNGKey(5), 160).samples)
-    np.testing.assert_array_equal(p, q)
+    np.testing.assert_array_equal(p, np.asarray(GridPrior().propose(problem, jax.random.PRNGKey(5), 160).samples))
+
+
+def test_grid_follows_slow_traffic_at_its_speed():
+    """From rest, both lanes flowing at 2 m/s ahead: with 250 samples on two lanes grid's speeds are 1 m/s apart, and
+    it plans to move behind the lead at no more than the traffic's speed (the ten-speed grid's nearest, 3.3 m/s, is a
+    plan the projection must brake behind the lead; in dense traffic such rows were infeasible and grid stood still:
+    docs/findings/grid-standstill.md)."""
+    lead, beside = Neighbour(x=16.0, y=4.0, vx=2.0), Neighbour(x=10.0, y=0.0, vx=2.0)
+    scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=0.0), road=Road(num_lanes=2), neighbours=(lead, beside))
+    spec = get_planner("grid").with_samples(250)
+    result = plan(build_problem(scene, spec.config.basis), spec.config, key=jax.random.PRNGKey(0),
+                  prior=GridPrior(v_max=spec.config.projection.v_max), **spec.strategies)
+    assert result.status == PlanStatus.SUCCESS
+    assert 0.5 < result.setpoints[0] <= 2.0 and np.allclose(result.setpoints[:4], result.setpoints[0])
+    assert float(result.trajectory.x[-1]) > 7.0  # it moves, and keeps behind the lead (at 16 + 2 t m)
 
 
 def test_goal_grid_trajectories_reach_their_goals():

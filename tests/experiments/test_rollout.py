@@ -10,6 +10,7 @@ from driveopt.drivers.rl import RLSpec
 from driveopt.experiments.rollout import Rollout, run_episode
 from driveopt.registry import get_planner, list_planners
 from driveopt.rl.policy import PolicyError, shipped_policy
+from driveopt.sim.road_frame import RoadFrameError
 from driveopt.sim.scenarios import get_scenario, list_scenarios
 
 
@@ -217,3 +218,33 @@ def test_a_car_started_off_the_road_drives_back_onto_it(traffic):
     assert np.all((after >= lo) & (after <= hi)), f"still off the road: y in [{after.min():.2f}, {after.max():.2f}], bounds [{lo}, {hi}]"
     if not traffic:
         assert episode.statuses == {"SUCCESS": len(episode.lateral)}, episode.statuses
+
+
+class _PushedOffRoad:
+    """Wraps a driver: after its ``at``-th action puts the ego 12 m beyond the upper lane edge, further than the
+    road frame reaches (MAX_EGO_OFFSET, 8 m)."""
+
+    def __init__(self, driver, at):
+        self.driver, self.at, self.steps = driver, at, 0
+        self.name = driver.name
+
+    def reset(self, env, scenario, seed):
+        self.driver.reset(env, scenario, seed)
+        self.compile_seconds = self.driver.compile_seconds
+        self.lanes = scenario.lanes
+
+    def act(self, env):
+        decision = self.driver.act(env)
+        self.steps += 1
+        if self.steps == self.at:
+            env.unwrapped.vehicle.position[1] = 4.0 * (self.lanes - 1) + 2.0 + 12.0
+        return decision
+
+
+def test_an_episode_ends_off_road_when_the_car_leaves_the_frame_and_fails_when_it_starts_there():
+    scenario = get_scenario("two-lane-d1.0").replace(vehicles_count=0)
+    rollout = Rollout(scenario, _PushedOffRoad(small("grid").driver(), at=3), seed=3, duration=2.0)
+    episode = rollout.run()  # the fourth call finds the ego off its frame: the episode ends there, off-road
+    assert episode.off_road and not episode.collided and len(episode.speeds) == 3
+    with pytest.raises(RoadFrameError, match="is more than 8.0 m from the lanes"):  # on no road from the start
+        Rollout(scenario, _StartOffRoad(small("grid").driver(), beyond=12.0), seed=3, duration=2.0).run()

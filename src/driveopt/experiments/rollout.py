@@ -7,7 +7,9 @@
 
 Every policy step (``scenario.policy_frequency``, 10 Hz by default) the driver
 (:mod:`driveopt.drivers`) returns a ``Decision`` (the action, and the plan that takes effect at that step), the
-loop yields it, then steps the simulator and records the outcome in :class:`Episode`. Everything
+loop yields it, then steps the simulator and records the outcome in :class:`Episode`. Leaving the road does not end
+an episode (it is recorded as ``off_road``), unless the car drives on beyond the reach of a driver's road frame
+(:data:`driveopt.sim.road_frame.MAX_EGO_OFFSET` beside the lanes): then the episode ends there, off-road. Everything
 random derives from the seed: same seed, same episode. :func:`run_episode` runs a whole episode.
 """
 
@@ -23,6 +25,7 @@ import numpy as np
 from driveopt.drivers.base import Decision, Driver, DriverSpec
 from driveopt.registry import get_planner
 from driveopt.sim.env import make_env, step_env
+from driveopt.sim.road_frame import RoadFrameError
 from driveopt.sim.scenarios import Scenario, get_scenario
 
 RENDER_CONFIG = {"screen_width": 1000, "screen_height": 250, "scaling": 7.0}  # [px], [px], [px/m]
@@ -118,7 +121,12 @@ class Rollout:
             self.driver.reset(env, self.scenario, self.seed)
             episode.compile_seconds = self.driver.compile_seconds
             while True:
-                decision = self.driver.act(env)
+                try:
+                    decision = self.driver.act(env)
+                except RoadFrameError:
+                    if not episode.off_road:
+                        raise
+                    return  # the car left the road and then the reach of the planner's road frame: it ends off-road
                 if decision.result is not None:
                     episode.plan_ms.append(1e3 * decision.plan_seconds)
                     episode.plan_seconds += decision.plan_seconds

@@ -2,7 +2,7 @@
 
 - ``VanillaPrior``: no behavioural layer: one sample, speed set-point v_des, keep the current lane.
 - ``GridPrior``: a fixed grid of behaviours: constant speed x target lane x when the lane change
-  happens (which quarter of the horizon).
+  happens (which quarter of the horizon), as many speeds as fill the batch.
 - ``GoalGridPrior``: the "Batch-MPC" baseline: a grid of goal positions (x_f, y_f); with
   ``QPConfig(terminal_position=True)`` the planner turns constant speed set-points into
   x_f = x_0 + v T and the last lateral set-point into y_f.
@@ -17,7 +17,6 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from driveopt.config import ProjectionConfig
 from driveopt.costs import nearest_lane_center
@@ -63,28 +62,30 @@ class VanillaPrior:
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class GridPrior:
-    """Constant speed (num_speeds values on [0, v_max]) x target lane x lane-change quarter (1..4)."""
+    """Constant speed x target lane x lane-change quarter, as fine in speed as the batch allows.
 
-    num_speeds: int = _static(10)
+    A behaviour is a target lane and the quarter of the horizon (1..4) from which the lateral set-points are that
+    lane's centre (before it: the current lateral position). Every behaviour of the road's lanes gets the same
+    speeds, evenly spaced on [0, v_max]: as many as fit in the batch (at least 2; rows beyond a whole grid repeat its
+    slowest speeds). So the grid uses its whole batch: 250 samples on two lanes give 31 speeds 1 m/s apart. A fixed
+    ten-speed grid (3.3 m/s apart) tiled to the batch could not follow a lane flowing at 2 m/s for the 15 s horizon
+    and stood still behind it (docs/findings/grid-standstill.md)."""
+
     v_max: float = _static(ProjectionConfig.v_max)  # [m/s]
 
-    def rows(self, problem: PlanningProblem) -> tuple[jnp.ndarray, jnp.ndarray]:
-        speeds = np.linspace(0.0, self.v_max, self.num_speeds, dtype=np.float32)
-        centres, lane_ok = _lane_centres(problem)
-        start = problem.init_y[0]
-        quarters = np.arange(NUM_SEGMENTS)
-        # lateral set-points: current y before the change quarter, the target centre from it on
-        lateral = jnp.where(quarters[None, :, None] < quarters[None, None, :], start, centres[:, None, None])
-        lateral = jnp.broadcast_to(lateral, (MAX_LANES, NUM_SEGMENTS, NUM_SEGMENTS))  # (lane, change, m)
-        v = jnp.broadcast_to(jnp.asarray(speeds)[:, None, None, None], (self.num_speeds, MAX_LANES, NUM_SEGMENTS, NUM_SEGMENTS))
-        y = jnp.broadcast_to(lateral[None], v.shape)
-        rows = jnp.concatenate([v, y], axis=-1).reshape(-1, SETPOINT_DIM)
-        valid = jnp.broadcast_to(lane_ok[None, :, None], (self.num_speeds, MAX_LANES, NUM_SEGMENTS)).reshape(-1)
-        return rows, valid
-
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
-        rows, valid = self.rows(problem)
-        samples = clip_setpoints(_fill(rows, valid, num), problem, self.v_max)
+        centres, lane_ok = _lane_centres(problem)
+        lanes = jnp.argsort(~lane_ok, stable=True)  # the road's lanes first
+        behaviours = jnp.maximum(jnp.sum(lane_ok), 1) * NUM_SEGMENTS
+        row = jnp.arange(num)
+        behaviour = row % behaviours
+        num_speeds = jnp.maximum(num // behaviours, 2)
+        speed = self.v_max * ((row // behaviours) % num_speeds) / (num_speeds - 1)
+        centre = centres[lanes[behaviour // NUM_SEGMENTS]]
+        change = behaviour % NUM_SEGMENTS  # 0: the target from the first quarter on
+        lateral = jnp.where(jnp.arange(NUM_SEGMENTS)[None, :] < change[:, None], problem.init_y[0], centre[:, None])
+        speeds = jnp.broadcast_to(speed.astype(lateral.dtype)[:, None], lateral.shape)
+        samples = clip_setpoints(jnp.concatenate([speeds, lateral], axis=-1), problem, self.v_max)
         return Proposal(samples, *moments(samples, GRID_COVARIANCE_JITTER))
 
 
