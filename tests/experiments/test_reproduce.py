@@ -5,6 +5,7 @@ import argparse
 import json
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -31,6 +32,7 @@ from driveopt.experiments.protocols import (
     figures_of,
 )
 from driveopt.experiments.reproduce import reproduce, run_figures
+from driveopt.experiments.reproduce_report import markdown
 from driveopt.experiments.summary import wilson_interval
 from driveopt.experiments.verdicts import CONTRADICTED, INCONCLUSIVE, NOT_RUN, REPRODUCED, decide, evaluate
 from driveopt.registry import get_planner
@@ -293,6 +295,24 @@ def test_enough_episodes_reproduce_the_fake_direction(tmp_path, cheap_bench):
     results = run_figures("p1", (figure,), tmp_path, workers=1, episode_fn=fake_episode, progress=False)
     assert [r.verdict for r in results] == [REPRODUCED, REPRODUCED]  # 8 only-baseline collisions: p = 2/256
     assert not results[0].reduced and results[0].seeds == (42, 123)
+
+
+def test_a_contradicted_claim_is_explained_or_flagged(tmp_path, cheap_bench):
+    speed_claim = Claim("four-lane-d3.0", Arm("grid", STRENGTHENED, 25), Arm("bilevel", STRENGTHENED, 25), SPEED, BETTER,
+                        "grid faster")
+    figure = FigureProtocol("p1", "figX", "fake", (
+        speed_claim, replace(speed_claim, metric=COLLISIONS, paper="grid safer", explanation="grid is fake; see X.md")),
+        seeds=(42,), episodes=16, full_episodes=16)
+    results = run_figures("p1", (figure,), tmp_path, workers=1, episode_fn=fake_episode, progress=False)
+    assert [r.verdict for r in results] == [CONTRADICTED, CONTRADICTED]  # slower in 16 of 16, 8 collisions to none
+    assert results[1].to_dict()["explanation"] == "grid is fake; see X.md"
+    report = markdown("p1", (figure,), results)
+    assert "**1 contradicted without an explanation yet**" in report
+    assert "- four-lane-d3.0, speed, `grid n25` against `bilevel n25`: **not explained yet**" in report
+    assert "- four-lane-d3.0, collisions, `grid n25` against `bilevel n25`: grid is fake; see X.md" in report
+    # P2 Fig. 9's driveopt rows carry why their no-filter differs from P2's
+    fig9 = figures_of("p2", ["fig9"])[0]
+    assert all(c.explanation for c in fig9.claims if c.metric == SPEED and c.kind == DRIVEOPT_ROW)
 
 
 def test_chosen_scenarios_and_planners_run_alone_and_the_report_keeps_every_claim(tmp_path, cheap_bench):

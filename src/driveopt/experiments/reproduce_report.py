@@ -13,6 +13,7 @@ from driveopt.experiments.protocols import DRIVEOPT_ROW, FAITHFUL_ROW, MIXED_ROW
 from driveopt.experiments.verdicts import (
     ALPHA,
     COLLISION_MARGIN,
+    CONTRADICTED,
     MIN_PAIRS,
     RELATIVE_MARGIN,
     ArmStats,
@@ -87,6 +88,17 @@ def _verdict_counts(results: list[ClaimResult]) -> str:
     return ", ".join(f"{v}: {n}" for v, n in sorted(counts.items())) or "none"
 
 
+UNEXPLAINED = ("**not explained yet**: trace episodes where the arms differ (`benchmarks/trace_episode.py`) and record "
+               "the finding in the claim's explanation (`src/driveopt/experiments/protocols.py`)")
+
+
+def _contradictions(rows: list[ClaimResult]) -> list[str]:
+    """Under a figure's table: every contradicted claim with why driveopt's result may differ and what settles it."""
+    lines = [f"- {r.scenario}, {r.metric}, `{r.arm.label}` against `{r.baseline.label}`: {r.explanation or UNEXPLAINED}"
+             for r in rows if r.verdict == CONTRADICTED]
+    return ["Contradicted claims:", "", *lines, ""] if lines else []
+
+
 def _code_line(versions: dict[str, int]) -> str:
     """Which driveopt sources ran a figure's episodes: more than one means its rows mix code versions."""
     if not versions:
@@ -111,7 +123,10 @@ def markdown(paper: str, figures: tuple[FigureProtocol, ...], results: list[Clai
                  "(the `*-faithful` planners, P1's RL agents), **driveopt** compares driveopt's strengthened planners, "
                  f"**{MIXED_ROW}** one with the other.")
     lines.append("")
-    lines.append(f"Verdicts: {_verdict_counts(results)}.")
+    unexplained = sum(r.verdict == CONTRADICTED and not r.explanation for r in results)
+    lines.append(f"Verdicts: {_verdict_counts(results)}."
+                 + (f" **{unexplained} contradicted without an explanation yet** (listed under their figures)."
+                    if unexplained else ""))
     for kind in (FAITHFUL_ROW, DRIVEOPT_ROW, MIXED_ROW):
         rows = [r for r in results if r.kind == kind]
         if rows:
@@ -135,7 +150,7 @@ def markdown(paper: str, figures: tuple[FigureProtocol, ...], results: list[Clai
         lines += [protocol, "", "Arms ([F] paper-faithful, [S] driveopt-strengthened, [R] reference):", *_arms_legend(rows),
                   "", head]
         lines += [claim_row(r) for r in rows]
-        lines += ["", f"![{figure.figure}]({figure.figure}.png)", ""]
+        lines += ["", *_contradictions(rows), f"![{figure.figure}]({figure.figure}.png)", ""]
     return "\n".join(lines) + "\n"
 
 

@@ -110,6 +110,7 @@ class ClaimResult:
     collision_difference_low: float  # conservative interval of rate(arm) - rate(baseline)
     collision_difference_high: float
     verdict: str
+    explanation: str = ""  # why a contradiction may arise, and what settles it (protocols.Claim.explanation)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -182,7 +183,7 @@ def evaluate(figure: str, claim: Claim, arm_records: dict[Episode, dict[str, Any
         only_arm, only_base, mcnemar_p,
         len(free), faster, speed_n, speed_p, *speed_diff,
         len(plans), plan_n - slower_plans, plan_n, plan_p, *plan_diff,
-        risk_low, risk_high, verdict)
+        risk_low, risk_high, verdict, claim.explanation)
 
 
 def decide(expect: str, better: int, worse: int, p: float, interval: tuple[float, float], margin: float) -> str:
