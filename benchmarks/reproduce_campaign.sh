@@ -13,12 +13,13 @@
 # P2's 1000-sample pipelines take about 3.5 min per episode with two workers); the stages below state their costs.
 # One code version for every session: the episodes run the sources of commit CODE (a git worktree beside the
 # checkout), whose digest every record names and each report states; the reports are written by this checkout. When
-# the planning code changes its numbers, set CODE to the new commit and move the record folders aside (a report that
-# mixes digests says so).
+# the planning code changes its numbers, set CODE to the new commit and remove the records of the planners it changes
+# (they run again); records of the others stay, and a report that mixes digests says so. Records before 75e44b5 ran
+# d621f34 (digest 7fba4df190b7d8b7), whose planners differ from 75e44b5's only in `grid` (its records were rerun).
 # The body is one function, read whole before it runs, so editing this file never changes a campaign in flight.
 set -euo pipefail
 
-CODE=d621f34
+CODE=75e44b5
 
 main() {
     repo=$(cd "$(dirname "$0")/.." && pwd)
@@ -54,14 +55,23 @@ main() {
 
     if [ "$report_only" = 0 ]; then
         local p1_dense="four-lane-d3.0 two-lane-d2.5" p1_driveopt="bilevel random grid batch vanilla"
+        # The headline comparisons at 5 episodes per seed: P1 Fig. 7's dense roads, driveopt's rows (about 7 min per
+        # episode index of both seeds and roads), and P2 Fig. 7's density 3, driveopt's pipelines (about 3.5 min per
+        # episode).
+        stage p1 5 fig7 --scenarios $p1_dense --planners $p1_driveopt
+        stage p2 5 fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-filter
+        # Then one episode per seed of every figure, so that every claim has a measured row: P1's cheaper arms
+        # first, then the authors' MPC baselines at their 1000 samples x 100 iterations, then P2's pipelines.
+        stage p1 1 fig7 --planners $p1_driveopt cvae-faithful
+        for figure in fig8 fig12 fig9 fig10; do stage p1 1 $figure; done
+        stage p1 1 fig7
+        for figure in fig7 fig8a fig8b fig9; do stage p2 1 $figure; done
         for episodes in 5 10; do
-            # P1 Fig. 7, dense roads, driveopt's rows (about 7 min per episode index of both seeds and roads).
-            stage p1 $episodes fig7 --scenarios $p1_dense --planners $p1_driveopt
-            # P2 Fig. 7, density 3: driveopt's pipelines, then the faithful ones (about 3.5 min per episode).
+            # P2 Fig. 7, density 3: driveopt's pipelines, then the faithful ones.
             stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-filter
             stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter-faithful cvae-filter-faithful
-            # P1 Fig. 7, dense roads, the faithful MPC-Bi-Level.
-            stage p1 $episodes fig7 --scenarios $p1_dense --planners cvae-faithful
+            # P1 Fig. 7, dense roads, driveopt's rows and the faithful MPC-Bi-Level.
+            stage p1 $episodes fig7 --scenarios $p1_dense --planners $p1_driveopt cvae-faithful
         done
         # The authors' MPC baselines at their 1000 samples x 100 iterations: 5-7 min per episode, about 4 h for 2
         # episodes per seed on both dense roads.
