@@ -31,7 +31,7 @@ from driveopt.experiments.protocols import (
     ProtocolError,
     figures_of,
 )
-from driveopt.experiments.reproduce import reproduce, run_figures
+from driveopt.experiments.reproduce import RunSlice, reproduce, run_figures
 from driveopt.experiments.reproduce_report import markdown
 from driveopt.experiments.summary import wilson_interval
 from driveopt.experiments.verdicts import CONTRADICTED, INCONCLUSIVE, NOT_RUN, REPRODUCED, decide, evaluate
@@ -317,8 +317,8 @@ def test_a_contradicted_claim_is_explained_or_flagged(tmp_path, cheap_bench):
 
 def test_chosen_scenarios_and_planners_run_alone_and_the_report_keeps_every_claim(tmp_path, cheap_bench):
     CALLS["n"] = 0
-    _, results = reproduce("p1", tmp_path, figures=["fig7"], episodes=2, seeds=(42,), scenarios=("four-lane-d3.0",),
-                           planners=("bilevel", "grid"), workers=1, episode_fn=fake_episode, progress=False)
+    _, results = reproduce("p1", tmp_path, figures=["fig7"], episodes=2, seeds=(42,), workers=1, episode_fn=fake_episode,
+                           only=RunSlice(scenarios=("four-lane-d3.0",), planners=("bilevel", "grid")), progress=False)
     assert CALLS["n"] == 2 * 2  # bilevel and grid, two episodes each, nothing else
     ran = [r for r in results if r.pairs]
     assert [(r.scenario, r.arm.planner, r.baseline.planner) for r in ran] == [("four-lane-d3.0", "bilevel", "grid")] * 2
@@ -335,11 +335,22 @@ def test_chosen_scenarios_and_planners_run_alone_and_the_report_keeps_every_clai
     assert CALLS["n"] == 0 and (tmp_path / "report.md").read_text() == report
 
 
+def test_chosen_sample_counts_run_alone(tmp_path, cheap_bench):
+    """P2 Fig. 8b's learned against plain filter at 250 samples only: two planners in one of its four bench folders."""
+    CALLS["n"] = 0
+    _, results = reproduce("p2", tmp_path, figures=["fig8b"], episodes=1, seeds=(42,), workers=1, episode_fn=fake_episode,
+                           only=RunSlice(planners=("vqvae-filter", "vqvae"), samples=(250,)), progress=False)
+    assert CALLS["n"] == 2 and [p.name for p in (tmp_path / "runs" / "fig8b").iterdir()] == ["n250"]
+    judged = [(r.arm.label, r.baseline.label, r.metric) for r in results if r.pairs]
+    assert judged == [("vqvae-filter n250", "vqvae n250", metric) for metric in (COLLISIONS, SPEED, PLAN_TIME)]
+
+
 @pytest.mark.parametrize("kwargs, message", [
-    ({"scenarios": ("two-way",)}, "no scenarios two-way"),
-    ({"planners": ("bilevel", "ppo")}, "no planners ppo"),
+    ({"only": RunSlice(scenarios=("two-way",))}, "no scenarios two-way"),
+    ({"only": RunSlice(planners=("bilevel", "ppo"))}, "no planners ppo"),
+    ({"only": RunSlice(samples=(300,))}, "no samples 300; theirs: 250, 1000"),
     ({"report_only": True}, "holds no runs"),
-    ({"report_only": True, "planners": ("bilevel",)}, "runs nothing"),
+    ({"report_only": True, "only": RunSlice(planners=("bilevel",))}, "runs nothing"),
 ])
 def test_bad_choices_of_what_to_run_fail_before_anything_is_written(tmp_path, kwargs, message):
     out = tmp_path / "out"

@@ -25,6 +25,9 @@ def register(sub) -> None:
                    help="run only these scenarios' episodes (the report still has every claim of the figures)")
     p.add_argument("--planners", nargs="+", metavar="P",
                    help="run only these planners' episodes (the report still has every claim of the figures)")
+    p.add_argument("--arm-samples", nargs="+", type=positive_int, metavar="N",
+                   help="run only the arms planning with these samples per sampler iteration, e.g. 250 of P2 Fig. 8b "
+                        "(the report still has every claim of the figures)")
     p.add_argument("--report-only", action="store_true",
                    help="run nothing: write the report of the episodes recorded under --out")
     p.add_argument("--workers", type=positive_int, help="parallel episodes (default: the CPUs it may use)")
@@ -35,12 +38,12 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from driveopt.experiments.reproduce import reproduce
+    from driveopt.experiments.reproduce import RunSlice, reproduce
 
     try:
         _, results = reproduce(args.paper, args.out, figures=args.figures, quick=args.quick,
                                seeds=tuple(args.seeds) if args.seeds else None, episodes=args.episodes,
-                               scenarios=_names(args.scenarios), planners=_names(args.planners),
+                               only=RunSlice(_names(args.scenarios), _names(args.planners), _names(args.arm_samples)),
                                report_only=args.report_only, workers=args.workers, backend=args.backend)
     except KeyboardInterrupt:
         raise KeyboardInterrupt(f"finished episodes kept under {args.out}/runs; rerun the same command to resume") from None
@@ -52,5 +55,5 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _names(values: list[str] | None) -> tuple[str, ...] | None:
+def _names(values: list | None) -> tuple | None:
     return tuple(values) if values else None

@@ -70,54 +70,76 @@ def check(figures: tuple[FigureProtocol, ...], out: Path, backend: str, workers:
     return runs
 
 
-def restrict(runs: list[BenchRun], scenarios: tuple[str, ...] | None, planners: tuple[str, ...] | None) -> list[BenchRun]:
-    """``runs`` cut to the episodes of ``scenarios`` and ``planners`` (None: all); a run left with none is dropped.
-    ReproduceError for a name that none of the runs has."""
-    for names, field in ((scenarios, "scenarios"), (planners, "planners")):
-        known = {name for run in runs for name in getattr(run.spec, field)}
-        unknown = [name for name in names or () if name not in known]
-        if unknown:
-            raise ReproduceError(f"the chosen figures have no {field} {', '.join(unknown)}; theirs: {', '.join(sorted(known))}")
-    kept = []
-    for run in runs:
-        spec = run.spec
-        cut = replace(spec, scenarios=tuple(s for s in spec.scenarios if scenarios is None or s in scenarios),
-                      planners=tuple(p for p in spec.planners if planners is None or p in planners))
-        if cut.scenarios and cut.planners:
-            kept.append(replace(run, spec=cut))
-    return kept
+@dataclass(frozen=True)
+class RunSlice:
+    """Which episodes of the chosen figures to run: those of ``scenarios``, ``planners`` and arms planning with
+    ``samples`` per sampler iteration (None: all), for a protocol too long to run at once. The report still covers
+    every claim of the figures."""
+
+    scenarios: tuple[str, ...] | None = None
+    planners: tuple[str, ...] | None = None
+    samples: tuple[int, ...] | None = None
+
+    @property
+    def everything(self) -> bool:
+        return self.scenarios is None and self.planners is None and self.samples is None
+
+    def cut(self, runs: list[BenchRun]) -> list[BenchRun]:
+        """``runs`` cut to this slice's episodes; a run left with none is dropped. ReproduceError for a name or
+        sample count that none of the runs has."""
+        known = {"scenarios": {s for run in runs for s in run.spec.scenarios},
+                 "planners": {p for run in runs for p in run.spec.planners},
+                 "samples": {_samples(run) for run in runs} - {None}}
+        for field, names in known.items():
+            unknown = [str(name) for name in getattr(self, field) or () if name not in names]
+            if unknown:
+                theirs = ", ".join(map(str, sorted(names)))
+                raise ReproduceError(f"the chosen figures have no {field} {', '.join(unknown)}; theirs: {theirs}")
+        kept = []
+        for run in runs:
+            if self.samples is not None and _samples(run) not in self.samples:
+                continue
+            spec = run.spec
+            cut = replace(spec, scenarios=tuple(s for s in spec.scenarios if self.scenarios is None or s in self.scenarios),
+                          planners=tuple(p for p in spec.planners if self.planners is None or p in self.planners))
+            if cut.scenarios and cut.planners:
+                kept.append(replace(run, spec=cut))
+        return kept
+
+
+def _samples(run: BenchRun) -> int | None:
+    """The samples per sampler iteration a bench folder's arms plan with (None: the planners' own)."""
+    return run.spec.options.get("samples")
 
 
 def reproduce(paper: str, out: str | Path, *, figures: list[str] | None = None, quick: bool = False,
-              seeds: tuple[int, ...] | None = None, episodes: int | None = None,
-              scenarios: tuple[str, ...] | None = None, planners: tuple[str, ...] | None = None,
+              seeds: tuple[int, ...] | None = None, episodes: int | None = None, only: RunSlice = RunSlice(),
               report_only: bool = False, workers: int | None = None, backend: str = "local",
               episode_fn: EpisodeFn = episode_record, progress: bool = True,
               ) -> tuple[tuple[FigureProtocol, ...], list[ClaimResult]]:
     """Run what is missing of ``paper``'s protocols (``figures``: only those; ``quick``: their quick variants;
-    ``seeds``/``episodes``: replace every figure's; ``scenarios``/``planners``: run only their episodes), then write
+    ``seeds``/``episodes``: replace every figure's; ``only``: run only those episodes), then write
     ``DIR/report.md``, ``report.json`` and one PNG per figure. The report always covers every claim of the chosen
     figures, each over the episodes recorded for both its arms (a claim with none says "not run"); ``report_only``
     runs nothing and writes the report of what ``DIR`` holds. Returns the protocols and the claim rows. A
     DriveoptError before anything is written when an option, figure, planner, scenario or weights file is wrong;
     KeyboardInterrupt keeps the finished episodes."""
     chosen = figures_of(paper, figures, quick=quick, seeds=seeds, episodes=episodes)
-    return chosen, run_figures(paper, chosen, out, scenarios=scenarios, planners=planners, report_only=report_only,
+    return chosen, run_figures(paper, chosen, out, only=only, report_only=report_only,
                                workers=workers, backend=backend, episode_fn=episode_fn, progress=progress)
 
 
-def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path, *,
-                scenarios: tuple[str, ...] | None = None, planners: tuple[str, ...] | None = None,
+def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path, *, only: RunSlice = RunSlice(),
                 report_only: bool = False, workers: int | None = None, backend: str = "local",
                 episode_fn: EpisodeFn = episode_record, progress: bool = True) -> list[ClaimResult]:
     """:func:`reproduce` for protocols given as objects (e.g. a protocol of one's own)."""
     from driveopt.experiments.reproduce_report import write_report
 
     out = Path(out)
-    runs = restrict(check(figures, out, backend, workers), scenarios, planners)
+    runs = only.cut(check(figures, out, backend, workers))
     if report_only:
-        if scenarios or planners:
-            raise ReproduceError("a report-only run runs nothing; scenarios and planners choose what to run")
+        if not only.everything:
+            raise ReproduceError("a report-only run runs nothing; scenarios, planners and samples choose what to run")
         if not (out / RUNS).is_dir():
             raise ReproduceError(f"{out} holds no runs to report on ({out / RUNS} is missing); run without report-only first")
         runs = []
