@@ -34,7 +34,7 @@ _EXPORTS = {
     "plan": "driveopt.planner", "solve": "driveopt.planner",
     "GaussianPrior": "driveopt.priors", "Prior": "driveopt.priors", "Proposal": "driveopt.priors",
     "PlanningProblem": "driveopt.problem", "build_problem": "driveopt.problem",
-    "CostPlusResidual": "driveopt.ranking", "FeasibilityFirst": "driveopt.ranking",
+    "CostPlusResidual": "driveopt.ranking", "FeasibilityFirst": "driveopt.ranking", "P1AuthorsRanking": "driveopt.ranking",
     "EgoState": "driveopt.scene", "Neighbour": "driveopt.scene", "ProblemError": "driveopt.scene", "Road": "driveopt.scene",
     "Scene": "driveopt.scene", "load_scene": "driveopt.scene",
     "Controller": "driveopt.controller", "RenderPlans": "driveopt.controller", "gym_make": "driveopt.sim.rewards",

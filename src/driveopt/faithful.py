@@ -5,19 +5,22 @@ driveopt's own planners (``bilevel``, ``grid``, ``vqvae-filter``, ...) carry its
 authors' public code: P1's ``MPC-Bi-Level`` (``main_bilevel.py``, ``main_baseline.py``, ``utils/env_config.py``,
 ``expert_mpc/``) and P2's ``VQOptMain`` (``inferenceJax3.py``, ``utils/config.py``, ``model/DOptimizerJax.py``).
 
-Common to all of them (:func:`without_driveopt_machinery`): the paper's ranking (:class:`CostPlusResidual`, the
-residual leading), no stop rows, the chosen plan executed whatever its residual (the fallback only on
-NUMERICAL_ERROR, without straightening or sideways stops), no contact guard, constant-velocity prediction of the 10
-nearest neighbours, :data:`P1_MATHS`, and a new plan every policy period (:data:`AUTHORS_REPLAN_EVERY`), for the
-bi-level optimiser and its baselines alike. Both authors' loops call the planner once per ``env.step`` for every
+Common to all of them (:func:`without_driveopt_machinery`): the paper's ranking (the residual leading: P1's with its
+authors' driving cost, :class:`~driveopt.ranking.P1AuthorsRanking`; P2's and [5]'s
+:class:`~driveopt.ranking.CostPlusResidual`), no stop rows, the chosen plan executed whatever its residual (the
+fallback only on NUMERICAL_ERROR, without straightening or sideways stops), no contact guard, constant-velocity
+prediction of the 10 nearest neighbours, :data:`FAITHFUL_MATHS`, and a new plan every policy period
+(:data:`AUTHORS_REPLAN_EVERY`), for the bi-level optimiser and its baselines alike. MPC-Bi-Level carries its
+sampling mean from call to call (``policy_bilevel.py``: ``self.mean_param``), the baselines do not. Both authors' loops call the planner once per ``env.step`` for every
 method, at a 25 Hz policy over a 100 Hz simulation; P1 §V-A3's "first five elements" executed open loop are controls
 0.01 s apart (the plan resampled at 1500 nodes over 15 s), so a plan lived 0.04-0.05 s. driveopt's scenarios step
 the policy at 10 Hz, so 0.1 s is the closest period.
 
 What is not carried (driveopt shares it between all planners): the authors' projection penalty weights (P1's
 baselines weigh the obstacle rows 100, its bi-level optimiser 1), acceleration bounds (driveopt caps every plan at
-what the simulated car can do), P2's three circles per car and its zero initial acceleration, the previous call's 40
-elites in MPC-Bi-Level's first batch, and how a plan becomes a command. docs/design.md lists every choice.
+what the simulated car can do), P2's three circles per car and its zero initial acceleration, the car's lateral
+acceleration imposed at a plan's start (:data:`FAITHFUL_MATHS`), and how a plan becomes a command. docs/design.md
+lists every choice.
 """
 
 from __future__ import annotations
@@ -29,20 +32,21 @@ from driveopt.config import PlannerConfig
 from driveopt.drivers.optimiser import OptimiserSpec
 from driveopt.fallback import Fallback
 from driveopt.priors.cvae import cvae_prior
-from driveopt.priors.p1_authors import FixedGaussian, SpeedOffsetGrid, VanillaGuesses
+from driveopt.priors.p1_authors import FixedGaussian, LearnedStart, SpeedOffsetGrid, VanillaGuesses
 from driveopt.qp import NUM_SEGMENTS
-from driveopt.ranking import CostPlusResidual
+from driveopt.ranking import CostPlusResidual, P1AuthorsRanking, Ranking
 
 SUFFIX = "-faithful"
 AUTHORS_REPLAN_EVERY = 1  # [policy periods] a new plan every period, for the optimiser and its baselines alike
 
-P1_RANKING_COST_WEIGHT = 1e-5  # [-] P1's authors' code ranks by residual + 1e-5 x the L2 norm of the speed error over
-# the nodes (+ 1e-2 x steering terms): on driveopt's cost scale (means of squares, ~100 for a 10 m/s speed error)
-# 1e-5 gives the driving cost the same small share, so the residual leads and the cost separates equal residuals.
-# MPC-Random and MPC-Vanilla use 1e-5 (expert_random.py, expert_vanilla.py); MPC-Grid 1e-2 (expert_grid.py);
-# MPC-Bi-Level 1e-3 (expert_bilevel.py, velocity_scaling).
-P1_GRID_COST_WEIGHT = 1e-2  # [-] expert_grid.py
-P1_BILEVEL_COST_WEIGHT = 1e-3  # [-] expert_bilevel.py
+P1_RANKING_COST_WEIGHT = 1e-5  # [-] the -p1 baselines' weight of driveopt's cost in P1's ranking: P1's authors' code
+# ranks by residual + 1e-5 x the L2 norm of the speed error over the nodes (+ steering and heading terms, which the
+# *-faithful planners carry: P1AuthorsRanking); on driveopt's cost scale (means of squares, ~100 for a 10 m/s speed
+# error) 1e-5 gives the driving cost the same small share, so the residual leads.
+P1_RANDOM_SPEED_WEIGHT = 1e-5  # [s/m] the authors' velocity_scaling: expert_random.py, expert_vanilla.py
+P1_GRID_SPEED_WEIGHT = 1e-2  # [s/m] expert_grid.py
+P1_BILEVEL_SPEED_WEIGHT = 1e-3  # [s/m] expert_bilevel.py
+SHRESTHA_COST_WEIGHT = 1e-3  # [-] [5]'s ranking: residual + 1e-3 x speed error (expert_cvae.py), on driveopt's cost
 P2_RANKING_COST_WEIGHT = 5e-3  # [-] P2's authors' code (DOptimizerJax.py compute_cost) ranks by residual + 1e-3 x
 # exp(-2 residual) x ||x - v_des T|| + 1e-2 x steering terms: between plans at 10 and at 20 m/s that term differs by
 # about 0.56, where driveopt's speed cost differs by 100 (the gate exp(-2 residual) is not carried)
@@ -54,6 +58,11 @@ P1_MATHS = {"sampler": {"structured_fraction": 0.0}, "qp": {"initial_lateral_acc
             "cost": {"consistency": 0.0}, "projection": {"course_max": 0.0, "ego_turn_rate": 0.0}}
 # P1's planner maths where driveopt's differs: independent set-points, both initial accelerations imposed, no
 # plan-consistency cost, course bound or per-sample turned box.
+FAITHFUL_MATHS = {**P1_MATHS, "qp": {"initial_lateral_acceleration": False}}
+# The *-faithful planners' maths: P1's, except that a plan's lateral acceleration at its start is left free as in
+# driveopt's. Imposing the car's (the authors' code does, in a loop that replans every 0.04 s and tracks at 100 Hz)
+# made every plan of driveopt's 10 Hz loop start with the turn the car was in: the faithful MPC-Bi-Level turned further
+# each period and left a sparse four-lane road within 7 s, or collided (docs/findings/faithful-drift.md).
 
 P1_SAMPLES = 1000  # [-] P1 §V-A1 and every expert of expert_mpc/ (num_batch); P1's protocols run the bi-level
 # optimiser at 250 (§V-F)
@@ -61,32 +70,42 @@ P1_CONSTRAINT_ELITES, P1_ELITES = 150, 50  # [-] P1 §V-A1; also expert_grid.py 
 P1_BILEVEL_ITERATIONS, P1_BILEVEL_PROJECTION = 5, 20  # [-] expert_bilevel.py maxiter_cem, maxiter
 P1_BASELINE_PROJECTION = 100  # [-] expert_grid.py, expert_random.py, expert_vanilla.py maxiter (one CEM iteration)
 P1_VANILLA_CONSTRAINT_ELITES = 300  # [-] expert_vanilla.py ellite_num_projection
-P1_START_SPEED = 5.0  # [m/s] policy_bilevel.py: mean of the first batch's speed set-points
+P1_START_SPEED = 5.0  # [m/s] policy_bilevel.py: mean speed of the first call (a closed loop starts from the current one)
 P1_START_SPEED_VAR = (30.0,) * NUM_SEGMENTS  # [(m/s)^2] policy_bilevel.py diag_param
 P1_START_LATERAL_VAR = (30.0, 46.0, 46.0, 46.0)  # [m^2] policy_bilevel.py diag_param (the first offset's is 30)
 P1_RANDOM_SPEED_VAR = (16.0,) * NUM_SEGMENTS  # [(m/s)^2] policy_random.py (mean v_des = 20)
 P1_RANDOM_LATERAL_VAR = (46.0,) * NUM_SEGMENTS  # [m^2] policy_random.py
 
 
-def without_driveopt_machinery(spec: OptimiserSpec, *, name: str, description: str, cost_weight: float,
-                               replan_every: int) -> OptimiserSpec:
-    """``spec`` without driveopt's safety machinery: the paper's ranking with ``cost_weight``, no stop rows, a
+def without_driveopt_machinery(spec: OptimiserSpec, *, name: str, description: str, ranking: Ranking,
+                               replan_every: int, maths: dict = P1_MATHS) -> OptimiserSpec:
+    """``spec`` without driveopt's safety machinery: the paper's ``ranking``, no stop rows, a
     fallback without straightening or sideways stops followed only on NUMERICAL_ERROR, no contact guard,
-    constant-velocity prediction of the nearest neighbours, :data:`P1_MATHS`, a plan every ``replan_every``
+    constant-velocity prediction of the nearest neighbours, ``maths`` (:data:`P1_MATHS`), a plan every ``replan_every``
     policy periods."""
-    return dataclasses.replace(spec, name=name, description=description, config=spec.config.replace(**P1_MATHS),
-                               ranking=CostPlusResidual(cost_weight), batch_rows=SamplesOnly(),
+    return dataclasses.replace(spec, name=name, description=description, config=spec.config.replace(**maths),
+                               ranking=ranking, batch_rows=SamplesOnly(),
                                fallback=Fallback(straightens=False, evasion=False), contact_guard=False,
                                executes_infeasible=True, braking_prediction=False, approach_selection=False,
                                replan_every=replan_every)
 
 
-def _faithful(spec: OptimiserSpec, cost_weight: float) -> OptimiserSpec:
-    return without_driveopt_machinery(spec, name=spec.name + SUFFIX, description=spec.description,
-                                      cost_weight=cost_weight, replan_every=AUTHORS_REPLAN_EVERY)
+def _faithful(spec: OptimiserSpec, ranking: Ranking) -> OptimiserSpec:
+    return without_driveopt_machinery(spec, name=spec.name + SUFFIX, description=spec.description, ranking=ranking,
+                                      replan_every=AUTHORS_REPLAN_EVERY, maths=FAITHFUL_MATHS)
 
 
-_COMMON = "P1's ranking, no driveopt safety machinery, a plan every 0.1 s"
+def _learned_start(start: FixedGaussian):
+    """Prior factory: the shipped CVAE's samples with the authors' carried distribution (:class:`LearnedStart`)."""
+    learned = cvae_prior(0.0)
+
+    def make(config: PlannerConfig, lanes: int, weights: str | None) -> LearnedStart:
+        return LearnedStart(learned(config, lanes, weights), dataclasses.replace(start, v_max=config.projection.v_max))
+
+    return make
+
+
+_COMMON = "P1's ranking and its authors' cost, no driveopt safety machinery, a plan every 0.1 s"
 
 
 def p1_planners(base: PlannerConfig) -> tuple[OptimiserSpec, ...]:
@@ -98,35 +117,37 @@ def p1_planners(base: PlannerConfig) -> tuple[OptimiserSpec, ...]:
                                    "num_constraint_elites": P1_CONSTRAINT_ELITES, "num_elites": P1_ELITES},
                           projection={"max_iterations": P1_BASELINE_PROJECTION})
     vanilla = single.replace(sampler={"num_constraint_elites": P1_VANILLA_CONSTRAINT_ELITES})
-    start = FixedGaussian(P1_START_SPEED, P1_START_SPEED_VAR, P1_START_LATERAL_VAR)
+    start = FixedGaussian(P1_START_SPEED, P1_START_SPEED_VAR, P1_START_LATERAL_VAR, follows_warm_start=True)
     grid = SpeedOffsetGrid()
     specs = (
-        (OptimiserSpec("bilevel", "P1 Alg. 1 as P1's authors ran it: 1000 samples from N((5 m/s, y0), diag(30, 46)), "
-                       f"5 CEM iterations x 20 projection iterations, elites 150 -> 50, no warm start; {_COMMON}",
-                       bilevel, lambda c, *_: dataclasses.replace(start, v_max=c.projection.v_max)),
-         P1_BILEVEL_COST_WEIGHT),
-        (OptimiserSpec("cvae", "P1's MPC-Bi-Level as its authors' main_bilevel.py ran it: bilevel-faithful started "
-                       f"from the learned CVAE (shipped weights; Gaussian if none); {_COMMON}", bilevel, cvae_prior(0.0)),
-         P1_BILEVEL_COST_WEIGHT),
+        (OptimiserSpec("bilevel", "P1 Alg. 1 as P1's authors ran it: 1000 samples from N(m, diag(30, 46)), m the "
+                       "previous call's final mean (before the first call the current motion), 5 CEM iterations x 20 "
+                       f"projection iterations, elites 150 -> 50; {_COMMON}",
+                       bilevel, lambda c, *_: dataclasses.replace(start, v_max=c.projection.v_max), warm_start=True),
+         P1_BILEVEL_SPEED_WEIGHT),
+        (OptimiserSpec("cvae", "P1's MPC-Bi-Level as its authors' main_bilevel.py ran it: bilevel-faithful with the "
+                       f"learned CVAE's samples as its first batch (shipped weights; Gaussian if none); {_COMMON}",
+                       bilevel, _learned_start(start), warm_start=True),
+         P1_BILEVEL_SPEED_WEIGHT),
         (OptimiserSpec("random", "MPC-Random as P1's authors ran it: 1000 samples from N((v_des, y0), diag(16, 46)), "
                        f"one pass of 100 projection iterations, elites 150; {_COMMON}", single,
                        lambda c, *_: FixedGaussian(None, P1_RANDOM_SPEED_VAR, P1_RANDOM_LATERAL_VAR, c.projection.v_max)),
-         P1_RANKING_COST_WEIGHT),
+         P1_RANDOM_SPEED_WEIGHT),
         (OptimiserSpec("grid", "MPC-Grid as P1's authors ran it: 50 speeds on v_des +- 16 m/s x 20 offsets across the "
                        f"road, held over the horizon, one pass of 100 projection iterations, elites 150; {_COMMON}",
                        single, lambda *_: grid),
-         P1_GRID_COST_WEIGHT),
+         P1_GRID_SPEED_WEIGHT),
         (OptimiserSpec("vanilla", "MPC-Vanilla as P1's authors ran it: speed set-point v_des, 1000 lateral guesses (the "
                        "least obstructed of 30000 smooth paths), one pass of 100 projection iterations, elites 300; "
                        f"{_COMMON}", vanilla,
                        lambda c, *_: VanillaGuesses(horizon=c.basis.horizon, v_max=c.projection.v_max)),
-         P1_RANKING_COST_WEIGHT),
+         P1_RANDOM_SPEED_WEIGHT),
         (OptimiserSpec("batch", "Batch-MPC as P1's authors' MPC-Grid: goals (x_0 + v T, y_f) on grid-faithful's 50 x 20 "
                        f"grid with terminal constraints, one pass of 100 projection iterations, elites 150; {_COMMON}",
                        single.replace(qp={"terminal_position": True}), lambda *_: grid),
-         P1_GRID_COST_WEIGHT),
+         P1_GRID_SPEED_WEIGHT),
     )
-    return tuple(_faithful(spec, weight) for spec, weight in specs)
+    return tuple(_faithful(spec, P1AuthorsRanking(speed_weight=weight)) for spec, weight in specs)
 
 
 def p2_planner(spec: OptimiserSpec) -> OptimiserSpec:
@@ -136,7 +157,7 @@ def p2_planner(spec: OptimiserSpec) -> OptimiserSpec:
     description = (f"{spec.name} as P2's authors ran it (inferenceJax3.py): the same samples, prior and filter, the "
                    "least cost + residual of the 150 lowest residuals executed whatever its residual, no driveopt "
                    "safety machinery, a plan every 0.1 s")
-    return _faithful(dataclasses.replace(spec, description=description), P2_RANKING_COST_WEIGHT)
+    return _faithful(dataclasses.replace(spec, description=description), CostPlusResidual(P2_RANKING_COST_WEIGHT))
 
 
 def shrestha_planner(spec: OptimiserSpec) -> OptimiserSpec:
@@ -146,4 +167,4 @@ def shrestha_planner(spec: OptimiserSpec) -> OptimiserSpec:
     description = ("cvae-multipliers as [5]'s authors ran it (main_diffproj.py): the same samples and multipliers, the least "
                    "residual + 1e-3 speed error of the 10 lowest residuals executed whatever its residual, no driveopt "
                    "safety machinery, a plan every 0.1 s")
-    return _faithful(dataclasses.replace(spec, description=description), P1_BILEVEL_COST_WEIGHT)
+    return _faithful(dataclasses.replace(spec, description=description), CostPlusResidual(SHRESTHA_COST_WEIGHT))

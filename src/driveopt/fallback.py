@@ -41,7 +41,7 @@ import jax.numpy as jnp
 
 from driveopt.checks import check_number, check_types
 from driveopt.config import MAX_ACCELERATION, PlannerConfig
-from driveopt.costs import COST_TERMS, cost_terms, nearest_lane_center, weighted_cost
+from driveopt.costs import COST_TERMS, cost_terms, nearest_lane_center
 from driveopt.prediction import turned_box_growth
 from driveopt.problem import PlanningProblem, ellipse_axes, travel_direction
 from driveopt.projection import constraint_residuals
@@ -312,7 +312,7 @@ class Fallback:
                                jnp.broadcast_to(b_y, (n, b_y.shape[-1])))
         families = jnp.stack(list(constraint_residuals(model, problem, coeffs, cfg.projection)))  # (4, stops)
         terms = cost_terms(every, problem)
-        cost = weighted_cost(terms, cfg.cost)
+        cost = ranking.driving_cost(every, problem, terms, cfg.cost)
         total = jnp.sum(families, axis=0)
         feasible = total <= cfg.sampler.residual_tolerance
         key = ranking.key(ranking.score(cost, total), total, feasible)

@@ -51,7 +51,7 @@ import numpy as np
 
 from driveopt.batch_rows import BatchRows, StopRows
 from driveopt.config import PlannerConfig, split_runtime, with_runtime
-from driveopt.costs import COST_TERMS, cost_terms, weighted_cost
+from driveopt.costs import COST_TERMS, cost_terms
 from driveopt.fallback import Fallback, braking_coeffs, stop_setpoints
 from driveopt.filtering import SafetyFilter, check_filter_init
 from driveopt.problem import PlanningProblem, check_problem
@@ -233,7 +233,7 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     # without a previous plan every row is its own reference: consistency exactly 0 (selecting the reference, not the
     # term, leaves the arithmetic of a present plan's term as it was)
     terms = cost_terms(traj, problem, lateral if previous is None else jnp.where(previous.present, lateral, traj.y))
-    cost = weighted_cost(terms, cfg.cost)
+    cost = ranking.driving_cost(traj, problem, terms, cfg.cost)
     residual = proj.residuals.total
     score = ranking.score(cost, residual)
     feasible = residual <= s.residual_tolerance

@@ -7,22 +7,27 @@ Every row of a batch has a weighted driving cost ``c`` and a total constraint re
 - a **key**: what the pick of a batch, the best over the iterations and the fallback's choice minimise;
 - the **elite set** of ``sampler.num_elites`` rows out of the ``sampler.num_constraint_elites`` constraint elites.
 
-Two rankings exist. :class:`FeasibilityFirst` (driveopt's default) puts every feasible row ahead of every infeasible
+Three rankings exist. :class:`FeasibilityFirst` (driveopt's default) puts every feasible row ahead of every infeasible
 one. :class:`CostPlusResidual` is P1's: the lowest residuals, then the lowest score among them, feasible or not.
+:class:`P1AuthorsRanking` is P1's with its authors' driving cost in place of driveopt's.
 Rankings are frozen dataclasses: :func:`driveopt.planner.solve` takes one as a static argument, so each is one
 compilation.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
 import jax.numpy as jnp
 
 from driveopt.checks import check_number
-from driveopt.config import MAX_WEIGHT
+from driveopt.config import MAX_WEIGHT, CostConfig
+from driveopt.costs import weighted_cost
+from driveopt.problem import PlanningProblem
 from driveopt.sampler import select_lowest
+from driveopt.trajectory import Trajectory
 
 INFEASIBLE_PENALTY = 1e6  # [-] added to the key of an infeasible row (FeasibilityFirst): feasible ones rank first
 
@@ -40,6 +45,12 @@ class Candidate(NamedTuple):
 
 
 class Ranking(Protocol):
+    def driving_cost(self, traj: Trajectory, problem: PlanningProblem, terms: dict[str, jnp.ndarray],
+                     weights: CostConfig) -> jnp.ndarray:
+        """(B,) the driving cost of the rows ``traj`` that the score weighs; ``terms``: driveopt's cost terms of them
+        (:func:`driveopt.costs.cost_terms`), ``weights``: the planner's cost weights."""
+        ...
+
     def score(self, cost: jnp.ndarray, residual: jnp.ndarray) -> jnp.ndarray:
         """(B,) the score of rows with weighted driving ``cost`` and total ``residual``."""
         ...
@@ -60,6 +71,10 @@ class _WeightedScore:
 
     def __post_init__(self) -> None:
         check_number("ranking.cost_weight", self.cost_weight, 0.0, MAX_WEIGHT, low_open=True)
+
+    def driving_cost(self, traj, problem, terms, weights) -> jnp.ndarray:
+        """driveopt's weighted driving cost."""
+        return weighted_cost(terms, weights)
 
     def score(self, cost: jnp.ndarray, residual: jnp.ndarray) -> jnp.ndarray:
         """``w * cost + residual`` of rows with weighted driving ``cost`` and total ``residual``."""
@@ -95,3 +110,38 @@ class CostPlusResidual(_WeightedScore):
     def elites(self, key, residual, score, feasible, num_constraint_elites: int, num_elites: int) -> jnp.ndarray:
         constraint_elites = select_lowest(residual, num_constraint_elites)
         return constraint_elites[select_lowest(score[constraint_elites], num_elites)]
+
+
+P1_FREE_HEADING = math.radians(10.0)  # [rad] heading to the road P1's authors' cost leaves free (expert_mpc/*.py)
+P1_STEERING_WEIGHT = 0.01  # [-] their weight of the steering angle's and its differences' norms
+P1_WHEEL_BASE = 2.5  # [m] their steering angle: arctan(wheel base x curvature)
+
+
+def _norm(values: jnp.ndarray) -> jnp.ndarray:
+    return jnp.sqrt(jnp.sum(values * values, axis=-1))
+
+
+@dataclass(frozen=True)
+class P1AuthorsRanking(CostPlusResidual):
+    """P1's ranking with its authors' driving cost (``compute_cost`` of every ``expert_mpc/expert_*.py``):
+    ``speed_weight ||v_x - v_des|| + 0.01 (||steering|| + ||steering differences||) + ||max(0, |heading| - 10°)||``,
+    norms over the plan's nodes, steering ``arctan(2.5 m x curvature)``, heading the velocity's angle to the road; the
+    score adds the residual (``cost_weight`` 1).
+
+    The heading term weighs as much as the residual: it keeps the pick within 10° of the road. driveopt's cost scaled by
+    the authors' speed weight (:class:`CostPlusResidual`) scales it away, and then a pick among feasible rows is
+    nearly arbitrary: the faithful bi-level optimiser, replanning every period from the CVAE's diverse samples,
+    turned further each period and left the road within 5 s on a sparse four-lane road."""
+
+    speed_weight: float = 1e-3  # [s/m] the authors' velocity_scaling: 1e-5 MPC-Random and -Vanilla, 1e-2 MPC-Grid,
+    # 1e-3 MPC-Bi-Level
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_number("ranking.speed_weight", self.speed_weight, 0.0, MAX_WEIGHT)
+
+    def driving_cost(self, traj, problem, terms, weights) -> jnp.ndarray:
+        steering = jnp.arctan(P1_WHEEL_BASE * traj.curvature)
+        return (self.speed_weight * _norm(traj.vx - problem.v_des)
+                + P1_STEERING_WEIGHT * (_norm(steering) + _norm(jnp.diff(steering, axis=-1)))
+                + _norm(jnp.maximum(jnp.abs(traj.heading) - P1_FREE_HEADING, 0.0)))

@@ -24,6 +24,7 @@ from driveopt.priors.cvae import cvae_prior
 from driveopt.priors.cvae_multipliers import prior_for as cvae_multipliers_prior
 from driveopt.priors.grids import GoalGridPrior, GridPrior, VanillaPrior
 from driveopt.priors.vqvae import vqvae_prior
+from driveopt.ranking import CostPlusResidual
 from driveopt.safety.cvae_multipliers import filter_for as cvae_multipliers_filter
 
 
@@ -45,7 +46,7 @@ def _p1_faithful(spec: OptimiserSpec, p1_name: str) -> OptimiserSpec:
                    "batch, free lateral start, plan consistency, course bound, per-sample turned box, brake-now fallback "
                    "(nor its straightening or sideways stops), contact guard, braking prediction or approach-ranked neighbours; 5 periods per plan")
     return without_driveopt_machinery(spec, name=f"{spec.name}-p1", description=description,
-                                      cost_weight=P1_RANKING_COST_WEIGHT, replan_every=5)
+                                      ranking=CostPlusResidual(P1_RANKING_COST_WEIGHT), replan_every=5)
 
 
 REALTIME_SAMPLES = 150  # [-] bilevel's samples per sampler iteration: its planning time in closed loop on the 2-core CPU

@@ -7,17 +7,25 @@ import pytest
 
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, faithful
 from driveopt.batch_rows import SamplesOnly, StopRows
+from driveopt.config import QPConfig
 from driveopt.errors import UnknownNameError
-from driveopt.faithful import P1_MATHS
 from driveopt.fallback import Fallback
 from driveopt.planner import goal_from_setpoints, plan
 from driveopt.priors.grids import GoalGridPrior, GridPrior
-from driveopt.priors.p1_authors import FixedGaussian, SpeedOffsetGrid, VanillaGuesses, lateral_noise_factor, spread_indices
+from driveopt.priors.p1_authors import (
+    FixedGaussian,
+    LearnedStart,
+    SpeedOffsetGrid,
+    VanillaGuesses,
+    lateral_noise_factor,
+    spread_indices,
+)
 from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
-from driveopt.ranking import CostPlusResidual, FeasibilityFirst
+from driveopt.ranking import CostPlusResidual, FeasibilityFirst, P1AuthorsRanking
 from driveopt.registry import P1_RANKING_COST_WEIGHT, REALTIME_SAMPLES, get_optimiser, get_planner, list_planners
 from driveopt.scene import load_scene
+from driveopt.trajectory import evaluate
 
 
 def test_registry_names_and_clear_error():
@@ -149,30 +157,30 @@ def test_faithful_planners_are_registered_beside_the_strengthened_ones():
 @pytest.mark.parametrize("name", P1_FAITHFUL + P2_FAITHFUL)
 def test_faithful_planners_have_no_driveopt_machinery_and_replan_every_period(name):
     spec, strong = get_optimiser(f"{name}-faithful"), get_optimiser(name)
-    assert isinstance(spec.ranking, CostPlusResidual) and spec.batch_rows == SamplesOnly()
-    assert spec.fallback == Fallback(straightens=False, evasion=False)
+    assert isinstance(spec.ranking, P1AuthorsRanking if name in P1_FAITHFUL else CostPlusResidual)
+    assert spec.batch_rows == SamplesOnly() and spec.fallback == Fallback(straightens=False, evasion=False)
     assert not spec.contact_guard and spec.executes_infeasible and not spec.braking_prediction
-    assert not spec.approach_selection and not spec.warm_start
+    assert not spec.approach_selection and spec.warm_start == (name in ("bilevel", "cvae"))  # MPC-Bi-Level carries its mean
     # the bi-level optimiser and every baseline plan with one period: the strengthened bilevel's
     assert spec.replan_every == strong.replan_every == get_optimiser("bilevel").replan_every == faithful.AUTHORS_REPLAN_EVERY == 1
     c = spec.config
     assert (c.sampler.structured_fraction, c.cost.consistency, c.projection.course_max, c.projection.ego_turn_rate) == (0, 0, 0, 0)
-    assert c.qp.initial_lateral_acceleration and spec.description
+    assert not c.qp.initial_lateral_acceleration and spec.description  # the lateral start free (FAITHFUL_MATHS)
 
 
 @pytest.mark.parametrize("name, iterations, projection, elites, weight", [
-    ("bilevel", 5, 20, 150, faithful.P1_BILEVEL_COST_WEIGHT),
-    ("cvae", 5, 20, 150, faithful.P1_BILEVEL_COST_WEIGHT),
-    ("random", 1, 100, 150, P1_RANKING_COST_WEIGHT),
-    ("grid", 1, 100, 150, faithful.P1_GRID_COST_WEIGHT),
-    ("vanilla", 1, 100, 300, P1_RANKING_COST_WEIGHT),
-    ("batch", 1, 100, 150, faithful.P1_GRID_COST_WEIGHT),
+    ("bilevel", 5, 20, 150, 1e-3),  # the authors' velocity_scaling of each expert_mpc/expert_*.py
+    ("cvae", 5, 20, 150, 1e-3),
+    ("random", 1, 100, 150, 1e-5),
+    ("grid", 1, 100, 150, 1e-2),
+    ("vanilla", 1, 100, 300, 1e-5),
+    ("batch", 1, 100, 150, 1e-2),
 ])
 def test_p1_faithful_budgets_are_the_authors(name, iterations, projection, elites, weight):
     s = get_optimiser(f"{name}-faithful")
     assert s.config.sampler.num_samples == 1000 and s.config.sampler.num_iterations == iterations
     assert s.config.projection.max_iterations == projection and s.config.sampler.num_constraint_elites == elites
-    assert s.config.sampler.num_elites == 50 and s.ranking == CostPlusResidual(weight)
+    assert s.config.sampler.num_elites == 50 and s.ranking == P1AuthorsRanking(speed_weight=weight)
     assert s.config.qp.terminal_position == (name == "batch")
     assert not s.fixed_batch and s.with_samples(100).config.sampler.num_samples == 100  # --quick can shrink them
     if name in ("grid", "batch", "vanilla"):  # driveopt's versions: a fifth of the iterations, coarser grids, one sample
@@ -243,14 +251,48 @@ def test_faithful_gaussians_are_the_authors_and_their_key_advances():
     np.testing.assert_allclose(a[:, 4:].mean(axis=0), float(problem.init_y[0]), atol=0.5)  # N(y0, 46)
     np.testing.assert_allclose(a[:, 4:].std(axis=0), np.sqrt(46.0), atol=0.4)
     assert start.speed_mean == 5.0 and start.speed_var == (30.0,) * 4 and start.lateral_var == (30.0, 46.0, 46.0, 46.0)
+    # MPC-Bi-Level draws around the mean its previous call ended with; MPC-Random ignores it
+    carried = jnp.asarray([12.0] * 4 + [8.0] * 4)
+    c = np.asarray(start.propose(problem, jax.random.PRNGKey(0), 4000, carried).samples)
+    np.testing.assert_allclose(c.mean(axis=0), carried, atol=0.4)
+    np.testing.assert_array_equal(np.asarray(random_prior.propose(problem, jax.random.PRNGKey(0), 4000, carried).samples), a)
     cvae = get_optimiser("cvae-faithful")
-    assert cvae.config == get_optimiser("bilevel-faithful").config and cvae.make_prior is not None
+    assert cvae.config == get_optimiser("bilevel-faithful").config
+    learned = cvae.prior(4)  # the CVAE's samples, the carried mean and the start's fixed covariance for the first update
+    assert isinstance(learned, LearnedStart) and learned.start == start
+    proposal = learned.propose(problem, jax.random.PRNGKey(0), 50, carried)
+    np.testing.assert_array_equal(np.asarray(proposal.samples),
+                                  np.asarray(learned.learned.propose(problem, jax.random.PRNGKey(0), 50, carried).samples))
+    np.testing.assert_array_equal(np.asarray(proposal.mean), np.asarray(carried))
+    np.testing.assert_array_equal(np.asarray(proposal.cov), np.diag([30.0] * 5 + [46.0] * 3))
+
+
+def test_p1_authors_ranking_is_their_cost_plus_the_residual():
+    """P1's authors' driving cost, against a direct computation of their compute_cost on one trajectory; a heading
+    within 10 degrees of the road costs nothing, beyond it as much as the residual."""
+    model = make_model()
+    problem = build_problem(load_scene("dense-snapshot"))
+    b_x, b_y = boundary_values(problem.init_x, problem.init_y, QPConfig())
+    setpoints = jnp.asarray([[6.0, 8.0, 10.0, 10.0, 12.0, 12.0, 12.0, 12.0], [10.0] * 4 + [4.0] * 4])
+    traj = evaluate(model, solve_setpoint_qp(model, setpoints, b_x, b_y))
+    ranking = P1AuthorsRanking(speed_weight=1e-2)
+    cost = np.asarray(ranking.driving_cost(traj, problem, None, None))
+    vx, vy, ax, ay = (np.asarray(a, np.float64) for a in (traj.vx, traj.vy, traj.ax, traj.ay))
+    steering = np.arctan(2.5 * (vx * ay - vy * ax) / np.maximum(np.hypot(vx, vy), 1e-3) ** 3)
+    heading = np.arctan2(vy, vx)
+    expected = (1e-2 * np.linalg.norm(vx - float(problem.v_des), axis=1)
+                + 0.01 * (np.linalg.norm(steering, axis=1) + np.linalg.norm(np.diff(steering, axis=1), axis=1))
+                + np.linalg.norm(np.maximum(np.abs(heading) - np.radians(10.0), 0.0), axis=1))
+    np.testing.assert_allclose(cost, expected, rtol=1e-4, atol=1e-5)
+    lane_change, straight = np.abs(heading).max(axis=1)
+    assert lane_change > np.radians(10.0) and straight < 1e-3 and float(ranking.score(cost, 0.0)[0]) > 0.1
+    assert float(ranking.score(jnp.asarray(cost), jnp.asarray(0.5))[1]) == pytest.approx(cost[1] + 0.5, rel=1e-6)
 
 
 @pytest.mark.parametrize("name", P2_FAITHFUL)
 def test_p2_faithful_pipelines_keep_samples_prior_and_filter_and_take_p2s_ranking(name):
     strong, spec = get_optimiser(name), get_optimiser(f"{name}-faithful")
-    assert spec.config == strong.config.replace(**P1_MATHS)
+    assert spec.config == strong.config.replace(**faithful.FAITHFUL_MATHS)
     assert spec.config.sampler.num_constraint_elites == 150 and spec.config.projection.max_iterations == 100
     assert spec.make_prior is strong.make_prior and spec.learned_filter == strong.learned_filter
     assert spec.ranking == CostPlusResidual(faithful.P2_RANKING_COST_WEIGHT) and strong.ranking == FeasibilityFirst()

@@ -52,28 +52,30 @@ PLANNERS: tuple[tuple[str, str], ...] = (
       "its straightening or sideways stops), contact guard, braking prediction or approach-ranked "
       "neighbours; 5 periods per plan")),
     ("bilevel-faithful",
-     ("P1 Alg. 1 as P1's authors ran it: 1000 samples from N((5 m/s, y0), diag(30, 46)), 5 CEM iterations x"
-      " 20 projection iterations, elites 150 -> 50, no warm start; P1's ranking, no driveopt safety "
-      "machinery, a plan every 0.1 s")),
-    ("cvae-faithful",
-     ("P1's MPC-Bi-Level as its authors' main_bilevel.py ran it: bilevel-faithful started from the learned "
-      "CVAE (shipped weights; Gaussian if none); P1's ranking, no driveopt safety machinery, a plan every "
+     ("P1 Alg. 1 as P1's authors ran it: 1000 samples from N(m, diag(30, 46)), m the previous call's final "
+      "mean (before the first call the current motion), 5 CEM iterations x 20 projection iterations, "
+      "elites 150 -> 50; P1's ranking and its authors' cost, no driveopt safety machinery, a plan every "
       "0.1 s")),
+    ("cvae-faithful",
+     ("P1's MPC-Bi-Level as its authors' main_bilevel.py ran it: bilevel-faithful with the learned CVAE's "
+      "samples as its first batch (shipped weights; Gaussian if none); P1's ranking and its authors' cost, "
+      "no driveopt safety machinery, a plan every 0.1 s")),
     ("random-faithful",
      ("MPC-Random as P1's authors ran it: 1000 samples from N((v_des, y0), diag(16, 46)), one pass of 100 "
-      "projection iterations, elites 150; P1's ranking, no driveopt safety machinery, a plan every 0.1 s")),
+      "projection iterations, elites 150; P1's ranking and its authors' cost, no driveopt safety "
+      "machinery, a plan every 0.1 s")),
     ("grid-faithful",
      ("MPC-Grid as P1's authors ran it: 50 speeds on v_des +- 16 m/s x 20 offsets across the road, held "
-      "over the horizon, one pass of 100 projection iterations, elites 150; P1's ranking, no driveopt "
-      "safety machinery, a plan every 0.1 s")),
+      "over the horizon, one pass of 100 projection iterations, elites 150; P1's ranking and its authors' "
+      "cost, no driveopt safety machinery, a plan every 0.1 s")),
     ("vanilla-faithful",
      ("MPC-Vanilla as P1's authors ran it: speed set-point v_des, 1000 lateral guesses (the least "
-      "obstructed of 30000 smooth paths), one pass of 100 projection iterations, elites 300; P1's ranking, "
-      "no driveopt safety machinery, a plan every 0.1 s")),
+      "obstructed of 30000 smooth paths), one pass of 100 projection iterations, elites 300; P1's ranking "
+      "and its authors' cost, no driveopt safety machinery, a plan every 0.1 s")),
     ("batch-faithful",
      ("Batch-MPC as P1's authors' MPC-Grid: goals (x_0 + v T, y_f) on grid-faithful's 50 x 20 grid with "
-      "terminal constraints, one pass of 100 projection iterations, elites 150; P1's ranking, no driveopt "
-      "safety machinery, a plan every 0.1 s")),
+      "terminal constraints, one pass of 100 projection iterations, elites 150; P1's ranking and its "
+      "authors' cost, no driveopt safety machinery, a plan every 0.1 s")),
     ("vqvae-faithful",
      ("vqvae as P2's authors ran it (inferenceJax3.py): the same samples, prior and filter, the least cost "
       "+ residual of the 150 lowest residuals executed whatever its residual, no driveopt safety machinery,"

@@ -4,9 +4,13 @@
 - :class:`SpeedOffsetGrid`: MPC-Grid (``expert_grid.py``): 50 speeds on v_des +- 16 m/s x 20 lateral offsets
   across the road, each pair held over the whole horizon (1000 rows). With ``QPConfig(terminal_position=True)``
   the same rows are Batch-MPC's goals (x_f = x_0 + v T, y_f).
-- :class:`FixedGaussian`: one fixed Gaussian over the eight set-points, no adaptation between calls. MPC-Random
-  (``policy_random.py``): mean v_des, variance 16 (m/s)^2 per speed, 46 m^2 per lateral offset. MPC-Bi-Level's
-  first batch (``policy_bilevel.py``): mean 5 m/s, variances (30, 30, 30, 30) and (30, 46, 46, 46).
+- :class:`FixedGaussian`: one Gaussian over the eight set-points with a fixed covariance. MPC-Random
+  (``policy_random.py``): mean v_des, variance 16 (m/s)^2 per speed, 46 m^2 per lateral offset, the same every call.
+  MPC-Bi-Level (``policy_bilevel.py``): variances (30, 30, 30, 30) and (30, 46, 46, 46) around the mean its previous
+  call ended with (``self.mean_param``; 5 m/s at the current lateral position before the first call).
+- :class:`LearnedStart`: MPC-Bi-Level with the CVAE (``policy_bilevel.py``, ``use_nn``): the CVAE's samples, and for
+  the first cross-entropy update the distribution its planner carries between calls (previous final mean, fixed
+  start covariance).
 - :class:`VanillaGuesses`: MPC-Vanilla (``expert_vanilla.py``): no behavioural layer (P1 §V-A3: p is the desired
   speed), and 1000 guesses of where the projection starts: straight paths at speeds on v_des +- 12 m/s paired with
   smooth random lateral paths around the road's centre, the ones that intrude least into the obstacles' ellipses
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -75,12 +80,15 @@ class SpeedOffsetGrid:
 class FixedGaussian:
     """Independent set-points from one Gaussian: speeds around ``speed_mean`` (None: the problem's v_des) with
     variances ``speed_var``, lateral offsets around the current lateral position with variances ``lateral_var``;
-    speeds clipped to [0, v_max], lateral offsets not clipped (as the authors' code). Ignores any warm start."""
+    speeds clipped to [0, v_max], lateral offsets not clipped (as the authors' code). With ``follows_warm_start``
+    the warm start (the previous call's final mean, or the current motion before the first call) is the mean
+    instead; without, a warm start is ignored."""
 
     speed_mean: float | None = _static(None)  # [m/s]
     speed_var: tuple[float, ...] = _static((16.0,) * NUM_SEGMENTS)  # [(m/s)^2] one per quarter
     lateral_var: tuple[float, ...] = _static((46.0,) * NUM_SEGMENTS)  # [m^2] one per quarter
     v_max: float = _static(ProjectionConfig.v_max)  # [m/s]
+    follows_warm_start: bool = _static(False)
 
     def mean(self, problem: PlanningProblem) -> jnp.ndarray:
         speed = problem.v_des if self.speed_mean is None else jnp.float32(self.speed_mean)
@@ -90,10 +98,28 @@ class FixedGaussian:
         return jnp.diag(jnp.asarray(self.speed_var + self.lateral_var, jnp.float32))
 
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
-        mean, cov = self.mean(problem), self.covariance()
+        mean = warm_mean if self.follows_warm_start and warm_mean is not None else self.mean(problem)
+        cov = self.covariance()
         samples = sample_gaussian(key, mean, cov, num)
         samples = samples.at[:, :NUM_SEGMENTS].set(jnp.clip(samples[:, :NUM_SEGMENTS], 0.0, self.v_max))
         return Proposal(samples, mean, cov)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class LearnedStart:
+    """MPC-Bi-Level's first batch with the CVAE (``policy_bilevel.py``, ``use_nn``): ``learned``'s samples, and as the
+    distribution the first cross-entropy update blends the elites into, the one the authors' planner carries
+    between calls: the warm start (its previous call's final mean; the current motion before the first call) with
+    ``start``'s fixed covariance. (driveopt's ``cvae`` starts the update from the samples' own moments.)"""
+
+    learned: Any  # a prior whose samples make the batch (the CVAE's)
+    start: FixedGaussian
+
+    def propose(self, problem, key, num, warm_mean=None) -> Proposal:
+        samples = self.learned.propose(problem, key, num, warm_mean).samples
+        mean = self.start.mean(problem) if warm_mean is None else warm_mean
+        return Proposal(samples, mean, self.start.covariance())
 
 
 @functools.lru_cache(maxsize=8)
