@@ -11,10 +11,10 @@ authors' driving cost, :class:`~driveopt.ranking.P1AuthorsRanking`; P2's and [5]
 fallback only on NUMERICAL_ERROR, without straightening or sideways stops), no contact guard, constant-velocity
 prediction of the 10 nearest neighbours, :data:`FAITHFUL_MATHS`, and a new plan every policy period
 (:data:`AUTHORS_REPLAN_EVERY`), for the bi-level optimiser and its baselines alike. MPC-Bi-Level carries its
-sampling mean from call to call (``policy_bilevel.py``: ``self.mean_param``), the baselines do not. Both authors' loops call the planner once per ``env.step`` for every
-method, at a 25 Hz policy over a 100 Hz simulation; P1 §V-A3's "first five elements" executed open loop are controls
-0.01 s apart (the plan resampled at 1500 nodes over 15 s), so a plan lived 0.04-0.05 s. driveopt's scenarios step
-the policy at 10 Hz, so 0.1 s is the closest period.
+sampling mean from call to call (``policy_bilevel.py``: ``self.mean_param``), the baselines do not. Both authors'
+loops call the planner once per ``env.step`` for every method, at a 25 Hz policy over a 100 Hz simulation; P1
+§V-A3's "first five elements" executed open loop are controls 0.01 s apart (the plan resampled at 1500 nodes over
+15 s), so a plan lived 0.04-0.05 s. driveopt's scenarios step the policy at 10 Hz, so 0.1 s is the closest period.
 
 What is not carried (driveopt shares it between all planners): the authors' projection penalty weights (P1's
 baselines weigh the obstacle rows 100, its bi-level optimiser 1), acceleration bounds (driveopt caps every plan at

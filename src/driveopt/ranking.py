@@ -16,6 +16,7 @@ compilation.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
@@ -117,10 +118,6 @@ P1_STEERING_WEIGHT = 0.01  # [-] their weight of the steering angle's and its di
 P1_WHEEL_BASE = 2.5  # [m] their steering angle: arctan(wheel base x curvature)
 
 
-def _norm(values: jnp.ndarray) -> jnp.ndarray:
-    return jnp.sqrt(jnp.sum(values * values, axis=-1))
-
-
 @dataclass(frozen=True)
 class P1AuthorsRanking(CostPlusResidual):
     """P1's ranking with its authors' driving cost (``compute_cost`` of every ``expert_mpc/expert_*.py``):
@@ -128,10 +125,8 @@ class P1AuthorsRanking(CostPlusResidual):
     norms over the plan's nodes, steering ``arctan(2.5 m x curvature)``, heading the velocity's angle to the road; the
     score adds the residual (``cost_weight`` 1).
 
-    The heading term weighs as much as the residual: it keeps the pick within 10° of the road. driveopt's cost scaled by
-    the authors' speed weight (:class:`CostPlusResidual`) scales it away, and then a pick among feasible rows is
-    nearly arbitrary: the faithful bi-level optimiser, replanning every period from the CVAE's diverse samples,
-    turned further each period and left the road within 5 s on a sparse four-lane road."""
+    The heading term weighs as much as the residual and keeps the pick within 10° of the road; driveopt's cost scaled by
+    the speed weight (:class:`CostPlusResidual`) would scale it away too (docs/findings/faithful-drift.md)."""
 
     speed_weight: float = 1e-3  # [s/m] the authors' velocity_scaling: 1e-5 MPC-Random and -Vanilla, 1e-2 MPC-Grid,
     # 1e-3 MPC-Bi-Level
@@ -141,7 +136,8 @@ class P1AuthorsRanking(CostPlusResidual):
         check_number("ranking.speed_weight", self.speed_weight, 0.0, MAX_WEIGHT)
 
     def driving_cost(self, traj, problem, terms, weights) -> jnp.ndarray:
+        norm = functools.partial(jnp.linalg.norm, axis=-1)
         steering = jnp.arctan(P1_WHEEL_BASE * traj.curvature)
-        return (self.speed_weight * _norm(traj.vx - problem.v_des)
-                + P1_STEERING_WEIGHT * (_norm(steering) + _norm(jnp.diff(steering, axis=-1)))
-                + _norm(jnp.maximum(jnp.abs(traj.heading) - P1_FREE_HEADING, 0.0)))
+        return (self.speed_weight * norm(traj.vx - problem.v_des)
+                + P1_STEERING_WEIGHT * (norm(steering) + norm(jnp.diff(steering, axis=-1)))
+                + norm(jnp.maximum(jnp.abs(traj.heading) - P1_FREE_HEADING, 0.0)))
