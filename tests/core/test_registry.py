@@ -129,6 +129,26 @@ def test_grid_creeps_up_a_queue_it_cannot_pass():
     assert 10.0 < float(result.trajectory.x[-1]) < 34.5  # moves up, and stays behind the queue
 
 
+def test_vanilla_leaves_rest_on_an_empty_road():
+    """At rest 0.45 m off its lane's centre, nothing ahead: vanilla as registered moves off towards v_des. With v_des
+    as the set-point of every quarter its one row asked for 18.8 m/s^2 at the start, and with the centre as the
+    first quarter's lateral set-point it moved sideways from rest against the velocity bounds; either way it stayed
+    infeasible after the projection, and the car kept its stop row for the rest of the episode."""
+    scene = Scene(ego=EgoState(x=0.0, y=4.45, vx=0.0), road=Road(num_lanes=2))
+    spec = get_planner("vanilla")  # the configuration test_baselines_plan_finite_trajectories[vanilla] compiles
+    problem = build_problem(scene, spec.config.basis)
+    speeds = np.asarray(spec.prior().propose(problem, jax.random.PRNGKey(0), 1).samples)[0, :4]
+    np.testing.assert_allclose(speeds, [5.0, 10.0, 15.0, float(problem.v_des)])  # v_des, 5 m/s per quarter at most
+    result = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=spec.prior())
+    assert result.status == PlanStatus.SUCCESS
+    np.testing.assert_allclose(result.setpoints, [*speeds, 4.45, 4.0, 4.0, 4.0], atol=1e-5)  # the row, not a stop row
+    assert float(result.trajectory.speed[-1]) > 15.0 and abs(float(result.trajectory.y[-1]) - 4.0) < 0.1
+    # at v_des the row is v_des throughout
+    cruising = build_problem(Scene(ego=EgoState(x=0.0, y=4.0, vx=float(problem.v_des)), road=Road(num_lanes=2)))
+    np.testing.assert_allclose(np.asarray(spec.prior().propose(cruising, jax.random.PRNGKey(0), 1).samples)[0, :4],
+                               float(problem.v_des), rtol=1e-6)
+
+
 def test_goal_grid_trajectories_reach_their_goals():
     spec = get_planner("batch")
     problem = build_problem(load_scene("static-blockage"), spec.config.basis)

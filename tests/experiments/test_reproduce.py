@@ -31,10 +31,22 @@ from driveopt.experiments.protocols import (
     ProtocolError,
     figures_of,
 )
-from driveopt.experiments.reproduce import RunSlice, reproduce, run_figures
+from driveopt.experiments.reproduce import RunSlice, answer_questions, reproduce, run_figures
 from driveopt.experiments.reproduce_report import markdown
 from driveopt.experiments.summary import wilson_interval
-from driveopt.experiments.verdicts import CONTRADICTED, INCONCLUSIVE, NOT_RUN, REPRODUCED, decide, evaluate
+from driveopt.experiments.verdicts import (
+    CHANGES_BETTER,
+    CHANGES_WORSE,
+    CONTRADICTED,
+    INCONCLUSIVE,
+    NO_CHANGE,
+    NOT_RUN,
+    REPRODUCED,
+    TOO_FEW_PAIRS,
+    answer,
+    decide,
+    evaluate,
+)
 from driveopt.registry import get_planner
 
 # ---------------------------------------------------------------------------------------------- statistics
@@ -343,6 +355,32 @@ def test_chosen_sample_counts_run_alone(tmp_path, cheap_bench):
     assert CALLS["n"] == 2 and [p.name for p in (tmp_path / "runs" / "fig8b").iterdir()] == ["n250"]
     judged = [(r.arm.label, r.baseline.label, r.metric) for r in results if r.pairs]
     assert judged == [("vqvae-filter n250", "vqvae n250", metric) for metric in (COLLISIONS, SPEED, PLAN_TIME)]
+
+
+def test_the_learned_filter_question_pools_every_pair_once(tmp_path, cheap_bench):
+    """P2's question whether the learned filter changes anything, on fake episodes where it is faster and slower to
+    plan: P2 Fig. 7's four settings and Fig. 8b's four sample counts, whose 1000-sample point is Fig. 7's density-3
+    arm pair (counted once)."""
+    def episode(job, options):
+        record = fake_episode(job, options)
+        if job.planner == "vqvae-filter":
+            record.update(mean_speed=record["mean_speed"] + 0.5, plan_ms=[30.0, 31.0])
+        return record
+
+    figures, _ = reproduce("p2", tmp_path, figures=["fig7", "fig8b"], episodes=2, seeds=(42,), workers=1,
+                           episode_fn=episode, only=RunSlice(planners=("vqvae-filter", "vqvae")), progress=False)
+    answers = answer_questions("p2", figures, tmp_path)
+    assert [r.metric for r in answers] == [COLLISIONS, SPEED, PLAN_TIME]
+    assert {r.pairs for r in answers} == {(4 + 3) * 2}
+    assert {r.verdict for r in answers} == {TOO_FEW_PAIRS}  # the question needs 150 pairs
+    collisions, speed, plan = answers
+    assert (speed.arm_faster, speed.speed_sign_n) == (14, 14) and (plan.arm_quicker, plan.plan_sign_n) == (0, 14)
+    assert [answer(r, 14) for r in answers] == [NO_CHANGE, CHANGES_BETTER, CHANGES_WORSE]
+    assert answer(replace(speed, arm_faster=8, speed_sign_p=ps.binomial_two_sided(8, 14)), 14) == NO_CHANGE  # p = 0.79
+    report = (tmp_path / "report.md").read_text()
+    assert "### The learned filter against the plain one" in report and report.count(f"**{TOO_FEW_PAIRS}**") == 3
+    assert [q["pairs"] for q in json.loads((tmp_path / "report.json").read_text())["questions"]] == [14] * 3
+    assert answer_questions("p1", figures_of("p1"), tmp_path) == []
 
 
 @pytest.mark.parametrize("kwargs, message", [

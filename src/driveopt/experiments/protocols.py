@@ -134,7 +134,8 @@ class Claim:
     (BETTER, WORSE or NO_WORSE) on ``metric`` (COLLISIONS: fewer is better; SPEED, collision-free episodes: higher
     is better; PLAN_TIME per call: lower is better). ``paper``: the paper's value or stated direction, as it gives
     it. ``explanation``: why driveopt's result may contradict the paper and the experiment that settles it (the
-    report prints it under a contradicted row, and flags a contradicted row without one)."""
+    report prints it under a contradicted row, and flags a contradicted row without one). ``question``: the tag of a
+    paper's :class:`Question` this claim also answers (its pairs are pooled with those of the other claims so tagged)."""
 
     scenario: str
     arm: Arm
@@ -143,6 +144,7 @@ class Claim:
     expect: str
     paper: str
     explanation: str = ""
+    question: str = ""  # the tag of the :class:`Question` whose pooled answer this claim's episodes enter
 
     @property
     def kind(self) -> str:
@@ -212,6 +214,17 @@ class FigureProtocol:
                                       episodes=episodes if episodes else self.episodes)
         smaller = len(changed.seeds) * changed.episodes < self.full_episodes
         return dataclasses.replace(changed, reduced=self.reduced or smaller)
+
+
+@dataclass(frozen=True)
+class Question:
+    """A question the paper does not settle, answered on every episode pair of the claims tagged ``tag`` (on the same
+    metric; an episode of the same two arms on the same scenario counts once, whichever figures judge it): does the
+    arm change collisions, speed or plan time against the baseline? ``min_pairs``: the pairs the answer needs."""
+
+    tag: str
+    title: str
+    min_pairs: int
 
 
 # ---------------------------------------------------------------------------------------------------------- P1
@@ -349,6 +362,8 @@ def _p2(planner: str, samples: int = P2_SAMPLES, iterations: int | None = None, 
 
 P2_FIGURE7_SCENARIOS = ("p2-four-lane-d1.5", "p2-four-lane-d3.0", "p2-four-lane-d1.5-slow", "p2-four-lane-d3.0-slow")
 LEARNED_FILTER_CLAIM = "the learned filter is proposed to make the one pass safer (no value against the plain filter)"
+LEARNED_FILTER = Question("learned-filter", "the learned filter against the plain one (`vqvae-filter` against `vqvae`)",
+                          min_pairs=150)
 
 
 def _p2_figure7() -> FigureProtocol:
@@ -365,7 +380,8 @@ def _p2_figure7() -> FigureProtocol:
             claims.append(Claim(scenario, arm, base, SPEED, NO_WORSE, "similar velocity profiles"))
         # The learned filter against the plain one on the same episodes (both ran above): does it change anything?
         for metric in (COLLISIONS, SPEED, PLAN_TIME):
-            claims.append(Claim(scenario, learned, plain, metric, NO_WORSE, LEARNED_FILTER_CLAIM))
+            claims.append(Claim(scenario, learned, plain, metric, NO_WORSE, LEARNED_FILTER_CLAIM,
+                                question=LEARNED_FILTER.tag))
     return FigureProtocol("p2", "fig7", "VQ-VAE against the CVAE baseline, two densities and two speed limits",
                           tuple(claims))
 
@@ -388,8 +404,8 @@ def _p2_budget(figure: str, title: str, points: tuple[tuple[int, int], ...], red
     claims = [Claim(scenario, pipeline(*reduced), pipeline(P2_SAMPLES, P2_ITERATIONS), COLLISIONS, NO_WORSE, paper)
               for pipeline in (learned, faithful)]
     for n, k in points:
-        claims += [Claim(scenario, learned(n, k), _p2("vqvae", n, iterations(k)), metric, NO_WORSE, LEARNED_FILTER_CLAIM)
-                   for metric in (COLLISIONS, SPEED, PLAN_TIME)]
+        claims += [Claim(scenario, learned(n, k), _p2("vqvae", n, iterations(k)), metric, NO_WORSE, LEARNED_FILTER_CLAIM,
+                         question=LEARNED_FILTER.tag) for metric in (COLLISIONS, SPEED, PLAN_TIME)]
     return FigureProtocol("p2", figure, title, tuple(claims))
 
 
@@ -433,6 +449,7 @@ def p2_figures() -> tuple[FigureProtocol, ...]:
 
 
 PAPERS = {"p1": p1_figures, "p2": p2_figures}
+QUESTIONS: dict[str, tuple[Question, ...]] = {"p1": (), "p2": (LEARNED_FILTER,)}  # answered by each paper's report
 
 
 def figures_of(paper: str, names: list[str] | tuple[str, ...] | None = None, *, quick: bool = False,

@@ -22,10 +22,20 @@ from typing import Any
 
 from driveopt.errors import DriveoptError
 from driveopt.experiments.bench import BenchSpec, episode_record, run_bench
-from driveopt.experiments.protocols import FigureProtocol, figures_of
+from driveopt.experiments.protocols import (
+    COLLISIONS,
+    NO_WORSE,
+    PLAN_TIME,
+    QUESTIONS,
+    SPEED,
+    Arm,
+    Claim,
+    FigureProtocol,
+    figures_of,
+)
 from driveopt.experiments.runner import EpisodeFn, check_backend
 from driveopt.experiments.store import load_folder
-from driveopt.experiments.verdicts import ClaimResult, evaluate
+from driveopt.experiments.verdicts import ClaimResult, answer, evaluate
 from driveopt.files import lock_output_folder, make_output_folder
 
 RUNS = "runs"
@@ -152,7 +162,7 @@ def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path
                       f"-> {run.path}", flush=True)
             run_bench(run.spec, run.path, workers=workers, backend=backend, episode_fn=episode_fn, progress=progress)
         results = judge(figures, out)
-        write_report(paper, figures, results, out, code_versions(figures, out))
+        write_report(paper, figures, results, out, code_versions(figures, out), answer_questions(paper, figures, out))
     return results
 
 
@@ -210,4 +220,36 @@ def judge(figures: tuple[FigureProtocol, ...], out: Path) -> list[ClaimResult]:
             results.append(evaluate(figure.figure, claim, arm_records(claim.arm, claim.scenario),
                                     arm_records(claim.baseline, claim.scenario), figure.seeds, figure.full_episodes,
                                     figure.reduced))
+    return results
+
+
+def answer_questions(paper: str, figures: tuple[FigureProtocol, ...], out: Path) -> list[ClaimResult]:
+    """Every question of ``paper`` (:data:`~driveopt.experiments.protocols.QUESTIONS`) that ``figures`` have claims
+    for, on each metric: the pairs of every claim tagged with it pooled (an episode of the same two arms on the same
+    scenario once, whichever figures judge it; the protocols' episodes as run), each row's verdict the question's
+    answer (:func:`~driveopt.experiments.verdicts.answer`). Rows with figure "pooled" and scenario "every setting"."""
+    cache: dict[Path, Any] = {}
+    results = []
+    for question in QUESTIONS.get(paper, ()):
+        for metric in (COLLISIONS, SPEED, PLAN_TIME):
+            tagged = [(f, c) for f in figures for c in f.claims if c.question == question.tag and c.metric == metric]
+            if not tagged:
+                continue
+            arm_pool: dict[Any, dict[str, Any]] = {}
+            baseline_pool: dict[Any, dict[str, Any]] = {}
+            seeds: set[int] = set()
+            for figure, claim in tagged:
+                records = _protocol_records(figure, out, cache)
+                arm, baseline = records(claim.arm, claim.scenario), records(claim.baseline, claim.scenario)
+                for key in arm.keys() & baseline.keys():
+                    pooled = (claim.scenario, claim.arm.label, claim.baseline.label, *key)
+                    arm_pool[pooled], baseline_pool[pooled] = arm[key], baseline[key]
+                seeds.update(figure.seeds)
+            first = tagged[0][1]
+            every = "every setting"
+            claim = Claim(every, Arm(first.arm.planner, first.arm.version, note=every),
+                          Arm(first.baseline.planner, first.baseline.version, note=every), metric, NO_WORSE,
+                          question.title, question=question.tag)
+            result = evaluate("pooled", claim, arm_pool, baseline_pool, tuple(sorted(seeds)), question.min_pairs, False)
+            results.append(replace(result, verdict=answer(result, question.min_pairs)))
     return results

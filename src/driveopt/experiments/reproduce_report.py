@@ -63,22 +63,52 @@ def _arms_legend(results: list[ClaimResult]) -> list[str]:
     return [f"- `{label}`: {a.version}{' (' + a.note + ')' if a.note else ''}" for label, a in seen.items()]
 
 
+def _paired(r: ClaimResult) -> str:
+    """The paired tests' cell of a row ("-" without pairs); plan time only on a plan-time row."""
+    if not r.pairs:
+        return "-"
+    text = (f"collisions only arm / only baseline {r.only_arm_collided} / {r.only_baseline_collided}, McNemar p "
+            f"{_p(r.mcnemar_p)}, rate difference{_interval(r.collision_difference_low, r.collision_difference_high) or ' -'}; "
+            f"speed: arm faster in {r.arm_faster}/{r.speed_sign_n}, sign p {_p(r.speed_sign_p)}, "
+            f"diff {_num(r.speed_difference)}{_interval(r.speed_difference_low, r.speed_difference_high)} m/s")
+    if r.metric == PLAN_TIME:
+        text += (f"; plan time: arm quicker in {r.arm_quicker}/{r.plan_sign_n}, sign p {_p(r.plan_sign_p)}, diff "
+                 f"{_num(r.plan_difference, 1)}{_interval(r.plan_difference_low, r.plan_difference_high, 1)} ms")
+    return text
+
+
+def _episodes(r: ClaimResult) -> str:
+    return f"{r.pairs} pairs, seeds {', '.join(map(str, r.seeds))}"
+
+
 def claim_row(r: ClaimResult) -> str:
-    episodes = f"{r.pairs} pairs, seeds {', '.join(map(str, r.seeds))}"
+    episodes = _episodes(r)
     if r.reduced:
         episodes += f" (reduced: the full protocol has {r.full_pairs})"
     like = "" if r.like_for_like else " (not like for like)"
-    paired = (f"collisions only arm / only baseline {r.only_arm_collided} / {r.only_baseline_collided}, McNemar p "
-              f"{_p(r.mcnemar_p)}, rate difference{_interval(r.collision_difference_low, r.collision_difference_high) or ' -'}; speed: arm faster in {r.arm_faster}/{r.speed_sign_n}, sign p {_p(r.speed_sign_p)}, "
-              f"diff {_num(r.speed_difference)}{_interval(r.speed_difference_low, r.speed_difference_high)} m/s")
     plan = r.metric == PLAN_TIME
-    if not r.pairs:
-        paired = "-"
-    elif plan:
-        paired += (f"; plan time: arm quicker in {r.arm_quicker}/{r.plan_sign_n}, sign p {_p(r.plan_sign_p)}, diff "
-                   f"{_num(r.plan_difference, 1)}{_interval(r.plan_difference_low, r.plan_difference_high, 1)} ms")
     return (f"| {r.scenario} | {r.kind} | {r.metric}: arm {r.expect}{like} | {r.paper} | {_arm_cell(r.arm, plan)} | "
-            f"{_arm_cell(r.baseline, plan)} | {paired} | {episodes} | **{r.verdict}** |")
+            f"{_arm_cell(r.baseline, plan)} | {_paired(r)} | {episodes} | **{r.verdict}** |")
+
+
+def _questions(answers: list[ClaimResult]) -> list[str]:
+    """The section of the pooled questions: per question, one row per metric with its answer."""
+    if not answers:
+        return []
+    lines = ["## Pooled questions", "",
+             "A question the papers leave open, answered on every episode pair of the claims that bear on it, pooled "
+             "over their figures and settings (an episode of the same two arms on the same scenario counts once): "
+             f"does the arm change the metric? Paired tests two-sided at α = {ALPHA}; plan times mix the settings' "
+             "sample counts (the sign test compares each pair).", ""]
+    for title in dict.fromkeys(r.paper for r in answers):
+        rows = [r for r in answers if r.paper == title]
+        need = rows[0].full_pairs
+        lines += [f"### {title[0].upper()}{title[1:]}", "", f"Needs at least {need} pairs.", "",
+                  "| metric | arm | baseline | paired tests | episodes | answer |", "|---|---|---|---|---|---|"]
+        lines += [f"| {r.metric} | {_arm_cell(r.arm, r.metric == PLAN_TIME)} | {_arm_cell(r.baseline, r.metric == PLAN_TIME)} "
+                  f"| {_paired(r)} | {_episodes(r)} | **{r.verdict}** |" for r in rows]
+        lines.append("")
+    return lines
 
 
 def _verdict_counts(results: list[ClaimResult]) -> str:
@@ -110,7 +140,7 @@ def _code_line(versions: dict[str, int]) -> str:
 
 
 def markdown(paper: str, figures: tuple[FigureProtocol, ...], results: list[ClaimResult],
-             code: dict[str, dict[str, int]] | None = None) -> str:
+             code: dict[str, dict[str, int]] | None = None, answers: list[ClaimResult] | None = None) -> str:
     lines = [f"# Reproduction of {PAPER_TITLES.get(paper, paper)}", "",
              "Written by `driveopt reproduce`. Each row compares the arm with the baseline on the same episodes (same "
              "scenario, seed and episode). Rates with 95% Wilson intervals, speeds (collision-free episodes) with 95% "
@@ -132,6 +162,7 @@ def markdown(paper: str, figures: tuple[FigureProtocol, ...], results: list[Clai
         if rows:
             lines.append(f"- {kind} rows: {_verdict_counts(rows)}.")
     lines.append("")
+    lines += _questions(answers or [])
     head = ("| scenario | row | claim | paper | arm | baseline | paired tests | episodes | verdict |\n"
             "|---|---|---|---|---|---|---|---|---|")
     for figure in figures:
@@ -155,7 +186,7 @@ def markdown(paper: str, figures: tuple[FigureProtocol, ...], results: list[Clai
 
 
 def report_json(paper: str, figures: tuple[FigureProtocol, ...], results: list[ClaimResult],
-                code: dict[str, dict[str, int]] | None = None) -> dict[str, Any]:
+                code: dict[str, dict[str, int]] | None = None, answers: list[ClaimResult] | None = None) -> dict[str, Any]:
     return {
         "paper": paper,
         "rule": {"alpha": ALPHA, "collision_margin": COLLISION_MARGIN, "relative_margin": RELATIVE_MARGIN,
@@ -164,6 +195,7 @@ def report_json(paper: str, figures: tuple[FigureProtocol, ...], results: list[C
                      "duration_s": f.duration, "reduced": f.reduced, "not_run": f.not_run or None,
                      "code": (code or {}).get(f.figure, {}),
                      "claims": [r.to_dict() for r in results if r.figure == f.figure]} for f in figures],
+        "questions": [r.to_dict() for r in answers or []],
     }
 
 
@@ -210,10 +242,11 @@ def plot_figure(figure: FigureProtocol, results: list[ClaimResult], path: Path) 
 
 
 def write_report(paper: str, figures: tuple[FigureProtocol, ...], results: list[ClaimResult], out: Path,
-                 code: dict[str, dict[str, int]] | None = None) -> None:
+                 code: dict[str, dict[str, int]] | None = None, answers: list[ClaimResult] | None = None) -> None:
     """report.md, report.json and ``<figure>.png`` of every figure with claims, in ``out``. code: ``{figure: {source
-    digest: episodes}}`` (:func:`driveopt.experiments.reproduce.code_versions`)."""
-    atomic_write(out / "report.md", markdown(paper, figures, results, code).encode())
-    write_json(out / "report.json", report_json(paper, figures, results, code))
+    digest: episodes}}`` (:func:`driveopt.experiments.reproduce.code_versions`); answers: the pooled questions' rows
+    (:func:`driveopt.experiments.reproduce.answer_questions`)."""
+    atomic_write(out / "report.md", markdown(paper, figures, results, code, answers).encode())
+    write_json(out / "report.json", report_json(paper, figures, results, code, answers))
     for figure in figures:
         plot_figure(figure, results, out / f"{figure.figure}.png")

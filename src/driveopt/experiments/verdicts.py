@@ -50,6 +50,9 @@ RELATIVE_MARGIN = 0.10  # [-] non-inferiority margin on speed and plan time, as 
 MIN_PAIRS = 10  # [-] pairs a bootstrap interval of a paired difference needs
 REPRODUCED, CONTRADICTED, INCONCLUSIVE = "reproduced in direction", "contradicted", "inconclusive at this sample size"
 NOT_RUN = "not run"  # no episode recorded for both arms
+# answers of a pooled question (protocols.Question) on one metric
+CHANGES_BETTER, CHANGES_WORSE, NO_CHANGE, TOO_FEW_PAIRS = ("changes it: better", "changes it: worse",
+                                                           "no change detected", "too few pairs yet")
 
 Episode = tuple[int, int]  # (seed, episode)
 
@@ -184,6 +187,29 @@ def evaluate(figure: str, claim: Claim, arm_records: dict[Episode, dict[str, Any
         len(free), faster, speed_n, speed_p, *speed_diff,
         len(plans), plan_n - slower_plans, plan_n, plan_p, *plan_diff,
         risk_low, risk_high, verdict, claim.explanation)
+
+
+def oriented_counts(r: ClaimResult) -> tuple[int, int, float]:
+    """(pairs in the arm's favour, pairs against it, the paired test's p-value) on ``r``'s metric: collisions
+    (McNemar), speed or plan time (sign test)."""
+    if r.metric == COLLISIONS:
+        return r.only_baseline_collided, r.only_arm_collided, r.mcnemar_p
+    if r.metric == SPEED:
+        return r.arm_faster, r.speed_sign_n - r.arm_faster, r.speed_sign_p
+    if r.metric == PLAN_TIME:
+        return r.arm_quicker, r.plan_sign_n - r.arm_quicker, r.plan_sign_p
+    raise ValueError(f"unknown metric {r.metric!r}")
+
+
+def answer(r: ClaimResult, min_pairs: int) -> str:
+    """A pooled question's answer on ``r``'s metric: TOO_FEW_PAIRS below ``min_pairs`` pairs; else the paired test at
+    ALPHA, two-sided: CHANGES_BETTER or CHANGES_WORSE (for the arm), or NO_CHANGE."""
+    if r.pairs < min_pairs:
+        return TOO_FEW_PAIRS
+    better, worse, p = oriented_counts(r)
+    if p >= ALPHA or better == worse:
+        return NO_CHANGE
+    return CHANGES_BETTER if better > worse else CHANGES_WORSE
 
 
 def decide(expect: str, better: int, worse: int, p: float, interval: tuple[float, float], margin: float) -> str:

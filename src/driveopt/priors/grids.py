@@ -1,6 +1,7 @@
 """Grid priors: the proposal distributions of the MPC baselines of P1 §V (all share the QP, projection and ranking).
 
-- ``VanillaPrior``: no behavioural layer: one sample, speed set-point v_des, keep the current lane.
+- ``VanillaPrior``: no behavioural layer: one sample, speed set-point v_des (approached at a bounded rate), keep
+  the current lane.
 - ``GridPrior``: a fixed grid of behaviours: constant speed x target lane x when the lane change
   happens (which quarter of the horizon), as many speeds as fill the batch.
 - ``GoalGridPrior``: the "Batch-MPC" baseline: a grid of goal positions (x_f, y_f); with
@@ -48,13 +49,24 @@ def _lane_centres(problem: PlanningProblem) -> tuple[jnp.ndarray, jnp.ndarray]:
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class VanillaPrior:
-    """Speed set-point v_des, lateral set-point the nearest lane centre; identical samples."""
+    """Speed set-point v_des, lateral set-point the nearest lane centre; identical samples.
+
+    The row has to be feasible from any state the car is in, or the car keeps choosing its stop row (at rest: for
+    the rest of the episode). So the speed set-points approach v_des from the current speed by at most
+    ``speed_step`` per quarter of the horizon: the set-point QP follows a step in the set-point at about 0.77 m/s^2
+    per m/s (from rest, v_des = 20 m/s in one step peaks at 18.8 m/s^2, a 5 m/s step at 3.8). And the first quarter
+    holds the current lateral position: a move to the centre from rest breaks the bounds on the velocity (course and
+    curvature)."""
 
     v_max: float = _static(ProjectionConfig.v_max)  # [m/s]
+    speed_step: float = _static(5.0)  # [m/s] largest change of the speed set-point per quarter of the horizon
 
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
-        v = jnp.full(NUM_SEGMENTS, jnp.minimum(problem.v_des, self.v_max))
-        y = jnp.full(NUM_SEGMENTS, nearest_lane_center(problem, problem.init_y[0]))
+        speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
+        reach = self.speed_step * jnp.arange(1, NUM_SEGMENTS + 1, dtype=speed.dtype)
+        v = speed + jnp.clip(jnp.minimum(problem.v_des, self.v_max) - speed, -reach, reach)
+        y0 = problem.init_y[0]
+        y = jnp.where(jnp.arange(NUM_SEGMENTS) == 0, y0, nearest_lane_center(problem, y0))
         p = jnp.broadcast_to(jnp.concatenate([v, y]), (num, SETPOINT_DIM))
         return Proposal(p, p[0], GRID_COVARIANCE_JITTER * jnp.eye(SETPOINT_DIM, dtype=p.dtype))
 
