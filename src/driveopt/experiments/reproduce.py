@@ -227,7 +227,8 @@ def answer_questions(paper: str, figures: tuple[FigureProtocol, ...], out: Path)
     """Every question of ``paper`` (:data:`~driveopt.experiments.protocols.QUESTIONS`) that ``figures`` have claims
     for, on each metric: the pairs of every claim tagged with it pooled (an episode of the same two arms on the same
     scenario once, whichever figures judge it; the protocols' episodes as run), each row's verdict the question's
-    answer (:func:`~driveopt.experiments.verdicts.answer`). Rows with figure "pooled" and scenario "every setting"."""
+    answer (:func:`~driveopt.experiments.verdicts.answer`). Rows with figure "pooled", scenario "every setting" and
+    expectation "any change"."""
     cache: dict[Path, Any] = {}
     results = []
     for question in QUESTIONS.get(paper, ()):
@@ -251,5 +252,5 @@ def answer_questions(paper: str, figures: tuple[FigureProtocol, ...], out: Path)
                           Arm(first.baseline.planner, first.baseline.version, note=every), metric, NO_WORSE,
                           question.title, question=question.tag)
             result = evaluate("pooled", claim, arm_pool, baseline_pool, tuple(sorted(seeds)), question.min_pairs, False)
-            results.append(replace(result, verdict=answer(result, question.min_pairs)))
+            results.append(replace(result, expect="any change", verdict=answer(result, question.min_pairs)))
     return results
