@@ -57,7 +57,8 @@ _MPC_BASELINES = {  # P1 §V-A3's name -> driveopt's version
     "MPC-Random": OptimiserSpec("random", "one Gaussian draw of set-points, no adaptation (MPC-Random)", _single_iteration(_BASE, 1000)),
     "MPC-Grid": OptimiserSpec("grid", "fixed grid: constant speed x target lane x change quarter (MPC-Grid)",
                               _single_iteration(_BASE, 320), lambda c, *_: GridPrior(v_max=c.projection.v_max)),
-    "MPC-Vanilla": OptimiserSpec("vanilla", "single speed set-point v_des in the current lane, no behavioural layer (MPC-Vanilla)",
+    "MPC-Vanilla": OptimiserSpec("vanilla", "single speed set-point v_des (reached by at most 5 m/s per quarter of the "
+                                            "horizon) in the current lane, no behavioural layer (MPC-Vanilla)",
                                  _single_iteration(_BASE, 1).replace(projection={"max_iterations": 100}),
                                  lambda c, *_: VanillaPrior(v_max=c.projection.v_max), fixed_batch=True),
     "Batch-MPC": OptimiserSpec("batch", "goal positions (x_f, y_f) on a grid with terminal constraints (Batch-MPC)",

@@ -29,7 +29,8 @@ PLANNERS: tuple[tuple[str, str], ...] = (
       "cvae-multipliers`; none ship: Gaussian, zero multipliers)")),
     ("random", "one Gaussian draw of set-points, no adaptation (MPC-Random)"),
     ("grid", "fixed grid: constant speed x target lane x change quarter (MPC-Grid)"),
-    ("vanilla", "single speed set-point v_des in the current lane, no behavioural layer (MPC-Vanilla)"),
+    ("vanilla", "single speed set-point v_des (reached by at most 5 m/s per quarter of the horizon) in the current lane, "
+                "no behavioural layer (MPC-Vanilla)"),
     ("batch", "goal positions (x_f, y_f) on a grid with terminal constraints (Batch-MPC)"),
     ("random-p1",
      ("P1-faithful MPC-Random: random without feasibility-first ranking, stop rows, structured first batch, "
