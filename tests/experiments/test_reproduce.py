@@ -352,7 +352,7 @@ def test_chosen_sample_counts_run_alone(tmp_path, cheap_bench):
     CALLS["n"] = 0
     _, results = reproduce("p2", tmp_path, figures=["fig8b"], episodes=1, seeds=(42,), workers=1, episode_fn=fake_episode,
                            only=RunSlice(planners=("vqvae-filter", "vqvae"), samples=(250,)), progress=False)
-    assert CALLS["n"] == 2 and [p.name for p in (tmp_path / "runs" / "fig8b").iterdir()] == ["n250"]
+    assert CALLS["n"] == 2 and [p.name for p in (tmp_path / "runs").iterdir()] == ["n250"]
     judged = [(r.arm.label, r.baseline.label, r.metric) for r in results if r.pairs]
     assert judged == [("vqvae-filter n250", "vqvae n250", metric) for metric in (COLLISIONS, SPEED, PLAN_TIME)]
 
@@ -381,6 +381,35 @@ def test_the_learned_filter_question_pools_every_pair_once(tmp_path, cheap_bench
     assert "### The learned filter against the plain one" in report and report.count(f"**{TOO_FEW_PAIRS}**") == 3
     assert [q["pairs"] for q in json.loads((tmp_path / "report.json").read_text())["questions"]] == [14] * 3
     assert answer_questions("p1", figures_of("p1"), tmp_path) == []
+
+
+def test_figures_share_an_arm_s_episodes_and_an_old_layout_is_merged(tmp_path, cheap_bench):
+    """P1 Fig. 8 compares Fig. 7's `bilevel` and `cvae-faithful` (250 samples, the same roads) with the RL agents: with
+    Fig. 7 recorded only the agents run. A folder laid out by figure is merged into the shared one first."""
+    CALLS["n"] = 0
+    reproduce("p1", tmp_path, figures=["fig7"], episodes=1, seeds=(42,), workers=1, episode_fn=fake_episode, progress=False)
+    CALLS["n"] = 0
+    _, results = reproduce("p1", tmp_path, figures=["fig8"], episodes=1, seeds=(42,), workers=1, episode_fn=fake_episode,
+                           progress=False)
+    assert CALLS["n"] == 2 * 2  # dqn and ppo on two roads; bilevel's and cvae-faithful's episodes were Fig. 7's
+    assert all(r.pairs == 1 for r in results)
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["n1000", "n250", "nown"]
+    # the layout by figure: Fig. 8's agents and one episode recorded twice, under runs/fig7 and runs/fig8
+    shared = tmp_path / "runs" / "nown"
+    (tmp_path / "runs" / "fig8").mkdir()
+    shared.rename(tmp_path / "runs" / "fig8" / "nown")
+    (tmp_path / "runs" / "fig7").mkdir()
+    (tmp_path / "runs" / "n250").rename(tmp_path / "runs" / "fig7" / "n250")
+    (tmp_path / "runs" / "fig8" / "n250").mkdir()
+    lines = (tmp_path / "runs" / "fig7" / "n250" / "episodes.jsonl").read_text().splitlines()
+    (tmp_path / "runs" / "fig8" / "n250" / "episodes.jsonl").write_text(lines[0] + "\n")
+    (tmp_path / "runs" / "fig8" / "n250" / "spec.json").write_text((tmp_path / "runs" / "fig7" / "n250" / "spec.json").read_text())
+    CALLS["n"] = 0
+    _, again = reproduce("p1", tmp_path, figures=["fig7", "fig8"], episodes=1, seeds=(42,), workers=1,
+                         episode_fn=fake_episode, progress=False)
+    assert CALLS["n"] == 0 and all(r.pairs == 1 for r in again)
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["n1000", "n250", "nown"]
+    assert len((tmp_path / "runs" / "n250" / "episodes.jsonl").read_text().splitlines()) == len(lines)  # none twice
 
 
 @pytest.mark.parametrize("kwargs, message", [
@@ -459,7 +488,7 @@ def test_small_real_run(tmp_path):
     assert f"Records: 2 episodes, 2 on driveopt source `{code}`." in (tmp_path / "report.md").read_text()
     assert json.loads((tmp_path / "report.json").read_text())["figures"][0]["code"] == {code: 2}
     for folder in ("n20-t1.5s", "nown-t1.5s"):  # grid's and idm's
-        (record,) = (tmp_path / "runs" / "tiny" / folder / "episodes.jsonl").read_text().splitlines()
+        (record,) = (tmp_path / "runs" / folder / "episodes.jsonl").read_text().splitlines()
         assert json.loads(record)["code"] == code
 
 

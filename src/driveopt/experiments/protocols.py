@@ -184,12 +184,6 @@ class FigureProtocol:
     not_run: str = ""
     reduced: bool = False
     full_episodes: int = EPISODES * len(SEEDS)
-    runs_of: str = ""  # the figure whose bench folders this one reads (the same arms measured once); "": its own
-
-    @property
-    def runs_folder(self) -> str:
-        """The folder under ``DIR/runs`` that holds this figure's bench folders."""
-        return self.runs_of or self.figure
 
     def runs(self) -> dict[str, tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]]:
         """``{folder: (scenarios, planners, options)}``: the bench runs this figure needs, one per set of options."""
@@ -312,8 +306,7 @@ def _p1_figure10() -> FigureProtocol:
     claims = tuple(Claim("four-lane-d3.0", cvae, gauss, PLAN_TIME, NO_WORSE,
                          f"CVAE inference overhead 'very minimal'; {t} s per call on an RTX 3080")
                    for n, t in ((250, "0.03"), (1000, "< 0.06")) for cvae, gauss in _p1_start_pairs(n))
-    return FigureProtocol("p1", "fig10", "planning time per call, CVAE against Gaussian start (closed-loop calls)", claims,
-                          runs_of="fig9")
+    return FigureProtocol("p1", "fig10", "planning time per call, CVAE against Gaussian start (closed-loop calls)", claims)
 
 
 def p1_figures() -> tuple[FigureProtocol, ...]:

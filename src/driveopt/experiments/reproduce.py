@@ -2,20 +2,22 @@
 
 Layout of the output folder ``DIR``::
 
-    DIR/runs/<figure>/<options>/   one driveopt bench folder per set of bench options (samples, replanning period,
-                                   config, duration): episodes.jsonl, spec.json, summaries
+    DIR/runs/<options>/            one driveopt bench folder per set of bench options (samples, replanning period,
+                                   config, duration), shared by every figure: episodes.jsonl, spec.json, summaries
     DIR/report.md, DIR/report.json the claim rows (:mod:`driveopt.experiments.reproduce_report`)
     DIR/<figure>.png               collision rates and speeds of the figure's arms with their intervals
 
 Every bench folder is resumable (:func:`driveopt.experiments.bench.run_bench`): a rerun with the same ``DIR`` skips the
-episodes it holds, a figure's records are reused by any later run that asks for the same options, and Ctrl-C keeps
-the finished episodes. Every protocol, name and option is checked before ``DIR`` is created or touched; one
+episodes it holds, an arm (planner, scenario and options) that several figures compare runs its episodes once, and
+Ctrl-C keeps the finished episodes. A ``DIR`` laid out by figure (``runs/<figure>/<options>``, earlier versions) is
+merged into this layout first (:func:`merge_figure_folders`). Every protocol, name and option is checked before ``DIR`` is created or touched; one
 reproduction at a time writes into ``DIR`` (it holds ``DIR/.lock``). The report covers the episodes of the
 protocol as run (seeds and episodes per seed), read back from the folders and checked by the store.
 """
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -34,9 +36,9 @@ from driveopt.experiments.protocols import (
     figures_of,
 )
 from driveopt.experiments.runner import EpisodeFn, check_backend
-from driveopt.experiments.store import load_folder
+from driveopt.experiments.store import RECORDS_FILE, SPEC_FILE, StoreError, append_record, key_of, load_folder
 from driveopt.experiments.verdicts import ClaimResult, answer, evaluate
-from driveopt.files import lock_output_folder, make_output_folder
+from driveopt.files import lock_output_folder, make_output_folder, write_json
 
 RUNS = "runs"
 
@@ -47,7 +49,7 @@ class ReproduceError(DriveoptError):
 
 @dataclass(frozen=True)
 class BenchRun:
-    """One bench folder of a figure: ``DIR/runs/<runs_folder>/<folder>`` with its spec."""
+    """The episodes one figure needs of one bench folder, ``DIR/runs/<folder>`` (:meth:`Arm.folder`), as a spec."""
 
     figure: str
     path: Path
@@ -55,16 +57,54 @@ class BenchRun:
 
 
 def bench_runs(figures: tuple[FigureProtocol, ...], out: Path) -> list[BenchRun]:
-    """The bench folders ``figures`` need under ``out``, in order; a folder two figures share is listed once."""
-    runs: dict[Path, BenchRun] = {}
+    """The bench runs ``figures`` need under ``out``, in order. Every figure's arms with the same options share one
+    folder, so an arm two figures compare (e.g. P1 Figs. 7 and 8's ``bilevel``) runs its episodes once: a later run
+    finds them recorded. Equal runs are listed once."""
+    runs: list[BenchRun] = []
     for figure in figures:
         for folder, (scenarios, planners, options) in figure.runs().items():
-            path = out / RUNS / figure.runs_folder / folder
-            spec = BenchSpec(scenarios, planners, figure.seeds, figure.episodes, options)
-            if path in runs and runs[path].spec != spec:
-                raise ReproduceError(f"figures ask for two different runs in {path}; give them the same seeds and episodes")
-            runs.setdefault(path, BenchRun(figure.figure, path, spec))
-    return list(runs.values())
+            run = BenchRun(figure.figure, out / RUNS / folder,
+                           BenchSpec(scenarios, planners, figure.seeds, figure.episodes, options))
+            if not any(run.path == other.path and run.spec == other.spec for other in runs):
+                runs.append(run)
+    return runs
+
+
+def merge_figure_folders(out: Path) -> list[str]:
+    """Move the episodes of an output folder laid out by figure (``DIR/runs/<figure>/<folder>``, as ``driveopt
+    reproduce`` wrote before figures shared their arms) into ``DIR/runs/<folder>``, where every figure reads them.
+    An episode recorded in both keeps the copy already there (else the first figure's, in name order); the settings of
+    both must agree (StoreError). Each moved folder is removed once its records are in place, so an interrupted merge
+    resumes. Returns one line per folder moved."""
+    moved = []
+    runs = out / RUNS
+    for old in sorted(runs.glob(f"*/*/{RECORDS_FILE}")):
+        old_folder, new_folder = old.parent, runs / old.parent.name
+        old_spec, old_records = load_folder(old_folder)
+        new_spec, new_records = load_folder(new_folder) if new_folder.is_dir() else (None, [])
+        if old_spec is not None:
+            if new_spec is not None:
+                if new_spec["options"] != old_spec["options"]:
+                    raise StoreError(f"{old_folder} and {new_folder} hold episodes of other options; merge them by hand")
+                clash = sorted(k for k in set(old_spec["weights"]) & set(new_spec["weights"])
+                               if old_spec["weights"][k] != new_spec["weights"][k])
+                if clash:
+                    raise StoreError(f"{old_folder} and {new_folder} hold episodes of {', '.join(clash)} driven with other "
+                                     "learned weights; merge them by hand")
+            new_folder.mkdir(exist_ok=True)
+            base = new_spec or old_spec
+            write_json(new_folder / SPEC_FILE, {**base, "weights": {**old_spec["weights"], **base["weights"]}})
+            have = {key_of(r) for r in new_records}
+            fresh = [r for r in old_records if key_of(r) not in have]
+            for record in fresh:
+                append_record(new_folder / RECORDS_FILE, record)
+            moved.append(f"{old_folder.relative_to(out)} -> {new_folder.relative_to(out)}: {len(fresh)} of "
+                         f"{len(old_records)} episodes moved (the others were there)")
+        shutil.rmtree(old_folder)
+    for figure_folder in runs.glob("*/") if runs.is_dir() else ():
+        if figure_folder.is_dir() and not any(figure_folder.iterdir()):
+            figure_folder.rmdir()
+    return moved
 
 
 def check(figures: tuple[FigureProtocol, ...], out: Path, backend: str, workers: int | None) -> list[BenchRun]:
@@ -155,6 +195,8 @@ def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path
         runs = []
     out = make_output_folder(out, ReproduceError, "the runs and the report")
     with lock_output_folder(out):
+        for line in merge_figure_folders(out):
+            print(f"driveopt reproduce: {line}", flush=True)
         for i, run in enumerate(runs, start=1):
             if progress:
                 spec = run.spec
@@ -181,7 +223,7 @@ def _protocol_records(figure: FigureProtocol, out: Path, cache: dict[Path, Any])
     wanted = {(s, e) for s in figure.seeds for e in range(figure.episodes)}
 
     def arm_records(arm, scenario):
-        path = out / RUNS / figure.runs_folder / arm.folder(figure.duration)
+        path = out / RUNS / arm.folder(figure.duration)
         if path not in cache:
             cache[path] = records_by_arm(path)  # StoreError for a corrupted or foreign folder
         found = cache[path].get((scenario, arm.planner), {})
