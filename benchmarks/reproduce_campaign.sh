@@ -67,16 +67,16 @@ main() {
         stage p1 1 fig7 --planners $p1_driveopt cvae-faithful
         for figure in fig8 fig12 fig9 fig10; do stage p1 1 $figure; done
         stage p1 1 fig7
-        # P2's VQ-VAE pipelines first; the CVAE baselines' arms wait for the weights of P2's baseline [5]
-        # (benchmarks/cvae_multipliers_weights.sh), which will replace the cvae-filter stand-in.
+        # P2's VQ-VAE pipelines first, then the CVAE arms (P1's CVAE through P2's filter: the stand-in for P2's
+        # baseline [5] until its weights ship, benchmarks/cvae_multipliers_weights.sh, and beside it after).
         local p2_vq="vqvae-filter vqvae vqvae-filter-faithful"
         stage p2 1 fig7 --planners $p2_vq
-        # The learned filter against the plain one on 150 pairs (the decision of docs/reproduction/README.md): P2
+        for figure in fig8a fig8b fig9; do stage p2 1 $figure --planners $p2_vq; done
+        for figure in fig7 fig9; do stage p2 1 $figure; done
+        # The learned filter against the plain one on at least 150 pairs (the pooled question of the P2 report): P2
         # Fig. 8b's 250-sample point, 75 episodes per seed (at 250 samples an episode costs about a quarter of one at
         # 1000).
         stage p2 75 fig8b --planners vqvae-filter vqvae --arm-samples 250
-        for figure in fig8a fig8b fig9; do stage p2 1 $figure --planners $p2_vq; done
-        for figure in fig7 fig9; do stage p2 1 $figure; done
         for episodes in 5 10; do
             # P2 Fig. 7, density 3: driveopt's pipelines, then the faithful ones.
             stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-filter
