@@ -71,7 +71,8 @@ main() {
         # baseline [5] until its weights ship, benchmarks/cvae_multipliers_weights.sh, and beside it after).
         local p2_vq="vqvae-filter vqvae vqvae-filter-faithful"
         stage p2 1 fig7 --planners $p2_vq
-        for figure in fig8a fig8b fig9; do stage p2 1 $figure --planners $p2_vq; done
+        for figure in fig8a fig8b; do stage p2 1 $figure --planners $p2_vq; done
+        stage p2 1 fig9 --planners vqvae-filter vqvae-filter-faithful
         for figure in fig7 fig9; do stage p2 1 $figure; done
         # The learned filter against the plain one on at least 150 pairs (the pooled question of the P2 report): P2
         # Fig. 8b's 250-sample point, 75 episodes per seed (at 250 samples an episode costs about a quarter of one at
