@@ -98,11 +98,12 @@ def merge_figure_folders(out: Path) -> list[str]:
             fresh = [r for r in old_records if key_of(r) not in have]
             for record in fresh:
                 append_record(new_folder / RECORDS_FILE, record)
-            moved.append(f"{old_folder.relative_to(out)} -> {new_folder.relative_to(out)}: {len(fresh)} of "
-                         f"{len(old_records)} episodes moved (the others were there)")
+            there = len(old_records) - len(fresh)
+            moved.append(f"{old_folder.relative_to(out)} -> {new_folder.relative_to(out)}: {len(fresh)} episodes moved"
+                         + (f", {there} already there" if there else ""))
         shutil.rmtree(old_folder)
-    for figure_folder in runs.glob("*/") if runs.is_dir() else ():
-        if figure_folder.is_dir() and not any(figure_folder.iterdir()):
+    for figure_folder in runs.glob("*/"):
+        if not any(figure_folder.iterdir()):
             figure_folder.rmdir()
     return moved
 
