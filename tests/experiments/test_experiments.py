@@ -358,6 +358,22 @@ def test_an_episode_list_runs_only_those_episodes_and_a_full_run_adds_the_rest(t
     assert len(keys) == len(set(keys)) == len(SPEC.jobs())
 
 
+def test_runs_that_share_a_folder_are_all_named_in_its_spec_and_summaries(tmp_path):
+    first = BenchSpec(("two-lane-d1.0",), ("grid",), (42,), 2)
+    second = BenchSpec(("four-lane-d3.0", "two-lane-d1.0"), ("bilevel",), (123,), 1, episode_list=(0,))
+    run_bench(first, tmp_path, workers=1, episode_fn=fake_episode, progress=False)
+    rows = run_bench(second, tmp_path, workers=1, episode_fn=fake_episode, progress=False)
+    spec = json.loads((tmp_path / "spec.json").read_text())
+    assert (spec["scenarios"], spec["planners"], spec["seeds"]) == (
+        ["two-lane-d1.0", "four-lane-d3.0"], ["grid", "bilevel"], [42, 123])
+    assert (spec["episodes"], spec["episode_list"]) == (2, [])  # the first run asked for every episode
+    # The second run's rows first, then the first's; every episode of the folder counted once.
+    expected = [["four-lane-d3.0", "bilevel", 1], ["two-lane-d1.0", "bilevel", 1], ["two-lane-d1.0", "grid", 2]]
+    assert [[r["scenario"], r["planner"], r["episodes"]] for r in rows] == expected
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert [[r["scenario"], r["planner"], r["episodes"]] for r in written] == expected
+
+
 @pytest.mark.parametrize("episode_list", [(3,), (-1,), (1, 1)])
 def test_an_episode_list_outside_the_episodes_or_with_repeats_is_refused(tmp_path, episode_list):
     with pytest.raises(BenchOptionError, match="episode list"):

@@ -43,6 +43,7 @@ from driveopt.experiments.store import (
     append_record,
     key_of,
     load_folder,
+    merged_spec,
     pending,
     repair,
     settings_digest,
@@ -186,8 +187,8 @@ def run_bench(
     """Run the missing jobs of ``spec``, then write summary.csv, summary.md, summary.json and summary.png.
 
     workers: parallel episodes (default: the CPUs this process may use); 1 runs in this process. backend: 'local' or 'ray'.
-    Returns the summary rows over all records of the spec (old and new). OutputInUseError (driveopt.files) at once
-    when another run holds the folder.
+    Returns the summary rows over every record of the folder (this spec's, old and new, then those of other runs that
+    share the folder). OutputInUseError (driveopt.files) at once when another run holds the folder.
     """
     spec.check()
     check_backend(backend)
@@ -217,8 +218,10 @@ def _run_locked(spec: BenchSpec, out: Path, workers: int, backend: str, episode_
     finally:
         bar.close()
 
-    order = {job: i for i, job in enumerate(jobs)}  # summaries follow the spec, not completion order
-    records = sorted((r for r in load_folder(out)[1] if key_of(r) in order), key=lambda r: order[key_of(r)])
+    # The summaries cover every episode of the folder, which other runs may share: this run's in the spec's order
+    # (not completion order), then the others as recorded.
+    order = {job: i for i, job in enumerate(jobs)}
+    records = sorted(load_folder(out)[1], key=lambda r: order.get(key_of(r), len(order)))
     rows = summarise(records)
     write_summaries(rows, out)
     return rows
@@ -235,7 +238,8 @@ def write_summaries(rows: list[dict[str, Any]], out: Path) -> None:
 
 
 def _claim(path: Path, spec: BenchSpec, recorded: dict[str, Any] | None) -> dict[tuple[str, str], str]:
-    """Record ``spec`` and the digests of the learned weights it drives with in the output folder; StoreError when
+    """Add ``spec`` and the digests of the learned weights it drives with to the folder's spec.json
+    (:func:`driveopt.experiments.store.merged_spec`); StoreError when
     the folder holds episodes (``recorded``: their spec.json) run with other options (samples, duration, weights,
     config) or, for a planner and scenario it recorded, other weights (e.g. shipped weights replaced since): resuming
     must not mix two settings in one table. A folder without episodes is free, whatever its spec.json says.
@@ -252,7 +256,7 @@ def _claim(path: Path, spec: BenchSpec, recorded: dict[str, Any] | None) -> dict
         if changed:
             raise StoreError(f"{path.parent} holds episodes of {', '.join(changed)} driven with other learned weights "
                              f"(digest {old[changed[0]]}, now {weights[changed[0]]}); use another output folder")
-        weights = {**old, **weights}
-    write_json(path, {**asdict(spec), "weights": weights})
-    return {(scenario, planner): settings_digest(options, weights.get(f"{planner}/{scenario}"))
+    folder = merged_spec(recorded, json.loads(json_text({**asdict(spec), "weights": weights})))
+    write_json(path, folder)
+    return {(scenario, planner): settings_digest(options, folder["weights"].get(f"{planner}/{scenario}"))
             for scenario in spec.scenarios for planner in spec.planners}

@@ -177,6 +177,24 @@ def read_spec(path: str | Path) -> dict[str, Any] | None:
     return {**spec, "weights": spec.get("weights", {})}
 
 
+def merged_spec(old: dict[str, Any] | None, new: dict[str, Any]) -> dict[str, Any]:
+    """What a folder's ``spec.json`` says once a run of ``new`` (a spec.json's contents) joins the episodes of ``old``
+    (None: none): the folder's scenarios, planners and seeds (``old``'s first), the larger episode count, the episode
+    list of both (empty: every episode) and the weights of both (``new``'s digest where both name one). Several runs
+    share a folder (``driveopt reproduce`` runs each arm once for every figure that compares it), so the file names
+    what all of them asked for, not only the last one. The options must agree (the caller's check)."""
+    if old is None:
+        return new
+
+    def union(name: str) -> list:
+        return list(dict.fromkeys([*old.get(name, ()), *new.get(name, ())]))
+
+    full = not (old.get("episode_list") and new.get("episode_list"))
+    return {**old, **new, "scenarios": union("scenarios"), "planners": union("planners"), "seeds": union("seeds"),
+            "episodes": max(old.get("episodes", 0), new.get("episodes", 0)),
+            "episode_list": [] if full else sorted(union("episode_list")), "weights": {**old["weights"], **new["weights"]}}
+
+
 def load_folder(location: str | Path) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
     """(spec, records) of a bench folder (or of its records file, with ``spec.json`` beside it): the records checked
     as :func:`load_records` does, and each that names its settings against the spec. StoreError when the folder
