@@ -68,7 +68,7 @@ main() {
         for figure in fig8 fig12 fig9 fig10; do stage p1 1 $figure; done
         stage p1 1 fig7
         # P2's VQ-VAE pipelines first, then the CVAE arms (P1's CVAE through P2's filter: the stand-in for P2's
-        # baseline [5] until its weights ship, benchmarks/cvae_multipliers_weights.sh, and beside it after).
+        # baseline [5] until its weights ship, benchmarks/p2_four_lane_weights.sh, and beside it after).
         local p2_vq="vqvae-filter vqvae vqvae-filter-faithful"
         stage p2 1 fig7 --planners $p2_vq
         for figure in fig8a fig8b; do stage p2 1 $figure --planners $p2_vq; done
