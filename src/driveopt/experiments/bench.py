@@ -41,6 +41,7 @@ from driveopt.experiments.store import (
     JobKey,
     StoreError,
     append_record,
+    clashing_weights,
     key_of,
     load_folder,
     merged_spec,
@@ -245,18 +246,18 @@ def _claim(path: Path, spec: BenchSpec, recorded: dict[str, Any] | None) -> dict
     must not mix two settings in one table. A folder without episodes is free, whatever its spec.json says.
 
     Returns the settings digest (:func:`driveopt.experiments.store.settings_digest`) of each (scenario, planner)."""
-    weights = spec.weights_digests()
-    options = json.loads(json_text(spec.options))
+    run = json.loads(json_text({**asdict(spec), "weights": spec.weights_digests()}))
+    options = run["options"]
     if recorded is not None:
         if recorded["options"] != options:
             raise StoreError(f"{path.parent} holds episodes run with options {recorded['options']}, not {spec.options}; "
                              "use another output folder")
-        old = recorded["weights"]
-        changed = sorted(key for key in set(old) & set(weights) if old[key] != weights[key])
+        changed = clashing_weights(recorded, run)
         if changed:
             raise StoreError(f"{path.parent} holds episodes of {', '.join(changed)} driven with other learned weights "
-                             f"(digest {old[changed[0]]}, now {weights[changed[0]]}); use another output folder")
-    folder = merged_spec(recorded, json.loads(json_text({**asdict(spec), "weights": weights})))
+                             f"(digest {recorded['weights'][changed[0]]}, now {run['weights'][changed[0]]}); use another "
+                             "output folder")
+    folder = merged_spec(recorded, run)
     write_json(path, folder)
     return {(scenario, planner): settings_digest(options, folder["weights"].get(f"{planner}/{scenario}"))
             for scenario in spec.scenarios for planner in spec.planners}

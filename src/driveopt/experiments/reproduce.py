@@ -36,7 +36,16 @@ from driveopt.experiments.protocols import (
     figures_of,
 )
 from driveopt.experiments.runner import EpisodeFn, check_backend
-from driveopt.experiments.store import RECORDS_FILE, SPEC_FILE, StoreError, append_record, key_of, load_folder, merged_spec
+from driveopt.experiments.store import (
+    RECORDS_FILE,
+    SPEC_FILE,
+    StoreError,
+    append_record,
+    clashing_weights,
+    key_of,
+    load_folder,
+    merged_spec,
+)
 from driveopt.experiments.verdicts import ClaimResult, answer, evaluate
 from driveopt.files import lock_output_folder, make_output_folder, write_json
 
@@ -86,13 +95,12 @@ def merge_figure_folders(out: Path) -> list[str]:
             if new_spec is not None:
                 if new_spec["options"] != old_spec["options"]:
                     raise StoreError(f"{old_folder} and {new_folder} hold episodes of other options; merge them by hand")
-                clash = sorted(k for k in set(old_spec["weights"]) & set(new_spec["weights"])
-                               if old_spec["weights"][k] != new_spec["weights"][k])
+                clash = clashing_weights(old_spec, new_spec)
                 if clash:
                     raise StoreError(f"{old_folder} and {new_folder} hold episodes of {', '.join(clash)} driven with other "
                                      "learned weights; merge them by hand")
             new_folder.mkdir(exist_ok=True)
-            write_json(new_folder / SPEC_FILE, merged_spec(old_spec, new_spec) if new_spec else old_spec)
+            write_json(new_folder / SPEC_FILE, merged_spec(new_spec, old_spec))
             have = {key_of(r) for r in new_records}
             fresh = [r for r in old_records if key_of(r) not in have]
             for record in fresh:

@@ -177,6 +177,11 @@ def read_spec(path: str | Path) -> dict[str, Any] | None:
     return {**spec, "weights": spec.get("weights", {})}
 
 
+def clashing_weights(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """The ``planner/scenario`` keys whose learned-weights digest differs between two spec.json contents."""
+    return sorted(key for key in set(old["weights"]) & set(new["weights"]) if old["weights"][key] != new["weights"][key])
+
+
 def merged_spec(old: dict[str, Any] | None, new: dict[str, Any]) -> dict[str, Any]:
     """What a folder's ``spec.json`` says once a run of ``new`` (a spec.json's contents) joins the episodes of ``old``
     (None: none): the folder's scenarios, planners and seeds (``old``'s first), the larger episode count, the episode
