@@ -16,12 +16,14 @@
 # the planning code changes its numbers, set CODE to the new commit and remove the records of the planners it changes
 # (they run again); records of the others stay, and a report that mixes digests says so. The first records ran
 # d621f34 (digest 7fba4df190b7d8b7); 75e44b5 changed `grid` (its records were rerun), 4d346d3 the P1 `*-faithful`
-# planners, baa1d47 `vanilla` (theirs were rerun); the other planners plan the same in all five (0e4321d shares an
-# arm's bench folder among the figures that compare it: `driveopt reproduce` merged the earlier per-figure folders).
+# planners, baa1d47 `vanilla` (theirs were rerun); the other planners plan the same in all of them (0e4321d shares an
+# arm's bench folder among the figures that compare it: `driveopt reproduce` merged the earlier per-figure folders);
+# be3fcc9 ships the four-lane learned filter retrained on the shipped VQ-VAE's samples (the `vqvae-filter` and
+# `vqvae-filter-faithful` records were removed and run again).
 # The body is one function, read whole before it runs, so editing this file never changes a campaign in flight.
 set -euo pipefail
 
-CODE=0e4321d
+CODE=be3fcc9
 
 main() {
     repo=$(cd "$(dirname "$0")/.." && pwd)
@@ -57,6 +59,10 @@ main() {
 
     if [ "$report_only" = 0 ]; then
         local p1_dense="four-lane-d3.0 two-lane-d2.5" p1_driveopt="bilevel random grid batch vanilla"
+        # First, the learned filter against the plain one on at least 150 pairs (the pooled question of the P2 report): P2
+        # Fig. 8b's 250-sample point, 75 episodes per seed (at 250 samples an episode costs about a quarter of one at
+        # 1000, about 46 s with two workers).
+        stage p2 75 fig8b --planners vqvae-filter vqvae --arm-samples 250
         # The headline comparisons at 5 episodes per seed: P1 Fig. 7's dense roads, driveopt's rows (about 7 min per
         # episode index of both seeds and roads), and P2 Fig. 7's density 3, driveopt's pipelines (about 3.5 min per
         # episode).
@@ -74,10 +80,6 @@ main() {
         for figure in fig8a fig8b; do stage p2 1 $figure --planners $p2_vq; done
         stage p2 1 fig9 --planners vqvae-filter vqvae-filter-faithful
         for figure in fig7 fig9; do stage p2 1 $figure; done
-        # The learned filter against the plain one on at least 150 pairs (the pooled question of the P2 report): P2
-        # Fig. 8b's 250-sample point, 75 episodes per seed (at 250 samples an episode costs about a quarter of one at
-        # 1000).
-        stage p2 75 fig8b --planners vqvae-filter vqvae --arm-samples 250
         for episodes in 5 10; do
             # P2 Fig. 7, density 3: driveopt's pipelines, then the faithful ones.
             stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-filter
