@@ -21,7 +21,7 @@ from tiny_models import with_meta
 from driveopt.checks import ConfigError
 from driveopt.data.demonstrations import DatasetError
 from driveopt.files import LOCK_NAME
-from driveopt.learned.checkpoint import CheckpointError, load_checkpoint
+from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from driveopt.training import cvae, harness, vqvae
 from driveopt.training import filter as filter_training
 from driveopt.training.harness import (
@@ -163,6 +163,18 @@ def test_a_diverged_loss_stops_training_before_anything_of_that_epoch_is_written
     with pytest.raises(TrainingError, match="diverged in epoch 1"):
         train_mean(tmp_path / "first", losses={1: math.inf})
     assert not (tmp_path / "first" / "toy.ckpt").exists() and not (tmp_path / "first" / "last.ckpt").exists()
+
+
+def test_an_optimiser_state_beyond_the_weights_bound_resumes_and_diverged_weights_do_not(tmp_path):
+    """Adam's second moment (squared gradients) and step counter grow past the bound on weights in healthy runs."""
+    train_mean(tmp_path, stop_after=2)
+    meta, state = load_checkpoint(tmp_path / "last.ckpt", "toy")
+    save_checkpoint(tmp_path / "last.ckpt", "toy", {**state, "opt_state": {"steps": np.int64(5_000_000)}}, meta)
+    assert train_mean(tmp_path)["epochs"] == 4
+    meta, state = load_checkpoint(tmp_path / "last.ckpt", "toy")
+    save_checkpoint(tmp_path / "last.ckpt", "toy", {**state, "params": {"point": np.array([1e30, 0.0])}}, meta)
+    with pytest.raises(CheckpointError, match=r"beyond \+-1e\+06 \(in \['params'\]\['point'\]\)"):
+        train_mean(tmp_path)
 
 
 # ------------------------------------------------------------------------------------------- resumption refused

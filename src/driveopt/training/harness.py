@@ -376,7 +376,8 @@ class TrainingRun:
         if self.last.exists():
             meta, stored = load_checkpoint(self.last, self.kind)
             check(self.last, meta)
-            state = restore(state, {k: stored.get(k) for k in state}, self.last, "the training state")
+            state = restore(state, {k: stored.get(k) for k in state}, self.last, "the training state",
+                            unbounded=("opt_state",))
             self.history, self.resumed = list(meta.get("history", [])), meta
         make_output_folder(self.out)
         return state
