@@ -241,6 +241,42 @@ def quasi_definite_inverse(matrices: jnp.ndarray) -> jnp.ndarray:
     return jnp.moveaxis(inverse, -1, 0)
 
 
+def _inverse_of_one(matrix: jnp.ndarray) -> jnp.ndarray:
+    return jnp.linalg.inv(matrix)
+
+
+def _inverse_of_many(axis_size, in_batched, matrices):
+    (batched,) = in_batched
+    return (quasi_definite_inverse(matrices) if batched else jnp.linalg.inv(matrices)), batched
+
+
+_inverse = jax.custom_batching.custom_vmap(_inverse_of_one)
+_inverse.def_vmap(_inverse_of_many)
+
+
+@jax.custom_vjp
+def kkt_inverse(matrix: jnp.ndarray) -> jnp.ndarray:
+    """The inverse of one quasi-definite matrix (m, m) (:func:`quasi_definite_inverse`): LAPACK's LU as a planning
+    call computes it, and, where a transformation batches it (a loss vmapped over training rows), the vectorised
+    elimination of :func:`quasi_definite_inverse`. A batched LU on the CPU splits its triangular solves over XLA's
+    intra-op thread pool from inside that pool; two of them at once on a 2-thread pool each wait for work that no free
+    thread can run, and training stops for good (seen with the x and y inverses of a vmapped loss)."""
+    return _inverse(matrix)
+
+
+def _kkt_inverse_forward(matrix):
+    inverse = _inverse(matrix)
+    return inverse, inverse
+
+
+def _kkt_inverse_backward(inverse, cotangent):
+    transposed = jnp.swapaxes(inverse, -1, -2)
+    return (-(transposed @ cotangent @ transposed),)  # d(M^-1) = -M^-1 dM M^-1
+
+
+kkt_inverse.defvjp(_kkt_inverse_forward, _kkt_inverse_backward)
+
+
 def _shift_right(a):
     """a[:, k-1] at k, 0 at k = 0."""
     return jnp.concatenate([jnp.zeros_like(a[:, :1]), a[:, :-1]], axis=1)
@@ -269,8 +305,8 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
     eye = jnp.eye(n, dtype=W.dtype)
     course = course_bounds(model, problem, cfg)
 
-    inv_x = jnp.linalg.inv(_kkt_matrix(eye + penalty_x, model.A_x))
-    inv_y = jnp.linalg.inv(_kkt_matrix(eye + penalty_y, model.A_y))
+    inv_x = kkt_inverse(_kkt_matrix(eye + penalty_x, model.A_x))
+    inv_y = kkt_inverse(_kkt_matrix(eye + penalty_y, model.A_y))
     bounds = jnp.pad(e.reshape(2, -1), ((0, 0), (1, 0)))  # per node; node 0 has no row
     sample_y = None
     if per_sample:
