@@ -10,12 +10,13 @@
 # trainer also saves inside an epoch), so rerunning the same command continues where it stopped:
 #   1. collect 40 + 20 + 20 episodes, two at a time (about 25 min on the 2-core machine);
 #   2. `driveopt train filter` with its defaults (P2's eq. 9, samples of the shipped VQ-VAE) and --validation 0.1,
-#      2 epochs (about 52 min each on 20 000 observations here, 3 min on a GPU);
+#      2 epochs (39 min each on its 20 755 observations here);
 #   3. the filter's offline residuals against the plain filter on 500 held-out rows (benchmarks/filter_residuals.py);
-#   4. `driveopt train cvae-multipliers` through the planner's set-point QP and 20 unrolled projection iterations.
+#   4. `driveopt train cvae-multipliers` through the planner's set-point QP and 20 unrolled projection iterations
+#      (60 epochs, 24 min here).
 # One process at a time (the 2-core machine). Nothing is copied into the package: ship OUT_DIR/filter-four/filter.ckpt
-# as src/driveopt/weights/filter-four-lane.ckpt and OUT_DIR/cvae-multipliers-four/cvae-multipliers.ckpt as the
-# planners' weights after reading the histories and the residuals.
+# as src/driveopt/weights/filter-four-lane.ckpt and OUT_DIR/cvae-multipliers-four/cvae-multipliers.ckpt as
+# src/driveopt/weights/cvae-multipliers-four-lane.ckpt after reading the histories and the residuals.
 set -euo pipefail
 
 main() {

@@ -84,13 +84,13 @@ _OPTIMISERS = (
                                 projection={"max_iterations": 100, "barrier": True}), vqvae_prior(), learned_filter=True),
     OptimiserSpec("vqvae-cem", "P1 bi-level optimiser started from PixelCNN/VQ-VAE samples (shipped weights; Gaussian if none)",
                   _BASE, vqvae_prior()),
-    OptimiserSpec("cvae-filter", "P2's baseline: 1000 CVAE samples through vqvae's one pass (barrier projection, 100 iterations), "
+    OptimiserSpec("cvae-filter", "P1's CVAE through P2's pipeline: 1000 CVAE samples through vqvae's one pass (barrier projection, 100 iterations), "
                                  "least-cost feasible; differs from vqvae only in the prior (shipped weights; Gaussian if none)",
                   _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
                                 projection={"max_iterations": 100, "barrier": True}), cvae_prior(0.0)),
     OptimiserSpec("cvae-multipliers", "P2's CVAE baseline as its reference [5] built it: 1000 CVAE samples of set-points, each "
                                       "projected (75 iterations) from the initial multipliers the model predicts for it, one pass "
-                                      "(--weights from `driveopt train cvae-multipliers`; none ship: Gaussian, zero multipliers)",
+                                      "(shipped four-lane weights, or --weights from `driveopt train cvae-multipliers`; Gaussian and zero multipliers if none)",
                   _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": faithful.SHRESTHA_CONSTRAINT_ELITES,
                                          "num_elites": faithful.SHRESTHA_ELITES},
                                 projection={"max_iterations": faithful.SHRESTHA_PROJECTION}),

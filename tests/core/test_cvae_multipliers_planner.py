@@ -1,5 +1,6 @@
-"""The cvae-multipliers planner (P2's CVAE baseline, its reference [5]): registered with a faithful version, warns and
-plans without weights, and with weights plans finite trajectories whose batch starts from the model's multipliers."""
+"""The cvae-multipliers planner (P2's CVAE baseline, its reference [5]): registered with a faithful version, loads the
+shipped four-lane weights by default, warns and plans without weights, and with weights plans finite trajectories whose
+batch starts from the model's multipliers."""
 
 from __future__ import annotations
 
@@ -29,9 +30,22 @@ def test_registered_with_the_authors_settings_and_a_faithful_version():
 
 
 def test_without_weights_it_warns_and_plans_from_the_gaussian_with_zero_multipliers():
-    with pytest.warns(UserWarning, match="no cvae-multipliers weights .* zero multipliers"):
-        prior = SPEC.prior(4)
-    assert isinstance(prior, GaussianPrior) and SPEC.safety_filter(4) is None
+    with pytest.warns(UserWarning, match="no cvae-multipliers weights shipped for 2-lane roads .* zero multipliers"):
+        prior = SPEC.prior(2)
+    assert isinstance(prior, GaussianPrior) and SPEC.safety_filter(2) is None
+
+
+def test_shipped_four_lane_weights_load_by_default_and_their_multipliers_change_the_plan():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no fallback notice: weights ship for four-lane roads
+        prior, head = SPEC.prior(4), SPEC.safety_filter(4)
+    assert isinstance(prior, MultiplierCVAEPrior) and isinstance(head, CVAEMultipliers)
+    problem = build_problem(load_scene("slow-leader-four-lane"), SPEC.config.basis)
+    config = SPEC.config.with_samples(200)
+    result = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior, safety_filter=head, **SPEC.strategies)
+    assert result.status == PlanStatus.SUCCESS and result.residuals["total"] <= config.sampler.residual_tolerance
+    zero = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior, **SPEC.strategies)
+    assert not np.allclose(result.trajectory.x, zero.trajectory.x)  # the predicted multipliers change the projection
 
 
 def test_with_weights_it_plans_a_finite_trajectory_or_offers_the_fallback(tmp_path):

@@ -188,6 +188,14 @@ def test_every_figure_of_both_papers_is_declared_with_registered_planners():
     learned = [c for c in p2[1].claims if (c.arm.planner, c.baseline.planner) == ("vqvae-filter", "vqvae")]
     assert {(c.scenario, c.metric) for c in learned} == {(c.scenario, m) for c in p2[1].claims for m in (COLLISIONS, SPEED, PLAN_TIME)}
     assert all(c.expect == NO_WORSE and c.kind == DRIVEOPT_ROW for c in learned)
+    # P2's CVAE baseline is its reference [5], driveopt's and as its authors ran it, with P1's CVAE through P2's filter
+    # beside it, with and without the filter in Fig. 9
+    for figure in (p2[1], p2[-1]):
+        for planner in ("cvae-multipliers", "cvae-multipliers-faithful", "cvae-filter", "cvae-filter-faithful"):
+            compared = [c for c in figure.claims if planner in (c.arm.planner, c.baseline.planner)]
+            assert compared and all(c.like_for_like for c in compared), (figure.figure, planner)
+    assert {c.baseline.config for c in p2[-1].claims if c.baseline.planner.startswith("cvae-multipliers")} == {
+        (("projection.max_iterations", 0),)}
     # P2 Fig. 9's no-filter under P2's ranking: the faithful pipelines at 0 filter iterations
     fig9 = p2[-1]
     assert any(c.kind == FAITHFUL_ROW and c.baseline.planner == "vqvae-filter-faithful"

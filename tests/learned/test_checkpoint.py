@@ -12,14 +12,15 @@ import numpy as np
 import pytest
 
 from driveopt.checks import ConfigError
-from driveopt.learned import cvae, pixelcnn, vqvae
+from driveopt.learned import cvae, cvae_multipliers, pixelcnn, vqvae
 from driveopt.learned import filter as learned_filter
 from driveopt.learned.checkpoint import CheckpointError, load_checkpoint, parameter_shapes, save_checkpoint
 
 WEIGHTS = Path(__file__).resolve().parents[2] / "src" / "driveopt" / "weights"
 SHIPPED = sorted(WEIGHTS.glob("*.ckpt"))
 LOADERS = {cvae.CHECKPOINT_KIND: cvae.load_cvae, pixelcnn.CHECKPOINT_KIND: pixelcnn.load_vqvae_prior,
-           learned_filter.CHECKPOINT_KIND: learned_filter.load_filter, vqvae.CHECKPOINT_KIND: vqvae.load_vqvae}
+           learned_filter.CHECKPOINT_KIND: learned_filter.load_filter, vqvae.CHECKPOINT_KIND: vqvae.load_vqvae,
+           cvae_multipliers.CHECKPOINT_KIND: cvae_multipliers.load_model}
 
 
 def _kind(path: Path) -> str:
@@ -29,7 +30,7 @@ def _kind(path: Path) -> str:
 
 def test_weights_are_shipped_for_every_learned_kind():
     assert {_kind(path) for path in SHIPPED} == {cvae.CHECKPOINT_KIND, pixelcnn.CHECKPOINT_KIND,
-                                                learned_filter.CHECKPOINT_KIND}
+                                                learned_filter.CHECKPOINT_KIND, cvae_multipliers.CHECKPOINT_KIND}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.name)

@@ -21,12 +21,12 @@ PLANNERS: tuple[tuple[str, str], ...] = (
       "weights; without filter weights the plain filter, without VQ-VAE weights the Gaussian)")),
     ("vqvae-cem", "P1 bi-level optimiser started from PixelCNN/VQ-VAE samples (shipped weights; Gaussian if none)"),
     ("cvae-filter",
-     ("P2's baseline: 1000 CVAE samples through vqvae's one pass (barrier projection, 100 iterations), "
+     ("P1's CVAE through P2's pipeline: 1000 CVAE samples through vqvae's one pass (barrier projection, 100 iterations), "
       "least-cost feasible; differs from vqvae only in the prior (shipped weights; Gaussian if none)")),
     ("cvae-multipliers",
      ("P2's CVAE baseline as its reference [5] built it: 1000 CVAE samples of set-points, each projected (75 "
-      "iterations) from the initial multipliers the model predicts for it, one pass (--weights from `driveopt train "
-      "cvae-multipliers`; none ship: Gaussian, zero multipliers)")),
+      "iterations) from the initial multipliers the model predicts for it, one pass (shipped four-lane weights, or "
+      "--weights from `driveopt train cvae-multipliers`; Gaussian and zero multipliers if none)")),
     ("random", "one Gaussian draw of set-points, no adaptation (MPC-Random)"),
     ("grid", "fixed grid: constant speed x target lane x change quarter (MPC-Grid)"),
     ("vanilla", "single speed set-point v_des (reached by at most 5 m/s per quarter of the horizon) in the current lane, "

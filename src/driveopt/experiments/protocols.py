@@ -27,9 +27,9 @@ Choices where the papers are silent (each also listed in ``docs/reproduction/REA
   names density 3 and the two limits only).
 * P2 Fig. 7 also judges ``vqvae-filter`` against ``vqvae`` on its episodes (collisions, speed, plan time, each "no
   worse"): whether the learned filter changes anything against the plain one, which P2 does not measure.
-* P2's baseline [5] is stood in for by ``cvae-filter`` and ``cvae-filter-faithful`` (P1's CVAE through P2's one-pass
-  filter). The CVAE of [5], trained through the projection and predicting its multipliers, is the ``cvae-multipliers``
-  planner, but no weights ship for it (``driveopt train cvae-multipliers``), so the protocols keep the stand-in.
+* P2's baseline [5], a CVAE trained through the projection that predicts its multipliers, is ``cvae-multipliers``
+  and, as [5]'s authors ran it, ``cvae-multipliers-faithful`` (shipped four-lane weights). Beside it, P2 Figs. 7 and 9
+  keep ``cvae-filter`` and ``cvae-filter-faithful``: P1's CVAE through P2's one-pass filter.
 * P2 Fig. 9's "without filter" is ``projection.max_iterations`` 0: for driveopt's pipelines the samples ranked as
   drawn, feasibility first, which is rejection sampling; for the faithful ones P2's pick by cost + residual,
   executed whatever its residual, which is P2's no-filter.
@@ -328,7 +328,9 @@ def p1_figures() -> tuple[FigureProtocol, ...]:
 # ---------------------------------------------------------------------------------------------------------- P2
 P2_SAMPLES = 1000  # [-] P2's batch
 P2_ITERATIONS = 100  # [-] filter iterations of P2's pipeline
-CVAE_BASELINE_NOTE = "stands in for P2's baseline [5] with P1's CVAE (the CVAE of [5], cvae-multipliers, has no weights yet)"
+BASELINE_NOTE = "P2's baseline [5]: a CVAE trained through the projection that predicts its multipliers"
+FAITHFUL_BASELINE_NOTE = f"{BASELINE_NOTE}; as [5]'s authors ran it (least residual + speed error, executed whatever its residual)"
+CVAE_BESIDE_NOTE = "P1's CVAE through P2's one-pass filter (beside P2's baseline [5], cvae-multipliers)"
 FAITHFUL_P2_NOTE = "P2's ranking (cost + residual), executed whatever its residual, no driveopt safety machinery"
 NO_FILTER_EXPLANATION = (
     "driveopt's planner without the filter is rejection sampling: it ranks feasible samples first and brakes when none "
@@ -353,6 +355,15 @@ def _p2(planner: str, samples: int = P2_SAMPLES, iterations: int | None = None, 
     return _p2_arm(planner, STRENGTHENED, samples, iterations, note)
 
 
+def _baseline(version: str, iterations: int | None = None, note: str = "") -> Arm:
+    """P2's baseline [5] (``cvae-multipliers``, its faithful version ``cvae-multipliers-faithful``); ``iterations``:
+    projection iterations (None: [5]'s 75)."""
+    planner, described = (("cvae-multipliers", BASELINE_NOTE) if version == STRENGTHENED
+                          else ("cvae-multipliers-faithful", FAITHFUL_BASELINE_NOTE))
+    config = () if iterations is None else (("projection.max_iterations", iterations),)
+    return Arm(planner, version, P2_SAMPLES, config=config, note="; ".join(part for part in (described, note) if part))
+
+
 P2_FIGURE7_SCENARIOS = ("p2-four-lane-d1.5", "p2-four-lane-d3.0", "p2-four-lane-d1.5-slow", "p2-four-lane-d3.0-slow")
 LEARNED_FILTER_CLAIM = "the learned filter is proposed to make the one pass safer (no value against the plain filter)"
 LEARNED_FILTER = Question("learned-filter", "the learned filter against the plain one (`vqvae-filter` against `vqvae`)",
@@ -361,10 +372,12 @@ LEARNED_FILTER = Question("learned-filter", "the learned filter against the plai
 
 def _p2_figure7() -> FigureProtocol:
     claims = []
-    cvae, cvae_faithful = _p2("cvae-filter", note=CVAE_BASELINE_NOTE), _p2_arm("cvae-filter", FAITHFUL, note=CVAE_BASELINE_NOTE)
     learned, plain = _p2("vqvae-filter", note="P2's pipeline with the learned filter"), _p2("vqvae", note="plain filter")
-    pairs = ((learned, cvae), (plain, cvae), (_p2_arm("vqvae-filter", FAITHFUL, note="P2's pipeline with the learned filter"),
-                                              cvae_faithful))
+    learned_faithful = _p2_arm("vqvae-filter", FAITHFUL, note="P2's pipeline with the learned filter")
+    pairs = tuple((arm, base) for base, base_faithful in (
+        (_baseline(STRENGTHENED), _baseline(FAITHFUL)),
+        (_p2("cvae-filter", note=CVAE_BESIDE_NOTE), _p2_arm("cvae-filter", FAITHFUL, note=CVAE_BESIDE_NOTE)))
+        for arm, base in ((learned, base), (plain, base), (learned_faithful, base_faithful)))
     for scenario in P2_FIGURE7_SCENARIOS:
         paper = ("up to 12x fewer collisions than the CVAE baseline (density 3)" if "d3.0" in scenario
                  else "fewer collisions than the CVAE baseline as density rises or traffic slows")
@@ -409,15 +422,17 @@ def _p2_figure9() -> FigureProtocol:
         for version in (STRENGTHENED, FAITHFUL):
             vq = _p2_arm("vqvae-filter", version)
             vq0 = _p2_arm("vqvae-filter", version, iterations=0, note=NO_FILTER_NOTES[version])
-            cv = _p2_arm("cvae-filter", version, note=CVAE_BASELINE_NOTE)
-            cv0 = _p2_arm("cvae-filter", version, iterations=0, note=f"{CVAE_BASELINE_NOTE}; {NO_FILTER_NOTES[version]}")
+            b5, b50 = _baseline(version), _baseline(version, iterations=0, note=NO_FILTER_NOTES[version])
+            cv = _p2_arm("cvae-filter", version, note=CVAE_BESIDE_NOTE)
+            cv0 = _p2_arm("cvae-filter", version, iterations=0, note=f"{CVAE_BESIDE_NOTE}; {NO_FILTER_NOTES[version]}")
             if density != "3.0":
-                claims.append(Claim(scenario, vq0, cv0, COLLISIONS, BETTER, "CVAE without filter 8x more collisions"))
+                for without in (b50, cv0):
+                    claims.append(Claim(scenario, vq0, without, COLLISIONS, BETTER, "CVAE without filter 8x more collisions"))
             else:
-                for with_filter, without in ((vq, vq0), (cv, cv0)):
+                for with_filter, without in ((vq, vq0), (b5, b50), (cv, cv0)):
                     claims.append(Claim(scenario, with_filter, without, COLLISIONS, BETTER,
                                         "the filter is needed at high density"))
-            for with_filter, without in ((vq, vq0), (cv, cv0)):
+            for with_filter, without in ((vq, vq0), (b5, b50), (cv, cv0)):
                 claims.append(Claim(scenario, with_filter, without, SPEED, WORSE,
                                     "the filter makes the car more conservative (slower)",
                                     NO_FILTER_EXPLANATION if version == STRENGTHENED else ""))

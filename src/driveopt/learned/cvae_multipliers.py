@@ -39,6 +39,7 @@ import numpy as np
 
 from driveopt.checks import ConfigError, check_count, check_number, check_parameters, dense_parameters
 from driveopt.config import PlannerConfig
+from driveopt.files import shipped_weights_file
 from driveopt.filtering import FilterError
 from driveopt.learned import cvae
 from driveopt.learned.checkpoint import check_scales, header_config, load_checkpoint, parameter_shapes, restore
@@ -49,6 +50,7 @@ from driveopt.qp import make_model
 from driveopt.trajectory import evaluate
 
 CHECKPOINT_KIND = "cvae-multipliers"
+SHIPPED = {4: "cvae-multipliers-four-lane.ckpt"}  # lanes -> file in driveopt/weights
 MULTIPLIER_HEAD = "multipliers"  # the head's parameters in the params dict (beside "encoder" and "decoder")
 
 
@@ -213,6 +215,11 @@ def empty_state(cfg: MultiplierCVAEConfig) -> dict[str, Any]:
     return {"params": parameter_shapes(init_params, cfg),
             "normaliser": Normaliser(vec(cvae.FEATURE_DIM), vec(cvae.FEATURE_DIM), vec(traj), vec(traj),
                                      vec(cfg.num_coeffs), vec(cfg.num_coeffs))}
+
+
+def weights_file(lanes: int, weights: str | Path | None) -> Path | None:
+    """``weights`` when given, else the file shipped for roads with ``lanes`` lanes, else None."""
+    return Path(weights) if weights else shipped_weights_file(SHIPPED, lanes)
 
 
 def load_model(path: str | Path, lanes: int | None = None) -> tuple[MultiplierCVAEConfig, Any, Normaliser, dict[str, Any]]:

@@ -7,9 +7,10 @@ multiplier head, is the safety filter :class:`driveopt.safety.cvae_multipliers.C
 same checkpoint: it computes each row's initial multipliers from that row's set-point-QP trajectory, so every
 sample's multipliers stay paired with its own set-points.
 
-No weights ship (``driveopt train cvae-multipliers`` writes them): without ``--weights`` the ``cvae-multipliers``
-planner warns and plans with the configuration's Gaussian prior and zero multipliers. Checkpoints record the lane
-counts of their training roads; weights trained for another lane count are refused.
+Weights ship for four-lane roads (``weights/cvae-multipliers-four-lane.ckpt``; ``driveopt train cvae-multipliers``
+writes others): on other roads, without ``--weights``, the ``cvae-multipliers`` planner warns and plans with the
+configuration's Gaussian prior and zero multipliers. Checkpoints record the lane counts of their training roads;
+weights trained for another lane count are refused.
 
 Flax is imported when weights are loaded or run, not with this module.
 """
@@ -55,13 +56,17 @@ def load_prior(path: str | Path, v_max: float = ProjectionConfig.v_max, lanes: i
 
 
 def missing_weights_notice(lanes: int) -> str:
-    return (f"no cvae-multipliers weights for {lanes}-lane roads (none ship; train them with `driveopt train "
+    return (f"no cvae-multipliers weights shipped for {lanes}-lane roads (train them with `driveopt train "
             "cvae-multipliers` and pass --weights): planning from the Gaussian start with zero multipliers instead")
 
 
 def prior_for(config: PlannerConfig, lanes: int, weights: str | Path | None) -> Any:
-    """The decoder's prior from ``weights``; without weights the configuration's Gaussian prior, with a warning."""
-    if not weights:
+    """The decoder's prior from ``weights`` (or the weights shipped for ``lanes``); without any, the configuration's
+    Gaussian prior, with a warning."""
+    from driveopt.learned.cvae_multipliers import weights_file
+
+    path = weights_file(lanes, weights)
+    if path is None:
         warnings.warn(missing_weights_notice(lanes), stacklevel=2)
         return GaussianPrior.from_config(config.sampler, config.projection.v_max)
-    return load_prior(weights, config.projection.v_max, lanes=lanes)
+    return load_prior(path, config.projection.v_max, lanes=lanes)

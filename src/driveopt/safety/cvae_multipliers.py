@@ -8,7 +8,7 @@ in barrier mode). A row's multipliers depend on nothing but its own trajectory, 
 set-points that made it, whichever batch and position it has. The set-points come from the same checkpoint's
 decoder (:mod:`driveopt.priors.cvae_multipliers`).
 
-Without weights the filter is None: the projection starts from zero multipliers (the prior warns once for both).
+Without weights (given or shipped) the filter is None: the projection starts from zero multipliers (the prior warns once for both).
 """
 
 from __future__ import annotations
@@ -53,5 +53,9 @@ def load_multipliers(path: str | Path, config: PlannerConfig, lanes: int | None 
 
 
 def filter_for(config: PlannerConfig, lanes: int, weights: str | Path | None) -> CVAEMultipliers | None:
-    """The filter from ``weights``, or None without weights (zero multipliers; the prior's factory warns)."""
-    return load_multipliers(weights, config, lanes) if weights else None
+    """The filter from ``weights`` (or the weights shipped for ``lanes``), or None without any (zero multipliers; the
+    prior's factory warns)."""
+    from driveopt.learned.cvae_multipliers import weights_file
+
+    path = weights_file(lanes, weights)
+    return load_multipliers(path, config, lanes) if path else None
