@@ -19,11 +19,11 @@
 # planners, baa1d47 `vanilla` (theirs were rerun); the other planners plan the same in all of them (0e4321d shares an
 # arm's bench folder among the figures that compare it: `driveopt reproduce` merged the earlier per-figure folders);
 # be3fcc9 ships the four-lane learned filter retrained on the shipped VQ-VAE's samples (the `vqvae-filter` and
-# `vqvae-filter-faithful` records were removed and run again).
+# `vqvae-filter-faithful` records were removed and run again); 5124923 ships P2's baseline [5] (`cvae-multipliers`).
 # The body is one function, read whole before it runs, so editing this file never changes a campaign in flight.
 set -euo pipefail
 
-CODE=be3fcc9
+CODE=5124923
 
 main() {
     repo=$(cd "$(dirname "$0")/.." && pwd)
@@ -67,14 +67,14 @@ main() {
         # episode index of both seeds and roads), and P2 Fig. 7's density 3, driveopt's pipelines (about 3.5 min per
         # episode).
         stage p1 5 fig7 --scenarios $p1_dense --planners $p1_driveopt
-        stage p2 5 fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-filter
+        stage p2 5 fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-multipliers cvae-filter
         # Then one episode per seed of every figure, so that every claim has a measured row: P1's cheaper arms
         # first, then the authors' MPC baselines at their 1000 samples x 100 iterations, then P2's pipelines.
         stage p1 1 fig7 --planners $p1_driveopt cvae-faithful
         for figure in fig8 fig12 fig9 fig10; do stage p1 1 $figure; done
         stage p1 1 fig7
-        # P2's VQ-VAE pipelines first, then the CVAE arms (P1's CVAE through P2's filter: the stand-in for P2's
-        # baseline [5] until its weights ship, benchmarks/p2_four_lane_weights.sh, and beside it after).
+        # P2's VQ-VAE pipelines first, then the CVAE arms (P2's baseline [5], cvae-multipliers, and beside it P1's CVAE
+        # through P2's filter).
         local p2_vq="vqvae-filter vqvae vqvae-filter-faithful"
         stage p2 1 fig7 --planners $p2_vq
         for figure in fig8a fig8b; do stage p2 1 $figure --planners $p2_vq; done
@@ -82,8 +82,9 @@ main() {
         for figure in fig7 fig9; do stage p2 1 $figure; done
         for episodes in 5 10; do
             # P2 Fig. 7, density 3: driveopt's pipelines, then the faithful ones.
-            stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-filter
-            stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter-faithful cvae-filter-faithful
+            stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-multipliers cvae-filter
+            stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter-faithful \
+                cvae-multipliers-faithful cvae-filter-faithful
             # P1 Fig. 7, dense roads, driveopt's rows and the faithful MPC-Bi-Level.
             stage p1 $episodes fig7 --scenarios $p1_dense --planners $p1_driveopt cvae-faithful
         done
