@@ -9,7 +9,7 @@
 # Resumable: every stage is a `driveopt reproduce` run, which skips the episodes its folders hold, so rerunning this
 # script continues where it stopped (SIGTERM or Ctrl-C keep the finished episodes). A stage asks for the first N
 # episodes of each seed; later stages ask for more, so the headline comparisons reach two seeds first and every
-# row grows over sessions. Both protocols whole are some 500 hours of the 2-core machine (docs/reproduction/README.md:
+# row grows over sessions. Both protocols whole are some 600 hours of the 2-core machine (docs/reproduction/README.md:
 # P2's 1000-sample pipelines take about 3.5 min per episode with two workers); the stages below state their costs.
 # One code version for every session: the episodes run the sources of commit CODE (a git worktree beside the
 # checkout), whose digest every record names and each report states; the reports are written by this checkout. When
