@@ -33,6 +33,7 @@ from driveopt.experiments.protocols import (
 )
 from driveopt.experiments.reproduce import RunSlice, answer_questions, reproduce, run_figures
 from driveopt.experiments.reproduce_report import markdown
+from driveopt.experiments.runner import cpu_model
 from driveopt.experiments.summary import wilson_interval
 from driveopt.experiments.verdicts import (
     CHANGES_BETTER,
@@ -147,6 +148,12 @@ def test_evaluate_pairs_episodes_and_reaches_each_verdict():
 
     plan = evaluate("fig", Claim("s", arm, base, PLAN_TIME, NO_WORSE, "minimal"), a, b, (42,), 20, False)
     assert plan.plan_pairs == 20 and plan.arm_quicker == 0 and plan.verdict == CONTRADICTED  # 50 ms against 10
+    # plan times of two processor models are not compared (a record without one pairs with any)
+    for e, model in enumerate(["A"] * 10 + ["B"] * 5):
+        a[(42, e)]["cpu_model"], b[(42, e)]["cpu_model"] = "A", model
+    mixed = evaluate("fig", Claim("s", arm, base, PLAN_TIME, NO_WORSE, "minimal"), a, b, (42,), 20, False)
+    assert (mixed.pairs, mixed.plan_pairs) == (20, 15)
+    assert answer(mixed, 16) == TOO_FEW_PAIRS and answer(fewer, 16) != TOO_FEW_PAIRS  # a question counts compared pairs
     similar = evaluate("fig", Claim("s", arm, arm, COLLISIONS, NO_WORSE, "same"), a, a, (42,), 20, False)
     assert similar.verdict == INCONCLUSIVE  # 20 pairs cannot bound the difference within 0.10
     none = evaluate("fig", Claim("s", arm, base, COLLISIONS, BETTER, "fewer"), {}, b, (42,), 20, False)
@@ -497,7 +504,7 @@ def test_small_real_run(tmp_path):
     assert json.loads((tmp_path / "report.json").read_text())["figures"][0]["code"] == {code: 2}
     for folder in ("n20-t1.5s", "nown-t1.5s"):  # grid's and idm's
         (record,) = (tmp_path / "runs" / folder / "episodes.jsonl").read_text().splitlines()
-        assert json.loads(record)["code"] == code
+        assert json.loads(record)["code"] == code and json.loads(record)["cpu_model"] == cpu_model()
 
 
 @pytest.mark.slow

@@ -32,7 +32,7 @@ from driveopt.drivers.base import DriverSpec
 from driveopt.drivers.latency import parse_latency
 from driveopt.errors import DriveoptError
 from driveopt.experiments.rollout import run_episode
-from driveopt.experiments.runner import EpisodeFn, check_backend, execute, usable_cpus
+from driveopt.experiments.runner import EpisodeFn, check_backend, cpu_model, execute, usable_cpus
 from driveopt.experiments.store import (
     ENV_SEED_STRIDE,
     MAX_ENV_SEED,
@@ -76,9 +76,10 @@ def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
     spec = planner_spec(job.planner, options)
     scenario = resolve_scenario(job.scenario, overrides=options.get("scenario"))
     record = run_episode(scenario, spec, job.env_seed, duration=options.get("duration")).record()
-    # where it planned, and on how many CPUs (the worker's share, see driveopt.experiments.runner): its plan_ms are
-    # theirs; and which driveopt sources ran it, so that records of other code are told apart
-    return {**record, "device": jax.default_backend(), "cpus": len(usable_cpus()), "code": source_digest()[:CODE_DIGITS]}
+    # where it planned, on how many CPUs (the worker's share, see driveopt.experiments.runner) of which model: its
+    # plan_ms are theirs; and which driveopt sources ran it, so that records of other code are told apart
+    return {**record, "device": jax.default_backend(), "cpus": len(usable_cpus()), "cpu_model": cpu_model(),
+            "code": source_digest()[:CODE_DIGITS]}
 
 
 def planner_spec(name: str, options: dict[str, Any]) -> DriverSpec:

@@ -27,6 +27,7 @@ import contextlib
 import ctypes
 import multiprocessing
 import os
+import platform
 import signal
 import sys
 import threading
@@ -91,6 +92,19 @@ def usable_cpus() -> list[int]:
     if hasattr(os, "sched_getaffinity"):
         return sorted(os.sched_getaffinity(0))
     return list(range(os.cpu_count() or 1))
+
+
+def cpu_model() -> str:
+    """The processor's model name (Linux: /proc/cpuinfo's "model name"; elsewhere the platform's processor string;
+    "unknown" when neither says): plan times are comparable only between records of one model."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as info:
+            for line in info:
+                if line.startswith("model name"):
+                    return line.partition(":")[2].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
 
 
 def cpu_shares(cpus: Sequence[int], workers: int) -> list[tuple[int, ...]]:

@@ -8,8 +8,9 @@ Pairs are episodes both arms ran (same scenario, seed and episode: the same traf
   McNemar p-value;
 * speed, paired over the episodes both finish without collision: how often the arm is faster, the exact sign-test
   p-value, the mean difference arm - baseline [m/s] and its bootstrap interval;
-* plan time, paired over the episodes both planned in: the median plan time per call of each episode [ms], the
-  same sign test and difference.
+* plan time, paired over the episodes both planned in on the same processor model (pairs whose records name two
+  different ``cpu_model`` values are left out; older records name none): the median plan time per call of each
+  episode [ms], the same sign test and difference.
 
 **Verdict rule** (α = 0.05, two-sided tests; "better" means fewer collisions, a higher speed, a lower plan time):
 
@@ -119,6 +120,11 @@ class ClaimResult:
         return asdict(self)
 
 
+def same_processor(x: dict[str, Any], y: dict[str, Any]) -> bool:
+    """Whether two records' plan times are comparable: neither names another processor model than the other."""
+    return x.get("cpu_model") is None or y.get("cpu_model") is None or x["cpu_model"] == y["cpu_model"]
+
+
 def plan_ms_of(record: dict[str, Any]) -> float:
     """Median plan time per call of one episode [ms]; NaN for a driver that does not plan (idm, RL)."""
     plan_ms = record.get("plan_ms") or []
@@ -157,7 +163,7 @@ def evaluate(figure: str, claim: Claim, arm_records: dict[Episode, dict[str, Any
     free = [(float(x["mean_speed"]), float(y["mean_speed"])) for x, y in zip(a, b) if not x["collided"] and not y["collided"]]
     faster, speed_n, speed_p = sign_test([x - y for x, y in free])
     speed_diff = _difference([x for x, _ in free], [y for _, y in free])
-    plans = [(plan_ms_of(x), plan_ms_of(y)) for x, y in zip(a, b)]
+    plans = [(plan_ms_of(x), plan_ms_of(y)) for x, y in zip(a, b) if same_processor(x, y)]
     plans = [(x, y) for x, y in plans if math.isfinite(x) and math.isfinite(y)]
     slower_plans, plan_n, plan_p = sign_test([x - y for x, y in plans])
     plan_diff = _difference([x for x, _ in plans], [y for _, y in plans])
@@ -203,8 +209,9 @@ def oriented_counts(r: ClaimResult) -> tuple[int, int, float]:
 
 def answer(r: ClaimResult, min_pairs: int) -> str:
     """A pooled question's answer on ``r``'s metric: TOO_FEW_PAIRS below ``min_pairs`` pairs; else the paired test at
-    ALPHA, two-sided: CHANGES_BETTER or CHANGES_WORSE (for the arm), or NO_CHANGE."""
-    if r.pairs < min_pairs:
+    ALPHA, two-sided: CHANGES_BETTER or CHANGES_WORSE (for the arm), or NO_CHANGE. Plan time counts the pairs it
+    compares (both planned, on one processor model)."""
+    if (r.plan_pairs if r.metric == PLAN_TIME else r.pairs) < min_pairs:
         return TOO_FEW_PAIRS
     better, worse, p = oriented_counts(r)
     if p >= ALPHA or better == worse:
