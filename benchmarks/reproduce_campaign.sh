@@ -19,11 +19,12 @@
 # planners, baa1d47 `vanilla` (theirs were rerun); the other planners plan the same in all of them (0e4321d shares an
 # arm's bench folder among the figures that compare it: `driveopt reproduce` merged the earlier per-figure folders);
 # be3fcc9 ships the four-lane learned filter retrained on the shipped VQ-VAE's samples (the `vqvae-filter` and
-# `vqvae-filter-faithful` records were removed and run again); 5124923 ships P2's baseline [5] (`cvae-multipliers`).
+# `vqvae-filter-faithful` records were removed and run again); 5124923 ships P2's baseline [5] (`cvae-multipliers`);
+# 3b2f12a records each episode's processor model (plan times are compared within one model).
 # The body is one function, read whole before it runs, so editing this file never changes a campaign in flight.
 set -euo pipefail
 
-CODE=5124923
+CODE=3b2f12a
 
 main() {
     repo=$(cd "$(dirname "$0")/.." && pwd)
