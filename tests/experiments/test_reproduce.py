@@ -396,6 +396,10 @@ def test_the_learned_filter_question_pools_every_pair_once(tmp_path, cheap_bench
     assert "### The learned filter against the plain one" in report and report.count(f"**{TOO_FEW_PAIRS}**") == 3
     assert [q["pairs"] for q in json.loads((tmp_path / "report.json").read_text())["questions"]] == [14] * 3
     assert answer_questions("p1", figures_of("p1"), tmp_path) == []
+    # episodes beyond a figure's count (the cheapest point run longer, as the campaign does) count for the question
+    reproduce("p2", tmp_path, figures=["fig8b"], episodes=3, seeds=(42,), workers=1, episode_fn=episode,
+              only=RunSlice(planners=("vqvae-filter", "vqvae"), samples=(250,)), progress=False)
+    assert {r.pairs for r in answer_questions("p2", figures, tmp_path)} == {(4 + 3) * 2 + 1}
 
 
 def test_figures_share_an_arm_s_episodes_and_an_old_layout_is_merged(tmp_path, cheap_bench):

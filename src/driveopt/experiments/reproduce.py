@@ -225,17 +225,21 @@ def records_by_arm(path: Path) -> dict[tuple[str, str], dict[tuple[int, int], di
     return out
 
 
-def _protocol_records(figure: FigureProtocol, out: Path, cache: dict[Path, Any]):
-    """``arm_records(arm, scenario)``: the records of ``figure``'s protocol as run (its seeds, episodes 0 .. episodes - 1)
-    of one arm on one scenario, keyed by (seed, episode); folders are read once per ``cache``."""
-    wanted = {(s, e) for s in figure.seeds for e in range(figure.episodes)}
+def _protocol_records(figure: FigureProtocol, out: Path, cache: dict[Path, Any], every_episode: bool = False):
+    """``arm_records(arm, scenario)``: the records of ``figure``'s protocol as run (its seeds, episodes 0 .. episodes - 1;
+    with ``every_episode``, every recorded episode of its seeds) of one arm on one scenario, keyed by (seed, episode);
+    folders are read once per ``cache``."""
+
+    def wanted(key: tuple[int, int]) -> bool:
+        seed, episode = key
+        return seed in figure.seeds and (every_episode or episode < figure.episodes)
 
     def arm_records(arm, scenario):
         path = out / RUNS / arm.folder(figure.duration)
         if path not in cache:
             cache[path] = records_by_arm(path)  # StoreError for a corrupted or foreign folder
         found = cache[path].get((scenario, arm.planner), {})
-        return {k: r for k, r in found.items() if k in wanted}
+        return {k: r for k, r in found.items() if wanted(k)}
 
     return arm_records
 
@@ -276,8 +280,9 @@ def judge(figures: tuple[FigureProtocol, ...], out: Path) -> list[ClaimResult]:
 def answer_questions(paper: str, figures: tuple[FigureProtocol, ...], out: Path) -> list[ClaimResult]:
     """Every question of ``paper`` (:data:`~driveopt.experiments.protocols.QUESTIONS`) that ``figures`` have claims
     for, on each metric: the pairs of every claim tagged with it pooled (an episode of the same two arms on the same
-    scenario once, whichever figures judge it; the protocols' episodes as run), each row's verdict the question's
-    answer (:func:`~driveopt.experiments.verdicts.answer`). Rows with figure "pooled", scenario "every setting" and
+    scenario once, whichever figures judge it; every recorded episode of the protocols' seeds, also beyond a
+    figure's episode count: a question needs more pairs than one figure's protocol runs), each row's verdict the
+    question's answer (:func:`~driveopt.experiments.verdicts.answer`). Rows with figure "pooled", scenario "every setting" and
     expectation "any change"."""
     cache: dict[Path, Any] = {}
     results = []
@@ -290,7 +295,7 @@ def answer_questions(paper: str, figures: tuple[FigureProtocol, ...], out: Path)
             baseline_pool: dict[Any, dict[str, Any]] = {}
             seeds: set[int] = set()
             for figure, claim in tagged:
-                records = _protocol_records(figure, out, cache)
+                records = _protocol_records(figure, out, cache, every_episode=True)
                 arm, baseline = records(claim.arm, claim.scenario), records(claim.baseline, claim.scenario)
                 for key in arm.keys() & baseline.keys():
                     pooled = (claim.scenario, claim.arm.label, claim.baseline.label, *key)
