@@ -29,8 +29,9 @@ def shipped_prior():
 def test_cvae_filter_is_listed(capsys):
     assert "cvae-filter" in list_planners()
     assert main(["planners"]) == 0
-    line = next(row for row in capsys.readouterr().out.splitlines() if row.startswith("cvae-filter "))
-    assert "P2's baseline" in line
+    rows = capsys.readouterr().out.splitlines()
+    assert "P1's CVAE through P2's pipeline" in next(row for row in rows if row.startswith("cvae-filter "))
+    assert "P2's CVAE baseline" in next(row for row in rows if row.startswith("cvae-multipliers "))
 
 
 def test_cvae_filter_differs_from_vqvae_only_in_the_prior(shipped_prior):
