@@ -241,17 +241,8 @@ def quasi_definite_inverse(matrices: jnp.ndarray) -> jnp.ndarray:
     return jnp.moveaxis(inverse, -1, 0)
 
 
-def _inverse_of_one(matrix: jnp.ndarray) -> jnp.ndarray:
-    return jnp.linalg.inv(matrix)
-
-
-def _inverse_of_many(axis_size, in_batched, matrices):
-    (batched,) = in_batched
-    return (quasi_definite_inverse(matrices) if batched else jnp.linalg.inv(matrices)), batched
-
-
-_inverse = jax.custom_batching.custom_vmap(_inverse_of_one)
-_inverse.def_vmap(_inverse_of_many)
+_inverse = jax.custom_batching.custom_vmap(jnp.linalg.inv)  # vmap calls the rule below only with the matrix batched
+_inverse.def_vmap(lambda axis_size, in_batched, matrices: (quasi_definite_inverse(matrices), True))
 
 
 @jax.custom_vjp
