@@ -64,23 +64,20 @@ main() {
         # Fig. 8b's 250-sample point, 75 episodes per seed (at 250 samples an episode costs about a quarter of one at
         # 1000, about 46 s with two workers).
         stage p2 75 fig8b --planners vqvae-filter vqvae --arm-samples 250
+        # Then one episode per seed of every P2 figure, so that every claim has a measured row: the retrained learned
+        # filter's and P2's baseline [5]'s arms have none yet (39 arms, 78 episodes; a 1000-sample episode takes a
+        # worker 4-7 min and two run at once: about 4 h).
+        for figure in fig7 fig9 fig8a fig8b; do stage p2 1 $figure; done
         # The headline comparisons at 5 episodes per seed: P1 Fig. 7's dense roads, driveopt's rows (about 7 min per
         # episode index of both seeds and roads), and P2 Fig. 7's density 3, driveopt's pipelines (about 3.5 min per
         # episode).
         stage p1 5 fig7 --scenarios $p1_dense --planners $p1_driveopt
         stage p2 5 fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-multipliers cvae-filter
-        # Then one episode per seed of every figure, so that every claim has a measured row: P1's cheaper arms
-        # first, then the authors' MPC baselines at their 1000 samples x 100 iterations, then P2's pipelines.
+        # One episode per seed of every P1 figure: P1's cheaper arms first, then the authors' MPC baselines at their
+        # 1000 samples x 100 iterations.
         stage p1 1 fig7 --planners $p1_driveopt cvae-faithful
         for figure in fig8 fig12 fig9 fig10; do stage p1 1 $figure; done
         stage p1 1 fig7
-        # P2's VQ-VAE pipelines first, then the CVAE arms (P2's baseline [5], cvae-multipliers, and beside it P1's CVAE
-        # through P2's filter).
-        local p2_vq="vqvae-filter vqvae vqvae-filter-faithful"
-        stage p2 1 fig7 --planners $p2_vq
-        for figure in fig8a fig8b; do stage p2 1 $figure --planners $p2_vq; done
-        stage p2 1 fig9 --planners vqvae-filter vqvae-filter-faithful
-        for figure in fig7 fig9; do stage p2 1 $figure; done
         for episodes in 5 10; do
             # P2 Fig. 7, density 3: driveopt's pipelines, then the faithful ones.
             stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-multipliers cvae-filter
