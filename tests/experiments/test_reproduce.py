@@ -314,6 +314,17 @@ def test_report_has_every_claim_row_and_resume_reuses_records(tmp_path, cheap_be
     assert {r.pairs for r in more} == {4}
 
 
+def test_the_episodes_to_run_are_counted_before_they_run(tmp_path, cheap_bench, capsys):
+    def run(episodes):
+        CALLS["n"] = 0
+        reproduce("p1", tmp_path, figures=["fig9"], episodes=episodes, seeds=(42,), workers=1, episode_fn=fake_episode)
+        return capsys.readouterr().out
+
+    assert "8 episodes to run in 2 bench runs" in run(1) and CALLS["n"] == 8  # 4 planners x (n250, n1000)
+    assert "0 episodes to run" in run(1) and CALLS["n"] == 0
+    assert "8 episodes to run" in run(2) and CALLS["n"] == 8
+
+
 def test_enough_episodes_reproduce_the_fake_direction(tmp_path, cheap_bench):
     figure = FigureProtocol("p1", "figX", "fake", (
         Claim("four-lane-d3.0", Arm("bilevel", STRENGTHENED, 25), Arm("grid", STRENGTHENED, 25), COLLISIONS, BETTER, "x"),

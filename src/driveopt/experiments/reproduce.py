@@ -205,6 +205,8 @@ def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path
     with lock_output_folder(out):
         for line in merge_figure_folders(out):
             print(f"driveopt reproduce: {line}", flush=True)
+        if progress and runs:
+            print(f"driveopt reproduce: {episodes_to_run(runs)} episodes to run in {len(runs)} bench runs", flush=True)
         for i, run in enumerate(runs, start=1):
             if progress:
                 spec = run.spec
@@ -214,6 +216,15 @@ def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path
         results = judge(figures, out)
         write_report(paper, figures, results, out, code_versions(figures, out), answer_questions(paper, figures, out))
     return results
+
+
+def episodes_to_run(runs: list[BenchRun]) -> int:
+    """How many of the episodes ``runs`` ask for their folders do not hold yet."""
+    missing = 0
+    for run in runs:
+        recorded = {key_of(r) for r in load_folder(run.path)[1]} if run.path.is_dir() else set()
+        missing += sum(job not in recorded for job in run.spec.jobs())
+    return missing
 
 
 def records_by_arm(path: Path) -> dict[tuple[str, str], dict[tuple[int, int], dict[str, Any]]]:
