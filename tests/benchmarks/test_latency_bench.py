@@ -1,4 +1,4 @@
-"""benchmarks/latency.py: planner-config overrides are applied to every case, and bad ones refused in one line."""
+"""benchmarks/latency.py: planner-config overrides and obstacle counts are applied to every case, and bad ones refused."""
 
 from __future__ import annotations
 
@@ -55,3 +55,23 @@ def test_resuming_with_other_overrides_is_refused(latency, tmp_path, capsys):
     assert latency.main(["--json", str(out), "--resume"]) == 2
     assert "resume with the same --config" in capsys.readouterr().err
     assert json.loads(out.read_text())["results"] == []
+
+
+def test_fewer_obstacles_plan_against_that_many_and_are_named(latency, tmp_path, monkeypatch):
+    counts = []
+    real = latency.plan
+
+    def recording_plan(problem, config, **kwargs):
+        counts.append(problem.obstacle_x.shape[0])
+        return real(problem, config, **kwargs)
+
+    monkeypatch.setattr(latency, "plan", recording_plan)
+    monkeypatch.setattr(latency, "SCHEDULES", ((1, 2),))
+    out = tmp_path / "lat.json"
+    assert latency.main(["--json", str(out), "--calls", "1", "--batches", "50", "--obstacles", "10", "3"]) == 0
+    results = json.loads(out.read_text())["results"]
+    assert [(r["case"], r["obstacles"]) for r in results] == [("50x1x2", 10), ("50x1x2-3obstacles", 3)]
+    assert counts == [10, 10, 3, 3]
+    with pytest.raises(SystemExit) as exc:
+        latency.main(["--json", str(tmp_path / "other.json"), "--obstacles", "0"])
+    assert exc.value.code == 2
