@@ -22,6 +22,11 @@ a part's ``per_call_ms`` is its median times the number of times one planning ca
 planner's own compiled ``solve`` and ``plan_ms`` the whole ``plan()`` call: the difference between the parts' sum and
 ``whole_ms`` is what fusing them into one executable saves or costs (dispatches, copies between parts). The machine's
 load average (``os.getloadavg``) is recorded before and after. Measurement only: the planner's code is not changed.
+
+The projection's arithmetic is counted too (``benchmarks/op_count.py``: scalar operations of its jaxpr, products and
+elementwise apart; the same step run as a fixed-length scan, since a while loop's length is not in its jaxpr), per
+run and per planning call, with the rate its measured time implies: what a time target needs is that count over the
+target.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from op_count import count_operations  # benchmarks/op_count.py
 
 from driveopt.batch_rows import StopRows
 from driveopt.cli.common import positive_int
@@ -88,8 +94,16 @@ def _setpoint_qp(problem, setpoints, cfg, fallback):
     return rows, coeffs, b_x, b_y
 
 
-def _projection(problem, coeffs, b_x, b_y, cfg):
-    return project_batch(make_model(cfg.basis, cfg.qp), problem, cfg, coeffs, b_x, b_y)
+def _projection(problem, coeffs, b_x, b_y, cfg, unroll=False):
+    return project_batch(make_model(cfg.basis, cfg.qp), problem, cfg, coeffs, b_x, b_y, unroll=unroll)
+
+
+def projection_operations(problem, coeffs, b_x, b_y, cfg: PlannerConfig) -> dict[str, int]:
+    """Scalar operations of one run of the projection part on a batch (B, 2n) (``op_count``; they depend on the shapes
+    only), counted on its fixed-length (scan) form: the same step, ``max_iterations`` times, as the timed while loop
+    runs it with the early stop off."""
+    fn = float32_products(functools.partial(_projection, cfg=cfg, unroll=True))
+    return count_operations(jax.make_jaxpr(fn)(problem, coeffs, b_x, b_y))
 
 
 def _ranking_update(problem, rows, projected, residuals, mean, cov, cfg, ranking):
@@ -199,6 +213,8 @@ def profile(samples: int, calls: int, iterations: int = 5, projection_iterations
         "readout": readout_ms,
     }
     compiled_sum = sum(v for k, v in parts.items() if k != "readout")
+    operations = projection_operations(*pipeline.args["projection"][0], cfg)
+    per_call = {kind: n * runs["projection"] for kind, n in operations.items()}
     return {
         "samples": samples, "sampler_iterations": iterations, "projection_iterations": projection_iterations,
         "projection_iterations_run": int(projected.iterations), "batch_rows": int(rows.shape[0]),
@@ -207,6 +223,8 @@ def profile(samples: int, calls: int, iterations: int = 5, projection_iterations
         "pieces": pieces, "parts_sum_ms": sum(parts.values()), "compiled_parts_sum_ms": compiled_sum,
         "whole_ms": whole_ms, "whole_compile_s": whole_compile_s, "plan_ms": plan_ms,
         "compile_s_parts_sum": sum(p["compile_s"] for p in pieces.values()),
+        "projection_operations": operations, "projection_operations_per_call": per_call,
+        "projection_gops_per_s": per_call["total"] / parts["projection"] / 1e6,
     }
 
 
@@ -232,7 +250,9 @@ def main(argv=None) -> int:
         report["results"].append(result)
         parts = ", ".join(f"{k} {v:.1f}" for k, v in result["parts_ms"].items())
         print(f"{samples} x {args.iterations} x {args.projection_iterations}: {parts} ms; parts {result['parts_sum_ms']:.1f} ms, "
-              f"compiled solve {result['whole_ms']:.1f} ms, plan() {result['plan_ms']:.1f} ms", flush=True)
+              f"compiled solve {result['whole_ms']:.1f} ms, plan() {result['plan_ms']:.1f} ms; projection "
+              f"{result['projection_operations_per_call']['total'] / 1e9:.2f} G operations per call, "
+              f"{result['projection_gops_per_s']:.1f} G/s", flush=True)
     report["load_after"] = os.getloadavg()
     path = write_json(args.json, report)  # strict JSON, whole or not at all
     print(f"wrote {path} (load average {report['load_before'][0]:.2f} before, {report['load_after'][0]:.2f} after)")

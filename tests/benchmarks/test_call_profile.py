@@ -7,6 +7,7 @@ import json
 
 import benchmark_scripts
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -54,3 +55,23 @@ def test_a_profile_is_written_with_every_part(call_profile, tmp_path):
     assert all(piece["compile_s"] > 0 for piece in result["pieces"].values())  # each timed before its first run
     assert result["whole_ms"] > 0 and result["plan_ms"] > 0 and result["whole_compile_s"] > 0
     assert result["projection_iterations_run"] == 4 and result["batch_rows"] == 26
+    operations, per_call = result["projection_operations"], result["projection_operations_per_call"]
+    assert operations["products"] > 0 and per_call["total"] == 2 * operations["total"]
+    assert result["projection_gops_per_s"] == pytest.approx(per_call["total"] / result["parts_ms"]["projection"] / 1e6)
+
+
+def test_the_projection_count_is_its_products_and_elementwise_work_per_iteration(call_profile):
+    """Each projection iteration adds the same work: its products are, per row, the (n, 3K) map to the nodes and the
+    three (K, n) maps back of each axis, and the (n, n) solve and penalty (n = 11 coefficients, K = 100 nodes)."""
+    rows, n, K = 24 + 2, 11, 100
+    coeffs, boundary = jnp.zeros((rows, 2 * n)), jnp.zeros((rows, 3))
+    counts = {}
+    for iterations in (2, 3):
+        cfg = call_profile.profile_config(24, iterations=1, projection_iterations=iterations)
+        problem = build_problem(load_scene(call_profile.PROBLEM), cfg.basis)
+        counts[iterations] = call_profile.projection_operations(problem, coeffs, boundary, boundary, cfg)
+    step = {kind: counts[3][kind] - counts[2][kind] for kind in ("products", "elementwise", "total")}
+    assert step["products"] == rows * 2 * 2 * (n * 3 * K + 3 * K * n + 2 * n * n)
+    assert step["elementwise"] > rows * K * 10  # at least one operation per node of each of the ten neighbours
+    assert step["total"] == sum(step[kind] for kind in ("products", "elementwise")) + (
+        counts[3].get("reductions", 0) - counts[2].get("reductions", 0))
