@@ -47,6 +47,7 @@ from driveopt.batch_rows import StopRows
 from driveopt.cli.common import positive_int
 from driveopt.config import PlannerConfig
 from driveopt.costs import COST_TERMS, cost_terms, weighted_cost
+from driveopt.experiments.runner import cpu_model
 from driveopt.fallback import Fallback, braking_coeffs, stop_setpoints
 from driveopt.files import write_json
 from driveopt.planner import _to_result, compiled_solve, plan, project_batch, setpoint_batch
@@ -229,7 +230,7 @@ def profile(samples: int, calls: int, iterations: int = 5, projection_iterations
 
 
 def machine() -> dict:
-    return {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
+    return {"platform": platform.platform(), "processor": cpu_model(), "python": platform.python_version(), "cpus": os.cpu_count(),
             "affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
             "jax": jax.__version__, "device": str(jax.devices()[0]),
             "compiler_options": supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else {}}

@@ -16,6 +16,7 @@ import platform
 import time
 
 from driveopt.cli.common import positive_int
+from driveopt.experiments.runner import cpu_model
 from driveopt.files import write_json
 
 ROWS, WIDTH, CHAIN = 1000, 256, 50
@@ -41,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
         times.append(time.perf_counter() - start)
     median = float(np.median(times))
     flops = 2 * ROWS * WIDTH * WIDTH * CHAIN
-    record = {"machine": platform.machine(), "cpus": os.cpu_count(), "backend": jax.default_backend(),
+    record = {"machine": platform.machine(), "processor": cpu_model(), "cpus": os.cpu_count(), "backend": jax.default_backend(),
               "product": f"({ROWS} x {WIDTH}) @ ({WIDTH} x {WIDTH}) x {CHAIN}", "calls": args.calls,
               "median_ms": round(1e3 * median, 3), "gflop_per_s": round(flops / median / 1e9, 1),
               "load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2)}

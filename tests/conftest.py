@@ -74,6 +74,7 @@ SLOW = {
     **{f"tests/benchmarks/test_{name}.py": "benchmark script" for name in (
         "filter_timing", "filter_residuals", "call_profile", "latency_bench", "closed_loop_ab", "trace_episode",
         "compile_cost", "projection_split", "matmul_peak", "suite_compiles")},
+    "tests/benchmarks/test_faithful_ablation.py::test_episodes_are_written_and_a_rerun_resumes": "benchmark script",
     "tests/experiments/test_prior_metrics.py::test_the_script_writes_json_resumes_and_refuses_other_settings":
         "benchmark script",
     # gradients through solve and the projection: test_cvae's finite-difference check of the QP layer

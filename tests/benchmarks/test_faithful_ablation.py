@@ -1,0 +1,57 @@
+"""benchmarks/faithful_ablation.py: each variant gives one piece of driveopt's machinery back to a faithful planner,
+episodes are written as they end and a rerun resumes; bad input is refused."""
+
+from __future__ import annotations
+
+import json
+
+import benchmark_scripts
+import pytest
+
+from driveopt.batch_rows import SamplesOnly, StopRows
+from driveopt.ranking import CostPlusResidual, FeasibilityFirst
+
+
+@pytest.fixture(scope="module")
+def ablation():
+    return benchmark_scripts.load("faithful_ablation")
+
+
+def test_each_variant_changes_only_its_piece(ablation):
+    faithful = ablation.variant_spec("vqvae-faithful", "faithful", 100)
+    assert isinstance(faithful.batch_rows, SamplesOnly) and faithful.executes_infeasible
+    assert isinstance(faithful.ranking, CostPlusResidual) and not faithful.contact_guard
+    net = ablation.variant_spec("vqvae-faithful", "stop-net", 100)
+    assert isinstance(net.batch_rows, StopRows) and not net.executes_infeasible and net.fallback.evasion
+    assert net.ranking == faithful.ranking and net.config == faithful.config
+    ranked = ablation.variant_spec("vqvae-faithful", "feasibility-first", 100)
+    assert isinstance(ranked.ranking, FeasibilityFirst) and ranked.executes_infeasible
+    assert ablation.variant_spec("vqvae-faithful", "contact-guard", 100).contact_guard
+    predicted = ablation.variant_spec("vqvae-faithful", "prediction", 100)
+    assert predicted.braking_prediction and predicted.approach_selection and not faithful.braking_prediction
+
+
+def test_episodes_are_written_and_a_rerun_resumes(ablation, tmp_path, capsys):
+    out = tmp_path / "ablation.jsonl"
+    argv = ["--planner", "bilevel-faithful", "--scenario", "two-lane-d1.0", "--seeds", "42", "--episodes", "1",
+            "--variants", "faithful", "stop-net", "--samples", "10", "--workers", "1", "--duration", "0.5",
+            "--out", str(out)]
+    assert ablation.main(argv) == 0
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    assert sorted(r["variant"] for r in records) == ["faithful", "stop-net"]
+    assert all(r["end_s"] == pytest.approx(0.5, abs=0.11) and r["duration"] == 0.5 for r in records)
+    summary = json.loads(out.with_suffix(".summary.json").read_text())["variants"]
+    assert summary["faithful"]["episodes"] == 1 and summary["stop-net"]["collisions"] == 0
+    capsys.readouterr()
+    assert ablation.main(argv) == 0
+    assert capsys.readouterr().out.startswith("0 episodes to run (2 in")
+    assert len(out.read_text().splitlines()) == 2
+
+
+@pytest.mark.parametrize("argv", [["--planner", "bilevel"], ["--planner", "bilevel-faithful", "--scenario", "nowhere"],
+                                  ["--planner", "bilevel-faithful", "--duration", "0"]])
+def test_bad_input_is_refused(ablation, tmp_path, capsys, argv):
+    argv = argv + (["--scenario", "two-lane-d1.0"] if "--scenario" not in argv else []) + ["--out", str(tmp_path / "x")]
+    with pytest.raises(SystemExit) as stop:
+        ablation.main(argv)
+    assert stop.value.code == 2 and "faithful_ablation.py: error:" in capsys.readouterr().err
