@@ -3,7 +3,7 @@ planner as it is and with one piece of driveopt's machinery given back at a time
 
     python benchmarks/faithful_ablation.py --planner vqvae-filter-faithful --scenario p2-four-lane-d3.0 \
         --seeds 42 123 --episodes 5 --out OUT.jsonl [--variants faithful stop-net ...] [--samples 1000] [--workers 2] \
-        [--duration S]
+        [--duration S] [--pairs SEED:EPISODE ...]
 
 Variants (each the ``*-faithful`` planner of ``driveopt.faithful`` with one change):
 - ``faithful``: as it is (the paper's ranking, the pick executed whatever its residual, no stop rows, no contact
@@ -14,10 +14,11 @@ Variants (each the ``*-faithful`` planner of ``driveopt.faithful`` with one chan
   look-ahead rather than the nearest now);
 - ``contact-guard``: driveopt's brake-now guard at crawling speed.
 
-Each episode is the bench episode of that seed and number (the same traffic for every variant, ``JobKey.env_seed``),
-one JSON line per episode appended to ``--out`` as it ends: a rerun skips the episodes the file holds (resumable),
-Ctrl-C and SIGTERM stop at once and keep the finished ones. At the end, per variant: collisions, off-road episodes
-and the mean speed of the collision-free ones, over the episodes every variant has.
+Each episode is the bench episode of that seed and number (the same traffic for every variant, ``JobKey.env_seed``;
+``--pairs``: only those seed and episode pairs), one JSON line per episode appended to ``--out`` as it ends: a rerun
+skips the episodes the file holds (resumable), Ctrl-C and SIGTERM stop at once and keep the finished ones. At the
+end, per variant: collisions, off-road episodes and the mean speed of the collision-free ones, over the episodes
+every variant has.
 """
 
 from __future__ import annotations
@@ -105,11 +106,19 @@ def main(argv=None) -> int:
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS))
     parser.add_argument("--samples", type=positive_int, default=1000, help="samples per sampler iteration")
     parser.add_argument("--workers", type=positive_int, default=2)
+    parser.add_argument("--pairs", nargs="+", metavar="SEED:EPISODE", help="only these episodes (instead of --seeds and --episodes)")
     parser.add_argument("--duration", type=float, help="[s] stop every episode here (default: the scenario's)")
     parser.add_argument("--out", required=True, help="JSON lines, one per episode (appended; a rerun resumes)")
     args = parser.parse_args(argv)
     if args.duration is not None and not args.duration > 0:
         parser.error("--duration must be > 0")
+    try:
+        pairs = ([tuple(int(n) for n in pair.split(":")) for pair in args.pairs] if args.pairs
+                 else [(s, e) for s in args.seeds for e in range(args.episodes)])
+    except ValueError:
+        pairs = []
+    if not pairs or any(len(pair) != 2 or pair[1] < 0 for pair in pairs):
+        parser.error(f"--pairs takes SEED:EPISODE pairs with EPISODE >= 0, got {' '.join(args.pairs)}")
     try:
         variant_spec(args.planner, args.variants[0], args.samples)
         get_scenario(args.scenario)
@@ -121,7 +130,7 @@ def main(argv=None) -> int:
     records = [r for r in records if r["planner"] == args.planner and r["scenario"] == args.scenario
                and r["samples"] == args.samples and r["duration"] == args.duration]
     done = {_key(r) for r in records}
-    todo = [(v, s, e) for s in args.seeds for e in range(args.episodes) for v in args.variants if (v, s, e) not in done]
+    todo = [(v, s, e) for s, e in pairs for v in args.variants if (v, s, e) not in done]
     print(f"{len(todo)} episodes to run ({len(done)} in {out})", flush=True)
     signal.signal(signal.SIGTERM, _stop)
     pool = concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn"))
@@ -137,19 +146,20 @@ def main(argv=None) -> int:
                   f"{'collided' if record['collided'] else 'off road' if record['off_road'] else 'clean'} at "
                   f"{record['end_s']} s, {record['mean_speed']} m/s", flush=True)
     except KeyboardInterrupt:
+        workers = list((pool._processes or {}).values())  # the running episodes stop with their workers
         pool.shutdown(wait=False, cancel_futures=True)
-        for process in list(getattr(pool, "_processes", {}).values()):
+        for process in workers:
             process.terminate()
         print(f"stopped; {out} keeps the finished episodes", file=sys.stderr)
         return 130
     pool.shutdown()
-    summary = summarise(records, args.variants)
+    summary = summarise([r for r in records if (r["seed"], r["episode"]) in set(pairs)], args.variants)
     for variant, row in summary.items():
         print(f"{variant}: {row['collisions']}/{row['episodes']} collided, {row['off_road']} off road, "
               f"{row['mean_speed']} m/s (collision-free)")
     summary_path = out.with_suffix(".summary.json")
     summary_path.write_text(json.dumps({"planner": args.planner, "scenario": args.scenario, "samples": args.samples,
-                                        "seeds": args.seeds, "episodes": args.episodes, "variants": summary}, indent=1))
+                                        "pairs": pairs, "variants": summary}, indent=1))
     print(f"wrote {summary_path}")
     return 0
 

@@ -49,7 +49,10 @@ def test_episodes_are_written_and_a_rerun_resumes(ablation, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv", [["--planner", "bilevel"], ["--planner", "bilevel-faithful", "--scenario", "nowhere"],
-                                  ["--planner", "bilevel-faithful", "--duration", "0"]])
+                                  ["--planner", "bilevel-faithful", "--duration", "0"],
+                                  ["--planner", "bilevel-faithful", "--pairs", "42"],
+                                  ["--planner", "bilevel-faithful", "--pairs", "42:-1"],
+                                  ["--planner", "bilevel-faithful", "--pairs", "a:b"]])
 def test_bad_input_is_refused(ablation, tmp_path, capsys, argv):
     argv = argv + (["--scenario", "two-lane-d1.0"] if "--scenario" not in argv else []) + ["--out", str(tmp_path / "x")]
     with pytest.raises(SystemExit) as stop:
