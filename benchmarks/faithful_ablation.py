@@ -28,11 +28,11 @@ import concurrent.futures
 import dataclasses
 import json
 import multiprocessing
-import signal
 import sys
 from pathlib import Path
 
 from driveopt.batch_rows import StopRows
+from driveopt.cli import stop_cleanly_on_signals
 from driveopt.cli.common import positive_int
 from driveopt.errors import DriveoptError
 from driveopt.experiments.rollout import Rollout
@@ -93,10 +93,6 @@ def summarise(records: list[dict], variants: list[str]) -> dict[str, dict]:
     return summary
 
 
-def _stop(signum, frame):
-    raise KeyboardInterrupt
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="faithful_ablation.py", description=__doc__.split("\n\n")[0])
     parser.add_argument("--planner", required=True, help="a *-faithful planner")
@@ -132,7 +128,7 @@ def main(argv=None) -> int:
     done = {_key(r) for r in records}
     todo = [(v, s, e) for s, e in pairs for v in args.variants if (v, s, e) not in done]
     print(f"{len(todo)} episodes to run ({len(done)} in {out})", flush=True)
-    signal.signal(signal.SIGTERM, _stop)
+    stop_cleanly_on_signals()
     pool = concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn"))
     try:
         futures = {pool.submit(run_episode, args.scenario, args.planner, v, args.samples, s, e, args.duration): (v, s, e)
