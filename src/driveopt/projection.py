@@ -118,7 +118,8 @@ class _State(NamedTuple):
     coeffs: jnp.ndarray  # (2, B, n)
     lam: jnp.ndarray  # (2, B, n)
     pull: jnp.ndarray  # (2, B, n) rho F' h for the current (alpha, d)
-    d_obs: jnp.ndarray  # (N, B, K) obstacle distance ratios for the barrier bound; (0, B, K) in plain mode
+    d_obs: jnp.ndarray  # (N, B, K) obstacle distance ratios at each node's previous node (1 at node 0), for the barrier
+    # bound; (0, B, K) in plain mode
     d_acc: jnp.ndarray  # (B, K) acceleration lengths (curvature bound uses them)
     iteration: jnp.ndarray
     error: jnp.ndarray  # () max over samples of the coefficient change of the last step
@@ -273,6 +274,12 @@ def _shift_right(a):
     return jnp.concatenate([jnp.zeros_like(a[:, :1]), a[:, :-1]], axis=1)
 
 
+def _previous_node(ratios):
+    """(N, B, K) obstacle ratios -> each node's previous node's ratio, 1 at node 0 (the barrier's lower bound there
+    is the plain one)."""
+    return jnp.concatenate([jnp.ones_like(ratios[..., :1]), ratios[..., :-1]], axis=-1)
+
+
 def _shift_left(a):
     """a[:, k+1] at k, 0 at k = K-1."""
     return jnp.concatenate([a[:, 1:], jnp.zeros_like(a[:, :1])], axis=1)
@@ -380,12 +387,12 @@ def _analysis_step(
     x, vx, ax = nodes[0, :, :K], nodes[0, :, K:2 * K], nodes[0, :, 2 * K:]
     y, vy, ay = nodes[1, :, :K], nodes[1, :, K:2 * K], nodes[1, :, 2 * K:]
 
-    # Obstacles: x - x_o = a d cos(alpha), y - y_o = b d sin(alpha), d >= lower bound. A static loop over
-    # obstacles of (B, K) slices fuses far better on CPU than (B, N, K) arrays reduced over N.
+    # Obstacles: x - x_o = a d cos(alpha), y - y_o = b d sin(alpha), d >= lower bound. For the pulls, a static loop
+    # over obstacles of (B, K) slices fuses far better on CPU than (B, N, K) arrays reduced over N; the barrier's
+    # ratios, a state, are one (N, B, K) array, computed in one loop instead of one per obstacle and a stacking copy.
     h_ox = jnp.zeros_like(x)
     h_oy = jnp.zeros_like(y)
     obstacle_sq = jnp.zeros_like(x)
-    d_obs = []
     inv_a, inv_b = ops.inverse_axes
     if cfg.ego_turn_rate > 0:
         # A sample keeps the ego's turned box until it has travelled far enough to turn back (its heading falling by
@@ -400,33 +407,42 @@ def _analysis_step(
         inv_b_mid = 1.0 / (problem.obstacle_b + 0.5 * problem.ellipse_growth[1, 0])  # (N,)
         # The longitudinal growth (< 0.3 m at 0.3 rad, on semi-axes of 7 m and more) is kept whole.
         inv_a_full = 1.0 / (problem.obstacle_a + problem.ellipse_growth[0, 0])
-    for i in range(problem.obstacle_x.shape[0]):
-        ox, oy = problem.obstacle_x[i], problem.obstacle_y[i]
-        dx, dy = x - ox, y - oy
+    def ellipse(i):
+        """(x - x_o, y - y_o, 1 / ellipse ratio) of obstacle i, (B, K) each; i None: of every obstacle, (N, B, K)."""
+        def pick(a):  # obstacle i's entry of an (N,) or (N, K) array; all of them shaped to broadcast against (N, B, K)
+            return a[i] if i is not None else a.reshape(a.shape[0], 1, a.shape[1] if a.ndim == 2 else 1)
+        dx, dy = x - pick(problem.obstacle_x), y - pick(problem.obstacle_y)
         if cfg.ego_turn_rate > 0:
-            b_i = problem.obstacle_b[i] + grow_lat
-            inv_b_i = inv_b_mid[i] * (2.0 - b_i * inv_b_mid[i])
+            b_i, mid = pick(problem.obstacle_b) + grow_lat, pick(inv_b_mid)
+            inv_b_i = mid * (2.0 - b_i * mid)
             inv_b_i = inv_b_i * (2.0 - b_i * inv_b_i)
-            dx_n, dy_n = dx * inv_a_full[i], dy * inv_b_i
+            dx_n, dy_n = dx * pick(inv_a_full), dy * inv_b_i
         else:
-            dx_n, dy_n = dx * inv_a[i], dy * inv_b[i]
-        inv_ratio = _fast_rsqrt(jnp.maximum(dx_n * dx_n + dy_n * dy_n, _EPS * _EPS))
-        # d = max(ratio, lower bound), and h - x_o = (x - x_o) * d / ratio = (x - x_o) * scale. The lower bound is
-        # lowered by the obstacle's recovery (1 - floor: 0 unless the ego starts inside the ellipse).
-        floor = ops.obstacle_floor[i]
-        if cfg.barrier:
-            prev = jnp.concatenate([jnp.ones_like(d_obs_prev[i][:, :1]), d_obs_prev[i][:, :-1]], axis=1)
-            lower = 1.0 + (1.0 - gamma_obs) * (prev - 1.0) - (1.0 - floor)
-            scale = jnp.maximum(1.0, lower * inv_ratio)
-            d_obs.append(scale / inv_ratio)
-        else:
-            scale = jnp.maximum(1.0, floor * inv_ratio)
+            dx_n, dy_n = dx * pick(inv_a), dy * pick(inv_b)
+        return dx, dy, _fast_rsqrt(jnp.maximum(dx_n * dx_n + dy_n * dy_n, _EPS * _EPS))
+
+    def scale_factor(i, inv_ratio):
+        """h - x_o = (x - x_o) * d / ratio = (x - x_o) * scale with d = max(ratio, lower bound). The lower bound is
+        lowered by the obstacle's recovery (1 - floor: 0 unless the ego starts inside the ellipse); with the barrier it
+        follows the ratio at the previous node (the state holds the ratios shifted by one node)."""
+        floor = ops.obstacle_floor[i] if i is not None else ops.obstacle_floor[:, None, :]
+        if not cfg.barrier:
+            return jnp.maximum(1.0, floor * inv_ratio)
+        prev = d_obs_prev[i] if i is not None else d_obs_prev
+        return jnp.maximum(1.0, (1.0 + (1.0 - gamma_obs) * (prev - 1.0) - (1.0 - floor)) * inv_ratio)
+
+    for i in range(problem.obstacle_x.shape[0]):
+        dx, dy, inv_ratio = ellipse(i)
+        scale = scale_factor(i, inv_ratio)
         m = problem.obstacle_mask[i]
-        h_ox = h_ox + m * (ox + dx * scale)
-        h_oy = h_oy + m * (oy + dy * scale)
+        h_ox = h_ox + m * (problem.obstacle_x[i] + dx * scale)
+        h_oy = h_oy + m * (problem.obstacle_y[i] + dy * scale)
         if with_residuals:
             obstacle_sq = obstacle_sq + m * (dx * dx + dy * dy) * (1.0 - scale) ** 2
-    d_obs_next = jnp.stack(d_obs) if cfg.barrier else d_obs_prev
+    d_obs_next = d_obs_prev
+    if cfg.barrier:  # d = scale / inverse ratio of every obstacle
+        inv_ratio = ellipse(None)[2]
+        d_obs_next = _previous_node(scale_factor(None, inv_ratio) / inv_ratio)
 
     # Velocity and acceleration in polar form; curvature/centripetal bounds become bounds on lengths.
     speed, uvx, uvy = _normalise(vx, vy)
