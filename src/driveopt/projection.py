@@ -369,10 +369,27 @@ def _fast_rsqrt_jvp(primals, tangents):
     return y, -0.5 * y * y * y * dx
 
 
+def _fast_sqrt(x):
+    """sqrt(x) for x >= 0 from :func:`_fast_rsqrt` (cheap ops only), 0 (with a zero gradient) below 1e-12."""
+    positive = x > 1e-12
+    return jnp.where(positive, x * _fast_rsqrt(jnp.where(positive, x, 1.0)), 0.0)
+
+
+def _pair(x, y, one):
+    """x and y as they are, computed in one loop. XLA's CPU fusion gives each array that a product consumes a loop
+    of its own, so the x and y parts of a pull, built from the same terms (ten neighbours' scale factors, the
+    velocity's bounds), would compute those terms twice. Packed as one complex array and divided by ``one`` (1 + 0i
+    computed at run time, so XLA cannot fold it), they come from one loop: XLA does not duplicate an expensive
+    operation such as the division into its two consumers, so the packed array is computed once and both parts are
+    read from it. Exact for finite x and y (an infinite part would make the other NaN); every pair here is bounded."""
+    packed = jax.lax.complex(x, y) / one
+    return jnp.real(packed), jnp.imag(packed)
+
+
 def _normalise(ux, uy):
     """Length and unit direction of (ux, uy); direction (1, 0) where the length vanishes."""
     sq = ux * ux + uy * uy
-    inv = jax.lax.rsqrt(jnp.maximum(sq, _EPS * _EPS))
+    inv = _fast_rsqrt(jnp.maximum(sq, _EPS * _EPS))
     tiny = sq <= _EPS * _EPS
     return sq * inv, jnp.where(tiny, 1.0, ux * inv), jnp.where(tiny, 0.0, uy * inv)
 
@@ -439,12 +456,16 @@ def _analysis_step(
         h_oy = h_oy + m * (problem.obstacle_y[i] + dy * scale)
         if with_residuals:
             obstacle_sq = obstacle_sq + m * (dx * dx + dy * dy) * (1.0 - scale) ** 2
+    one = jax.lax.complex(jnp.abs(ops.direction), 0.0 * ops.direction)  # 1 + 0i, known only at run time (_pair)
+    h_ox, h_oy = _pair(h_ox, h_oy, one)
     d_obs_next = d_obs_prev
     if cfg.barrier:  # d = scale / inverse ratio of every obstacle
         inv_ratio = ellipse(None)[2]
         d_obs_next = _previous_node(scale_factor(None, inv_ratio) / inv_ratio)
 
-    # Velocity and acceleration in polar form; curvature/centripetal bounds become bounds on lengths.
+    # Velocity and acceleration in polar form; curvature/centripetal bounds become bounds on lengths. Square roots and
+    # divisions are fast reciprocal square roots (cheap operations), which XLA fuses into the loops of the two pairs
+    # instead of giving each its own loop.
     speed, uvx, uvy = _normalise(vx, vy)
     acc, uax, uay = _normalise(ax, ay)
     if d_acc_prev is None:  # evaluating a given trajectory: its own acceleration sets the curvature bound
@@ -454,9 +475,9 @@ def _analysis_step(
     # Curvature a_perp / v^2 is undefined for a stopped car: its bounds apply above CURVATURE_MIN_SPEED.
     turning = speed > CURVATURE_MIN_SPEED
     if cfg.kappa_max > 0:
-        v_lo = jnp.where(turning, jnp.maximum(v_lo, _safe_sqrt(d_acc_prev * sin_va / cfg.kappa_max)), v_lo)
+        v_lo = jnp.where(turning, jnp.maximum(v_lo, _fast_sqrt(d_acc_prev * sin_va * (1.0 / cfg.kappa_max))), v_lo)
     road_k = jnp.abs(problem.road_curvature)
-    v_hi = jnp.minimum(cfg.v_max, jnp.sqrt(cfg.centripetal_max / jnp.maximum(uvx * uvx * road_k, _EPS)))
+    v_hi = jnp.minimum(cfg.v_max, cfg.centripetal_max ** 0.5 * _fast_rsqrt(jnp.maximum(uvx * uvx * road_k, _EPS)))
     # Course bound: a velocity turned further from the direction of travel (s = +-1 along x) than the bound goes to
     # the nearest point of the bound's ray, of length |v| cos(course - bound) (then the speed bounds apply); no
     # bound (P1): as it is. Above ``course_min_speed`` (by default CURVATURE_MIN_SPEED, as the curvature bound) the
@@ -473,10 +494,13 @@ def _analysis_step(
         dir_y = jnp.where(turned, jnp.where(uvy < 0, -sin_b, sin_b), uvy)
         along = jnp.where(turned, jnp.maximum(s * vx * cos_b + jnp.abs(vy) * sin_b, 0.0), speed)
     d_vel = jnp.minimum(jnp.maximum(along, v_lo), v_hi)
+    vel_x, vel_y = _pair(d_vel * dir_x, d_vel * dir_y, one)
     a_hi = jnp.full_like(acc, cfg.a_max)
     if cfg.kappa_max > 0:
-        a_hi = jnp.where(turning, jnp.minimum(a_hi, cfg.kappa_max * d_vel * d_vel / jnp.maximum(sin_va, _EPS)), a_hi)
+        inv_sin = _fast_rsqrt(jnp.maximum(sin_va, _EPS))
+        a_hi = jnp.where(turning, jnp.minimum(a_hi, cfg.kappa_max * (vel_x * vel_x + vel_y * vel_y) * inv_sin * inv_sin), a_hi)
     d_acc = jnp.clip(acc, 0.0, a_hi)
+    acc_x, acc_y = _pair(d_acc * uax, d_acc * uay, one)
 
     # Lane rows with slack s = max(0, e - G c_y); the rows act on node values, so no extra matmul. Row k
     # (k = 1..K-1) is y[k] - (1 - g) y[k-1]; node 0 (fixed by A_eq) has none. Plain mode (g = 1 statically)
@@ -491,10 +515,10 @@ def _analysis_step(
     # rho F'h per axis as three (B, K) x (K, n) products: no (B, 3K) concatenation is materialised.
     back_pos, back_vel, back_acc = ops.back[:K], ops.back[K:2 * K], ops.back[2 * K:]
     pull = jnp.stack([
-        (cfg.rho_obstacle * h_ox) @ back_pos + (cfg.rho_velocity * d_vel * dir_x) @ back_vel
-        + (cfg.rho_acceleration * d_acc * uax) @ back_acc,
-        (cfg.rho_obstacle * h_oy + cfg.rho_lane * lane_pull) @ back_pos + (cfg.rho_velocity * d_vel * dir_y) @ back_vel
-        + (cfg.rho_acceleration * d_acc * uay) @ back_acc,
+        (cfg.rho_obstacle * h_ox) @ back_pos + (cfg.rho_velocity * vel_x) @ back_vel
+        + (cfg.rho_acceleration * acc_x) @ back_acc,
+        (cfg.rho_obstacle * h_oy + cfg.rho_lane * lane_pull) @ back_pos + (cfg.rho_velocity * vel_y) @ back_vel
+        + (cfg.rho_acceleration * acc_y) @ back_acc,
     ])  # (2, B, n)
     if not with_residuals:
         return pull, d_obs_next, d_acc, None

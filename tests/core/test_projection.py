@@ -11,6 +11,8 @@ from driveopt.config import ProjectionConfig, QPConfig
 from driveopt.problem import build_problem
 from driveopt.projection import (
     _fast_rsqrt,
+    _fast_sqrt,
+    _pair,
     constraint_residuals,
     kkt_inverse,
     lane_constraint,
@@ -295,6 +297,25 @@ def test_fast_rsqrt_matches_rsqrt_and_its_derivative():
     np.testing.assert_allclose(_fast_rsqrt(x), jax.lax.rsqrt(x), rtol=1e-5)
     np.testing.assert_allclose(jax.vmap(jax.grad(_fast_rsqrt))(x), -0.5 * x ** -1.5, rtol=1e-4)
     assert np.all(np.isfinite(np.asarray(_fast_rsqrt(jnp.array([0.0, jnp.inf])))))  # clipped, never inf/nan
+
+
+def test_fast_sqrt_matches_sqrt_and_is_flat_at_zero():
+    x = jnp.logspace(-11, 12, 20001, dtype=jnp.float32)
+    np.testing.assert_allclose(_fast_sqrt(x), jnp.sqrt(x), rtol=1e-5)
+    assert float(_fast_sqrt(jnp.float32(0.0))) == 0.0 and float(jax.grad(_fast_sqrt)(jnp.float32(0.0))) == 0.0
+
+
+def test_paired_arrays_come_back_exactly():
+    # _pair packs two arrays so that XLA computes them in one loop: the parts must be the inputs, bit for bit, for
+    # finite values of any magnitude and either sign of the run-time one's source
+    rng = np.random.default_rng(0)
+    x, y = (rng.standard_normal(100_000) * 10.0 ** rng.integers(-30, 30, 100_000) for _ in range(2))
+    x, y = x.astype(np.float32), y.astype(np.float32)
+    paired = jax.jit(lambda x, y, s: _pair(x, y, jax.lax.complex(jnp.abs(s), 0.0 * s)))
+    for direction in (1.0, -1.0):
+        px, py = paired(x, y, jnp.float32(direction))
+        np.testing.assert_array_equal(np.asarray(px), x)
+        np.testing.assert_array_equal(np.asarray(py), y)
 
 
 def test_barrier_lane_rows_match_dense_rows():
