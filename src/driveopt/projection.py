@@ -424,6 +424,7 @@ def _analysis_step(
         inv_b_mid = 1.0 / (problem.obstacle_b + 0.5 * problem.ellipse_growth[1, 0])  # (N,)
         # The longitudinal growth (< 0.3 m at 0.3 rad, on semi-axes of 7 m and more) is kept whole.
         inv_a_full = 1.0 / (problem.obstacle_a + problem.ellipse_growth[0, 0])
+
     def ellipse(i):
         """(x - x_o, y - y_o, 1 / ellipse ratio) of obstacle i, (B, K) each; i None: of every obstacle, (N, B, K)."""
         def pick(a):  # obstacle i's entry of an (N,) or (N, K) array; all of them shaped to broadcast against (N, B, K)
