@@ -23,7 +23,6 @@ import argparse
 import gzip
 import json
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -32,10 +31,10 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from call_profile import machine  # benchmarks/call_profile.py
 
 from driveopt import planner
 from driveopt.cli.common import positive_int
-from driveopt.experiments.runner import cpu_model
 from driveopt.files import write_json
 from driveopt.problem import build_problem
 from driveopt.registry import get_optimiser
@@ -136,9 +135,7 @@ def main(argv=None) -> int:
     planner.exported_solve.cache_clear()  # the planner's jit reads its options when first built
     load_before = os.getloadavg()
     result = profile(args.planner, args.samples, args.problem, args.calls, args.fixed_work)
-    report = {"machine": {"platform": platform.platform(), "processor": cpu_model(), "cpus": os.cpu_count(),
-                          "jax": jax.__version__},
-              "load_before": load_before, "load_after": os.getloadavg(), **result}
+    report = {"machine": machine(), "load_before": load_before, "load_after": os.getloadavg(), **result}
     path = write_json(args.json, report)  # strict JSON, whole or not at all
     print(f"{args.planner} at {args.samples} samples: untraced call {result['call_ms']:.1f} ms, kernels "
           f"{result['kernel_sum_ms']:.1f} ms per traced call")
