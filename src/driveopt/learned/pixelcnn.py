@@ -12,7 +12,8 @@ gradients). A learned position embedding is added after the first layer. Trainin
 against the codes the frozen VQ-VAE encoder assigns to the expert's modes. Sampling
 (:func:`sample_codes`): position by position, any number of sequences at once for one observation,
 computing at step i only each layer's output at position i from the cached outputs at earlier
-positions (the network's logits up to float rounding: :func:`sample_codes_reference` re-runs it whole per position).
+positions, once per distinct prefix of codes (the network's logits up to float rounding:
+:func:`sample_codes_reference` re-runs it whole per position).
 
 P2: 1 mask-A + 5 mask-B layers, 64 channels, kernel 7 (the defaults).
 """
@@ -185,18 +186,41 @@ def _gated_column(p, pre, bias):
     return _dense(p["Dense_1"], jnp.tanh(a) * jax.nn.sigmoid(b))
 
 
-@functools.partial(jax.jit, static_argnames=("cfg", "num"))  # one compilation per (configuration, count)
-def sample_codes_and_logits(params, cfg: PixelCNNConfig, feats: jnp.ndarray, key: jax.Array, num: int):
+ROWS_PER_CHUNK = 64  # [-] prefixes the sampler computes together, in one pass of its inner loop
+LARGE_CHUNKS = 4  # [-] while more are left, it computes this many chunks' prefixes in one pass
+
+
+def _distinct_prefixes(rows: jnp.ndarray, codes: jnp.ndarray, codebook_size: int, capacity: int):
+    """The distinct prefixes among the samples, each known by its (prefix without its last code, that code) pair as
+    (row among the previous position's prefixes, code index) (num,) each: (their keys ``row * K_c + code``,
+    ascending and padded with 0 to ``capacity``; how many there are; each sample's index among them (num,))."""
+    keys = rows * codebook_size + codes
+    present = jnp.zeros(capacity * codebook_size, jnp.int32).at[keys].set(1)
+    index = jnp.cumsum(present) - 1
+    (distinct,) = jnp.nonzero(present, size=capacity, fill_value=0)
+    return distinct.astype(jnp.int32), index[-1] + 1, index[keys]
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "num", "chunk"))  # one compilation per (configuration, count)
+def sample_codes_and_logits(params, cfg: PixelCNNConfig, feats: jnp.ndarray, key: jax.Array, num: int,
+                            chunk: int = ROWS_PER_CHUNK):
     """(codes (num, L) int32, logits (num, L, K_c) float32) drawn autoregressively for one observation's
     features (F,) or (1, F); logits[:, i] are those code i was drawn from (= :func:`code_logits` of the codes).
 
     Incremental: with kernel k, the logits at position i need each mask-B layer's input only at positions
     i - k//2 .. i, and the mask-A layer the codes at i - k//2 .. i - 1; none of them changes once computed.
-    So step i (one ``lax.scan`` over the L positions) computes one column (num, C) per layer from a window
-    of the last k//2 columns of the layer below (zeros before position 0, as the convolution's padding):
-    about 1/L of the work of re-running the network over all positions per step
-    (:func:`sample_codes_reference`). The one-hot mask-A convolution is a row gather from its kernel; the
-    condition MLP and its projections into each layer run once, outside the loop. The draws are the
+    So step i (one ``lax.scan`` over the L positions) computes one column per layer from a window of the last
+    k//2 columns of the layer below (zeros before position 0, as the convolution's padding): about 1/L of the
+    work of re-running the network over all positions per step (:func:`sample_codes_reference`). The one-hot
+    mask-A convolution is a row gather from its kernel; the condition MLP and its projections into each layer
+    run once, outside the loop.
+
+    Once per distinct prefix: the logits at position i depend on the codes before i only, and a trained network
+    gives many samples the same prefix (of 1000 samples for one observation, one prefix at position 0, at most
+    16 at 1, a few hundred at the last position). Step i computes each distinct prefix's column once, in chunks
+    of :data:`LARGE_CHUNKS` x ``chunk`` prefixes while that many are left, then of ``chunk`` (loops whose trip
+    counts follow the number of distinct prefixes), and each sample reads its prefix's logits: the work follows
+    the distribution's spread, up to about one column per sample when every prefix differs. The draws are the
     reference's for the same key (``categorical(fold_in(key, i), logits_i)``).
     """
     cond = PixelCNN(cfg).apply({"params": params}, jnp.reshape(feats, (1, -1)), method=PixelCNN.condition)  # (1, C)
@@ -208,21 +232,62 @@ def sample_codes_and_logits(params, cfg: PixelCNNConfig, feats: jnp.ndarray, key
     # Mask-A taps (offsets -half..-1) as tables (half, K_c + 1, 2C), with a zero row for code K_c: "before position 0".
     table = jnp.pad(first["MaskedConv1D_0"]["kernel"][:half], ((0, 0), (0, 1), (0, 0)))
     kernels = [p["MaskedConv1D_0"]["kernel"][:half + 1].reshape(-1, 2 * C) for p in rest]  # ((half + 1) C, 2C) per layer
+    chunk = min(chunk, num)
+    large_chunk = LARGE_CHUNKS * chunk
+    capacity = -(-num // large_chunk) * large_chunk  # prefix rows held: a whole number of either chunk
 
-    def step(carry, i):  # the codes (num, half) and each mask-B layer's input (num, half, C) at positions i - half .. i - 1
-        recent, windows = carry
+    def column(recent, windows, i):
+        """(logits (rows, K_c) at position i, each mask-B layer's window moved on to end at i) of prefixes whose codes
+        at positions i - half .. i - 1 are ``recent`` (rows, half) and whose layers' inputs there are ``windows``."""
         x = _gated_column(first, table[jnp.arange(half), recent].sum(axis=1), first_bias) + params["position"][i]
-        shifted = []
+        moved = []
         for p, kernel, bias, window in zip(rest, kernels, biases, windows):
-            window = jnp.concatenate([window, x[:, None]], axis=1)  # (num, half + 1, C): positions i - half .. i
-            x = x + _gated_column(p, window.reshape(num, -1) @ kernel, bias)
-            shifted.append(window[:, 1:])
-        logits = _dense(params["out"], nn.relu(_dense(params["head"], nn.relu(x))))  # (num, K_c)
-        code = jax.random.categorical(jax.random.fold_in(key, i), logits).astype(jnp.int32)
-        return (jnp.concatenate([recent, code[:, None]], axis=1)[:, 1:], shifted), (code, logits)
+            taps = window.reshape(window.shape[0], -1) @ kernel[:half * C] + x @ kernel[half * C:]  # positions i - half .. i
+            moved.append(jnp.concatenate([window[:, 1:], x[:, None]], axis=1))
+            x = x + _gated_column(p, taps, bias)
+        return _dense(params["out"], nn.relu(_dense(params["head"], nn.relu(x)))), moved
 
-    init = (jnp.full((num, half), K, jnp.int32), [jnp.zeros((num, half, C), cond.dtype)] * cfg.layers)
-    _, (codes, logits) = jax.lax.scan(step, init, jnp.arange(cfg.num_latents))  # (L, num), (L, num, K_c)
+    def draw(i, prefix_logits, index):  # each sample's code at position i from its prefix's logits
+        logits = prefix_logits[index]  # (num, K_c)
+        return jax.random.categorical(jax.random.fold_in(key, i), logits).astype(jnp.int32), logits
+
+    # Position 0: the empty prefix, shared by every sample.
+    recent = jnp.full((1, half), K, jnp.int32)
+    logits, windows = column(recent, [jnp.zeros((1, half, C), cond.dtype)] * cfg.layers, 0)
+    first_codes, first_logits = draw(0, logits, jnp.zeros(num, jnp.int32))
+    # Per prefix, the codes and layer inputs that the next position reads, in two slots: position i reads its parents
+    # from slot (i - 1) % 2 and writes slot i % 2, in place.
+    prefixes = [jnp.zeros((2, capacity, *a.shape[1:]), a.dtype).at[0, :1].set(a) for a in (recent, *windows)]
+
+    def step(carry, i):
+        index, codes, prefixes = carry  # each sample's prefix row and code at position i - 1; the prefix slots
+        distinct, count, index = _distinct_prefixes(index, codes, K, capacity)
+        read, write = (i - 1) % 2, i % 2
+
+        def compute(rows, start, buffers):  # ``rows`` distinct prefixes from ``start``, from their parents' rows
+            logits_buffer, prefixes = buffers
+            keys = jax.lax.dynamic_slice_in_dim(distinct, start, rows)
+            parent = keys // K
+            previous = [buffer[read, parent] for buffer in prefixes]
+            recent = jnp.concatenate([previous[0], (keys % K)[:, None]], axis=1)[:, 1:]
+            logits, windows = column(recent, previous[1:], i)
+            prefixes = [jax.lax.dynamic_update_slice(buffer, new[None], (write, start) + (0,) * (new.ndim - 1))
+                        for buffer, new in zip(prefixes, (recent, *windows))]
+            return jax.lax.dynamic_update_slice_in_dim(logits_buffer, logits, start, 0), prefixes
+
+        # Large chunks while many prefixes are left (fewer, larger products), then small ones for the rest.
+        large = count // large_chunk
+        buffers = jax.lax.fori_loop(0, large, lambda c, b: compute(large_chunk, c * large_chunk, b),
+                                    (jnp.zeros((capacity, K), cond.dtype), prefixes))
+        logits, prefixes = jax.lax.fori_loop(0, (count - large * large_chunk + chunk - 1) // chunk,
+                                             lambda c, b: compute(chunk, large * large_chunk + c * chunk, b), buffers)
+        code, logits = draw(i, logits, index)
+        return (index, code, prefixes), (code, logits)
+
+    init = (jnp.zeros(num, jnp.int32), first_codes, prefixes)
+    _, (codes, logits) = jax.lax.scan(step, init, jnp.arange(1, cfg.num_latents))  # (L - 1, num), (L - 1, num, K_c)
+    codes = jnp.concatenate([first_codes[None], codes])
+    logits = jnp.concatenate([first_logits[None], logits])
     return codes.T, jnp.swapaxes(logits, 0, 1)
 
 
