@@ -11,7 +11,7 @@ Where things live, in layers (each imports only those before it): ``errors``, ``
 ``scene`` (the world), ``prediction`` (neighbours' motion), ``observation`` (the learned components'
 features), ``problem`` (arrays for the planner); the numerics ``basis``, ``qp``, ``xla``, ``trajectory``,
 ``projection``, ``costs``, ``sampler`` (the Prior contract and the Gaussian prior); the strategies
-``ranking``, ``fallback``, ``batch_rows``; ``filtering`` (the SafetyFilter contract); ``planner`` (``solve``
+``ranking``, ``fallback``, ``batch_rows``, ``row_sharing``; ``filtering`` (the SafetyFilter contract); ``planner`` (``solve``
 and ``plan``); ``files``; ``learned/`` (networks), ``priors/``, ``safety/``, ``data/`` (demonstrations),
 ``sim/`` (highway-env), ``rl/``, ``drivers/`` and ``registry`` (who drives); ``training/``;
 ``experiments/`` (rollout, bench, collect); ``controller`` (:class:`Controller`: a planner driving the user's own
@@ -35,6 +35,7 @@ _EXPORTS = {
     "GaussianPrior": "driveopt.priors", "Prior": "driveopt.priors", "Proposal": "driveopt.priors",
     "PlanningProblem": "driveopt.problem", "build_problem": "driveopt.problem",
     "CostPlusResidual": "driveopt.ranking", "FeasibilityFirst": "driveopt.ranking", "P1AuthorsRanking": "driveopt.ranking",
+    "DistinctRows": "driveopt.row_sharing", "EveryRow": "driveopt.row_sharing",
     "EgoState": "driveopt.scene", "Neighbour": "driveopt.scene", "ProblemError": "driveopt.scene", "Road": "driveopt.scene",
     "Scene": "driveopt.scene", "load_scene": "driveopt.scene",
     "Controller": "driveopt.controller", "RenderPlans": "driveopt.controller", "gym_make": "driveopt.sim.rewards",

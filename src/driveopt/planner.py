@@ -18,6 +18,8 @@ arguments, decide what differs between driveopt's planner and P1's: ``ranking`` 
 feasible rows first, or P1's cost + residual), ``batch_rows`` (:mod:`driveopt.batch_rows`: the
 comfortable and emergency stops ride in every batch, or the samples alone) and ``fallback``
 (:class:`driveopt.fallback.Fallback`: the stops weighed when nothing is feasible, and how one is chosen).
+A fourth, ``row_sharing`` (:mod:`driveopt.row_sharing`), decides whether a batch's repeated rows (a discrete
+prior's samples) are projected once.
 
 Rows appended to a batch (their :class:`RowKind` is in ``Snapshot.kind``) are ranked like any sample:
 the previous replan's set-points when given, and the stops of ``batch_rows``. The chosen trajectory is
@@ -58,6 +60,7 @@ from driveopt.problem import PlanningProblem, check_problem
 from driveopt.projection import FAMILIES, ProjectionResult, project
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, boundary_values, make_model, solve_setpoint_qp
 from driveopt.ranking import Candidate, FeasibilityFirst, Ranking
+from driveopt.row_sharing import EveryRow, RowSharing
 from driveopt.sampler import GaussianPrior, Prior, cem_update, clip_setpoints, default_mean, sample_gaussian
 from driveopt.scene import RANGES, ProblemError
 from driveopt.solve_export import ExportedCalls
@@ -203,7 +206,7 @@ def project_batch(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs
 
 
 def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: PreviousPlan | None, safety_filter, unroll: bool,
-               ranking: Ranking, stops: tuple[tuple[float, str], ...]):
+               ranking: Ranking, stops: tuple[tuple[float, str], ...], row_sharing: RowSharing):
     """QP + projection + ranking for one batch of set-points (the appended rows: see the module docstring).
 
     Returns (pick, snapshot, score, stats): the best row, the batch, every row's cost + residual, and
@@ -226,7 +229,11 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     row = (lambda b, i: b if b.ndim == 1 else b[i])  # noqa: E731  (boundary rows are per sample only for goals)
     for i, (decel, target) in zip(range(-len(stops), 0), stops):
         qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), target))
-    proj = project_batch(model, problem, cfg, qp_coeffs, b_x, b_y, safety_filter, unroll)
+    # Unrolled (to be differentiated) every row is projected: row sharing's loops run for a number of chunks that the
+    # data decide, which reverse mode cannot differentiate; the rows' results are the same either way.
+    sharing = EveryRow() if unroll else row_sharing
+    proj = sharing.project(lambda c, bx, by: project_batch(model, problem, cfg, c, bx, by, safety_filter, unroll),
+                           qp_coeffs, b_x, b_y)
     lateral = None if previous is None else previous.lateral
 
     traj = evaluate(model, proj.coeffs)
@@ -284,10 +291,11 @@ def solve(
     ranking: Ranking = FeasibilityFirst(),
     fallback: Fallback = Fallback(),
     batch_rows: BatchRows = StopRows(),
+    row_sharing: RowSharing = EveryRow(),
     runtime: Mapping[str, Mapping[str, jax.Array]] | None = None,
 ) -> Solution:
-    """The bi-level optimiser as a pure function; jit it with ``config``, ``unroll``, ``ranking``, ``fallback`` and
-    ``batch_rows`` static.
+    """The bi-level optimiser as a pure function; jit it with ``config``, ``unroll``, ``ranking``, ``fallback``,
+    ``batch_rows`` and ``row_sharing`` static.
 
     problem: a checked PlanningProblem (planning frame, ego at x = 0). key: PRNG key.
     prior: first-iteration proposal (any pytree with ``propose``, :mod:`driveopt.priors`).
@@ -297,7 +305,7 @@ def solve(
     unroll: project with exactly ``projection.max_iterations`` steps (differentiable in reverse mode).
     ranking: how rows are ranked (:mod:`driveopt.ranking`); fallback: the stops weighed as fallback
     (:class:`driveopt.fallback.Fallback`); batch_rows: what rides in every batch besides the samples
-    (:mod:`driveopt.batch_rows`).
+    (:mod:`driveopt.batch_rows`); row_sharing: whether repeated rows are projected once (:mod:`driveopt.row_sharing`).
     runtime: values of the configuration's runtime fields (:func:`driveopt.config.split_runtime`) that replace
     ``config``'s, as inputs of the compiled call, so that configurations that differ only in them share a compilation.
     No validation happens here: :func:`plan` checks its input first.
@@ -314,7 +322,7 @@ def solve(
     stops = batch_rows.stops(fallback, config.projection.a_max)
 
     def iteration(setpoints):
-        return _iteration(model, problem, config, setpoints, previous, safety_filter, unroll, ranking, stops)
+        return _iteration(model, problem, config, setpoints, previous, safety_filter, unroll, ranking, stops, row_sharing)
 
     def adapt(mean, cov, snapshot, score):
         elites = snapshot.setpoints[snapshot.elite_index]
@@ -345,7 +353,7 @@ def solve(
                     fallback_trajectory, emergency)
 
 
-_STATIC = ("config", "unroll", "ranking", "fallback", "batch_rows")
+_STATIC = ("config", "unroll", "ranking", "fallback", "batch_rows", "row_sharing")
 
 
 def _jit_options() -> dict[str, Any]:
@@ -432,6 +440,7 @@ def plan(
     ranking: Ranking = FeasibilityFirst(),
     fallback: Fallback = Fallback(),
     batch_rows: BatchRows = StopRows(),
+    row_sharing: RowSharing = EveryRow(),
     x_offset: float = 0.0,
 ) -> PlanResult:
     """Plan one trajectory. Raises ProblemError on malformed or non-finite input; never returns NaN.
@@ -449,7 +458,8 @@ def plan(
         compiled function (the absent plan's placeholder row makes the batch one row longer, which can change the
         result's rounding: a call with None does not have it).
     safety_filter: sets the projection's barrier parameters and initialisation (:mod:`driveopt.safety`).
-    ranking, fallback, batch_rows: the strategies of :func:`solve` (driveopt's by default; P1's baselines swap them).
+    ranking, fallback, batch_rows, row_sharing: the strategies of :func:`solve` (driveopt's by default; P1's baselines
+        swap the first three, P2's pipelines share repeated rows).
     x_offset: [m] added to x of the returned trajectories (the ego's road-frame x): a finite real number within the
         scene's position range (``driveopt.scene.RANGES["x"]``), as the command line's problem files require.
     """
@@ -475,7 +485,8 @@ def plan(
     compiled_config, runtime = split_runtime(config)
     solution = jax.device_get(exported_solve()(problem, key, prior=prior, warm_start=warm_start, previous=previous,
                                                safety_filter=safety_filter, config=compiled_config, ranking=ranking,
-                                               fallback=fallback, batch_rows=batch_rows, runtime=runtime))
+                                               fallback=fallback, batch_rows=batch_rows, row_sharing=row_sharing,
+                                               runtime=runtime))
     if placeholder:  # the result as without a previous plan
         row = config.sampler.num_samples
         solution = solution._replace(first=_without_row(solution.first, row), last=_without_row(solution.last, row))

@@ -27,8 +27,9 @@ episode seed: same seed, same episode. A learned safety filter (P2 §III-C; ``fi
 shipped weights for a spec with ``learned_filter``) sets up every batch's projection
 (:mod:`driveopt.safety.learned`). With the spec's ``contact_guard``, a command at crawling speed that would take
 the ego's box within 0.1 m of a car's, where braking now would keep it further, is replaced by braking now
-(:mod:`driveopt.sim.contact`). The spec's ``ranking``, ``batch_rows`` and ``fallback`` are the planner's strategies
-(:func:`driveopt.planner.solve`): P1's baselines swap them for P1's.
+(:mod:`driveopt.sim.contact`). The spec's ``ranking``, ``batch_rows``, ``fallback`` and ``row_sharing`` are the
+planner's strategies (:func:`driveopt.planner.solve`): P1's baselines swap the first three for P1's; P2's pipelines
+project repeated rows once.
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, plan, previou
 from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
 from driveopt.ranking import FeasibilityFirst, Ranking
+from driveopt.row_sharing import EveryRow, RowSharing
 from driveopt.sim.contact import guard
 from driveopt.sim.control import BicycleModel, Command, EgoKinematics, brake_at_least, ego_kinematics, predict, sample_trajectory, track
 from driveopt.sim.perception import Perception, RoadPreview, perceive
@@ -120,6 +122,7 @@ class OptimiserSpec(DriverSpec):
     # the multiplier head of the same checkpoint); ``filter_weights`` replaces it with P2's learned filter
     ranking: Ranking = FeasibilityFirst()  # how the planner ranks a batch's rows (P1: CostPlusResidual)
     batch_rows: BatchRows = StopRows()  # what rides in every batch besides the samples (P1: SamplesOnly)
+    row_sharing: RowSharing = EveryRow()  # whether repeated rows are projected once (P2's pipelines: DistinctRows)
     fallback: Fallback = Fallback()  # the stops weighed when nothing is feasible
     contact_guard: bool = True  # brake now when a command at crawling speed would take the ego's box within 0.1 m of a
     # car's and braking now would not (driveopt.sim.contact; not for drivers that execute infeasible plans, P1)
@@ -142,7 +145,8 @@ class OptimiserSpec(DriverSpec):
     @property
     def strategies(self) -> dict[str, Any]:
         """The planner's strategies of this spec, as keyword arguments of :func:`driveopt.planner.plan`."""
-        return {"ranking": self.ranking, "batch_rows": self.batch_rows, "fallback": self.fallback}
+        return {"ranking": self.ranking, "batch_rows": self.batch_rows, "fallback": self.fallback,
+                "row_sharing": self.row_sharing}
 
     @property
     def is_optimiser(self) -> bool:
