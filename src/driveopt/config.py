@@ -199,9 +199,10 @@ class SamplerConfig:
 class PlannerConfig:
     """The planner's maths: basis, set-point QP, projection, sampler and cost. Hashable: a jit static argument.
 
-    What is not maths lives elsewhere: how rows are ranked, what rides in a batch and which stops the fallback weighs
-    are strategies passed to the planner (:mod:`driveopt.ranking`, :mod:`driveopt.batch_rows`,
-    :class:`driveopt.fallback.Fallback`); what only a closed-loop driver reads is in its spec
+    What is not maths lives elsewhere: how rows are ranked, what rides in a batch, which stops the fallback weighs and
+    whether repeated rows are projected once are strategies passed to the planner (:mod:`driveopt.ranking`,
+    :mod:`driveopt.batch_rows`, :class:`driveopt.fallback.Fallback`, :mod:`driveopt.row_sharing`); what only a
+    closed-loop driver reads is in its spec
     (:class:`driveopt.drivers.optimiser.OptimiserSpec`).
     """
 

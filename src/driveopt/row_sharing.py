@@ -100,9 +100,9 @@ class DistinctRows:
                  (zeros((capacity, coeffs.shape[1])), zeros((capacity, coeffs.shape[1])),
                   Residuals(*(zeros(capacity) for _ in Residuals._fields))),
                  jnp.zeros((), jnp.int32), jnp.asarray(ProjectionStatus.CONVERGED, jnp.int32), zeros(()))
-        for size in sizes:
-            last = size == sizes[-1]
-            chunks = (count - carry[0] + size - 1) // size if last else (count - carry[0]) // size
+        for number, size in enumerate(sizes):
+            left = count - carry[0]
+            chunks = (left + size - 1) // size if number == len(sizes) - 1 else left // size
             carry = jax.lax.fori_loop(0, chunks, chunk(size), carry)
             carry = (carry[0] + chunks * size, *carry[1:])
         _, (projected, multipliers, residuals), iterations, status, error = carry
