@@ -1,12 +1,13 @@
 """Projecting a batch's repeated rows once (``DistinctRows``) against projecting every row (``EveryRow``), on
 closed-loop states: the same picks, and how much faster.
 
-    python benchmarks/row_sharing_ab.py --json out/row-sharing.json [--planner vqvae-filter]
+    python benchmarks/row_sharing_ab.py --json out/row-sharing.json [--planner vqvae-filter] [--samples N]
         [--scenario p2-four-lane-d3.0] [--episodes 3] [--every 10] [--steps 300] [--seed 1000]
 
 States: ``--episodes`` episodes of ``--scenario`` (seeds ``--seed``, ``--seed`` + 1, ...) driven by ``bilevel``, the
 planning problem of every ``--every``-th step up to ``--steps``. At each state the ``--planner`` (a registered
-optimiser; its prior and filter for the road) plans once with each row sharing, with the same key; recorded per state:
+optimiser that shares rows, at its own sample count or ``--samples``; its prior and filter for the road) plans once
+with each row sharing, with the same key; recorded per state:
 whether the two picked the same set-points, their statuses, costs and feasible rows, the largest difference between
 their rows' residuals, how many distinct rows the batch had, and each call's time [ms]. The timed calls come after one
 compiling call per side; the two sides alternate per state. Results are written after every state; a rerun with
@@ -52,6 +53,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", type=Path, required=True)
     parser.add_argument("--planner", default="vqvae-filter")
+    parser.add_argument("--samples", type=positive_int, help="samples per batch (default: the planner's own)")
     parser.add_argument("--scenario", default="p2-four-lane-d3.0")
     parser.add_argument("--episodes", type=positive_int, default=3)
     parser.add_argument("--every", type=positive_int, default=10, help="[steps] between recorded states")
@@ -59,6 +61,7 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=1000)
     args = parser.parse_args(argv)
     spec = get_optimiser(args.planner)
+    spec = spec if args.samples is None else spec.with_samples(args.samples)
     if not isinstance(spec.row_sharing, DistinctRows):
         parser.error(f"{args.planner} projects every row (row_sharing {spec.row_sharing}); pick a planner that shares rows")
 
