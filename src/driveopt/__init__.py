@@ -9,7 +9,7 @@ and ``driveopt/driving-v0`` without importing gymnasium (:mod:`driveopt.gym_envs
 
 Where things live, in layers (each imports only those before it): ``errors``, ``checks`` and ``config``;
 ``scene`` (the world), ``prediction`` (neighbours' motion), ``observation`` (the learned components'
-features), ``problem`` (arrays for the planner); the numerics ``basis``, ``qp``, ``xla``, ``trajectory``,
+features), ``problem`` (arrays for the planner); the numerics ``basis``, ``qp``, ``xla``, ``chunks``, ``trajectory``,
 ``projection``, ``costs``, ``sampler`` (the Prior contract and the Gaussian prior); the strategies
 ``ranking``, ``fallback``, ``batch_rows``, ``row_sharing``; ``filtering`` (the SafetyFilter contract); ``planner`` (``solve``
 and ``plan``); ``files``; ``learned/`` (networks), ``priors/``, ``safety/``, ``data/`` (demonstrations),

@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 
 from driveopt.checks import check_count, require
+from driveopt.chunks import capacity, over_chunks
 from driveopt.projection import ProjectionResult, ProjectionStatus, Residuals
 
 ProjectRows = Callable[[jnp.ndarray, jnp.ndarray, jnp.ndarray], ProjectionResult]  # (coeffs (B, 2n), b_x, b_y) -> result
@@ -61,9 +62,9 @@ def distinct_rows(rows: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndar
 
 @dataclass(frozen=True)
 class DistinctRows:
-    """Each distinct row (with its boundary values) is projected once, in chunks: of ``chunks[0]`` rows while that
-    many are left, then of the next size; the last size covers what remains, its last chunk filled up with a copy of
-    row 0. Repeated rows read their copy's result. The result's ``iterations`` is the most any chunk ran, its
+    """Each distinct row (with its boundary values) is projected once, in chunks of the sizes ``chunks``
+    (:func:`driveopt.chunks.over_chunks`; the last chunk filled up with copies of row 0). Repeated rows read their
+    copy's result. The result's ``iterations`` is the most any chunk ran, its
     ``error`` the largest, and its ``status`` CONVERGED only when every chunk converged."""
 
     chunks: tuple[int, ...] = (256, 64)  # [-] rows per projection, largest first
@@ -78,33 +79,24 @@ class DistinctRows:
         B = coeffs.shape[0]
         member, count, group = distinct_rows(jnp.concatenate([coeffs, *[b for b in (b_x, b_y) if b.ndim == 2]], axis=1))
         sizes = [min(size, B) for size in self.chunks]
-        capacity = B + max(sizes)  # the last chunk may reach past the last distinct row, never by a whole chunk
-        member = jnp.concatenate([member, jnp.zeros(capacity - B, member.dtype)])
+        rows = capacity(B, sizes)
+        member = jnp.concatenate([member, jnp.zeros(rows - B, member.dtype)])
 
-        def chunk(size: int):
-            def project_chunk(c, carry):
-                done, buffers, iterations, status, error = carry
-                start = done + c * size
-                index = jax.lax.dynamic_slice_in_dim(member, start, size)
-                result = project_rows(*(a if a.ndim == 1 else a[index] for a in (coeffs, b_x, b_y)))
-                buffers = jax.tree_util.tree_map(lambda buffer, rows: jax.lax.dynamic_update_slice_in_dim(buffer, rows, start, 0),
-                                                 buffers, (result.coeffs, result.multipliers, result.residuals))
-                return (done, buffers, jnp.maximum(iterations, result.iterations), jnp.maximum(status, result.status),
-                        jnp.maximum(error, result.error))
-            return project_chunk
+        def project_chunk(size: int, start, carry):
+            buffers, iterations, status, error = carry
+            index = jax.lax.dynamic_slice_in_dim(member, start, size)
+            result = project_rows(*(a if a.ndim == 1 else a[index] for a in (coeffs, b_x, b_y)))
+            buffers = jax.tree_util.tree_map(lambda buffer, new: jax.lax.dynamic_update_slice_in_dim(buffer, new, start, 0),
+                                             buffers, (result.coeffs, result.multipliers, result.residuals))
+            return (buffers, jnp.maximum(iterations, result.iterations), jnp.maximum(status, result.status),
+                    jnp.maximum(error, result.error))
 
-        def zeros(shape, dtype=coeffs.dtype):
-            return jnp.zeros(shape, dtype)
+        def zeros(shape):
+            return jnp.zeros(shape, coeffs.dtype)
 
-        carry = (jnp.zeros((), jnp.int32),
-                 (zeros((capacity, coeffs.shape[1])), zeros((capacity, coeffs.shape[1])),
-                  Residuals(*(zeros(capacity) for _ in Residuals._fields))),
-                 jnp.zeros((), jnp.int32), jnp.asarray(ProjectionStatus.CONVERGED, jnp.int32), zeros(()))
-        for number, size in enumerate(sizes):
-            left = count - carry[0]
-            chunks = (left + size - 1) // size if number == len(sizes) - 1 else left // size
-            carry = jax.lax.fori_loop(0, chunks, chunk(size), carry)
-            carry = (carry[0] + chunks * size, *carry[1:])
-        _, (projected, multipliers, residuals), iterations, status, error = carry
+        empty = (zeros((rows, coeffs.shape[1])), zeros((rows, coeffs.shape[1])), Residuals(*(zeros(rows) for _ in Residuals._fields)))
+        (projected, multipliers, residuals), iterations, status, error = over_chunks(
+            count, sizes, project_chunk,
+            (empty, jnp.zeros((), jnp.int32), jnp.asarray(ProjectionStatus.CONVERGED, jnp.int32), zeros(())))
         return ProjectionResult(projected[group], multipliers[group], jax.tree_util.tree_map(lambda a: a[group], residuals),
                                 iterations, status, error)

@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import optax
 
 from driveopt.checks import ConfigError, check_count, check_parameters, dense_parameters
+from driveopt.chunks import capacity, over_chunks
 from driveopt.learned.checkpoint import CheckpointError, check_scales, header_config, load_checkpoint, parameter_shapes, restore
 from driveopt.learned.cvae import FEATURE_DIM, MLP, normaliser_scales
 from driveopt.learned.vqvae import Normaliser, VQVAEConfig, empty_state
@@ -190,14 +191,14 @@ ROWS_PER_CHUNK = 64  # [-] prefixes the sampler computes together, in one pass o
 LARGE_CHUNKS = 4  # [-] while more are left, it computes this many chunks' prefixes in one pass
 
 
-def _distinct_prefixes(rows: jnp.ndarray, codes: jnp.ndarray, codebook_size: int, capacity: int):
+def _distinct_prefixes(rows: jnp.ndarray, codes: jnp.ndarray, codebook_size: int, held: int):
     """The distinct prefixes among the samples, each known by its (prefix without its last code, that code) pair as
     (row among the previous position's prefixes, code index) (num,) each: (their keys ``row * K_c + code``,
-    ascending and padded with 0 to ``capacity``; how many there are; each sample's index among them (num,))."""
+    ascending and padded with 0 to ``held``; how many there are; each sample's index among them (num,))."""
     keys = rows * codebook_size + codes
-    present = jnp.zeros(capacity * codebook_size, jnp.int32).at[keys].set(1)
+    present = jnp.zeros(held * codebook_size, jnp.int32).at[keys].set(1)
     index = jnp.cumsum(present) - 1
-    (distinct,) = jnp.nonzero(present, size=capacity, fill_value=0)
+    (distinct,) = jnp.nonzero(present, size=held, fill_value=0)
     return distinct.astype(jnp.int32), index[-1] + 1, index[keys]
 
 
@@ -233,8 +234,8 @@ def sample_codes_and_logits(params, cfg: PixelCNNConfig, feats: jnp.ndarray, key
     table = jnp.pad(first["MaskedConv1D_0"]["kernel"][:half], ((0, 0), (0, 1), (0, 0)))
     kernels = [p["MaskedConv1D_0"]["kernel"][:half + 1].reshape(-1, 2 * C) for p in rest]  # ((half + 1) C, 2C) per layer
     chunk = min(chunk, num)
-    large_chunk = LARGE_CHUNKS * chunk
-    capacity = -(-num // large_chunk) * large_chunk  # prefix rows held: a whole number of either chunk
+    sizes = (LARGE_CHUNKS * chunk, chunk)  # large chunks while many prefixes are left (fewer, larger products)
+    held = capacity(num, sizes)  # prefix rows held
 
     def column(recent, windows, i):
         """(logits (rows, K_c) at position i, each mask-B layer's window moved on to end at i) of prefixes whose codes
@@ -257,11 +258,11 @@ def sample_codes_and_logits(params, cfg: PixelCNNConfig, feats: jnp.ndarray, key
     first_codes, first_logits = draw(0, logits, jnp.zeros(num, jnp.int32))
     # Per prefix, the codes and layer inputs that the next position reads, in two slots: position i reads its parents
     # from slot (i - 1) % 2 and writes slot i % 2, in place.
-    prefixes = [jnp.zeros((2, capacity, *a.shape[1:]), a.dtype).at[0, :1].set(a) for a in (recent, *windows)]
+    prefixes = [jnp.zeros((2, held, *a.shape[1:]), a.dtype).at[0, :1].set(a) for a in (recent, *windows)]
 
     def step(carry, i):
         index, codes, prefixes = carry  # each sample's prefix row and code at position i - 1; the prefix slots
-        distinct, count, index = _distinct_prefixes(index, codes, K, capacity)
+        distinct, count, index = _distinct_prefixes(index, codes, K, held)
         read, write = (i - 1) % 2, i % 2
 
         def compute(rows, start, buffers):  # ``rows`` distinct prefixes from ``start``, from their parents' rows
@@ -275,12 +276,7 @@ def sample_codes_and_logits(params, cfg: PixelCNNConfig, feats: jnp.ndarray, key
                         for buffer, new in zip(prefixes, (recent, *windows))]
             return jax.lax.dynamic_update_slice_in_dim(logits_buffer, logits, start, 0), prefixes
 
-        # Large chunks while many prefixes are left (fewer, larger products), then small ones for the rest.
-        large = count // large_chunk
-        buffers = jax.lax.fori_loop(0, large, lambda c, b: compute(large_chunk, c * large_chunk, b),
-                                    (jnp.zeros((capacity, K), cond.dtype), prefixes))
-        logits, prefixes = jax.lax.fori_loop(0, (count - large * large_chunk + chunk - 1) // chunk,
-                                             lambda c, b: compute(chunk, large * large_chunk + c * chunk, b), buffers)
+        logits, prefixes = over_chunks(count, sizes, compute, (jnp.zeros((held, K), cond.dtype), prefixes))
         code, logits = draw(i, logits, index)
         return (index, code, prefixes), (code, logits)
 
