@@ -111,7 +111,8 @@ def main(argv=None) -> int:
 
     path = Path(args.json)
     path.parent.mkdir(parents=True, exist_ok=True)
-    machine = {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__, "device": str(jax.devices()[0])}
+    machine = {"platform": platform.platform(), "cpus": os.cpu_count(), "affinity": len(os.sched_getaffinity(0)),
+               "jax": jax.__version__, "device": str(jax.devices()[0])}
     machine["compiler_options"] = supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else {}
     report = {"machine": machine, "config": overrides, "results": []}
     if args.resume and path.exists():

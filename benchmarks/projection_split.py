@@ -7,6 +7,8 @@ same work) on the built-in ``dense-snapshot`` problem, for one batch of ``--samp
 three ways, each in a fresh process (the host device count is fixed when JAX starts):
 
 - ``whole``: the batch in one ``project`` call, one CPU device (how the planner runs it);
+- ``one-core``: the same in a process bound to one CPU, so that XLA splits none of its loops over two threads (what
+  its own splitting of the larger loops gains);
 - ``halves``: two ``project`` calls on the two halves of the batch in one jitted graph (two independent loops, which
   XLA's CPU runtime may run at once);
 - ``two-devices``: the batch split over two host CPU devices (``--xla_force_host_platform_device_count=2``) with
@@ -31,11 +33,13 @@ import time
 from driveopt.cli.common import positive_int
 from driveopt.files import write_json
 
-WAYS = ("whole", "halves", "two-devices")
+WAYS = ("whole", "one-core", "halves", "two-devices")
 
 
 def measure(way: str, samples: int, calls: int) -> dict:
     """One case in this process (for ``two-devices``, started with two host devices)."""
+    if way == "one-core":  # before JAX starts: XLA sizes its thread pool and splits its loops by the usable CPUs
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -63,7 +67,7 @@ def measure(way: str, samples: int, calls: int) -> dict:
         return project(model, problem, t, bx, by, config.projection).coeffs
 
     half = samples // 2
-    if way == "whole":
+    if way in ("whole", "one-core"):
         fn = jax.jit(whole, compiler_options=options)
     elif way == "halves":
         fn = jax.jit(lambda t, bx, by: jnp.concatenate([whole(t[:half], bx[:half], by[:half]),
@@ -88,6 +92,7 @@ def measure(way: str, samples: int, calls: int) -> dict:
     reference = jax.jit(whole, compiler_options=options)(coeffs, b_x, b_y)
     steady = float(np.median(times))
     return {"way": way, "samples": samples, "calls": calls, "devices": len(jax.devices()),
+            "cpus": len(os.sched_getaffinity(0)),
             "compile_s": round(first - steady, 3), "median_ms": round(1e3 * steady, 3),
             "p90_ms": round(1e3 * float(np.percentile(times, 90)), 3),
             "max_abs_diff": float(jnp.max(jnp.abs(jnp.asarray(out) - jnp.asarray(reference)))),

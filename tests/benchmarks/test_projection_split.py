@@ -18,7 +18,8 @@ def test_every_way_is_timed_and_projects_the_batch_as_the_whole_call(projection_
     assert projection_split.main(["--samples", "8", "--calls", "2", "--json", str(out)]) == 0
     cases = json.loads(out.read_text())["cases"]
     assert [c["way"] for c in cases] == list(projection_split.WAYS)
-    assert [c["devices"] for c in cases] == [1, 1, 2]
+    assert [c["devices"] for c in cases] == [1, 1, 1, 2]
+    assert cases[1]["cpus"] == 1
     for case in cases:
         assert case["median_ms"] > 0 and case["compile_s"] > 0
         assert case["max_abs_diff"] < 1.0  # the same projection, apart from rounding and each part's own early stop
