@@ -111,8 +111,9 @@ def main(argv=None) -> int:
 
     path = Path(args.json)
     path.parent.mkdir(parents=True, exist_ok=True)
-    machine = {"platform": platform.platform(), "cpus": os.cpu_count(), "affinity": len(os.sched_getaffinity(0)),
-               "jax": jax.__version__, "device": str(jax.devices()[0])}
+    affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None  # CPUs this process may use
+    machine = {"platform": platform.platform(), "cpus": os.cpu_count(), "affinity": affinity, "jax": jax.__version__,
+               "device": str(jax.devices()[0])}
     machine["compiler_options"] = supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else {}
     report = {"machine": machine, "config": overrides, "results": []}
     if args.resume and path.exists():
