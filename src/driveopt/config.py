@@ -32,9 +32,9 @@ MIN_TEMPERATURE = 1e-6  # [-] lowest sampler temperature: far below it (1e-300) 
 class BasisConfig:
     """Bernstein polynomial trajectory basis."""
 
-    order: int = 10  # polynomial order (order + 1 coefficients per axis)
-    horizon: float = 15.0  # [s] planning horizon T
-    num_nodes: int = 100  # time nodes on [0, T], both ends included
+    order: int = 10  # Bernstein polynomial order (order + 1 coefficients per axis)
+    horizon: float = 15.0  # [s] planning horizon T, in [1, 120]
+    num_nodes: int = 100  # time nodes on [0, T], both ends included (divisible by 4: one segment per set-point)
 
     def __post_init__(self) -> None:
         check_types(self, "basis")
@@ -58,15 +58,15 @@ class BasisConfig:
 class QPConfig:
     """Set-point QP (DESIGN §2.2): smoothness + PD set-point tracking."""
 
-    w_smooth: float = 0.1  # [-] weight of ||x''||^2 + ||y''||^2
+    w_smooth: float = 0.1  # [-] weight of ||x''||^2 + ||y''||^2 in the set-point QP
     w_speed: float = 1.0  # [-] weight of the speed-tracking residual
     w_lateral: float = 1.0  # [-] weight of the lateral-tracking residual
     k_pv: float = 20.0  # [1/s] P gain of speed tracking
     k_p: float = 20.0  # [1/s^2] P gain of lateral tracking
     k_d: float = 2.0 * math.sqrt(20.0)  # [1/s] D gain of lateral tracking
     initial_acceleration: bool = True  # impose x''(0), y''(0); False when acceleration is a control input that can jump
-    initial_lateral_acceleration: bool = False  # with initial_acceleration, also impose y''(0) (P1); the steering can jump
-    terminal_position: bool = False  # also impose x(T) = x_f, y(T) = y_f (goal-sampling baseline)
+    initial_lateral_acceleration: bool = False  # with initial_acceleration, also impose y''(0) (P1: true); the steering can jump
+    terminal_position: bool = False  # also impose x(T) = x_f, y(T) = y_f (the goal-sampling baseline ``batch``)
 
     def __post_init__(self) -> None:
         check_types(self, "qp")
@@ -103,8 +103,8 @@ class ProjectionConfig:
     rho_lane: float = 1.0  # [-] penalty weight of the lane rows
     v_min: float = 0.0  # [m/s] speed lower bound (P1: 0.1; 0 lets a plan stop, as the fallback does)
     v_max: float = 30.0  # [m/s] speed upper bound
-    a_max: float = 18.0  # [m/s^2] acceleration-magnitude bound
-    kappa_max: float = 0.23  # [1/m] path-curvature bound (0 disables it)
+    a_max: float = 18.0  # [m/s^2] acceleration-magnitude bound (the closed loop caps it at what the car can do)
+    kappa_max: float = 0.23  # [1/m] path-curvature bound, not applied below 1 m/s (0 disables it)
     centripetal_max: float = 4.0  # [m/s^2] bound on v^2 * |road curvature|
     barrier: bool = False  # P2's discrete-time barrier forms for obstacles and lanes
     gamma_obs: float = 1.0  # [-] in (0, 1]: obstacle barrier parameter with ``barrier`` (1: the plain bound d >= 1; P2 trains
@@ -148,12 +148,12 @@ class ProjectionConfig:
 class CostConfig:
     """Weights of the upper-level driving cost terms (each term is a mean over the nodes)."""
 
-    speed: float = 1.0  # [1/(m/s)^2] (|v| - v_des)^2
-    lateral_acceleration: float = 0.2  # [1/(m/s^2)^2] y''^2
-    heading: float = 20.0  # [1/rad^2] heading^2 relative to the road
-    curvature: float = 10.0  # [m^2] curvature^2 (steering effort proxy)
-    lane_centering: float = 0.5  # [1/m^2] squared distance of y(t) to the nearest lane centre
-    consistency: float = 0.1  # [1/m^2] (y(t) - y_previous(t))^2 against the previous replan's plan (0: not used, P1)
+    speed: float = 1.0  # [1/(m/s)^2] weight of (|v| - v_des)^2
+    lateral_acceleration: float = 0.2  # [1/(m/s^2)^2] weight of y''^2
+    heading: float = 20.0  # [1/rad^2] weight of the heading^2 relative to the road
+    curvature: float = 10.0  # [m^2] weight of the curvature^2 (steering effort proxy)
+    lane_centering: float = 0.5  # [1/m^2] weight of the squared distance of y(t) to the nearest lane centre
+    consistency: float = 0.1  # [1/m^2] weight of (y(t) - y_previous(t))^2 against the previous replan's plan (0: not used, P1)
 
     def __post_init__(self) -> None:
         check_types(self, "cost")
@@ -166,12 +166,13 @@ class CostConfig:
 class SamplerConfig:
     """Bi-level cross-entropy sampler (P1 Alg. 1, eq. 6)."""
 
-    num_samples: int = 1000  # [-] n-bar, samples per iteration
+    num_samples: int = 1000  # [-] n-bar, samples per iteration (P1); the registered ``bilevel`` plans 150
+    # (real time: docs/results/speed.md); the results' ``bilevel`` runs use ``--samples 250``
     num_iterations: int = 5  # [-] N, sampler iterations
     num_constraint_elites: int = 100  # [-] n, lowest-residual samples kept
     num_elites: int = 40  # [-] q, lowest (cost + residual) samples of those
-    temperature: float = 0.9  # [-] gamma of eq. 6c
-    learning_rate: float = 0.6  # [-] eta of eq. 6a/6b
+    temperature: float = 0.9  # [-] gamma of P1 eq. 6c, in [1e-6, 1e6]
+    learning_rate: float = 0.6  # [-] eta of P1 eq. 6a/6b
     covariance_jitter: float = 0.01  # [-] added to the covariance diagonal after each update
     speed_std: float = math.sqrt(30.0)  # [m/s] initial std of every speed set-point
     lateral_std: float = math.sqrt(46.0)  # [m] initial std of every lateral set-point

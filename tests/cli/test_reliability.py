@@ -1,4 +1,4 @@
-"""Reliability promises (README "Reliability"): the fallback is a stop that never changes the sign of the velocity, no
+"""Reliability promises (docs/results/reliability.md): the fallback is a stop that never changes the sign of the velocity, no
 NaN for any accepted input, inputs beyond the physical ranges and mistyped JSON are refused with one clear line."""
 
 import json

@@ -48,7 +48,7 @@ def test_batch_size_override_caps_elites_and_keeps_vanilla_single():
 
 def test_the_default_planner_plans_the_real_time_sample_count_and_the_readme_says_so():
     """bilevel's samples per iteration, which drive, bench, plan and Controller use unless told otherwise, are the
-    real-time count (its measurement: docs/results/speed.md), and the README states that count."""
+    real-time count (its measurement: docs/results/speed.md), and the README and the configuration reference state it."""
     from pathlib import Path
 
     from driveopt.controller import Controller
@@ -56,9 +56,9 @@ def test_the_default_planner_plans_the_real_time_sample_count_and_the_readme_say
     sampler = get_planner("bilevel").config.sampler
     assert (sampler.num_samples, sampler.num_constraint_elites, sampler.num_elites) == (REALTIME_SAMPLES, 100, 40)
     assert Controller().spec.config.sampler.num_samples == REALTIME_SAMPLES
-    readme = (Path(__file__).parents[2] / "README.md").read_text()
-    assert f"run `bilevel` at {REALTIME_SAMPLES} samples per iteration by default" in readme
-    assert f"the registered `bilevel` plans {REALTIME_SAMPLES}" in readme
+    root = Path(__file__).parents[2]
+    assert f"run `bilevel` at {REALTIME_SAMPLES} samples per iteration by default" in (root / "README.md").read_text()
+    assert f"the registered `bilevel` plans {REALTIME_SAMPLES}" in (root / "docs" / "configuration.md").read_text()
 
 
 @pytest.mark.parametrize("name", ["random", "grid", "vanilla", "batch"])

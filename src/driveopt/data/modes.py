@@ -1,7 +1,7 @@
 """Multi-modal demonstrations: the distinct feasible plans of the expert's first and final batches (P2 §V-A1).
 
-A CVAE trained on the executed plan alone imitates the expert's pick, not its search (README, CVAE
-section). P2 trains its VQ-VAE on *several* good plans per observation. ``driveopt collect`` stores,
+A CVAE trained on the executed plan alone imitates the expert's pick, not its search
+(docs/findings/cvae.md). P2 trains its VQ-VAE on *several* good plans per observation. ``driveopt collect`` stores,
 for every planning step, the **modes** of the expert's first and final sampler batches (``PlanResult.first``
 and ``PlanResult.last``). Both, because in dense traffic the final batch alone often holds no feasible sample:
 the sampler adapts towards the lowest cost + residual, a cheap infeasible plan can draw it there, and the plan it

@@ -2,7 +2,7 @@
 
 The expert is the ``bilevel`` planner as ``drive`` and ``bench`` run it, 250 samples by default (P1's expert used a
 large batch; with 1000 samples it crashed in 2 of the first 7 four-lane episodes, which the 250-sample planner
-finishes: README, CVAE section). Every planning step of every episode is
+finishes: docs/findings/cvae.md). Every planning step of every episode is
 stored (:mod:`driveopt.data.demonstrations`), with up to ``modes`` distinct feasible plans of the
 expert's first and final batches (:mod:`driveopt.data.modes`, schema version 2); episodes run in parallel worker
 processes and the parent appends each one as it finishes, so a rerun with the same file skips

@@ -4,11 +4,11 @@ For one observation (a demonstration row, :func:`driveopt.data.replay.problem_fr
 
 - **best of N** [m^2]: the smallest mean squared node distance between the expert's executed plan and
   the set-point-QP trajectories of N (16) samples: the CVAE's validation metric
-  (:func:`driveopt.learned.cvae.prior_coverage`, "held-out best of 16" in the README) for any prior;
+  (:func:`driveopt.learned.cvae.prior_coverage`, "held-out best of 16" in docs/results/learned-prior.md) for any prior;
 - **feasible samples**: how many of a batch of samples (250) project to a plan within the sampler's
   residual tolerance, through the planner's own projection (one sampler pass of the given
   configuration: ``vqvae``'s is P2's barrier projection, 100 iterations). Where none does, the planner
-  can only stop: the pure CVAE start stalls there (README, "Learned warm start");
+  can only stop: the pure CVAE start stalls there (docs/findings/cvae.md);
 - **distinct lanes**: how many target lanes (the lane centre nearest y(T), as for the expert's modes,
   :func:`driveopt.data.modes.plan_features`) the batch's set-point-QP trajectories reach: 1 for a prior
   that proposes one behaviour, up to the lane count; and the same count among the feasible projected

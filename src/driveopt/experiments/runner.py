@@ -11,7 +11,8 @@ once, not waited for, when :func:`execute` stops on an exception (Ctrl-C, SIGTER
 the results of the episodes in flight would be dropped anyway. On Linux, when there are no
 more workers than CPUs this process may use (its affinity: ``taskset`` limits it), each worker is bound to
 its own share of them (:func:`cpu_shares`): XLA's thread pools of unbound workers contend for every core,
-and two bound workers run about a fifth more closed-loop episodes per hour on two cores (README). Ray runs the same
+and two bound workers run about a fifth more closed-loop episodes per hour on two cores
+(docs/results/speed.md, "Parallel workers"). Ray runs the same
 function as Ray tasks on the cluster that ``RAY_ADDRESS`` names (a local instance when unset); on an
 exception the unfinished tasks on a cluster are cancelled, and a local instance that :func:`execute` started
 is killed with everything it runs, within a second. When this process is killed with ``kill -9`` instead,

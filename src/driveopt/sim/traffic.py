@@ -2,7 +2,8 @@
 
 Upstream's IDM vehicles may roll backwards: ``Vehicle.MIN_SPEED`` is -40 m/s, and an IDM car that
 brakes hard for a stopped leader integrates its speed below zero. Both traced crashes that every
-optimiser shared involved such a reversing car (README). :class:`ForwardIDMVehicle` is the same
+optimiser shared involved such a reversing car
+(docs/findings/closed-loop-defaults.md, "Earlier A/Bs"). :class:`ForwardIDMVehicle` is the same
 IDM/MOBIL driver that stops at 0 m/s instead; a scenario chooses it with ``traffic_reverses=False``.
 """
 
