@@ -1,41 +1,30 @@
-"""The last seconds of one bench episode, policy step by policy step: what the car did and what was planned.
+"""The last seconds of one bench episode, policy step by policy step: what the car did and what was planned
+(``driveopt trace-episode``).
 
-    python benchmarks/trace_episode.py --scenario four-lane-d1.5 --planner bilevel --episode 38 \
-        [--seed 42] [--samples 250] [--config overrides.json] [--weights FILE] [--filter-weights FILE] \
-        [--last 3.0] [--duration S] [--json out/trace.json]
-
-Replays bench episode ``--episode`` of ``--seed`` (the traffic of ``driveopt bench``) with ``--planner``
-and prints, for the last ``--last`` seconds (the approach to a collision when there is one): the ego's
-position [m], speed [m/s] and heading [rad], the action sent, and for an optimiser the call's status,
-total residual, chosen set-points (4 speeds [m/s], 4 lateral positions [m]) and the chosen plan's
+:func:`trace` replays bench episode ``episode`` of ``seed`` (the traffic of ``driveopt bench``: the same
+:class:`~driveopt.experiments.store.JobKey` environment seed) with ``planner`` and returns the episode's summary and
+one row per policy step: the ego's position [m], speed [m/s] and heading [rad], the action sent, and for an optimiser
+the call's status, total residual, chosen set-points (4 speeds [m/s], 4 lateral positions [m]) and the chosen plan's
 lateral position at 0.5, 1, 2 and 3 s (where the call found no feasible plan, also the stop executed instead: its
 deceleration [m/s^2] and lateral position at those times); then every car within 25 m along and 6 m across as
-(dx, dy) [m] relative to the ego and its speed. ``--weights`` and ``--filter-weights`` are bench's (a learned
-prior's or policy's checkpoint, a learned safety filter's). ``--json`` writes the same rows. How the README's
-traced crashes were read (e.g. bilevel's four-lane-d1.5 episode 38).
+(dx, dy) [m] relative to the ego and its speed. :func:`step_line` is a row as the command prints it. This is how a
+crash of a bench table is read: the approach to the collision, step by step.
 
 Replay on the CPUs the bench episode had: bench binds each local worker to its share of the CPUs (2 workers on 2
 CPUs: one each), and a process with another number of CPUs runs XLA's CPU code on another number of threads, which
-can round differently; a closed loop amplifies that, and steps later drives another episode. ``taskset -c 1 python
-benchmarks/trace_episode.py ...`` replays an episode of a 2-worker bench on 2 CPUs (``vqvae-filter`` at 750 samples,
+can round differently; a closed loop amplifies that, and steps later drives another episode. ``taskset -c 1
+driveopt trace-episode ...`` replays an episode of a 2-worker bench on 2 CPUs (``vqvae-filter`` at 750 samples,
 ``p2-four-lane-d3.0`` episode 9: bound, its collision at 17.2 s step for step; unbound, 50 s without one).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import sys
-from pathlib import Path
-
 import numpy as np
 
-from driveopt.cli.common import config_overrides
 from driveopt.errors import DriveoptError
 from driveopt.experiments.bench import check_options
 from driveopt.experiments.rollout import Rollout
 from driveopt.experiments.store import JobKey
-from driveopt.files import write_json
 from driveopt.registry import get_planner
 from driveopt.sim import get_scenario
 
@@ -71,8 +60,10 @@ def step_row(step) -> dict:
 def trace(scenario_name: str, planner: str, episode: int, *, seed: int = 42, samples: int | None = 250,
           overrides: dict | None = None, duration: float | None = None,
           weights: str | None = None) -> tuple[dict, list[dict]]:
-    """(episode summary, one row per policy step) of the replayed bench episode; ``weights``: a learned prior's or
-    policy's checkpoint instead of the shipped one (as bench's ``--weights``)."""
+    """(episode summary, one row per policy step) of the replayed bench episode. ``samples`` and ``overrides`` (planner-
+    config overrides, as bench's ``--config``) apply to an optimiser; ``weights``: a learned prior's or policy's
+    checkpoint instead of the shipped one (as bench's ``--weights``). DriveoptError (one line) for an unknown scenario
+    or planner, unusable weights, or overrides given to a planner without a planner configuration."""
     scenario = get_scenario(scenario_name)
     check_options({"weights": weights})
     spec = get_planner(planner).with_weights(weights)
@@ -90,7 +81,9 @@ def trace(scenario_name: str, planner: str, episode: int, *, seed: int = 42, sam
     return summary, rows
 
 
-def _line(row: dict) -> str:
+def step_line(row: dict) -> str:
+    """One step's row as a line of text: time, position, speed, heading, the plan (status, residual, set-points, lateral
+    positions), the stop executed instead, and the cars nearby."""
     text = f"t={row['t']:5.1f} x={row['x']:7.1f} y={row['y']:+6.2f} v={row['speed']:5.2f} h={row['heading']:+.3f}"
     if "status" in row:
         text += (f" {row['status'][:4]} res={row['residual']:.3f} v_set={row['setpoints'][:4]} y_set={row['setpoints'][4:]}"
@@ -101,39 +94,3 @@ def _line(row: dict) -> str:
         text += " GUARDED"
     return text + " | " + " ".join(f"({dx:+.1f},{dy:+.1f}) v{v:.1f}" for dx, dy, v in row["near"])
 
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scenario", required=True)
-    parser.add_argument("--planner", required=True)
-    parser.add_argument("--episode", type=int, required=True, help="bench episode number (0-based)")
-    parser.add_argument("--seed", type=int, default=42, help="bench seed")
-    parser.add_argument("--samples", type=int, default=250)
-    parser.add_argument("--config", help="planner-config overrides (JSON file, as for driveopt bench --config)")
-    parser.add_argument("--weights", help="learned prior or policy checkpoint (default: the shipped weights)")
-    parser.add_argument("--filter-weights", help="learned safety-filter checkpoint (as for driveopt bench)")
-    parser.add_argument("--last", type=float, default=3.0, help="[s] how much of the episode's end to print")
-    parser.add_argument("--duration", type=float, help="[s] stop the episode here (default: the scenario's)")
-    parser.add_argument("--json", help="write the summary and every step's row here")
-    args = parser.parse_args(argv)
-    if args.episode < 0 or args.samples < 1 or not args.last > 0 or (args.duration is not None and not args.duration > 0):
-        parser.error("--episode must be >= 0, --samples >= 1, --last and --duration > 0")
-    try:
-        overrides = config_overrides(args.config, args.filter_weights) or None
-        summary, rows = trace(args.scenario, args.planner, args.episode, seed=args.seed, samples=args.samples,
-                              overrides=overrides, duration=args.duration, weights=args.weights)
-    except DriveoptError as exc:
-        print(f"trace_episode: error: {exc}", file=sys.stderr)
-        return 2
-    print(json.dumps(summary))
-    shown = [row for row in rows if row["t"] >= rows[-1]["t"] - args.last] if rows else []
-    print("\n".join(_line(row) for row in shown))
-    if args.json:
-        path = Path(args.json)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        write_json(path, {"summary": summary, "steps": rows}, indent=None)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
