@@ -72,8 +72,12 @@ SLOW = {
        "the [tiny] case" for name in ("short-kernel", "default")},
     # benchmark scripts: their records are committed; the library paths they call are tested in the default suite
     **{f"tests/benchmarks/test_{name}.py": "benchmark script" for name in (
-        "filter_timing", "filter_residuals", "call_profile", "latency_bench", "closed_loop_ab", "trace_episode",
-        "compile_cost", "projection_split", "matmul_peak", "suite_compiles")},
+        "filter_timing", "filter_residuals", "call_profile", "latency_bench", "compile_cost", "projection_split",
+        "matmul_peak", "suite_compiles")},
+    # the commands that replay and compare closed-loop episodes: their option checks run in the default suite
+    "tests/experiments/test_trace_episode.py::test_the_trace_replays_the_bench_episode_step_by_step": "episode replay",
+    "tests/experiments/test_closed_loop_ab.py::test_a_tree_against_itself_is_identical_and_a_rerun_resumes":
+        "episode replay",
     "tests/benchmarks/test_faithful_ablation.py::test_episodes_are_written_and_a_rerun_resumes": "benchmark script",
     "tests/experiments/test_prior_metrics.py::test_the_script_writes_json_resumes_and_refuses_other_settings":
         "benchmark script",
@@ -92,7 +96,7 @@ SLOW = {
     "tests/experiments/test_rollout.py::test_the_loop_carries_the_executed_plan_when_consistency_is_weighed[bilevel]":
         "consistency",
     # the cache's switch, kept folder and concurrent writers: the other tests of test_compilation_cache.py;
-    # its start-up time: benchmarks/startup.py
+    # its start-up time: benchmarks/perf/startup.py
     "tests/cli/test_compilation_cache.py::test_a_second_plan_loads_the_planner_from_the_cache": "startup benchmark",
     # resuming collect: test_collect_resumes_without_duplicates; stopping on signals: tests/cli/test_interrupts.py
     "tests/data/test_demonstrations.py::test_terminated_collect_keeps_finished_episodes_and_resumes": "resume, signals",

@@ -1,11 +1,10 @@
-"""benchmarks/call_profile.py: its separately jitted parts are the planner's first iteration, and a profile records
+"""benchmarks/perf/call_profile.py: its separately jitted parts are the planner's first iteration, and a profile records
 every part with its share of the call."""
 
 from __future__ import annotations
 
 import json
 
-import benchmark_scripts
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -18,13 +17,10 @@ from driveopt.ranking import FeasibilityFirst
 from driveopt.sampler import GaussianPrior
 from driveopt.scene import load_scene
 
-
-@pytest.fixture(scope="module")
-def call_profile():
-    return benchmark_scripts.load("call_profile")
+from benchmarks.perf import call_profile
 
 
-def test_the_parts_reproduce_the_planners_first_iteration(call_profile):
+def test_the_parts_reproduce_the_planners_first_iteration():
     cfg = call_profile.profile_config(24, iterations=2, projection_iterations=4)
     problem = build_problem(load_scene(call_profile.PROBLEM), cfg.basis)
     prior, ranking, fallback = GaussianPrior.from_config(cfg.sampler, cfg.projection.v_max), FeasibilityFirst(), Fallback()
@@ -39,7 +35,7 @@ def test_the_parts_reproduce_the_planners_first_iteration(call_profile):
     np.testing.assert_array_equal(np.sort(pipeline.ranked[0]), np.sort(first.elite_index))
 
 
-def test_a_profile_is_written_with_every_part(call_profile, tmp_path):
+def test_a_profile_is_written_with_every_part(tmp_path):
     out = tmp_path / "profile.json"
     # the first test's configuration: its compiled planner is reused
     assert call_profile.main(["--json", str(out), "--samples", "24", "--calls", "2", "--iterations", "2",
@@ -60,7 +56,7 @@ def test_a_profile_is_written_with_every_part(call_profile, tmp_path):
     assert result["projection_gops_per_s"] == pytest.approx(per_call["total"] / result["parts_ms"]["projection"] / 1e6)
 
 
-def test_the_projection_count_is_its_products_and_elementwise_work_per_iteration(call_profile):
+def test_the_projection_count_is_its_products_and_elementwise_work_per_iteration():
     """Each projection iteration adds the same work: its products are, per row, the (n, 3K) map to the nodes and the
     three (K, n) maps back of each axis, and the (n, n) solve and penalty (n = 11 coefficients, K = 100 nodes)."""
     rows, n, K = 24 + 2, 11, 100

@@ -1,23 +1,19 @@
-"""benchmarks/faithful_ablation.py: each variant gives one piece of driveopt's machinery back to a faithful planner,
+"""benchmarks/studies/faithful_ablation.py: each variant gives one piece of driveopt's machinery back to a faithful planner,
 episodes are written as they end and a rerun resumes; bad input is refused."""
 
 from __future__ import annotations
 
 import json
 
-import benchmark_scripts
 import pytest
 
 from driveopt.batch_rows import SamplesOnly, StopRows
 from driveopt.ranking import CostPlusResidual, FeasibilityFirst
 
-
-@pytest.fixture(scope="module")
-def ablation():
-    return benchmark_scripts.load("faithful_ablation")
+from benchmarks.studies import faithful_ablation as ablation
 
 
-def test_each_variant_changes_only_its_piece(ablation):
+def test_each_variant_changes_only_its_piece():
     faithful = ablation.variant_spec("vqvae-faithful", "faithful", 100)
     assert isinstance(faithful.batch_rows, SamplesOnly) and faithful.executes_infeasible
     assert isinstance(faithful.ranking, CostPlusResidual) and not faithful.contact_guard
@@ -31,7 +27,7 @@ def test_each_variant_changes_only_its_piece(ablation):
     assert predicted.braking_prediction and predicted.approach_selection and not faithful.braking_prediction
 
 
-def test_episodes_are_written_and_a_rerun_resumes(ablation, tmp_path, capsys):
+def test_episodes_are_written_and_a_rerun_resumes(tmp_path, capsys):
     out = tmp_path / "ablation.jsonl"
     argv = ["--planner", "bilevel-faithful", "--scenario", "two-lane-d1.0", "--seeds", "42", "--episodes", "1",
             "--variants", "faithful", "stop-net", "--samples", "10", "--workers", "1", "--duration", "0.5",
@@ -53,7 +49,7 @@ def test_episodes_are_written_and_a_rerun_resumes(ablation, tmp_path, capsys):
                                   ["--planner", "bilevel-faithful", "--pairs", "42"],
                                   ["--planner", "bilevel-faithful", "--pairs", "42:-1"],
                                   ["--planner", "bilevel-faithful", "--pairs", "a:b"]])
-def test_bad_input_is_refused(ablation, tmp_path, capsys, argv):
+def test_bad_input_is_refused(tmp_path, capsys, argv):
     argv = argv + (["--scenario", "two-lane-d1.0"] if "--scenario" not in argv else []) + ["--out", str(tmp_path / "x")]
     with pytest.raises(SystemExit) as stop:
         ablation.main(argv)

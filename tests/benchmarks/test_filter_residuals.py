@@ -1,12 +1,11 @@
-"""benchmarks/filter_residuals.py: residuals after k projection iterations with the learned filter and with
+"""benchmarks/studies/filter_residuals.py: residuals after k projection iterations with the learned filter and with
 the plain projection, on held-out demonstration rows; resumable output and one-line errors.
 
-The script is loaded once and every run shares one setting (8 samples, k = 1 and 25, the ``vqvae-filter`` projection),
+Every run shares one setting (8 samples, k = 1 and 25, the ``vqvae-filter`` projection),
 so its projections compile once for the file."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -20,20 +19,11 @@ from driveopt.learned import filter as fl
 from driveopt.learned.checkpoint import save_checkpoint
 from driveopt.registry import get_optimiser
 
-BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+from benchmarks.studies import filter_residuals as SCRIPT
+
 CFG = fl.FilterConfig(hidden=(16, 16))
 ITERATIONS = [1, 25]
 ROWS = 3
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("filter_residuals", BENCHMARKS / "filter_residuals.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-SCRIPT = _script()  # one module: its jitted projections compile once for every run of this file
 
 
 def tiny_filter(path: Path, params, lanes=(4,)) -> Path:

@@ -1,19 +1,15 @@
-"""benchmarks/filter_timing.py: every case plans with its own iteration count and filter, and bad options are refused."""
+"""benchmarks/perf/filter_timing.py: every case plans with its own iteration count and filter, and bad options are refused."""
 
 from __future__ import annotations
 
 import json
 
-import benchmark_scripts
 import pytest
 
-
-@pytest.fixture(scope="module")
-def timing():
-    return benchmark_scripts.load("filter_timing")
+from benchmarks.perf import filter_timing as timing
 
 
-def test_each_case_plans_with_its_iterations_and_only_the_learned_ones_with_a_filter_and_their_overrides(timing, tmp_path, monkeypatch):
+def test_each_case_plans_with_its_iterations_and_only_the_learned_ones_with_a_filter_and_their_overrides(tmp_path, monkeypatch):
     seen = []
     real = timing.plan
 
@@ -47,7 +43,7 @@ def test_each_case_plans_with_its_iterations_and_only_the_learned_ones_with_a_fi
     (["--filter-weights", "no-such.ckpt"], "no-such.ckpt"),
     (["--learned-config", "no-such.json"], "no-such.json"),
 ])
-def test_bad_options_are_one_line_errors_and_write_nothing(timing, tmp_path, capsys, argv, needle):
+def test_bad_options_are_one_line_errors_and_write_nothing(tmp_path, capsys, argv, needle):
     out = tmp_path / "t.json"
     assert timing.main(["--json", str(out), "--samples", "16", "--calls", "1", *argv]) == 2
     err = capsys.readouterr().err

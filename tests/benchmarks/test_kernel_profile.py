@@ -1,23 +1,19 @@
-"""benchmarks/kernel_profile.py: a trace's kernels, per call and by how often a call runs them; and a profile of the
+"""benchmarks/perf/kernel_profile.py: a trace's kernels, per call and by how often a call runs them; and a profile of the
 planner's own executable whose loops show up as groups."""
 
 from __future__ import annotations
 
 import json
 
-import benchmark_scripts
 import jax
 import pytest
 
 from driveopt import planner
 
-
-@pytest.fixture(scope="module")
-def kernel_profile():
-    return benchmark_scripts.load("kernel_profile")
+from benchmarks.perf import kernel_profile
 
 
-def test_kernels_are_timed_per_call_and_grouped_by_runs(kernel_profile):
+def test_kernels_are_timed_per_call_and_grouped_by_runs():
     events = [
         {"ph": "X", "name": "fusion.1", "dur": 30.0}, {"ph": "X", "name": "fusion.1", "dur": 50.0},
         {"ph": "X", "name": "dot.2", "dur": 10.0}, {"ph": "X", "name": "dot.2", "dur": 10.0},
@@ -36,7 +32,7 @@ def test_kernels_are_timed_per_call_and_grouped_by_runs(kernel_profile):
     assert grouped[0] == {"runs_per_call": 1.0, "kernels": 1, "ms_per_call": pytest.approx(0.04)}
 
 
-def test_a_planner_profile_shows_its_projection_loop(kernel_profile, tmp_path, monkeypatch):
+def test_a_planner_profile_shows_its_projection_loop(tmp_path, monkeypatch):
     monkeypatch.setattr(planner, "XLA_CPU_COMPILER_OPTIONS", dict(planner.XLA_CPU_COMPILER_OPTIONS))  # main() adds to it
     cache = jax.config.jax_enable_compilation_cache  # main() turns the persistent cache off
     out = tmp_path / "kernels.json"

@@ -1,19 +1,15 @@
-"""benchmarks/latency.py: planner-config overrides and obstacle counts are applied to every case, and bad ones refused."""
+"""benchmarks/perf/latency.py: planner-config overrides and obstacle counts are applied to every case, and bad ones refused."""
 
 from __future__ import annotations
 
 import json
 
-import benchmark_scripts
 import pytest
 
-
-@pytest.fixture(scope="module")
-def latency():
-    return benchmark_scripts.load("latency")
+from benchmarks.perf import latency
 
 
-def test_a_case_runs_with_the_overrides_and_is_recorded_with_them(latency, tmp_path, monkeypatch):
+def test_a_case_runs_with_the_overrides_and_is_recorded_with_them(tmp_path, monkeypatch):
     seen = []
     real = latency.plan
 
@@ -40,7 +36,7 @@ def test_a_case_runs_with_the_overrides_and_is_recorded_with_them(latency, tmp_p
     ('{"projection": {"no_such_key": 1}}', "no_such_key"),
     ("not json", "cannot read config"),
 ])
-def test_bad_overrides_are_refused_in_one_line(latency, tmp_path, capsys, content, message):
+def test_bad_overrides_are_refused_in_one_line(tmp_path, capsys, content, message):
     overrides = tmp_path / "c.json"
     overrides.write_text(content)
     assert latency.main(["--json", str(tmp_path / "lat.json"), "--config", str(overrides)]) == 2
@@ -49,7 +45,7 @@ def test_bad_overrides_are_refused_in_one_line(latency, tmp_path, capsys, conten
     assert not (tmp_path / "lat.json").exists()
 
 
-def test_resuming_with_other_overrides_is_refused(latency, tmp_path, capsys):
+def test_resuming_with_other_overrides_is_refused(tmp_path, capsys):
     out = tmp_path / "lat.json"
     out.write_text(json.dumps({"machine": {}, "config": {"projection": {"course_max": 0.0}}, "results": []}))
     assert latency.main(["--json", str(out), "--resume"]) == 2
@@ -57,7 +53,7 @@ def test_resuming_with_other_overrides_is_refused(latency, tmp_path, capsys):
     assert json.loads(out.read_text())["results"] == []
 
 
-def test_fewer_obstacles_plan_against_that_many_and_are_named(latency, tmp_path, monkeypatch):
+def test_fewer_obstacles_plan_against_that_many_and_are_named(tmp_path, monkeypatch):
     counts = []
     real = latency.plan
 

@@ -1,19 +1,15 @@
-"""benchmarks/matmul_peak.py: a positive rate from the stated work; bad runs are refused."""
+"""benchmarks/perf/matmul_peak.py: a positive rate from the stated work; bad runs are refused."""
 
 from __future__ import annotations
 
 import json
 
-import benchmark_scripts
 import pytest
 
-
-@pytest.fixture(scope="module")
-def matmul_peak():
-    return benchmark_scripts.load("matmul_peak")
+from benchmarks.perf import matmul_peak
 
 
-def test_the_rate_is_the_chain_s_work_over_its_median_time(matmul_peak, tmp_path):
+def test_the_rate_is_the_chain_s_work_over_its_median_time(tmp_path):
     out = tmp_path / "peak.json"
     assert matmul_peak.main(["--calls", "3", "--json", str(out)]) == 0
     record = json.loads(out.read_text())
@@ -23,7 +19,7 @@ def test_the_rate_is_the_chain_s_work_over_its_median_time(matmul_peak, tmp_path
 
 
 @pytest.mark.parametrize("argv", [["--calls", "0", "--json", "x.json"], []])
-def test_bad_runs_are_refused(matmul_peak, capsys, argv):
+def test_bad_runs_are_refused(capsys, argv):
     with pytest.raises(SystemExit) as stop:
         matmul_peak.main(argv)
     assert stop.value.code == 2 and "matmul_peak.py: error:" in capsys.readouterr().err

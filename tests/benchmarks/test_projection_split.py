@@ -1,19 +1,15 @@
-"""benchmarks/projection_split.py: every way projects the same batch to nearly the same coefficients; bad runs are refused."""
+"""benchmarks/perf/projection_split.py: every way projects the same batch to nearly the same coefficients; bad runs are refused."""
 
 from __future__ import annotations
 
 import json
 
-import benchmark_scripts
 import pytest
 
-
-@pytest.fixture(scope="module")
-def projection_split():
-    return benchmark_scripts.load("projection_split")
+from benchmarks.perf import projection_split
 
 
-def test_every_way_is_timed_and_projects_the_batch_as_the_whole_call(projection_split, tmp_path):
+def test_every_way_is_timed_and_projects_the_batch_as_the_whole_call(tmp_path):
     out = tmp_path / "split.json"
     assert projection_split.main(["--samples", "8", "--calls", "2", "--json", str(out)]) == 0
     cases = json.loads(out.read_text())["cases"]
@@ -26,7 +22,7 @@ def test_every_way_is_timed_and_projects_the_batch_as_the_whole_call(projection_
 
 
 @pytest.mark.parametrize("argv", [["--samples", "7", "--json", "x.json"], ["--calls", "0", "--json", "x.json"], []])
-def test_bad_runs_are_refused_before_anything_compiles(projection_split, capsys, argv):
+def test_bad_runs_are_refused_before_anything_compiles(capsys, argv):
     with pytest.raises(SystemExit) as stop:
         projection_split.main(argv)
     assert stop.value.code == 2 and "projection_split.py: error:" in capsys.readouterr().err

@@ -1,23 +1,19 @@
-"""benchmarks/row_sharing_ab.py: both row sharings plan every state with the same key, the record resumes, and runs
+"""benchmarks/perf/row_sharing_ab.py: both row sharings plan every state with the same key, the record resumes, and runs
 that cannot compare anything are refused."""
 
 from __future__ import annotations
 
 import json
 
-import benchmark_scripts
 import pytest
 
 from driveopt.problem import build_problem
 from driveopt.scene import load_scene
 
-
-@pytest.fixture(scope="module")
-def ab():
-    return benchmark_scripts.load("row_sharing_ab")
+from benchmarks.perf import row_sharing_ab as ab
 
 
-def test_both_sharings_plan_each_state_and_a_rerun_resumes(ab, tmp_path, monkeypatch):
+def test_both_sharings_plan_each_state_and_a_rerun_resumes(tmp_path, monkeypatch):
     spec = ab.get_optimiser("vqvae").with_samples(24)
     problem = build_problem(load_scene("dense-snapshot"), spec.config.basis)
     monkeypatch.setattr(ab, "states", lambda *args: [problem, problem])  # two states, without driving an episode
@@ -47,7 +43,7 @@ def test_both_sharings_plan_each_state_and_a_rerun_resumes(ab, tmp_path, monkeyp
         ab.main([*arguments[:-1], "2"])
 
 
-def test_a_planner_that_projects_every_row_is_refused(ab, tmp_path):
+def test_a_planner_that_projects_every_row_is_refused(tmp_path):
     with pytest.raises(SystemExit):
         ab.main(["--json", str(tmp_path / "ab.json"), "--planner", "bilevel"])
     assert not (tmp_path / "ab.json").exists()

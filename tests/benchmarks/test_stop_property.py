@@ -1,4 +1,4 @@
-"""benchmarks/stop_property.py: it plans both problem sets, counts both promises, catches a broken promise, and writes its
+"""benchmarks/studies/stop_property.py: it plans both problem sets, counts both promises, catches a broken promise, and writes its
 JSON at the end and on Ctrl-C."""
 
 from __future__ import annotations
@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 from types import SimpleNamespace
 
-import benchmark_scripts
 import numpy as np
 import pytest
 
@@ -15,15 +14,12 @@ from driveopt.planner import PlanStatus
 from driveopt.scene import EgoState, Road, Scene
 from driveopt.trajectory import Trajectory
 
+from benchmarks.studies import stop_property
+
 TINY = ["--samples", "16", "--iterations", "1", "--projection-iterations", "2"]
 
 
-@pytest.fixture(scope="module")
-def stop_property():
-    return benchmark_scripts.load("stop_property")
-
-
-def test_it_plans_both_sets_and_counts_no_broken_fallback_promise(stop_property, tmp_path):
+def test_it_plans_both_sets_and_counts_no_broken_fallback_promise(tmp_path):
     out = tmp_path / "s.json"
     assert stop_property.main(["--json", str(out), "--random", "3", "--realistic", "2", *TINY]) == 0
     report = json.loads(out.read_text())
@@ -34,7 +30,7 @@ def test_it_plans_both_sets_and_counts_no_broken_fallback_promise(stop_property,
         assert tally["fallback_violations"]["problems"] == 0 and tally["success_against_travel"] <= tally["status"].get("SUCCESS", 0)
 
 
-def test_ctrl_c_writes_what_was_planned(stop_property, tmp_path, monkeypatch):
+def test_ctrl_c_writes_what_was_planned(tmp_path, monkeypatch):
     real, calls = stop_property.plan, []
 
     def interrupted_plan(*args, **kwargs):
@@ -56,7 +52,7 @@ def _stop(t, x, vx, speed, y=None):
     return Trajectory(t, x, y, vx, zeros, zeros, zeros, speed, zeros, zeros, zeros)
 
 
-def test_the_checks_catch_a_stop_that_drives_forwards_and_a_success_that_rolls_back(stop_property):
+def test_the_checks_catch_a_stop_that_drives_forwards_and_a_success_that_rolls_back():
     """A reversing ego (vx -15 m/s) whose fallback starts forwards at +15 m/s; a SUCCESS plan of a forward ego that
     rolls back 0.5 m at the end."""
     t = np.linspace(0.0, 15.0, 100)
@@ -81,7 +77,7 @@ def test_the_checks_catch_a_stop_that_drives_forwards_and_a_success_that_rolls_b
 
 
 @pytest.mark.parametrize("argv, needle", [(["--random", "-1"], "--random"), (["--samples", "0"], "--samples")])
-def test_bad_options_are_one_line_errors_and_write_nothing(stop_property, tmp_path, capsys, argv, needle):
+def test_bad_options_are_one_line_errors_and_write_nothing(tmp_path, capsys, argv, needle):
     out = tmp_path / "s.json"
     with pytest.raises(SystemExit) as exc:
         stop_property.main(["--json", str(out), *argv])

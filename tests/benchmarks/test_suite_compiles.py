@@ -1,4 +1,4 @@
-"""benchmarks/suite_compiles.py: the plugin records each test's compilations and the graphs it looks up; the summary
+"""benchmarks/tools/suite_compiles.py: the plugin records each test's compilations and the graphs it looks up; the summary
 merges the workers' files."""
 
 from __future__ import annotations
@@ -8,10 +8,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-import benchmark_scripts
 import pytest
 
-BENCHMARKS = Path(benchmark_scripts.__file__).resolve().parents[1] / "benchmarks"
+from benchmarks.tools import suite_compiles
+
+REPOSITORY = Path(__file__).resolve().parents[2]  # benchmarks.tools.suite_compiles is imported from here
 
 TESTS = '''
 import jax
@@ -37,25 +38,24 @@ def test_compiles_nothing():
 def test_the_plugin_counts_each_tests_compilations_and_graphs(tmp_path):
     (tmp_path / "test_tiny.py").write_text(TESTS)
     stats = tmp_path / "stats"
-    env = {**os.environ, "COMPILE_STATS_DIR": str(stats), "PYTHONPATH": os.pathsep.join([str(BENCHMARKS), *sys.path]),
+    env = {**os.environ, "COMPILE_STATS_DIR": str(stats), "PYTHONPATH": os.pathsep.join([str(REPOSITORY), *sys.path]),
            "DRIVEOPT_COMPILATION_CACHE": "0"}
-    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "suite_compiles", "-p", "no:cacheprovider",
+    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "benchmarks.tools.suite_compiles", "-p", "no:cacheprovider",
                           "-p", "no:xdist", "test_tiny.py"], cwd=tmp_path, env=env, capture_output=True, text=True)
     assert run.returncode == 0, run.stdout + run.stderr
-    summary = benchmark_scripts.load("suite_compiles")
-    text = summary.summary(stats, top=5)
+    text = suite_compiles.summary(stats, top=5)
     compiled = next(line for line in text.splitlines() if line.endswith("test_tiny.py::test_compiles"))
     assert int(compiled.split("(")[1].split(")")[0]) >= 2  # the test's jit and the exported call's graph
     assert "test_compiles_nothing" not in text  # no compilation, no row
     assert "1 planner graphs" in text and "double in 1 process(es), first by test_tiny.py::test_compiles" in text
     with pytest.raises(SystemExit, match="no compiles"):
-        summary.summary(tmp_path / "empty", top=5)
+        suite_compiles.summary(tmp_path / "empty", top=5)
 
 
 def test_config_changes_name_every_changed_field():
     from driveopt.config import PlannerConfig
 
-    changes = benchmark_scripts.load("suite_compiles").config_changes
+    changes = suite_compiles.config_changes
     config = PlannerConfig().replace(projection={"a_max": 4.5}, cost={"consistency": 1.0})
     assert changes(config, PlannerConfig()) == ["projection.a_max=4.5", "cost.consistency=1.0"]
     assert changes(PlannerConfig(), PlannerConfig()) == []

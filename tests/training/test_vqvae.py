@@ -175,13 +175,8 @@ def test_version_1_files_stay_readable_for_the_cvae(tmp_path):
 
 
 def test_demonstrations_table_counts_modes_and_lanes_and_refuses_bad_files(mode_file, tmp_path, capsys):
-    import importlib.util
-    from pathlib import Path
+    from benchmarks.studies import demonstrations_table as table
 
-    spec = importlib.util.spec_from_file_location(
-        "demonstrations_table", Path(__file__).resolve().parents[2] / "benchmarks" / "demonstrations_table.py")
-    table = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(table)
     demo = tmp_path / "demo.h5"
     collect(demo, ["two-lane-d1.0"], episodes=1, seed=3, samples=40, iterations=1, duration=0.3, workers=1, modes=3,
             progress=False)

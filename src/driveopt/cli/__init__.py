@@ -1,5 +1,5 @@
 """The ``driveopt`` command: ``plan | problems | drive | bench | reproduce | summarise | collect | train | plot-prior |
-plot-curves | scenarios | planners``.
+plot-curves | trace-episode | closed-loop-ab | scenarios | planners``.
 
 One module per command, each with ``register(subparsers)``. Errors in user input (a
 :class:`~driveopt.errors.DriveoptError`: unknown name, malformed file or config, unusable
@@ -23,7 +23,21 @@ import sys
 import warnings
 from collections.abc import Sequence
 
-from driveopt.cli import bench, collect, drive, interrupts, listing, plan, plot_curves, plot_prior, reproduce, summarise, train
+from driveopt.cli import (
+    bench,
+    closed_loop_ab,
+    collect,
+    drive,
+    interrupts,
+    listing,
+    plan,
+    plot_curves,
+    plot_prior,
+    reproduce,
+    summarise,
+    trace_episode,
+    train,
+)
 from driveopt.cli.common import UsageError
 from driveopt.cli.parser import OneLineArgumentParser
 from driveopt.compilation_cache import CacheSetupWarning
@@ -35,7 +49,8 @@ __all__ = ["UsageError", "build_parser", "main"]
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineArgumentParser(prog="driveopt", description="Bi-level motion planning for dense highway traffic.")
     sub = parser.add_subparsers(dest="command", required=True)
-    for command in (plan, drive, bench, reproduce, summarise, collect, train, plot_prior, plot_curves, listing):
+    for command in (plan, drive, bench, reproduce, summarise, collect, train, plot_prior, plot_curves, trace_episode,
+                    closed_loop_ab, listing):
         command.register(sub)
     return parser
 

@@ -127,7 +127,7 @@ def stdout_closed(exc: BaseException) -> bool:
 
 
 def default_program() -> str:
-    """The running script's name without its suffix (``p2_closed_loop``)."""
+    """The running script's name without its suffix (``faithful_ablation``)."""
     return Path(sys.argv[0]).stem if sys.argv and sys.argv[0] else "python"
 
 

@@ -118,7 +118,7 @@ def _verdict_counts(results: list[ClaimResult]) -> str:
     return ", ".join(f"{v}: {n}" for v, n in sorted(counts.items())) or "none"
 
 
-UNEXPLAINED = ("**not explained yet**: trace episodes where the arms differ (`benchmarks/trace_episode.py`) and record "
+UNEXPLAINED = ("**not explained yet**: trace episodes where the arms differ (`driveopt trace-episode`) and record "
                "the finding in the claim's explanation (`src/driveopt/experiments/protocols.py`)")
 
 

@@ -1,0 +1,148 @@
+"""driveopt's controller and highway-env's IDM on upstream highway-env's own envs: collisions, off-road, speed.
+
+    python benchmarks/studies/upstream_roads.py --out benchmarks/results/upstream-roads [--episodes 20] [--samples 250]
+        [--envs highway-v0 racetrack-v0 ...] [--planners bilevel idm] [--seed 0] [--duration 20]
+
+Each episode makes the env with ``driveopt.gym_make`` (``gymnasium.make`` with rewards for array actions) and
+``ContinuousAction`` (default traffic; the settings of :data:`ENVS` make every env last the duration), resets it
+with seed ``seed + episode`` and drives it through :class:`driveopt.Controller` (``idm``: highway-env's IDM/MOBIL
+vehicle takes the ego's place) at the ego lane's speed limit as desired speed, for ``--duration`` seconds or until the
+env ends the episode. An env whose road the controller refuses (``RoadFrameError`` at reset) is recorded as refused
+with the message. Every episode is one line of ``OUT/episodes.jsonl`` (a rerun skips those done: resumable);
+``OUT/summary.json`` gives, per env and planner, the episodes, collisions, off-road episodes, refusals and the mean
+speed over the episodes without collision.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+ENVS = {  # env id -> (gymnasium.make config besides ContinuousAction, make kwargs)
+    "highway-v0": ({"duration": 20}, {}),
+    "racetrack-v0": ({}, {}),
+    "racetrack-oval-v0": ({}, {}),
+    "exit-v0": ({"duration": 20}, {}),
+    "merge-v0": ({}, {}),  # upstream ends the episode past x = 370 m
+    "two-way-v0": ({"observation": {"type": "Kinematics"}}, {"max_episode_steps": 20}),
+    "roundabout-v0": ({}, {}),
+    "intersection-v0": ({}, {}),
+}
+
+
+def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: float) -> dict:
+    """One episode's record."""
+    import driveopt
+    from driveopt.sim.road_frame import RoadFrameError
+
+    config, kwargs = ENVS[env_id]
+    env = driveopt.gym_make(env_id, config={"action": {"type": "ContinuousAction"}, **config}, **kwargs)
+    record = {"env": env_id, "planner": planner, "seed": seed}
+    try:
+        env.reset(seed=seed)
+        controller = driveopt.Controller(planner, samples=samples if planner != "idm" else None)
+        try:
+            controller.reset(env, seed=seed)
+        except RoadFrameError as exc:
+            return {**record, "refused": str(exc)}
+        sim = env.unwrapped
+        steps = round(duration * sim.config["policy_frequency"])
+        speeds, statuses, plan_ms = [], Counter(), []
+        collided = off_road = False
+        start = time.perf_counter()
+        for _ in range(steps):
+            try:
+                action = controller.act(env)
+            except RoadFrameError as exc:
+                return {**record, "refused": str(exc), "time": float(sim.time)}
+            if controller.status is not None:
+                statuses[controller.status.name] += 1
+                plan_ms.append(1e3 * controller.last.plan_seconds)
+            _, _, terminated, truncated, info = env.step(action)
+            speeds.append(float(sim.vehicle.speed))
+            collided |= bool(info["crashed"])
+            off_road |= not sim.vehicle.on_road
+            if terminated or truncated or collided:
+                break
+        return {**record, "collided": collided, "off_road": off_road, "mean_speed": float(np.mean(speeds)),
+                "time": float(sim.time), "steps": len(speeds), "statuses": dict(statuses),
+                "plan_ms_median": float(np.median(plan_ms)) if plan_ms else None,
+                "compile_seconds": controller.compile_seconds, "wall_seconds": time.perf_counter() - start}
+    finally:
+        env.close()
+
+
+def summarise(records: list[dict]) -> dict:
+    summary: dict = {}
+    for r in records:
+        row = summary.setdefault(r["env"], {}).setdefault(r["planner"], {
+            "episodes": 0, "collisions": 0, "off_road_episodes": 0, "refused": 0, "speeds": []})
+        row["episodes"] += 1
+        if "refused" in r:
+            row["refused"] += 1
+            row["refusal"] = r["refused"]
+            continue
+        row["collisions"] += r["collided"]
+        row["off_road_episodes"] += r["off_road"]
+        if not r["collided"]:
+            row["speeds"].append(r["mean_speed"])
+    for rows in summary.values():
+        for row in rows.values():
+            speeds = row.pop("speeds")
+            row["mean_speed"] = float(np.mean(speeds)) if speeds else None
+    return summary
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, required=True, help="folder for episodes.jsonl and summary.json")
+    parser.add_argument("--envs", nargs="+", default=list(ENVS), choices=list(ENVS))
+    parser.add_argument("--planners", nargs="+", default=["bilevel", "idm"])
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=0, help="episode k is reset with seed + k")
+    parser.add_argument("--samples", type=int, default=250)
+    parser.add_argument("--duration", type=float, default=20.0, help="[s] at most, per episode")
+    args = parser.parse_args(argv)
+    if args.episodes < 1 or args.samples < 1 or args.duration <= 0:
+        parser.error("--episodes, --samples and --duration must be positive")
+    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    from driveopt.cli import stop_cleanly_on_signals
+    from driveopt.experiments.rows_file import row_line
+    from driveopt.files import write_json
+
+    stop_cleanly_on_signals()
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / "episodes.jsonl"
+    settings = {"samples": args.samples, "duration": args.duration}
+    records = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+    done = {(r["env"], r["planner"], r["seed"]) for r in records if r.get("settings") == settings}
+    with path.open("a") as out:
+        for env_id in args.envs:
+            for planner in args.planners:
+                for k in range(args.episodes):
+                    seed = args.seed + k
+                    if (env_id, planner, seed) in done:
+                        continue
+                    record = {**run_episode(env_id, planner, seed, args.samples, args.duration), "settings": settings}
+                    out.write(row_line(record))
+                    out.flush()
+                    records.append(record)
+                    print(f"{env_id} {planner} seed {seed}: " + ("refused" if "refused" in record else
+                          f"collided {record['collided']}, off-road {record['off_road']}, {record['mean_speed']:.1f} m/s"),
+                          flush=True)
+    chosen = [r for r in records if r.get("settings") == settings and r["env"] in args.envs and r["planner"] in args.planners]
+    summary = {"command": "python benchmarks/studies/upstream_roads.py " + " ".join(argv if argv is not None else os.sys.argv[1:]),
+               "settings": settings, "results": summarise(chosen)}
+    write_json(args.out / "summary.json", summary)
+    print(json.dumps(summary["results"], indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
