@@ -2,4 +2,5 @@
 loop, given a driver spec), ``store`` (append-only JSONL records and the job key), ``runner`` (jobs in this process,
 spawned workers or Ray, one writer), ``bench`` (``driveopt bench``), ``summary`` (rates with Wilson intervals,
 speeds, times; CSV, Markdown, plot), ``collect`` (``driveopt collect``: the expert's demonstrations) and
-``prior_metrics`` (offline metrics of a prior's first batch on held-out demonstrations)."""
+``prior_metrics`` (offline metrics of a prior's first batch on held-out demonstrations; its command line is
+``python -m driveopt.experiments.prior_metrics``)."""
