@@ -37,7 +37,7 @@ road() {  # SHORT PIXELCNN_EPOCHS SCENARIO:EPISODES ...  (every scenario on the 
     echo "== $r: train pixelcnn ($(date -u +%H:%M))"
     driveopt train pixelcnn --data "${data[@]}" --vqvae "$out/vqvae-$r/vqvae.ckpt" --out "$out/pixelcnn-$r" --epochs "$epochs"
     echo "== $r: prior metrics ($(date -u +%H:%M))"
-    python "$repo/benchmarks/prior_metrics.py" --data "${data[@]}" --validation 0.1 --seed 0 --max-rows 200 \
+    python -m driveopt.experiments.prior_metrics --data "${data[@]}" --validation 0.1 --seed 0 --max-rows 200 \
         --cvae-weights "$out/cvae-$r/cvae.ckpt" --vqvae-weights "$out/pixelcnn-$r/pixelcnn.ckpt" \
         --json "$out/prior_metrics-$r.json"
     echo "== $r: done ($(date -u +%H:%M))"

@@ -14,7 +14,9 @@ module (highway-env; for the RL env also JAX), registering does not.
 :data:`SPECS` maps each id to its entry point and ``max_episode_steps`` (gymnasium's ``TimeLimit``):
 
 - ``driveopt/highway-v0``, ``driveopt/two-way-v0``, ``driveopt/merge-v0``: the scenario adapters of
-  :mod:`driveopt.sim.env`; they truncate themselves at their ``duration`` config [s] (no TimeLimit);
+  :mod:`driveopt.sim.env`, one per road layout of :data:`ROAD_ENVS` (the one table of the layouts: the scenarios'
+  ``road`` values, :data:`driveopt.sim.scenarios.ROADS`, and the ids :data:`ROAD_ENV_IDS` come from it); they
+  truncate themselves at their ``duration`` config [s] (no TimeLimit);
 - ``driveopt/driving-v0``: :class:`driveopt.rl.env.DrivingEnv`, one action per second, truncated after
   :data:`RL_EPISODE_STEPS` steps (the default scenario's 50 s; pass ``max_episode_steps`` to
   ``gymnasium.make`` with a scenario of another duration).
@@ -32,10 +34,25 @@ class EnvSpec(NamedTuple):
 
 
 RL_EPISODE_STEPS = 50  # [steps] of 1 s: the RL env's default scenario (two-lane-d1.0) lasts 50 s
+
+ROAD_ENVS: dict[str, str] = {  # road layout -> its adapter env in driveopt.sim.env (over highway-env's <layout>-v0)
+    "highway": "DriveoptHighwayEnv",
+    "two-way": "DriveoptTwoWayEnv",
+    "merge": "DriveoptMergeEnv",
+}
+
+
+def road_env_id(road: str) -> str:
+    """The gymnasium id of the adapter env of road layout ``road``: ``driveopt/<road>-v0``, named after upstream's
+    ``<road>-v0`` it adapts."""
+    return f"driveopt/{road}-v0"
+
+
+ROAD_ENV_IDS: dict[str, str] = {road: road_env_id(road) for road in ROAD_ENVS}
+"""gymnasium id of the adapter env of each road layout."""
+
 SPECS: dict[str, EnvSpec] = {
-    "driveopt/highway-v0": EnvSpec("driveopt.sim.env:DriveoptHighwayEnv", None),
-    "driveopt/two-way-v0": EnvSpec("driveopt.sim.env:DriveoptTwoWayEnv", None),
-    "driveopt/merge-v0": EnvSpec("driveopt.sim.env:DriveoptMergeEnv", None),
+    **{road_env_id(road): EnvSpec(f"driveopt.sim.env:{env}", None) for road, env in ROAD_ENVS.items()},
     "driveopt/driving-v0": EnvSpec("driveopt.rl.env:DrivingEnv", RL_EPISODE_STEPS),
 }
 

@@ -13,10 +13,11 @@ import ast
 from pathlib import Path
 
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("errors", "lazy", "chunks", "compilation_cache", "gym_envs", "layers"),  # exceptions, lazy exports, loop helpers, this order
+    ("errors", "lazy", "chunks", "pytree", "compilation_cache", "gym_envs", "layers", "learned_kinds"),  # exceptions,
+    # lazy exports, loop helpers, learned weights as pytrees, registered ids, this order, learned components by kind
     ("checks", "jsonfile", "files", "xla"),  # one-line input checks, the strict file reader, atomic writes, compiling
     ("config", "scene", "solve_export"),  # configuration; the world; exported planner graphs
-    ("basis", "prediction"),  # Bernstein basis; the neighbours' predicted motion
+    ("basis", "prediction", "config_reference"),  # Bernstein basis; neighbours' predicted motion; docs/configuration.md
     ("observation", "qp"),  # the learned components' features; the set-point QP
     ("problem", "trajectory"),  # the planner's arrays; a trajectory read out of its coefficients
     ("projection", "costs", "sampler", "filtering", "sim"),  # the numerics; the SafetyFilter contract; highway-env

@@ -1,12 +1,10 @@
 """Offline prior metrics: best of N, feasible share, distinct lanes; the problem of a demonstration row;
-the resumable benchmark script."""
+the resumable command line (``python -m driveopt.experiments.prior_metrics``)."""
 
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -24,6 +22,7 @@ from driveopt.experiments.prior_metrics import (
     distinct_lanes,
     evaluation_config,
     feasible_count,
+    main,
     proposal_positions,
     row_metrics,
     summarise,
@@ -33,9 +32,6 @@ from driveopt.planner import RowKind
 from driveopt.problem import build_problem
 from driveopt.sampler import Proposal, moments
 from driveopt.scene import EgoState, Road, Scene, load_scene
-
-BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
-
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
@@ -120,22 +116,14 @@ def test_row_metrics_of_a_hand_made_prior_on_an_empty_road():
     assert (one_lane.feasible, one_lane.lanes, one_lane.feasible_lanes) == (8, 1, 1)
 
 
-# ------------------------------------------------------------------------------------------ the script
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("prior_metrics", BENCHMARKS / "prior_metrics.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+# ------------------------------------------------------------------------------------------ the command line
 
 
 def test_the_script_writes_json_resumes_and_refuses_other_settings(tmp_path, capsys):
-    script = _script()
     data = write_demonstrations(tmp_path / "held.h5")
     out = tmp_path / "metrics.json"
     args = ["--data", str(data), "--json", str(out), "--priors", "gaussian", "--max-rows", "2", "--samples", "16", "--best-of", "4"]
-    assert script.main(args) == 0
+    assert main(args) == 0
     report = json.loads(out.read_text())
     stats = report["results"]["gaussian"]
     assert stats["rows"] == 2 and 0.0 <= stats["feasible_share"] <= 1.0 and 1 <= stats["lanes_median"] <= 4
@@ -144,11 +132,11 @@ def test_the_script_writes_json_resumes_and_refuses_other_settings(tmp_path, cap
     assert len(lines) == 3 and json.loads(lines[0])["settings"] == report["settings"]
     # A torn last line is redone; finished rows are kept.
     (tmp_path / "metrics.rows.jsonl").write_text("\n".join(lines[:2]) + '\n{"prior": "gau')
-    assert script.main(args) == 0
+    assert main(args) == 0
     assert (tmp_path / "metrics.rows.jsonl").read_text().splitlines()[:2] == lines[:2]
     assert json.loads(out.read_text())["results"]["gaussian"]["rows"] == 2
     capsys.readouterr()
-    assert script.main([*args[:-4], "--samples", "20", "--best-of", "4"]) == 2
+    assert main([*args[:-4], "--samples", "20", "--best-of", "4"]) == 2
     assert "other settings (samples)" in capsys.readouterr().err
-    assert script.main([*args, "--vqvae-weights", str(tmp_path / "none.ckpt"), "--priors", "vqvae"]) == 2
+    assert main([*args, "--vqvae-weights", str(tmp_path / "none.ckpt"), "--priors", "vqvae"]) == 2
     assert "cannot read checkpoint" in capsys.readouterr().err

@@ -78,3 +78,16 @@ def test_the_rl_env_is_registered_with_its_episode_length():
         assert obs.shape == env.observation_space.shape
     finally:
         env.close()
+
+
+def test_road_layouts_scenario_roads_and_env_ids_come_from_one_table():
+    from driveopt.sim import env, scenarios
+
+    # The ids registered before the layouts were one table, exactly.
+    assert list(gym_envs.SPECS) == ["driveopt/highway-v0", "driveopt/two-way-v0", "driveopt/merge-v0", "driveopt/driving-v0"]
+    assert scenarios.ROADS == tuple(gym_envs.ROAD_ENVS) == ("highway", "two-way", "merge")
+    assert env.ENV_IDS == gym_envs.ROAD_ENV_IDS == {road: f"driveopt/{road}-v0" for road in scenarios.ROADS}
+    for road, env_class in gym_envs.ROAD_ENVS.items():
+        assert gym_envs.SPECS[env.ENV_IDS[road]] == (f"driveopt.sim.env:{env_class}", None)
+        assert issubclass(getattr(env, env_class), env.gym.Env)
+    assert {scenarios.get_scenario(name).road for name in scenarios.list_scenarios()} == set(scenarios.ROADS)

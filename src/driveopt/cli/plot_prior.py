@@ -1,10 +1,11 @@
-"""``driveopt plot-prior``: Gaussian, CVAE and VQ-VAE samples for one observation, with set-point densities
+"""``driveopt plot-prior``: Gaussian and learned priors' samples for one observation, with set-point densities
 (P1 Fig. 4, P2 Fig. 1).
 
-Columns: P1's Gaussian, the ``bilevel`` planner's Gaussian (half coherent behaviours), the CVAE and the
-VQ-VAE (PixelCNN codes -> VQ-VAE decoder). A learned prior's weights come from ``--cvae-weights`` /
-``--vqvae-weights`` or are the ones shipped for the road's lane count; with neither, its column is left
-out with a notice (on stderr and under the figure's title). A checkpoint that is given but missing,
+Columns: P1's Gaussian, the ``bilevel`` planner's Gaussian (half coherent behaviours), then one per learned prior
+that is compared offline (:func:`driveopt.learned_kinds.offline_kinds`: the CVAE, the VQ-VAE with its PixelCNN
+codes). A learned prior's weights come from its option (``--cvae-weights``, ``--vqvae-weights``, ...) or are the
+ones shipped for the road's lane count; with neither, its column is left out with a notice (on stderr and under
+the figure's title). A checkpoint that is given but missing,
 corrupted or trained for another lane count is an error (exit 2), checked before any sampling.
 The default observation, ``slow-leader-four-lane``, has three homotopy classes (follow, change left,
 change right), the situation of P2 Fig. 1.
@@ -14,11 +15,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import sys
 from pathlib import Path
 from typing import Any, Callable
 
 from driveopt.cli.common import UsageError, positive_int, seed, writable_file
+from driveopt.learned_kinds import offline_kinds
 
 DEFAULT_PROBLEM = "slow-leader-four-lane"
 
@@ -29,9 +32,9 @@ def register(sub) -> None:
     p.add_argument("--problem", default=DEFAULT_PROBLEM, help="built-in problem or JSON file")
     p.add_argument("--scenario", help="take the observation from this scenario's first state instead")
     p.add_argument("--seed", type=seed, default=0, help="traffic seed (with --scenario) and sampling seed")
-    p.add_argument("--cvae-weights", "--weights", dest="weights",
-                   help="CVAE checkpoint (default: the weights shipped for the road)")
-    p.add_argument("--vqvae-weights", help="PixelCNN checkpoint, which embeds its VQ-VAE (default: the weights shipped for the road)")
+    for kind in offline_kinds():
+        p.add_argument(kind.weights_option, *kind.weights_aliases, dest=kind.weights_dest,
+                       help=f"{kind.checkpoint} (default: the weights shipped for the road)")
     p.add_argument("--samples", type=positive_int, default=200)
     p.add_argument("--out", default="out/prior.png")
     p.set_defaults(func=run)
@@ -69,14 +72,15 @@ def _learned(label: str, option: str, given: str | None, shipped: Path | None, l
 
 def run(args: argparse.Namespace) -> int:
     from driveopt.config import PlannerConfig
-    from driveopt.priors import cvae, vqvae
     from driveopt.sampler import GaussianPrior
     from driveopt.viz.prior_plot import ROWS, plot_priors
 
     writable_file(args.out, "--out")
-    for option, given in (("--cvae-weights", args.weights), ("--vqvae-weights", args.vqvae_weights)):
+    kinds = offline_kinds()
+    for kind in kinds:
+        given = getattr(args, kind.weights_dest)
         if given and not Path(given).is_file():
-            raise UsageError(f"{option} {given}: no such file")
+            raise UsageError(f"{kind.weights_option} {given}: no such file")
     scene = _scene_for(args)
     lanes = scene.road.num_lanes
     config = PlannerConfig()
@@ -85,12 +89,9 @@ def run(args: argparse.Namespace) -> int:
     priors: dict[str, Any] = {"Gaussian (P1's initial distribution)": dataclasses.replace(gaussian, structured_fraction=0.0),
                               "Gaussian + coherent behaviours (bilevel planner)": gaussian}
     notes: list[str] = []
-    for column in (
-        _learned("CVAE", "--cvae-weights", args.weights, cvae.shipped_weights(lanes), lanes,
-                 lambda path: cvae.load_prior(path, v_max, lanes=lanes), notes),
-        _learned("VQ-VAE + PixelCNN", "--vqvae-weights", args.vqvae_weights, vqvae.shipped_weights(lanes), lanes,
-                 lambda path: vqvae.load_prior(path, v_max, lanes=lanes), notes),
-    ):
+    for column in [_learned(kind.title, kind.weights_option, getattr(args, kind.weights_dest), kind.shipped_weights(lanes),
+                            lanes, functools.partial(kind.load_prior, v_max=v_max, lanes=lanes), notes)
+                   for kind in kinds]:
         if column is not None:
             priors[column[0]] = column[1]
     figure = plot_priors(priors, scene, config, args.out, num=args.samples, seed=args.seed, notes=notes)

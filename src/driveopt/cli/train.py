@@ -1,52 +1,18 @@
-"""``driveopt train MODEL``: fit a learned component to demonstrations, resumable (cvae, vqvae, pixelcnn, filter,
-cvae-multipliers, dqn, ppo).
+"""``driveopt train MODEL``: fit a learned component to demonstrations (or, for the RL baselines, in the simulator),
+resumable.
 
-The settings are checked (:class:`~driveopt.training.cvae.TrainConfig`,
-:class:`~driveopt.learned.cvae.CVAEConfig`: NaN, infinite and out-of-range values are refused) before
-any data is read or output written.
+The models are the ``train`` subcommands of every row of :data:`driveopt.learned_kinds.KINDS`, each registered by
+its row's ``train_cli`` (:mod:`driveopt.cli.train_cvae`, :mod:`driveopt.cli.train_vqvae`, ...). Their settings are
+checked before any data is read or output written.
 """
 
 from __future__ import annotations
 
-import argparse
-
-from driveopt.cli.common import add_split_arguments, positive_int
-from driveopt.cli.train_cvae_multipliers import register_models as register_cvae_multipliers
-from driveopt.cli.train_filter import register_models as register_filter
-from driveopt.cli.train_rl import register_models as register_rl
-from driveopt.cli.train_vqvae import register_models
+from driveopt import learned_kinds
 
 
 def register(sub) -> None:
-    p = sub.add_parser("train", help="train a learned component (cvae, vqvae, pixelcnn, filter, cvae-multipliers, dqn, ppo); resumable")
+    p = sub.add_parser("train", help=f"train a learned component ({', '.join(learned_kinds.train_models())}); resumable")
     models = p.add_subparsers(dest="model", required=True)
-    p = models.add_parser("cvae", help="CVAE warm start (P1 §III-D) from demonstrations of `driveopt collect`")
-    p.add_argument("--data", nargs="+", required=True, help="demonstration HDF5 files")
-    p.add_argument("--out", required=True, help="output folder (rerun to resume): last.ckpt, cvae.ckpt, history.json")
-    p.add_argument("--epochs", type=positive_int, default=60)
-    p.add_argument("--batch-size", type=positive_int, default=256)
-    p.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate (x0.1 every 20 epochs)")
-    p.add_argument("--beta", type=float, default=1.0, help="KL weight after annealing")
-    p.add_argument("--latent", type=positive_int, default=2, help="latent dimension")
-    p.add_argument("--hidden", type=positive_int, nargs="+", default=[256, 256, 256], help="MLP widths")
-    add_split_arguments(p)
-    p.set_defaults(func=run_cvae)
-    register_models(models)  # vqvae, pixelcnn
-    register_filter(models)  # P2's learned safety filter
-    register_cvae_multipliers(models)  # P2's CVAE baseline, its reference [5]
-    register_rl(models)  # dqn, ppo: P1's RL baselines
-
-
-def run_cvae(args: argparse.Namespace) -> int:
-    from driveopt.learned.cvae import CVAEConfig
-    from driveopt.training.cvae import TrainConfig, train_cvae
-
-    cfg = CVAEConfig(latent_dim=args.latent, hidden=tuple(args.hidden))
-    tcfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, beta=args.beta,
-                       validation_fraction=args.validation, train_episodes=args.train_episodes, seed=args.seed)
-    summary = train_cvae(args.data, args.out, cfg, tcfg, validation_paths=args.validation_data)
-    last = summary["history"][-1] if summary["history"] else {}
-    print(f"trained {summary['epochs']} epochs on {summary['rows']['train']} rows ({summary['rows']['validation']} validation) "
-          f"in {summary['seconds']:.0f} s; last train loss {last.get('train_loss', float('nan')):.3f}, "
-          f"best validation loss {summary['best_val_loss']:.3f}; weights: {summary['weights'] or 'none written yet'}")
-    return 0
+    for kind in learned_kinds.KINDS:
+        learned_kinds.resolve(kind.train_cli)(models)

@@ -217,9 +217,14 @@ def empty_state(cfg: MultiplierCVAEConfig) -> dict[str, Any]:
                                      vec(cfg.num_coeffs), vec(cfg.num_coeffs))}
 
 
+def shipped_weights(lanes: int) -> Path | None:
+    """Path of the weights shipped for roads with ``lanes`` lanes (four), or None."""
+    return shipped_weights_file(SHIPPED, lanes)
+
+
 def weights_file(lanes: int, weights: str | Path | None) -> Path | None:
     """``weights`` when given, else the file shipped for roads with ``lanes`` lanes, else None."""
-    return Path(weights) if weights else shipped_weights_file(SHIPPED, lanes)
+    return Path(weights) if weights else shipped_weights(lanes)
 
 
 def load_model(path: str | Path, lanes: int | None = None) -> tuple[MultiplierCVAEConfig, Any, Normaliser, dict[str, Any]]:

@@ -14,7 +14,6 @@ with this module: the registry names the CVAE planners without every command imp
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 from pathlib import Path
 from typing import Any
@@ -24,14 +23,14 @@ import jax.numpy as jnp
 
 from driveopt.config import PlannerConfig, ProjectionConfig
 from driveopt.files import shipped_weights_file
+from driveopt.pytree import pytree_dataclass, static
 from driveopt.sampler import GaussianPrior, Proposal, clip_setpoints, moments
 
 COVARIANCE_JITTER = 0.01  # [-] added to the diagonal of the proposal's covariance
 SHIPPED = {2: "cvae-two-lane.ckpt", 4: "cvae-four-lane.ckpt"}  # lanes -> file in driveopt/weights
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
+@pytree_dataclass
 class CVAEPrior:
     """First proposal from the CVAE; with ``gaussian_fraction`` > 0 that share of the batch comes from
     ``gaussian`` instead (a prior of :mod:`driveopt.sampler`, centred on the warm start).
@@ -44,10 +43,10 @@ class CVAEPrior:
 
     params: Any
     normaliser: Any  # driveopt.learned.cvae.Normaliser
-    config: Any = dataclasses.field(metadata=dict(static=True))  # driveopt.learned.cvae.CVAEConfig
-    v_max: float = dataclasses.field(default=ProjectionConfig.v_max, metadata=dict(static=True))  # [m/s] planner's speed bound
+    config: Any = static()  # driveopt.learned.cvae.CVAEConfig
+    v_max: float = static(ProjectionConfig.v_max)  # [m/s] planner's speed bound
     gaussian: Any = None
-    gaussian_fraction: float = dataclasses.field(default=0.0, metadata=dict(static=True))  # [-]
+    gaussian_fraction: float = static(0.0)  # [-]
 
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
         from driveopt.learned.cvae import sample_setpoints

@@ -17,28 +17,25 @@ Flax is imported when weights are loaded or run, not with this module.
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 from pathlib import Path
 from typing import Any
 
-import jax
-
 from driveopt.config import PlannerConfig, ProjectionConfig
+from driveopt.pytree import pytree_dataclass, static
 from driveopt.sampler import GaussianPrior, Proposal, clip_setpoints, moments
 
 COVARIANCE_JITTER = 0.01  # [-] added to the diagonal of the proposal's covariance (as the CVAE prior's)
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
+@pytree_dataclass
 class MultiplierCVAEPrior:
-    """First proposal from the set-point decoder of a cvae-multipliers model (weights as leaves, configuration static)."""
+    """First proposal from the set-point decoder of a cvae-multipliers model (a :mod:`~driveopt.pytree` dataclass)."""
 
     params: Any
     normaliser: Any  # driveopt.learned.cvae_multipliers.Normaliser
-    config: Any = dataclasses.field(metadata=dict(static=True))  # driveopt.learned.cvae_multipliers.MultiplierCVAEConfig
-    v_max: float = dataclasses.field(default=ProjectionConfig.v_max, metadata=dict(static=True))  # [m/s] planner's speed bound
+    config: Any = static()  # driveopt.learned.cvae_multipliers.MultiplierCVAEConfig
+    v_max: float = static(ProjectionConfig.v_max)  # [m/s] planner's speed bound
 
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
         from driveopt.learned.cvae_multipliers import sample_setpoints
@@ -70,3 +67,9 @@ def prior_for(config: PlannerConfig, lanes: int, weights: str | Path | None) -> 
         warnings.warn(missing_weights_notice(lanes), stacklevel=2)
         return GaussianPrior.from_config(config.sampler, config.projection.v_max)
     return load_prior(path, config.projection.v_max, lanes=lanes)
+
+
+def cvae_multipliers_prior():
+    """Prior factory of the registry's cvae-multipliers planners: ``(config, lanes, weights) -> prior``
+    (:func:`prior_for`), made as the other learned priors' factories are."""
+    return prior_for

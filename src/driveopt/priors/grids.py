@@ -14,23 +14,17 @@ Every prior returns exactly ``num`` samples (the grid is tiled to fill the batch
 
 from __future__ import annotations
 
-import dataclasses
-
-import jax
 import jax.numpy as jnp
 
 from driveopt.config import ProjectionConfig
 from driveopt.costs import nearest_lane_center
 from driveopt.problem import PlanningProblem
+from driveopt.pytree import pytree_dataclass, static
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM
 from driveopt.sampler import Proposal, clip_setpoints, moments
 
 MAX_LANES = 8  # lanes considered by the grids (masked beyond the road's lane count)
 GRID_COVARIANCE_JITTER = 1e-3  # [-] added to the diagonal of a grid's sample covariance
-
-
-def _static(default):
-    return dataclasses.field(default=default, metadata=dict(static=True))
 
 
 def _fill(rows: jnp.ndarray, valid: jnp.ndarray, num: int) -> jnp.ndarray:
@@ -46,8 +40,7 @@ def _lane_centres(problem: PlanningProblem) -> tuple[jnp.ndarray, jnp.ndarray]:
     return centres, valid
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
+@pytree_dataclass
 class VanillaPrior:
     """Speed set-point v_des, lateral set-point the nearest lane centre; identical samples.
 
@@ -58,8 +51,8 @@ class VanillaPrior:
     holds the current lateral position: a move to the centre from rest breaks the bounds on the velocity (course and
     curvature)."""
 
-    v_max: float = _static(ProjectionConfig.v_max)  # [m/s]
-    speed_step: float = _static(5.0)  # [m/s] largest change of the speed set-point per quarter of the horizon
+    v_max: float = static(ProjectionConfig.v_max)  # [m/s]
+    speed_step: float = static(5.0)  # [m/s] largest change of the speed set-point per quarter of the horizon
 
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
         speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
@@ -71,8 +64,7 @@ class VanillaPrior:
         return Proposal(p, p[0], GRID_COVARIANCE_JITTER * jnp.eye(SETPOINT_DIM, dtype=p.dtype))
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
+@pytree_dataclass
 class GridPrior:
     """Constant speed x target lane x lane-change quarter, as fine in speed as the batch allows.
 
@@ -83,7 +75,7 @@ class GridPrior:
     ten-speed grid (3.3 m/s apart) tiled to the batch could not follow a lane flowing at 2 m/s for the 15 s horizon
     and stood still behind it (docs/findings/grid-standstill.md)."""
 
-    v_max: float = _static(ProjectionConfig.v_max)  # [m/s]
+    v_max: float = static(ProjectionConfig.v_max)  # [m/s]
 
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
         centres, lane_ok = _lane_centres(problem)
@@ -101,13 +93,12 @@ class GridPrior:
         return Proposal(samples, *moments(samples, GRID_COVARIANCE_JITTER))
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
+@pytree_dataclass
 class GoalGridPrior:
     """Goal grid: num_speeds average speeds (x_f = x_0 + v T) x lane centres (y_f)."""
 
-    num_speeds: int = _static(25)
-    v_max: float = _static(ProjectionConfig.v_max)  # [m/s]
+    num_speeds: int = static(25)
+    v_max: float = static(ProjectionConfig.v_max)  # [m/s]
 
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
         speeds = jnp.linspace(0.0, self.v_max, self.num_speeds, dtype=jnp.float32)

@@ -21,7 +21,6 @@ Every prior returns exactly ``num`` rows; a grid asked for fewer rows than it ha
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from typing import Any
 
@@ -31,15 +30,12 @@ import numpy as np
 
 from driveopt.config import BasisConfig, ProjectionConfig
 from driveopt.problem import PlanningProblem, ellipse_axes
+from driveopt.pytree import pytree_dataclass, static
 from driveopt.qp import NUM_SEGMENTS
 from driveopt.sampler import Proposal, moments, sample_gaussian, select_lowest
 
 COVARIANCE_JITTER = 1e-3  # [-] added to the diagonal of a proposal's sample covariance
 GUESS_NOISE_SCALE = 0.01  # [m^2] expert_vanilla.py: lateral guesses ~ N(centre, 0.01 pinv(R))
-
-
-def _static(default):
-    return dataclasses.field(default=default, metadata=dict(static=True))
 
 
 def spread_indices(size: int, num: int) -> np.ndarray:
@@ -49,16 +45,15 @@ def spread_indices(size: int, num: int) -> np.ndarray:
     return np.arange(num) % size
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
+@pytree_dataclass
 class SpeedOffsetGrid:
     """``num_speeds`` constant speed set-points on [v_des - speed_spread, v_des + speed_spread] x ``num_offsets``
     constant lateral set-points on [y_lb, y_ub]; speeds below 0 are raised to 0, none is capped at v_max (the
     authors' grid reaches 36 m/s, the projection bounds the speed)."""
 
-    num_speeds: int = _static(50)
-    num_offsets: int = _static(20)
-    speed_spread: float = _static(16.0)  # [m/s]
+    num_speeds: int = static(50)
+    num_offsets: int = static(20)
+    speed_spread: float = static(16.0)  # [m/s]
 
     def rows(self, problem: PlanningProblem) -> jnp.ndarray:
         """(num_speeds * num_offsets, 8) set-points, offsets outermost."""
@@ -75,8 +70,7 @@ class SpeedOffsetGrid:
         return Proposal(samples, *moments(samples, COVARIANCE_JITTER))
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
+@pytree_dataclass
 class FixedGaussian:
     """Independent set-points from one Gaussian: speeds around ``speed_mean`` (None: the problem's v_des) with
     variances ``speed_var``, lateral offsets around the current lateral position with variances ``lateral_var``;
@@ -84,11 +78,11 @@ class FixedGaussian:
     the warm start (the previous call's final mean, or the current motion before the first call) is the mean
     instead; without, a warm start is ignored."""
 
-    speed_mean: float | None = _static(None)  # [m/s]
-    speed_var: tuple[float, ...] = _static((16.0,) * NUM_SEGMENTS)  # [(m/s)^2] one per quarter
-    lateral_var: tuple[float, ...] = _static((46.0,) * NUM_SEGMENTS)  # [m^2] one per quarter
-    v_max: float = _static(ProjectionConfig.v_max)  # [m/s]
-    follows_warm_start: bool = _static(False)
+    speed_mean: float | None = static(None)  # [m/s]
+    speed_var: tuple[float, ...] = static((16.0,) * NUM_SEGMENTS)  # [(m/s)^2] one per quarter
+    lateral_var: tuple[float, ...] = static((46.0,) * NUM_SEGMENTS)  # [m^2] one per quarter
+    v_max: float = static(ProjectionConfig.v_max)  # [m/s]
+    follows_warm_start: bool = static(False)
 
     def mean(self, problem: PlanningProblem) -> jnp.ndarray:
         speed = problem.v_des if self.speed_mean is None else jnp.float32(self.speed_mean)
@@ -105,8 +99,7 @@ class FixedGaussian:
         return Proposal(samples, mean, cov)
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
+@pytree_dataclass
 class LearnedStart:
     """MPC-Bi-Level's first batch with the CVAE (``policy_bilevel.py``, ``use_nn``): ``learned``'s samples, and as the
     distribution the first cross-entropy update blends the elites into, the one the authors' planner carries
@@ -137,8 +130,7 @@ def lateral_noise_factor(num_nodes: int) -> np.ndarray:
     return np.linalg.cholesky(0.5 * (cov + cov.T)).astype(np.float32)
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
+@pytree_dataclass
 class VanillaGuesses:
     """``oversampling`` x ``num`` guessed paths: a straight longitudinal path at one of ``num_guess_speeds``
     constant speeds on v_des +- ``speed_spread``, paired with a lateral path (the road's centre plus smooth noise,
@@ -150,11 +142,11 @@ class VanillaGuesses:
     target, the set-point QP's trajectory, so a guess enters as the set-points of that target, and the ranking's
     speed cost pulls towards v_des as the authors' QP does."""
 
-    oversampling: int = _static(30)  # [-] candidate guesses per kept one (expert_vanilla.py initial_up_sampling)
-    num_guess_speeds: int = _static(30)  # [-] speeds of the longitudinal guesses (expert_vanilla.py)
-    speed_spread: float = _static(12.0)  # [m/s] expert_vanilla.py v_pert
-    horizon: float = _static(BasisConfig.horizon)  # [s] the planner's horizon T
-    v_max: float = _static(ProjectionConfig.v_max)  # [m/s]
+    oversampling: int = static(30)  # [-] candidate guesses per kept one (expert_vanilla.py initial_up_sampling)
+    num_guess_speeds: int = static(30)  # [-] speeds of the longitudinal guesses (expert_vanilla.py)
+    speed_spread: float = static(12.0)  # [m/s] expert_vanilla.py v_pert
+    horizon: float = static(BasisConfig.horizon)  # [s] the planner's horizon T
+    v_max: float = static(ProjectionConfig.v_max)  # [m/s]
 
     def candidates(self, problem: PlanningProblem, key: jax.Array, count: int) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
         """(count,) guessed speeds [m/s], (count, K) longitudinal and (count, K) lateral paths [m]."""

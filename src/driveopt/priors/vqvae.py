@@ -16,33 +16,31 @@ Flax is imported when weights are loaded or sampled, not with this module.
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 from pathlib import Path
 from typing import Any
 
-import jax
 import jax.numpy as jnp
 
 from driveopt.config import PlannerConfig, ProjectionConfig
 from driveopt.files import shipped_weights_file
+from driveopt.pytree import pytree_dataclass, static
 from driveopt.sampler import GaussianPrior, Proposal, clip_setpoints, moments
 
 COVARIANCE_JITTER = 0.01  # [-] added to the diagonal of the proposal's covariance
 SHIPPED = {2: "vqvae-two-lane.ckpt", 4: "vqvae-four-lane.ckpt"}  # lanes -> file in driveopt/weights
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
+@pytree_dataclass
 class VQVAEPrior:
-    """First proposal from the PixelCNN + VQ-VAE decoder (weights as leaves, configurations static)."""
+    """First proposal from the PixelCNN + VQ-VAE decoder (a :mod:`~driveopt.pytree` dataclass)."""
 
     vqvae_params: Any
     normaliser: Any  # driveopt.learned.vqvae.Normaliser
     pixelcnn_params: Any
-    vqvae_config: Any = dataclasses.field(metadata=dict(static=True))  # driveopt.learned.vqvae.VQVAEConfig
-    pixelcnn_config: Any = dataclasses.field(metadata=dict(static=True))  # driveopt.learned.pixelcnn.PixelCNNConfig
-    v_max: float = dataclasses.field(default=ProjectionConfig.v_max, metadata=dict(static=True))  # [m/s] planner's bound
+    vqvae_config: Any = static()  # driveopt.learned.vqvae.VQVAEConfig
+    pixelcnn_config: Any = static()  # driveopt.learned.pixelcnn.PixelCNNConfig
+    v_max: float = static(ProjectionConfig.v_max)  # [m/s] planner's bound
 
     def sample_setpoints(self, problem, key, num) -> jnp.ndarray:
         """(num, 8) decoded set-points for the problem's observation (not clipped to the planner's bounds)."""

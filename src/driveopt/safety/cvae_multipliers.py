@@ -13,28 +13,26 @@ Without weights (given or shipped) the filter is None: the projection starts fro
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 from typing import Any
 
-import jax
 import jax.numpy as jnp
 
 from driveopt.config import PlannerConfig
 from driveopt.filtering import FilterInit
 from driveopt.problem import PlanningProblem
+from driveopt.pytree import pytree_dataclass, static
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
+@pytree_dataclass
 class CVAEMultipliers:
-    """Initial multipliers from a cvae-multipliers model (weights as leaves, configuration static)."""
+    """Initial multipliers from a cvae-multipliers model (a :mod:`~driveopt.pytree` dataclass)."""
 
     params: Any
     normaliser: Any  # driveopt.learned.cvae_multipliers.Normaliser
-    config: Any = dataclasses.field(metadata=dict(static=True))  # driveopt.learned.cvae_multipliers.MultiplierCVAEConfig
-    gamma_obs: float = dataclasses.field(default=1.0, metadata=dict(static=True))  # [-] the projection's, passed through
-    gamma_lane: float = dataclasses.field(default=1.0, metadata=dict(static=True))  # [-]
+    config: Any = static()  # driveopt.learned.cvae_multipliers.MultiplierCVAEConfig
+    gamma_obs: float = static(1.0)  # [-] the projection's, passed through
+    gamma_lane: float = static(1.0)  # [-]
 
     def initialise(self, problem: PlanningProblem, coeffs) -> FilterInit:
         from driveopt.learned.cvae_multipliers import multipliers

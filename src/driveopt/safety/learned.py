@@ -17,30 +17,27 @@ Flax is imported when weights are loaded or run, not with this module.
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 from pathlib import Path
 from typing import Any, Mapping
-
-import jax
 
 from driveopt.checks import ConfigError
 from driveopt.files import shipped_weights_file
 from driveopt.filtering import FilterInit
 from driveopt.problem import PlanningProblem
+from driveopt.pytree import pytree_dataclass, static
 
 SHIPPED = {2: "filter-two-lane.ckpt", 4: "filter-four-lane.ckpt"}  # lanes -> file in driveopt/weights
 FILTER_SECTION = "safety_filter"  # --config section naming a filter checkpoint: {"safety_filter": {"weights": FILE}}
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
+@pytree_dataclass
 class LearnedFilter:
     """The learned safety filter (P2 §III-C): a :class:`~driveopt.filtering.SafetyFilter`."""
 
     params: Any
     normaliser: Any  # driveopt.learned.filter.Normaliser
-    config: Any = dataclasses.field(metadata=dict(static=True))  # driveopt.learned.filter.FilterConfig
+    config: Any = static()  # driveopt.learned.filter.FilterConfig
 
     def initialise(self, problem: PlanningProblem, coeffs) -> FilterInit:
         from driveopt.learned.filter import initialise
@@ -72,6 +69,12 @@ def filter_for(lanes: int, weights: str | Path | None) -> LearnedFilter | None:
                       "filter of the configuration instead", stacklevel=2)
         return None
     return load_filter(path, lanes=lanes)
+
+
+def learned_filter(config: Any, lanes: int, weights: str | Path | None) -> LearnedFilter | None:
+    """:func:`filter_for` as a registry filter factory, ``(config, lanes, weights) -> filter``: the planner's
+    configuration is not needed, the network's is in the checkpoint."""
+    return filter_for(lanes, weights)
 
 
 def split_filter_section(overrides: Mapping[str, Any]) -> tuple[dict[str, Any], str | None]:

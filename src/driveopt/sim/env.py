@@ -45,8 +45,8 @@ from driveopt.sim.scenarios import Scenario
 
 UPSTREAM_TRAFFIC = "highway_env.vehicle.behavior.IDMVehicle"
 FORWARD_TRAFFIC = "driveopt.sim.traffic.ForwardIDMVehicle"
-ENV_IDS = {"highway": "driveopt/highway-v0", "two-way": "driveopt/two-way-v0", "merge": "driveopt/merge-v0"}
-"""gymnasium id of the adapter env of each road layout."""
+ENV_IDS = gym_envs.ROAD_ENV_IDS
+"""gymnasium id of the adapter env of each road layout (:data:`driveopt.gym_envs.ROAD_ENVS` names the classes below)."""
 
 
 class Unobserved(ObservationType):

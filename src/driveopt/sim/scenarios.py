@@ -45,10 +45,12 @@ from typing import Any, Mapping
 from driveopt.checks import ConfigError, check_budget
 from driveopt.config import MAX_ACCELERATION, MAX_SPEED
 from driveopt.errors import DriveoptError
+from driveopt.gym_envs import ROAD_ENVS
 from driveopt.jsonfile import read_json
 
-ROADS = ("highway", "two-way", "merge")
-"""Road layouts, each an upstream highway-env environment: highway-v0, two-way-v0, merge-v0."""
+ROADS = tuple(ROAD_ENVS)
+"""Road layouts, each an upstream highway-env environment: highway-v0, two-way-v0, merge-v0 (the layouts of
+:data:`driveopt.gym_envs.ROAD_ENVS`, which registers an adapter env for each)."""
 
 DENSITIES = (1.0, 1.5, 2.0, 2.5, 3.0)
 """[-] highway-env ``vehicles_density`` values of the registered highway scenarios (P1, P2)."""
