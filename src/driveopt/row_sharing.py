@@ -2,7 +2,7 @@
 
 A learned prior that draws discrete codes (P2's PixelCNN) gives many samples the same code sequence, and so the same
 set-points and the same set-point-QP trajectory: of the 1003 rows of a ``vqvae-filter`` batch on P2's dense traffic,
-a median 210 differ (at most 571 in 90 closed-loop states, ``benchmarks/row_sharing_ab.py``). The projection treats
+a median 210 differ (at most 571 in 90 closed-loop states, ``benchmarks/perf/row_sharing_ab.py``). The projection treats
 each row on its own, so a repeated row comes out as its first copy does.
 
 :class:`EveryRow` (the default) projects the batch as it is. :class:`DistinctRows` projects each distinct row once, in
