@@ -638,3 +638,125 @@ def test_quick_reproduction_of_each_paper(tmp_path, paper):
     assert len(results) == sum(len(f.claims) for f in figures) > 0
     assert all(r.pairs == 2 for r in results)
     assert (tmp_path / "report.md").exists()
+
+
+# ---------------------------------------------------------------------------------------------- claims, plan, --claim
+
+
+def test_every_claim_carries_the_paper_s_effect_and_every_figure_a_primary():
+    for paper in ("p1", "p2"):
+        for figure in figures_of(paper) + figures_of(paper, quick=True):
+            ids = figure.claim_ids()
+            assert len(set(ids)) == len(ids) and (figure.primary in ids) == bool(figure.claims), figure.figure
+            for claim in figure.claims:
+                assert claim.effect.source
+    fig7 = figures_of("p1", ["fig7"])[0]
+    by_id = dict(zip(fig7.claim_ids(), fig7.claims))
+    headline = by_id["fig7:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions"]
+    assert headline.effect.ratio == pytest.approx((0.1, 0.25)) and fig7.primary == "fig7:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions"
+    assert by_id["fig7:two-lane-d1.0:bilevel-vs-grid:collisions"].effect.baseline_level == (0.0, 0.0)
+    assert by_id["fig7:two-lane-d1.0:bilevel-vs-random:collisions"].effect.arm_level == (0.0, 0.0)
+    assert by_id["fig7:four-lane-d1.5:bilevel-vs-grid:collisions"].effect.kind == effects.DIRECTION
+    (fig8a,) = figures_of("p2", ["fig8a"])
+    assert {c.effect.arm_level for c in fig8a.claims if c.metric == COLLISIONS and not c.question} == {(0.03, 0.03)}
+    (fig9,) = figures_of("p2", ["fig9"])
+    eight = [c for c in fig9.claims if c.effect.kind == effects.RATIO]
+    assert eight and all(c.baseline.planner.startswith("cvae-multipliers") and c.effect.ratio == (0.125, 0.125)
+                         for c in eight)
+    # honest labels: vanilla plans with one sample, the RL agents are under-trained references
+    vanilla = next(c.baseline for c in fig7.claims if c.baseline.planner == "vanilla")
+    assert vanilla.label == "vanilla n1 (asked n250)"
+    dqn = next(c.baseline for c in figures_of("p1", ["fig8"])[0].claims if c.baseline.planner == "dqn")
+    assert dqn.label == "dqn, under-trained reference (10,000 of 5 M steps)"
+
+
+def _headline_figure(episodes):
+    arm, base = Arm("cvae-faithful", FAITHFUL, 25), Arm("random-faithful", FAITHFUL, 25)
+    claims = (Claim("four-lane-d3.0", arm, base, COLLISIONS, BETTER, "4x", effect=PaperEffect.times_fewer(4, 4, "t")),
+              Claim("four-lane-d3.0", arm, base, SPEED, NO_WORSE, "similar"),
+              Claim("two-lane-d1.0", arm, base, COLLISIONS, BETTER, "fewer"))
+    return FigureProtocol("p1", "figX", "fake", claims, seeds=(42,), episodes=episodes, full_episodes=40,
+                          primary="figX:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions")
+
+
+def test_plan_costs_the_undecided_claims_from_the_records_alone(tmp_path, cheap_bench, monkeypatch, capsys):
+    """Constructed records: the headline's baseline collides in every other episode at 100 s per episode, the arm at
+    10 s; on the two-lane road the episodes cost 1 s. --plan reads them, runs nothing and orders by cost."""
+    from driveopt.experiments import reproduce as rp
+
+    def episode(job, options):
+        record = fake_episode(job, options)
+        record["sim_seconds"] = (1.0 if job.scenario == "two-lane-d1.0" else
+                                 100.0 if job.planner == "random-faithful" else 10.0)
+        return record
+
+    figure = _headline_figure(4)
+    monkeypatch.setattr(rp, "figures_of", lambda paper, names=None, **kw: (figure,))
+    run_figures("p1", (figure,), tmp_path, workers=1, episode_fn=episode, progress=False)
+    CALLS["n"] = 0
+    rows, claims = rp.plan("p1", tmp_path)
+    assert CALLS["n"] == 0 and claims == 3
+    assert [row.claim_id for row in rows] == ["figX:two-lane-d1.0:cvae-faithful-vs-random-faithful:collisions",
+                                              "figX:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions",
+                                              "figX:four-lane-d3.0:cvae-faithful-vs-random-faithful:speed"]
+    cheap, headline, speed = rows
+    assert cheap.seconds_per_pair == pytest.approx(2 * (1.0 + 0.01)) and headline.seconds_per_pair == pytest.approx(110.02)
+    # the headline: baseline rate 1/2, paper's ratio 1/4 -> McNemar pairs at the final level, rounded up to a look
+    final = obrien_fleming_levels(figure.look_pairs)[-1]
+    assert headline.paper_pairs == pytest.approx(ps.mcnemar_pairs_needed(0.5, 0.25, final))
+    target = next(n for n in figure.look_pairs if n >= headline.paper_pairs)
+    assert headline.cost == pytest.approx(110.02 * (target - 4))
+    assert math.isnan(cheap.paper_pairs) and cheap.measured_pairs > 0  # a direction states no size
+    # speed no worse, 9 against about 7 m/s: the 20 compared pairs a t interval needs, at half the pairs collision-free
+    assert speed.measured_pairs == speed.paper_pairs == 40 and speed.cost == pytest.approx(110.02 * 36)
+    assert [row.cost for row in rows] == sorted(row.cost for row in rows)
+    text = rp.plan_text("p1", rows, claims)
+    assert text.splitlines()[2].startswith("figX:two-lane-d1.0:cvae-faithful-vs-random-faithful:collisions | inconclusive")
+
+
+def test_the_cli_plan_and_claim_options(tmp_path, cheap_bench, monkeypatch, capsys):
+    """--claim runs one claim's two arms, only the pairs missing; --plan prints ids and runs nothing; a wrong claim
+    is one line."""
+    from driveopt.cli.reproduce import register
+    from driveopt.experiments import reproduce as rp
+
+    figure = _headline_figure(3)
+    monkeypatch.setattr(rp, "figures_of", lambda paper, names=None, **kw: (figure,))
+    ran = []
+
+    def episode(job, options):
+        ran.append((job.scenario, job.planner, job.episode))
+        return fake_episode(job, options)
+
+    real = rp.run_figures
+    monkeypatch.setattr(rp, "run_figures", lambda *a, **kw: real(*a, **{**kw, "episode_fn": episode, "progress": False}))
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command"))
+    out = str(tmp_path / "o")
+    headline = "figX:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions"
+    # one episode of the baseline recorded already: only the rest run
+    rp.run_bench(rp.BenchSpec(("four-lane-d3.0",), ("random-faithful",), (42,), 1, {"samples": 25}),
+                 tmp_path / "o" / "runs" / "n25", workers=1, episode_fn=episode, progress=False)
+    ran.clear()
+    args = parser.parse_args(["reproduce", "p1", "--claim", headline, "--workers", "1", "--out", out])
+    assert args.func(args) == 0
+    assert sorted(ran) == sorted([("four-lane-d3.0", "cvae-faithful", e) for e in range(3)]
+                                 + [("four-lane-d3.0", "random-faithful", e) for e in (1, 2)])
+    report = json.loads((tmp_path / "o" / "report.json").read_text())
+    claims = report["figures"][0]["claims"]
+    assert [c["pairs"] for c in claims] == [3, 3, 0]  # every claim reported, the two-lane one not run
+    assert claims[0]["records"]["arm"] == {"folder": "runs/n25", "planner": "cvae-faithful", "episodes": 3, "sources": [
+        {"code": None, "jax": None, "numpy": None, "cpu_model": "fake CPU", "device": None, "episodes": 3}]}
+    ran.clear()
+    assert args.func(args) == 0 and ran == []  # nothing missing
+    capsys.readouterr()
+    args = parser.parse_args(["reproduce", "p1", "--plan", "--out", out])
+    assert args.func(args) == 0 and ran == []
+    printed = capsys.readouterr().out
+    assert "figX:two-lane-d1.0:cvae-faithful-vs-random-faithful:collisions | not run" in printed
+    args = parser.parse_args(["reproduce", "p1", "--claim", "figX:nowhere", "--out", out])
+    with pytest.raises(DriveoptError, match="no claim 'figX:nowhere'.*--plan"):
+        args.func(args)
+    with pytest.raises(DriveoptError, match="holds no runs"):
+        args = parser.parse_args(["reproduce", "p1", "--plan", "--out", str(tmp_path / "empty")])
+        args.func(args)
