@@ -760,3 +760,43 @@ def test_the_cli_plan_and_claim_options(tmp_path, cheap_bench, monkeypatch, caps
     with pytest.raises(DriveoptError, match="holds no runs"):
         args = parser.parse_args(["reproduce", "p1", "--plan", "--out", str(tmp_path / "empty")])
         args.func(args)
+
+
+# ---------------------------------------------------------------------------------------------- prose from report.json
+
+
+def test_the_reproduction_prose_quotes_the_committed_reports():
+    """docs/reproduction/README.md's generated numbers and README.md's reproduction sentence are what the committed
+    report.json files say (rewrite them with `python -m driveopt.experiments.reproduce_prose`)."""
+    from pathlib import Path
+
+    from driveopt.experiments import reproduce_prose as prose
+
+    root = Path(__file__).resolve().parents[2]
+    reports = prose.load(root / "benchmarks/results/reproduction")
+    doc = (root / "docs/reproduction/README.md").read_text()
+    assert set(m["name"] for m in prose.MARK.finditer(doc)) == set(prose.BLOCKS)
+    assert prose.render(doc, reports) == doc
+    faithful, pairs = prose._collided(reports["p2"], prose.FAITHFUL_PIPELINES)
+    assert f"{faithful[0]}, {faithful[1]} and {faithful[2]} of {pairs} headline episodes" in doc
+
+
+def test_the_readme_s_reproduction_sentence_quotes_the_committed_reports():
+    from pathlib import Path
+
+    from driveopt.experiments import reproduce_prose as prose
+
+    root = Path(__file__).resolve().parents[2]
+    assert prose.readme_sentence(prose.load(root / "benchmarks/results/reproduction")) in (root / "README.md").read_text()
+
+
+def test_generated_blocks_are_rewritten_and_unknown_ones_refused(tmp_path):
+    from driveopt.experiments import reproduce_prose as prose
+
+    report = {"tests": 2, "verdicts": {"inconclusive": 2}, "figures": []}
+    text = "a (<!-- generated: verdict-tallies -->old<!-- end generated -->) b"
+    assert prose.render(text, {"p1": report, "p2": report}) == (
+        "a (<!-- generated: verdict-tallies -->P1: 2 distinct tests, 2 inconclusive; P2: 2 distinct tests, 2 "
+        "inconclusive<!-- end generated -->) b")
+    with pytest.raises(ValueError, match="unknown generated block 'nope'"):
+        prose.render("<!-- generated: nope -->x<!-- end generated -->", {"p1": report, "p2": report})
