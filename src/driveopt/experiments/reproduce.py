@@ -59,6 +59,7 @@ from driveopt.experiments.verdicts import (
     answer,
     control_figure,
     evaluate,
+    information,
     pairs_to_decide,
 )
 from driveopt.files import lock_output_folder, make_output_folder, write_json
@@ -365,7 +366,9 @@ class PlanRow:
     decides with 80% power at the figure's final level, at the paper's stated size (NaN: it states none) and at the
     measured rates (inf: they never decide it); ``seconds_per_pair``: the two arms' mean wall seconds per episode
     (planning plus simulation, one worker) from the recorded episodes; ``cost``: the seconds the pairs still needed
-    take, up to the first look that holds them (at the paper's size where stated, else at the measured rates)."""
+    take, up to the first look beyond the pairs held that holds them (at the paper's size where stated, else at the
+    measured rates; inf when the rates never decide it or the protocol's pairs are spent). ``pairs``: those held (for
+    plan time, those compared on one processor)."""
 
     claim_id: str
     verdict: str
@@ -412,11 +415,14 @@ def plan(paper: str, out: str | Path, *, figures: list[str] | None = None, seeds
             if not math.isfinite(each):
                 each = _planner_seconds(out, cache, arm.folder(figure.duration), arm.planner)
             seconds += each
+        info = information(r)  # plan time: the pairs compared on one processor
         target = paper_pairs if math.isfinite(paper_pairs) else measured_pairs
-        if math.isfinite(target):  # decisions fall at looks: the first look with the pairs needed
-            target = next((n for n in figure.look_pairs if n >= target), target)
-        cost = seconds * max(0.0, target - r.pairs) if math.isfinite(target) else math.inf
-        rows.append(PlanRow(r.claim_id, r.verdict + (" (interim)" if r.interim else ""), r.pairs, r.full_pairs,
+        if info >= figure.look_pairs[-1] or not math.isfinite(target):
+            cost = math.inf  # the protocol's pairs are spent, or the rates never decide it
+        else:  # decisions fall at looks: the first look beyond the pairs held with the pairs needed
+            target = next((n for n in figure.look_pairs if n >= max(target, info + 1)), target)
+            cost = seconds * (target - info)
+        rows.append(PlanRow(r.claim_id, r.verdict + (" (interim)" if r.interim else ""), info, r.full_pairs,
                             paper_pairs, measured_pairs, seconds, cost))
     rows.sort(key=lambda row: (not math.isfinite(row.cost), row.cost if math.isfinite(row.cost) else 0.0, row.claim_id))
     return rows, len(results)
@@ -432,7 +438,7 @@ def _duration(seconds: float) -> str:
     if math.isnan(seconds):
         return "unknown"
     if math.isinf(seconds):
-        return "-"
+        return "beyond the protocol or never"
     return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
 
 

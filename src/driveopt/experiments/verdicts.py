@@ -361,13 +361,17 @@ def _pairs_for_t(mean: float, sd: float, margin: float, level: float) -> float:
 
 def _pairs_for_risk(only_arm_share: float, only_baseline_share: float, margin: float, level: float) -> float:
     """Pairs at which the conservative interval of a paired rate difference with these discordant shares lies above
-    -margin; inf when it never does (within :data:`MAX_PAIRS_ESTIMATE`)."""
+    -margin with about :data:`POWER` (normal approximation); inf when it never does (within
+    :data:`MAX_PAIRS_ESTIMATE`)."""
     if only_arm_share - only_baseline_share >= margin:
         return math.inf
+    # the interval's z widened by the power's quantile: it clears -margin with about POWER at these shares
+    z = stats.norm.isf(level / 4.0) + stats.norm.ppf(POWER)
+    powered = 4.0 * float(stats.norm.sf(z))
     n = MIN_PAIRS
     while n <= MAX_PAIRS_ESTIMATE:
         low, high = paired_risk_difference_interval(round(only_arm_share * n), round(only_baseline_share * n), n,
-                                                    1.0 - level)
+                                                    1.0 - powered)
         if -high > -margin:
             return float(n)
         n = math.ceil(n * 1.1)
