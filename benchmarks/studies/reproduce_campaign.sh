@@ -101,6 +101,8 @@ main() {
     fi
     report p1
     report p2
+    # the numbers docs/reproduction/README.md quotes, from the reports just written
+    PYTHONPATH="$repo/src" python -m driveopt.experiments.reproduce_prose "$repo/docs/reproduction/README.md" "$records"
 }
 
 main "$@"

@@ -35,17 +35,22 @@ from driveopt.experiments.reproduce import RunSlice, answer_questions, reproduce
 from driveopt.experiments.reproduce_report import markdown
 from driveopt.experiments.runner import cpu_model
 from driveopt.experiments.summary import wilson_interval
+from driveopt.experiments import effects
+from driveopt.experiments.effects import PaperEffect
+from driveopt.experiments.error_control import obrien_fleming_levels
 from driveopt.experiments.verdicts import (
+    ALPHA,
     CHANGES_BETTER,
     CHANGES_WORSE,
     CONTRADICTED,
     INCONCLUSIVE,
     NO_CHANGE,
+    NO_WORSE_SHOWN,
     NOT_RUN,
     REPRODUCED,
     TOO_FEW_PAIRS,
     answer,
-    decide,
+    control_figure,
     evaluate,
 )
 from driveopt.registry import get_planner
@@ -108,29 +113,139 @@ def test_bootstrap_interval_is_fixed_and_holds_the_mean():
 # ---------------------------------------------------------------------------------------------- verdict rule
 
 
-def test_decide_better_and_worse():
-    assert decide(BETTER, 8, 0, 0.0078, (math.nan, math.nan), math.nan) == REPRODUCED
-    assert decide(BETTER, 0, 8, 0.0078, (math.nan, math.nan), math.nan) == CONTRADICTED
-    assert decide(BETTER, 5, 0, 0.0625, (math.nan, math.nan), math.nan) == INCONCLUSIVE
-    assert decide(WORSE, 0, 8, 0.0078, (math.nan, math.nan), math.nan) == REPRODUCED
-    assert decide(WORSE, 8, 0, 0.0078, (math.nan, math.nan), math.nan) == CONTRADICTED
-
-
-def test_decide_no_worse_uses_the_interval_and_the_margin():
-    assert decide(NO_WORSE, 0, 0, 1.0, (-0.05, 0.05), 0.1) == REPRODUCED
-    assert decide(NO_WORSE, 0, 9, 0.004, (-0.30, -0.15), 0.1) == CONTRADICTED
-    assert decide(NO_WORSE, 0, 3, 0.25, (-0.20, 0.01), 0.1) == INCONCLUSIVE
-    assert decide(NO_WORSE, 0, 0, 1.0, (math.nan, math.nan), 0.1) == INCONCLUSIVE
-
-
-def _record(planner, seed, episode, collided, speed, plan_ms=None, scenario="s"):
+def _record(planner, seed, episode, collided, speed, plan_ms=None, scenario="s", **extra):
     return {"scenario": scenario, "planner": planner, "seed": seed, "episode": episode, "collided": collided,
             "off_road": False, "mean_speed": speed, "sim_seconds": 1.0, "plan_seconds": 0.1,
-            **({"plan_ms": plan_ms} if plan_ms else {})}
+            **({"plan_ms": plan_ms} if plan_ms else {}), **extra}
 
 
-def test_evaluate_pairs_episodes_and_reaches_each_verdict():
-    arm, base = Arm("bilevel", STRENGTHENED, 250), Arm("grid", STRENGTHENED, 250)
+ARM, BASE = Arm("bilevel", STRENGTHENED, 250), Arm("grid", STRENGTHENED, 250)
+
+
+def _collisions(n, arm_collided, base_collided, speed=lambda e: 8.0):
+    """n paired episodes: the arm collides in the episodes of ``arm_collided``, the baseline in ``base_collided``."""
+    a = {(42, e): _record("bilevel", 42, e, e in arm_collided, speed(e)) for e in range(n)}
+    b = {(42, e): _record("grid", 42, e, e in base_collided, 8.0) for e in range(n)}
+    return a, b
+
+
+def _judged(effect, a, b, expect=BETTER, metric=COLLISIONS, full=100, looks=None):
+    claim = Claim("s", ARM, BASE, metric, expect, "paper", effect=effect)
+    return evaluate("fig", claim, a, b, (42,), full, False, looks=looks)
+
+
+FOUR_TO_TEN = PaperEffect.times_fewer(4, 10, "text")
+
+
+def test_a_stated_ratio_is_judged_on_its_size_through_evaluate():
+    # 100 pairs, arm 2 collisions, baseline 20 (ratio 0.1, inside 4-10x fewer): reproduced with the interval
+    r = _judged(FOUR_TO_TEN, *_collisions(100, {0, 1}, set(range(20))))
+    assert r.verdict == effects.REPRODUCED and r.verdict_low < 0.1 < r.verdict_high and r.level == ALPHA
+    assert "rate ratio 0.10" in r.detail and r.test_p == pytest.approx(r.mcnemar_p)
+    # 14 against 30 in 100: significant, the interval [0.19, 1.13] still meets 0.25: reproduced; at 400 pairs, 120
+    # against 200, the interval lies above 0.25: smaller than the paper's
+    assert _judged(FOUR_TO_TEN, *_collisions(100, set(range(14)), set(range(30)))).verdict == effects.REPRODUCED
+    r = _judged(FOUR_TO_TEN, *_collisions(400, set(range(120)), set(range(200))), full=400)
+    assert r.verdict == effects.SMALLER and r.verdict_low > 0.25
+    # the arm collides more, significantly: contradicted
+    assert _judged(FOUR_TO_TEN, *_collisions(100, set(range(25)), set(range(5)))).verdict == CONTRADICTED
+    # the same rate on both sides: the paper's size excluded
+    r = _judged(FOUR_TO_TEN, *_collisions(100, set(range(30)), set(range(30))))
+    assert r.verdict == effects.SIZE_EXCLUDED and r.verdict_low > 0.25
+    # no baseline collision in 100 pairs: even its upper rate cannot show 4x in the protocol's 100
+    r = _judged(FOUR_TO_TEN, *_collisions(100, set(), set()))
+    assert r.verdict == effects.NOT_DECIDABLE and "needs" in r.detail
+    # a few pairs, a few collisions: inconclusive with the pairs still needed
+    r = _judged(FOUR_TO_TEN, *_collisions(40, set(), {0, 1, 2, 3}), full=400)
+    assert r.verdict == INCONCLUSIVE and 0 < r.pairs_needed < math.inf
+
+
+def test_stated_levels_are_judged_per_arm_through_evaluate():
+    both_zero = PaperEffect("text", arm_level=(0.0, 0.0), baseline_level=(0.0, 0.0))
+    r = _judged(both_zero, *_collisions(100, set(), set()), expect=NO_WORSE)
+    assert r.verdict == effects.REPRODUCED and r.verdict_high < 0.05
+    r = _judged(both_zero, *_collisions(100, set(), {3, 9}), expect=NO_WORSE)
+    assert r.verdict == effects.HIGHER and r.detail.startswith("baseline 2/100")
+    r = _judged(both_zero, *_collisions(20, set(), set()), expect=NO_WORSE)
+    assert r.verdict == INCONCLUSIVE and r.pairs_needed > 0  # 0/20: the upper bound is still above 5%
+    three = PaperEffect("text", arm_level=(0.03, 0.03))
+    six = set(range(0, 200, 34))  # 6 of 200: the Wilson upper bound 6.4% is within the tolerance of 8%
+    assert _judged(three, *_collisions(200, six, set(range(40))), expect=NO_WORSE, full=200).verdict == effects.REPRODUCED
+    assert _judged(three, *_collisions(100, set(range(20)), set()), expect=NO_WORSE).verdict == effects.HIGHER
+
+
+def test_directions_and_non_inferiority_through_evaluate():
+    direction = PaperEffect("text")
+    assert _judged(direction, *_collisions(20, set(), set(range(8)))).verdict == REPRODUCED
+    assert _judged(direction, *_collisions(20, set(range(8)), set())).verdict == CONTRADICTED
+    assert _judged(direction, *_collisions(20, set(), set(range(5)))).verdict == INCONCLUSIVE  # p = 0.0625
+    # speed "no worse" on a t interval: none below 20 pairs, reproduced at 30 within 10%, contradicted when far slower
+    close = lambda e: 8.0 + 0.05 * ((e % 5) - 2)  # noqa: E731
+    r = _judged(direction, *_collisions(19, set(), set(), close), expect=NO_WORSE, metric=SPEED)
+    assert r.verdict == INCONCLUSIVE and "below 20" in r.detail
+    r = _judged(direction, *_collisions(30, set(), set(), close), expect=NO_WORSE, metric=SPEED)
+    assert r.verdict == NO_WORSE_SHOWN and r.verdict_low > -0.8
+    r = _judged(direction, *_collisions(30, set(), set(), lambda e: 6.0 + 0.01 * e), expect=NO_WORSE, metric=SPEED)
+    assert r.verdict == CONTRADICTED and r.verdict_high < -0.8
+
+
+def test_a_claim_passing_at_alpha_but_not_at_its_look_is_interim_inconclusive():
+    looks = (10, 20, 40, 100)
+    a, b = _collisions(20, set(), set(range(7)))  # McNemar p = 2/128 = 0.016 < 0.05
+    once = _judged(PaperEffect("text"), a, b)
+    assert once.verdict == REPRODUCED and not once.interim
+    at_look = _judged(PaperEffect("text"), a, b, looks=looks)
+    assert at_look.look == 20 and at_look.level == pytest.approx(obrien_fleming_levels(looks)[1])
+    assert at_look.verdict == INCONCLUSIVE and at_look.interim and at_look.pairs_needed == 20  # the next look, at 40
+    assert "not at this look's" in at_look.detail
+    # far below the look's level it passes, still interim
+    strong = _judged(PaperEffect("text"), *_collisions(40, set(), set(range(25))), looks=looks)
+    assert strong.verdict == REPRODUCED and strong.interim and strong.look == 40
+    # at the full protocol it is final
+    final = _judged(PaperEffect("text"), *_collisions(100, set(), set(range(9))), looks=looks)
+    assert final.verdict == REPRODUCED and not final.interim and final.look == 100
+    # below the first look: inconclusive with the pairs to it
+    early = _judged(PaperEffect("text"), *_collisions(6, set(), set(range(6))), looks=looks)
+    assert early.verdict == INCONCLUSIVE and early.look == 0 and early.pairs_needed == 4
+
+
+def test_holm_adjusts_the_figure_s_other_claims_but_not_its_primary():
+    direction = PaperEffect("text")
+    measured = []
+    for only_base, primary in ((8, True), (8, False), (8, False), (2, False)):  # p = 2/256 each, then 0.5
+        a, b = _collisions(100, set(), set(range(only_base)))
+        claim = Claim("s", ARM, BASE, COLLISIONS, BETTER, "paper", effect=direction)
+        measured.append(evaluate("fig", claim, a, b, (42,), 100, False, primary=primary))
+    judged = control_figure(measured, (100,))
+    assert judged[0].verdict == REPRODUCED and math.isnan(judged[0].holm_p)  # p 0.0078 at α
+    # the others: Holm over (0.0078, 0.0078, 0.5): 0.0234, 0.0234, 0.5; both pass, at a level scaled to their p
+    assert [r.verdict for r in judged[1:]] == [REPRODUCED, REPRODUCED, INCONCLUSIVE]
+    assert judged[1].holm_p == pytest.approx(3 * 2 / 256) and judged[1].level == pytest.approx(ALPHA / 3)
+    # six discordant pairs pass alone (p = 0.031) but not among three claims (Holm 0.094)
+    a, b = _collisions(100, set(), set(range(6)))
+    claim = Claim("s", ARM, BASE, COLLISIONS, BETTER, "paper", effect=direction)
+    alone = evaluate("fig", claim, a, b, (42,), 100, False)
+    assert alone.verdict == REPRODUCED
+    family = control_figure([replace(alone, primary=True), alone, alone, alone], (100,))
+    assert family[0].verdict == REPRODUCED and [r.verdict for r in family[1:]] == [INCONCLUSIVE] * 3
+
+
+def test_plan_times_pair_only_records_of_one_processor():
+    a = {(42, e): _record("bilevel", 42, e, False, 8.0, [50.0], cpu_model="A", device="cpu") for e in range(30)}
+    b = {(42, e): _record("grid", 42, e, False, 8.0, [10.0], cpu_model="A", device="cpu") for e in range(30)}
+    for e in range(5):  # other processor
+        b[(42, e)]["cpu_model"] = "B"
+    for e in range(5, 8):  # a record naming none
+        del a[(42, e)]["cpu_model"]
+    b[(42, 8)]["device"] = "gpu"  # same model, other device
+    r = _judged(PaperEffect("text"), a, b, expect=NO_WORSE, metric=PLAN_TIME, full=30)
+    assert (r.pairs, r.plan_pairs, r.plan_pairs_unnamed, r.plan_pairs_mixed) == (30, 21, 3, 6)
+    assert r.processors == ("A",) and r.verdict == CONTRADICTED  # 50 ms against 10
+    assert answer(r, 22) == TOO_FEW_PAIRS and answer(r, 21) == CHANGES_WORSE  # a question counts compared pairs
+
+
+def test_evaluate_pairs_episodes_and_counts():
+    arm, base = ARM, BASE
     a = {(42, e): _record("bilevel", 42, e, False, 8.0 + 0.01 * e, [50.0]) for e in range(20)}
     b = {(42, e): _record("grid", 42, e, e < 8, 7.0, [10.0]) for e in range(20)}
     b[(42, 99)] = _record("grid", 42, 99, True, 1.0)  # unpaired: not counted
@@ -139,23 +254,17 @@ def test_evaluate_pairs_episodes_and_reaches_each_verdict():
     assert fewer.mcnemar_p == pytest.approx(2 / 256) and fewer.verdict == REPRODUCED
     assert fewer.reduced and fewer.full_pairs == 100  # 20 pairs of 100: says so
     assert fewer.arm.collisions == 0 and fewer.baseline.collisions == 8 and fewer.baseline.episodes == 20
+    assert fewer.arm.episode_seconds == pytest.approx(1.1)  # plan 0.1 s + simulation 1.0 s
     faster = evaluate("fig", Claim("s", arm, base, SPEED, BETTER, "faster"), a, b, (42,), 20, False)
     assert (faster.speed_pairs, faster.arm_faster) == (12, 12) and faster.verdict == REPRODUCED
     assert faster.speed_difference == pytest.approx(np.mean([1.0 + 0.01 * e for e in range(8, 20)]))
+    d = [1.0 + 0.01 * e for e in range(8, 20)]
+    assert (faster.speed_difference_low, faster.speed_difference_high) == pytest.approx(ps.t_mean_interval(d))
     slower = evaluate("fig", Claim("s", base, arm, SPEED, BETTER, "faster"), b, a, (42,), 20, False)
     assert slower.verdict == CONTRADICTED
-    from driveopt.experiments.protocols import PLAN_TIME
-
+    # plan times of records naming no processor are not compared
     plan = evaluate("fig", Claim("s", arm, base, PLAN_TIME, NO_WORSE, "minimal"), a, b, (42,), 20, False)
-    assert plan.plan_pairs == 20 and plan.arm_quicker == 0 and plan.verdict == CONTRADICTED  # 50 ms against 10
-    # plan times of two processor models are not compared (a record without one pairs with any)
-    for e, model in enumerate(["A"] * 10 + ["B"] * 5):
-        a[(42, e)]["cpu_model"], b[(42, e)]["cpu_model"] = "A", model
-    mixed = evaluate("fig", Claim("s", arm, base, PLAN_TIME, NO_WORSE, "minimal"), a, b, (42,), 20, False)
-    assert (mixed.pairs, mixed.plan_pairs) == (20, 15)
-    assert answer(mixed, 16) == TOO_FEW_PAIRS and answer(fewer, 16) != TOO_FEW_PAIRS  # a question counts compared pairs
-    similar = evaluate("fig", Claim("s", arm, arm, COLLISIONS, NO_WORSE, "same"), a, a, (42,), 20, False)
-    assert similar.verdict == INCONCLUSIVE  # 20 pairs cannot bound the difference within 0.10
+    assert plan.plan_pairs == 0 and plan.plan_pairs_unnamed == 20 and plan.verdict == INCONCLUSIVE
     none = evaluate("fig", Claim("s", arm, base, COLLISIONS, BETTER, "fewer"), {}, b, (42,), 20, False)
     assert none.pairs == 0 and none.verdict == NOT_RUN
 
@@ -264,7 +373,7 @@ def fake_episode(job, options):
                                "vqvae-filter-faithful") and "max_iterations" not in str(options)
     collided = (not proposed) and job.episode % 2 == 0
     return {"collided": collided, "off_road": False, "mean_speed": 9.0 if proposed else 7.0 + 0.01 * job.episode,
-            "plan_ms": [20.0, 21.0], "sim_seconds": 0.01, "plan_seconds": 0.01, "steps": 2}
+            "plan_ms": [20.0, 21.0], "sim_seconds": 0.01, "plan_seconds": 0.01, "steps": 2, "cpu_model": "fake CPU"}
 
 
 @pytest.fixture
@@ -285,7 +394,7 @@ def test_report_has_every_claim_row_and_resume_reuses_records(tmp_path, cheap_be
     claims = sum(len(f.claims) for f in figures)
     assert first > 0 and len(results) == claims
     report = (tmp_path / "report.md").read_text()
-    rows = [line for line in report.splitlines() if line.startswith("| ") and "| scenario |" not in line]
+    rows = [line for line in report.splitlines() if line.startswith("| ") and " pairs, seeds " in line]
     assert len(rows) == claims
     assert "Not run: an illustration" in report and "reduced: the full protocol has 100" in report
     kinds = {r.kind for r in results}
@@ -529,3 +638,165 @@ def test_quick_reproduction_of_each_paper(tmp_path, paper):
     assert len(results) == sum(len(f.claims) for f in figures) > 0
     assert all(r.pairs == 2 for r in results)
     assert (tmp_path / "report.md").exists()
+
+
+# ---------------------------------------------------------------------------------------------- claims, plan, --claim
+
+
+def test_every_claim_carries_the_paper_s_effect_and_every_figure_a_primary():
+    for paper in ("p1", "p2"):
+        for figure in figures_of(paper) + figures_of(paper, quick=True):
+            ids = figure.claim_ids()
+            assert len(set(ids)) == len(ids) and (figure.primary in ids) == bool(figure.claims), figure.figure
+            for claim in figure.claims:
+                assert claim.effect.source
+    fig7 = figures_of("p1", ["fig7"])[0]
+    by_id = dict(zip(fig7.claim_ids(), fig7.claims))
+    headline = by_id["fig7:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions"]
+    assert headline.effect.ratio == pytest.approx((0.1, 0.25)) and fig7.primary == "fig7:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions"
+    assert by_id["fig7:two-lane-d1.0:bilevel-vs-grid:collisions"].effect.baseline_level == (0.0, 0.0)
+    assert by_id["fig7:two-lane-d1.0:bilevel-vs-random:collisions"].effect.arm_level == (0.0, 0.0)
+    assert by_id["fig7:four-lane-d1.5:bilevel-vs-grid:collisions"].effect.kind == effects.DIRECTION
+    (fig8a,) = figures_of("p2", ["fig8a"])
+    assert {c.effect.arm_level for c in fig8a.claims if c.metric == COLLISIONS and not c.question} == {(0.03, 0.03)}
+    (fig9,) = figures_of("p2", ["fig9"])
+    eight = [c for c in fig9.claims if c.effect.kind == effects.RATIO]
+    assert eight and all(c.baseline.planner.startswith("cvae-multipliers") and c.effect.ratio == (0.125, 0.125)
+                         for c in eight)
+    # honest labels: vanilla plans with one sample, the RL agents are under-trained references
+    vanilla = next(c.baseline for c in fig7.claims if c.baseline.planner == "vanilla")
+    assert vanilla.label == "vanilla n1 (asked n250)"
+    dqn = next(c.baseline for c in figures_of("p1", ["fig8"])[0].claims if c.baseline.planner == "dqn")
+    assert dqn.label == "dqn, under-trained reference (10,000 of 5 M steps)"
+
+
+def _headline_figure(episodes):
+    arm, base = Arm("cvae-faithful", FAITHFUL, 25), Arm("random-faithful", FAITHFUL, 25)
+    claims = (Claim("four-lane-d3.0", arm, base, COLLISIONS, BETTER, "4x", effect=PaperEffect.times_fewer(4, 4, "t")),
+              Claim("four-lane-d3.0", arm, base, SPEED, NO_WORSE, "similar"),
+              Claim("two-lane-d1.0", arm, base, COLLISIONS, BETTER, "fewer"))
+    return FigureProtocol("p1", "figX", "fake", claims, seeds=(42,), episodes=episodes, full_episodes=40,
+                          primary="figX:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions")
+
+
+def test_plan_costs_the_undecided_claims_from_the_records_alone(tmp_path, cheap_bench, monkeypatch, capsys):
+    """Constructed records: the headline's baseline collides in every other episode at 100 s per episode, the arm at
+    10 s; on the two-lane road the episodes cost 1 s. --plan reads them, runs nothing and orders by cost."""
+    from driveopt.experiments import reproduce as rp
+
+    def episode(job, options):
+        record = fake_episode(job, options)
+        record["sim_seconds"] = (1.0 if job.scenario == "two-lane-d1.0" else
+                                 100.0 if job.planner == "random-faithful" else 10.0)
+        return record
+
+    figure = _headline_figure(4)
+    monkeypatch.setattr(rp, "figures_of", lambda paper, names=None, **kw: (figure,))
+    run_figures("p1", (figure,), tmp_path, workers=1, episode_fn=episode, progress=False)
+    CALLS["n"] = 0
+    rows, claims = rp.plan("p1", tmp_path)
+    assert CALLS["n"] == 0 and claims == 3
+    assert [row.claim_id for row in rows] == ["figX:two-lane-d1.0:cvae-faithful-vs-random-faithful:collisions",
+                                              "figX:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions",
+                                              "figX:four-lane-d3.0:cvae-faithful-vs-random-faithful:speed"]
+    cheap, headline, speed = rows
+    assert cheap.seconds_per_pair == pytest.approx(2 * (1.0 + 0.01)) and headline.seconds_per_pair == pytest.approx(110.02)
+    # the headline: baseline rate 1/2, paper's ratio 1/4 -> McNemar pairs at the final level, rounded up to a look
+    final = obrien_fleming_levels(figure.look_pairs)[-1]
+    assert headline.paper_pairs == pytest.approx(ps.mcnemar_pairs_needed(0.5, 0.25, final))
+    target = next(n for n in figure.look_pairs if n >= headline.paper_pairs)
+    assert headline.cost == pytest.approx(110.02 * (target - 4))
+    assert math.isnan(cheap.paper_pairs) and cheap.measured_pairs > 0  # a direction states no size
+    # speed no worse, 9 against about 7 m/s: the 20 compared pairs a t interval needs, at half the pairs collision-free
+    assert speed.measured_pairs == speed.paper_pairs == 40 and speed.cost == pytest.approx(110.02 * 36)
+    assert [row.cost for row in rows] == sorted(row.cost for row in rows)
+    text = rp.plan_text("p1", rows, claims)
+    assert text.splitlines()[2].startswith("figX:two-lane-d1.0:cvae-faithful-vs-random-faithful:collisions | inconclusive")
+
+
+def test_the_cli_plan_and_claim_options(tmp_path, cheap_bench, monkeypatch, capsys):
+    """--claim runs one claim's two arms, only the pairs missing; --plan prints ids and runs nothing; a wrong claim
+    is one line."""
+    from driveopt.cli.reproduce import register
+    from driveopt.experiments import reproduce as rp
+
+    figure = _headline_figure(3)
+    monkeypatch.setattr(rp, "figures_of", lambda paper, names=None, **kw: (figure,))
+    ran = []
+
+    def episode(job, options):
+        ran.append((job.scenario, job.planner, job.episode))
+        return fake_episode(job, options)
+
+    real = rp.run_figures
+    monkeypatch.setattr(rp, "run_figures", lambda *a, **kw: real(*a, **{**kw, "episode_fn": episode, "progress": False}))
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command"))
+    out = str(tmp_path / "o")
+    headline = "figX:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions"
+    # one episode of the baseline recorded already: only the rest run
+    rp.run_bench(rp.BenchSpec(("four-lane-d3.0",), ("random-faithful",), (42,), 1, {"samples": 25}),
+                 tmp_path / "o" / "runs" / "n25", workers=1, episode_fn=episode, progress=False)
+    ran.clear()
+    args = parser.parse_args(["reproduce", "p1", "--claim", headline, "--workers", "1", "--out", out])
+    assert args.func(args) == 0
+    assert sorted(ran) == sorted([("four-lane-d3.0", "cvae-faithful", e) for e in range(3)]
+                                 + [("four-lane-d3.0", "random-faithful", e) for e in (1, 2)])
+    report = json.loads((tmp_path / "o" / "report.json").read_text())
+    claims = report["figures"][0]["claims"]
+    assert [c["pairs"] for c in claims] == [3, 3, 0]  # every claim reported, the two-lane one not run
+    assert claims[0]["records"]["arm"] == {"folder": "runs/n25", "planner": "cvae-faithful", "episodes": 3, "sources": [
+        {"code": None, "jax": None, "numpy": None, "cpu_model": "fake CPU", "device": None, "episodes": 3}]}
+    ran.clear()
+    assert args.func(args) == 0 and ran == []  # nothing missing
+    capsys.readouterr()
+    args = parser.parse_args(["reproduce", "p1", "--plan", "--out", out])
+    assert args.func(args) == 0 and ran == []
+    printed = capsys.readouterr().out
+    assert "figX:two-lane-d1.0:cvae-faithful-vs-random-faithful:collisions | not run" in printed
+    args = parser.parse_args(["reproduce", "p1", "--claim", "figX:nowhere", "--out", out])
+    with pytest.raises(DriveoptError, match="no claim 'figX:nowhere'.*--plan"):
+        args.func(args)
+    with pytest.raises(DriveoptError, match="holds no runs"):
+        args = parser.parse_args(["reproduce", "p1", "--plan", "--out", str(tmp_path / "empty")])
+        args.func(args)
+
+
+# ---------------------------------------------------------------------------------------------- prose from report.json
+
+
+def test_the_reproduction_prose_quotes_the_committed_reports():
+    """docs/reproduction/README.md's generated numbers and README.md's reproduction sentence are what the committed
+    report.json files say (rewrite them with `python -m driveopt.experiments.reproduce_prose`)."""
+    from pathlib import Path
+
+    from driveopt.experiments import reproduce_prose as prose
+
+    root = Path(__file__).resolve().parents[2]
+    reports = prose.load(root / "benchmarks/results/reproduction")
+    doc = (root / "docs/reproduction/README.md").read_text()
+    assert set(m["name"] for m in prose.MARK.finditer(doc)) == set(prose.BLOCKS)
+    assert prose.render(doc, reports) == doc
+    faithful, pairs = prose._collided(reports["p2"], prose.FAITHFUL_PIPELINES)
+    assert f"{faithful[0]}, {faithful[1]} and {faithful[2]} of {pairs} headline episodes" in doc
+
+
+def test_the_readme_s_reproduction_sentence_quotes_the_committed_reports():
+    from pathlib import Path
+
+    from driveopt.experiments import reproduce_prose as prose
+
+    root = Path(__file__).resolve().parents[2]
+    assert prose.readme_sentence(prose.load(root / "benchmarks/results/reproduction")) in (root / "README.md").read_text()
+
+
+def test_generated_blocks_are_rewritten_and_unknown_ones_refused(tmp_path):
+    from driveopt.experiments import reproduce_prose as prose
+
+    report = {"tests": 2, "verdicts": {"inconclusive": 2}, "figures": []}
+    text = "a (<!-- generated: verdict-tallies -->old<!-- end generated -->) b"
+    assert prose.render(text, {"p1": report, "p2": report}) == (
+        "a (<!-- generated: verdict-tallies -->P1: 2 distinct tests, 2 inconclusive; P2: 2 distinct tests, 2 "
+        "inconclusive<!-- end generated -->) b")
+    with pytest.raises(ValueError, match="unknown generated block 'nope'"):
+        prose.render("<!-- generated: nope -->x<!-- end generated -->", {"p1": report, "p2": report})

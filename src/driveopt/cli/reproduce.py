@@ -1,7 +1,8 @@
 """``driveopt reproduce p1|p2``: every declared figure protocol of a paper through the bench store, then a report.
 
 Figures, seeds, planners, scenarios and weights are checked before the output folder is touched; a folder another
-reproduction is writing is refused at once. Ctrl-C stops at once with ``driveopt: interrupted: ...`` and status 130;
+reproduction is writing is refused at once. ``--plan`` reads the records alone and prints, for each undecided claim,
+its id, the pairs a decision needs and their cost; ``--claim ID`` runs that claim's two arms, only the missing pairs. Ctrl-C stops at once with ``driveopt: interrupted: ...`` and status 130;
 the finished episodes are kept and the same command resumes.
 """
 
@@ -30,6 +31,12 @@ def register(sub) -> None:
                         "(the report still has every claim of the figures)")
     p.add_argument("--report-only", action="store_true",
                    help="run nothing: write the report of the episodes recorded under --out")
+    p.add_argument("--plan", action="store_true",
+                   help="run nothing, write nothing: print each undecided claim's id, the pairs a decision needs at the "
+                        "paper's size and at the measured rates, and their cost from the recorded episode times")
+    p.add_argument("--claim", metavar="ID",
+                   help="run only this claim's two arms, only its missing pairs (ids as --plan prints them, e.g. "
+                        "fig7:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions); the report covers every claim")
     p.add_argument("--workers", type=positive_int, help="parallel episodes (default: the CPUs it may use)")
     p.add_argument("--backend", choices=["local", "ray"], default="local",
                    help="local processes, or Ray (RAY_ADDRESS names the cluster; needs driveopt[ray])")
@@ -38,19 +45,27 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from driveopt.experiments.reproduce import RunSlice, reproduce
+    from driveopt.experiments.reproduce import ReproduceError, RunSlice, plan, plan_text, reproduce
+    from driveopt.experiments.reproduce_report import distinct_tests, verdict_counts
 
+    seeds = tuple(args.seeds) if args.seeds else None
+    if args.plan:
+        if args.claim or args.report_only or args.quick:
+            raise ReproduceError("--plan runs nothing: give it without --claim, --report-only or --quick")
+        rows, claims = plan(args.paper, args.out, figures=args.figures, seeds=seeds, episodes=args.episodes)
+        print(plan_text(args.paper, rows, claims), end="")
+        return 0
     try:
-        _, results = reproduce(args.paper, args.out, figures=args.figures, quick=args.quick,
-                               seeds=tuple(args.seeds) if args.seeds else None, episodes=args.episodes,
+        _, results = reproduce(args.paper, args.out, figures=args.figures, quick=args.quick, seeds=seeds,
+                               episodes=args.episodes,
                                only=RunSlice(_names(args.scenarios), _names(args.planners), _names(args.arm_samples)),
-                               report_only=args.report_only, workers=args.workers, backend=args.backend)
+                               report_only=args.report_only, workers=args.workers, backend=args.backend,
+                               claim=args.claim)
     except KeyboardInterrupt:
         raise KeyboardInterrupt(f"finished episodes kept under {args.out}/runs; rerun the same command to resume") from None
-    counts: dict[str, int] = {}
-    for r in results:
-        counts[r.verdict] = counts.get(r.verdict, 0) + 1
-    print(f"{len(results)} claims: " + (", ".join(f"{n} {v}" for v, n in sorted(counts.items())) or "none"))
+    counts = verdict_counts(results)
+    print(f"{len(results)} claims, {len(distinct_tests(results))} distinct tests: "
+          + (", ".join(f"{n} {v}" for v, n in counts.items()) or "none"))
     print(f"wrote {args.out}/report.md, report.json and one PNG per figure")
     return 0
 

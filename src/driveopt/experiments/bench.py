@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import numpy as np
 from tqdm import tqdm
 
 from driveopt.checks import check_count, check_number
@@ -77,9 +78,10 @@ def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
     scenario = resolve_scenario(job.scenario, overrides=options.get("scenario"))
     record = run_episode(scenario, spec, job.env_seed, duration=options.get("duration")).record()
     # where it planned, on how many CPUs (the worker's share, see driveopt.experiments.runner) of which model: its
-    # plan_ms are theirs; and which driveopt sources ran it, so that records of other code are told apart
+    # plan_ms are theirs; and which driveopt sources and jax and numpy versions ran it, so that records of other code
+    # are told apart
     return {**record, "device": jax.default_backend(), "cpus": len(usable_cpus()), "cpu_model": cpu_model(),
-            "code": source_digest()[:CODE_DIGITS]}
+            "code": source_digest()[:CODE_DIGITS], "jax": jax.__version__, "numpy": np.__version__}
 
 
 def planner_spec(name: str, options: dict[str, Any]) -> DriverSpec:

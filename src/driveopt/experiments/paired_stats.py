@@ -73,16 +73,18 @@ def bootstrap_mean_interval(values: Sequence[float], level: float = 0.95, resamp
     return (float(low), float(high))
 
 
-def paired_risk_difference_interval(only_first: int, only_second: int, pairs: int) -> tuple[float, float]:
-    """Conservative 95% interval of rate(first) - rate(second) over ``pairs`` paired episodes.
+def paired_risk_difference_interval(only_first: int, only_second: int, pairs: int,
+                                    level: float = 0.95) -> tuple[float, float]:
+    """Conservative ``level`` interval (95% by default) of rate(first) - rate(second) over ``pairs`` paired episodes.
 
     The difference is p10 - p01, the shares of pairs where only the first (only the second) had the event; each
-    share gets a 97.5% Wilson interval and the difference takes the extreme combinations, so by Bonferroni the
-    interval covers with at least 95%. (NaN, NaN) for no pairs."""
+    share gets a Wilson interval at 1 - (1 - level) / 2 (97.5% for 95%) and the difference takes the extreme
+    combinations, so by Bonferroni the interval covers with at least ``level``. (NaN, NaN) for no pairs."""
     if pairs == 0:
         return (math.nan, math.nan)
-    low10, high10 = wilson_interval(only_first, pairs, z=Z_97_5)
-    low01, high01 = wilson_interval(only_second, pairs, z=Z_97_5)
+    z = Z_97_5 if level == 0.95 else float(stats.norm.isf((1.0 - level) / 4.0))
+    low10, high10 = wilson_interval(only_first, pairs, z=z)
+    low01, high01 = wilson_interval(only_second, pairs, z=z)
     return (low10 - high01, high10 - low01)
 
 
@@ -106,8 +108,15 @@ def t_mean_interval(values: Sequence[float], level: float = 0.95) -> tuple[float
     x = np.asarray(values, float)
     if x.size < 2:
         return (math.nan, math.nan)
-    half = stats.t.ppf(0.5 + level / 2.0, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size)
-    return (float(x.mean() - half), float(x.mean() + half))
+    return t_interval(float(x.mean()), float(x.std(ddof=1)), int(x.size), level)
+
+
+def t_interval(mean: float, sd: float, n: int, level: float = 0.95) -> tuple[float, float]:
+    """:func:`t_mean_interval` from a sample's mean, standard deviation (ddof 1) and size; (NaN, NaN) below 2."""
+    if n < 2 or not (math.isfinite(mean) and math.isfinite(sd)):
+        return (math.nan, math.nan)
+    half = stats.t.ppf(0.5 + level / 2.0, n - 1) * sd / math.sqrt(n)
+    return (mean - half, mean + half)
 
 
 def mcnemar_pairs_needed(baseline_rate: float, ratio: float, alpha: float = 0.05, power: float = 0.8) -> float:

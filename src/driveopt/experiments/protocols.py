@@ -36,6 +36,12 @@ Choices where the papers are silent (each also listed in ``docs/reproduction/REA
 * P2 Figs. 8a, 8b: the faithful pipeline enters the text's claim (the reduced budget against the full one); the
   learned against the plain filter at every point is compared for driveopt's pipelines only.
 
+Each claim carries the paper's effect (:class:`~driveopt.experiments.effects.PaperEffect`: a ratio, a level or a
+direction, with where the number comes from), a stable id (:func:`claim_ids`, e.g.
+``fig7:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions``), and each figure names one primary claim, tested
+at the full level of its look, and its sequential looks in pairs (:attr:`FigureProtocol.look_pairs`); the figure's
+other claims are tested at Holm-adjusted levels (:mod:`driveopt.experiments.verdicts`).
+
 Quick variants (:meth:`FigureProtocol.quick`): seed 42 only, 2 episodes of 4 s, a tenth of the samples (at least
 10); the claims and arms are those of the full protocol.
 """
@@ -44,9 +50,11 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 from driveopt.errors import DriveoptError
+from driveopt.experiments.effects import PaperEffect
 
 FAITHFUL, STRENGTHENED, REFERENCE = "paper-faithful", "driveopt-strengthened", "reference"
 FAITHFUL_ROW, DRIVEOPT_ROW, MIXED_ROW = "faithful", "driveopt", "driveopt vs faithful"  # Claim.kind
@@ -66,6 +74,19 @@ class ProtocolError(DriveoptError):
     """An unknown paper or figure, or a protocol option out of range."""
 
 
+@lru_cache(maxsize=None)
+def planned_samples(planner: str, samples: int) -> int:
+    """The samples per sampler iteration the registered ``planner`` plans with when a protocol asks for ``samples``:
+    ``samples``, except for a planner whose batch is part of its method (``fixed_batch``, e.g. ``vanilla``'s one
+    sample) and drivers that do not sample (RL, IDM: ``samples`` as asked, which they ignore)."""
+    from driveopt.registry import get_planner
+
+    spec = get_planner(planner)
+    if getattr(spec, "fixed_batch", False):
+        return int(spec.config.sampler.num_samples)
+    return samples
+
+
 @dataclass(frozen=True)
 class Arm:
     """A registered planner as one figure runs it.
@@ -81,17 +102,21 @@ class Arm:
     replan_every: int | None = None
     config: tuple[tuple[str, Any], ...] = ()
     note: str = ""
+    label_note: str = ""  # said in the label itself, e.g. that an RL agent is an under-trained reference
 
     @property
     def label(self) -> str:
-        """The planner and the options it runs with, e.g. ``bilevel-p1 n250 r5``."""
+        """The planner and the options it really runs with, e.g. ``bilevel-p1 n250 r5``: the samples are those it plans
+        with (``vanilla`` plans with one sample whatever it is asked: ``vanilla n1 (asked n250)``), and ``label_note``
+        follows after a comma."""
         parts = [self.planner]
         if self.samples is not None:
-            parts.append(f"n{self.samples}")
+            planned = planned_samples(self.planner, self.samples)
+            parts.append(f"n{planned}" if planned == self.samples else f"n{planned} (asked n{self.samples})")
         if self.replan_every is not None:
             parts.append(f"r{self.replan_every}")
         parts += [f"{key.rpartition('.')[2]}={value}" for key, value in self.config]
-        return " ".join(parts)
+        return " ".join(parts) + (f", {self.label_note}" if self.label_note else "")
 
     def options(self, duration: float | None) -> dict[str, Any]:
         """The bench options of this arm (``driveopt.experiments.bench.episode_record``); duration [s] or None."""
@@ -133,7 +158,8 @@ class Claim:
     """``arm`` against ``baseline`` on ``scenario``, on the same episodes: the paper says ``arm`` is ``expect``
     (BETTER, WORSE or NO_WORSE) on ``metric`` (COLLISIONS: fewer is better; SPEED, collision-free episodes: higher
     is better; PLAN_TIME per call: lower is better). ``paper``: the paper's value or stated direction, as it gives
-    it. ``explanation``: why driveopt's result may contradict the paper and the experiment that settles it (the
+    it; ``effect``: the same as a size the data can confirm or exclude (a ratio or levels of collision rates) or a
+    direction only, with its source. ``explanation``: why driveopt's result may contradict the paper and the experiment that settles it (the
     report prints it under a contradicted row, and flags a contradicted row without one). ``question``: the tag of a
     paper's :class:`Question` this claim also answers (its pairs are pooled with those of the other claims so tagged)."""
 
@@ -145,6 +171,7 @@ class Claim:
     paper: str
     explanation: str = ""
     question: str = ""  # the tag of the :class:`Question` whose pooled answer this claim's episodes enter
+    effect: PaperEffect = PaperEffect("the paper states a direction, no value")
 
     @property
     def kind(self) -> str:
@@ -168,11 +195,41 @@ class Claim:
         return dataclasses.replace(self, arm=self.arm.quick(), baseline=self.baseline.quick())
 
 
+LOOK_FRACTIONS = (0.1, 0.2, 0.4, 1.0)  # of the full protocol's pairs: 10, 20, 40, 100 of 100
+METRIC_SLUGS = {COLLISIONS: "collisions", SPEED: "speed", PLAN_TIME: "plan-time"}
+
+
+def claim_ids(figure: str, claims: tuple[Claim, ...]) -> tuple[str, ...]:
+    """``<figure>:<scenario>:<arm planner>-vs-<baseline planner>:<metric>`` for each claim, e.g.
+    ``fig7:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions``; where two claims of the figure would share an
+    id (the same planners at other samples or iterations), or a claim compares a planner with itself, each planner is
+    followed by ``@`` and its bench folder tag (``cvae-faithful@n250``). The ids depend only on the declared protocol, so ``driveopt reproduce
+    --claim`` and ``--plan`` name the same claims every time. ValueError if two claims remain alike."""
+
+    def plain(c: Claim) -> str:
+        return f"{figure}:{c.scenario}:{c.arm.planner}-vs-{c.baseline.planner}:{METRIC_SLUGS[c.metric]}"
+
+    def tagged(c: Claim) -> str:
+        return (f"{figure}:{c.scenario}:{c.arm.planner}@{c.arm.folder(None)}-vs-{c.baseline.planner}@"
+                f"{c.baseline.folder(None)}:{METRIC_SLUGS[c.metric]}")
+
+    first = [plain(c) for c in claims]
+    ids = tuple(tagged(c) if first.count(plain(c)) > 1 or c.arm.planner == c.baseline.planner else plain(c)
+                for c in claims)
+    if len(set(ids)) < len(ids):
+        twice = sorted({i for i in ids if ids.count(i) > 1})
+        raise ValueError(f"figure {figure} declares claims alike: {', '.join(twice)}")
+    return ids
+
+
 @dataclass(frozen=True)
 class FigureProtocol:
     """One figure of one paper: claims, seeds, episodes per seed and episode duration [s] (None: the scenario's,
     50 s). ``not_run``: why the figure is not run (then ``claims`` is empty). ``reduced``: a quick or otherwise
-    reduced variant, whose rows say so; ``full_episodes``: episodes per claim of the full protocol."""
+    reduced variant, whose rows say so; ``full_episodes``: episodes per claim of the full protocol. ``primary``: the
+    id (:func:`claim_ids`) of the one claim tested at the full level of its look; the others share the figure's level
+    by Holm's step-down. ``looks``: the pairs at which the claims are read, increasing, the last the full protocol's
+    (empty: :data:`LOOK_FRACTIONS` of ``full_episodes``)."""
 
     paper: str
     figure: str
@@ -184,6 +241,19 @@ class FigureProtocol:
     not_run: str = ""
     reduced: bool = False
     full_episodes: int = EPISODES * len(SEEDS)
+    primary: str = ""
+    looks: tuple[int, ...] = ()
+
+    @property
+    def look_pairs(self) -> tuple[int, ...]:
+        """The pre-declared looks in pairs: ``looks``, or :data:`LOOK_FRACTIONS` of the full protocol's pairs."""
+        if self.looks:
+            return self.looks
+        return tuple(sorted({max(1, round(f * self.full_episodes)) for f in LOOK_FRACTIONS}))
+
+    def claim_ids(self) -> tuple[str, ...]:
+        """The stable id of every claim, in order (:func:`claim_ids`)."""
+        return claim_ids(self.figure, self.claims)
 
     def runs(self) -> dict[str, tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]]:
         """``{folder: (scenarios, planners, options)}``: the bench runs this figure needs, one per set of options."""
@@ -198,8 +268,12 @@ class FigureProtocol:
         return {folder: (tuple(s), tuple(p), o) for folder, (s, p, o) in runs.items()}
 
     def quick(self) -> "FigureProtocol":
-        return dataclasses.replace(self, claims=tuple(c.quick() for c in self.claims), seeds=QUICK_SEEDS,
-                                   episodes=QUICK_EPISODES, duration=QUICK_DURATION, reduced=True)
+        """The quick variant: the same claims at a tenth of the samples (their ids follow the folders' tags, the
+        primary is the same claim), seed 42, 2 episodes of 4 s."""
+        claims = tuple(c.quick() for c in self.claims)
+        primary = claim_ids(self.figure, claims)[self.claim_ids().index(self.primary)] if self.primary else ""
+        return dataclasses.replace(self, claims=claims, seeds=QUICK_SEEDS, episodes=QUICK_EPISODES,
+                                   duration=QUICK_DURATION, reduced=True, primary=primary)
 
     def with_runs(self, seeds: tuple[int, ...] | None = None, episodes: int | None = None) -> "FigureProtocol":
         """This protocol with other seeds or episodes per seed; fewer episodes in all than the full protocol mark
@@ -248,41 +322,64 @@ def _faithful(planner: str, samples: int | None = P1_SAMPLES, note: str = "") ->
     return Arm(planner, FAITHFUL, samples, note=note)
 
 
+P1_FIG7_SPEED = PaperEffect("P1's text on Fig. 7: average speed 'either better or competitive' (no value)")
+
+
+def _p1_fig7_collisions(scenario: str, baseline: str) -> tuple[str, str, PaperEffect]:
+    """(paper's words, expectation, effect) of P1 Fig. 7's collision claim on ``scenario`` against MPC-``baseline``."""
+    if scenario == "four-lane-d3.0":
+        return ("4-10x fewer collisions than every MPC baseline", BETTER,
+                PaperEffect.times_fewer(4, 10, "P1's text on Fig. 7, dense four-lane traffic: '4-10x fewer collisions'"))
+    if scenario in P1_DENSE:
+        return ("fewer collisions (improvement 'distinctly apparent')", BETTER,
+                PaperEffect("P1's text on Fig. 7, dense two-lane traffic: the improvement is 'distinctly apparent' (no value)"))
+    if scenario.startswith("two") and baseline != "random":
+        return ("0% for every baseline but MPC-Random", NO_WORSE,
+                PaperEffect("P1's text on Fig. 7, sparse two-lane traffic: every method but MPC-Random has 0% collisions",
+                            arm_level=(0.0, 0.0), baseline_level=(0.0, 0.0)))
+    if scenario.startswith("two"):
+        return ("MPC-Random collides, the others do not", BETTER,
+                PaperEffect("P1's text on Fig. 7, sparse two-lane traffic: only MPC-Random collides, so the bi-level "
+                            "optimiser (the arm) has 0%; MPC-Random's rate is not given", arm_level=(0.0, 0.0)))
+    return ("no explicit value (figure only)", NO_WORSE,
+            PaperEffect("P1 Fig. 7, sparse four-lane traffic: bars of the figure only; the text gives no value, so no "
+                        "size is read off"))
+
+
 def _p1_figure7() -> FigureProtocol:
     bilevel = _strong("bilevel")
     ours = _faithful(FAITHFUL_BILEVEL, note=FAITHFUL_BILEVEL_NOTE)
     claims = []
     for scenario in P1_DENSE + P1_SPARSE:
-        dense = scenario in P1_DENSE
         for baseline in ("random", "grid", "batch", "vanilla"):
-            if dense:
-                collisions = ("4-10x fewer collisions than every MPC baseline" if scenario.startswith("four")
-                              else "fewer collisions (improvement 'distinctly apparent')")
-                expect = BETTER
-            elif scenario.startswith("two") and baseline != "random":
-                collisions, expect = "0% for every baseline but MPC-Random", NO_WORSE
-            elif scenario.startswith("two"):
-                collisions, expect = "MPC-Random collides, the others do not", BETTER
-            else:
-                collisions, expect = "no explicit value (figure only)", NO_WORSE
+            collisions, expect, effect = _p1_fig7_collisions(scenario, baseline)
             speed = "average speed 'either better or competitive'"
             faithful_base = _faithful(f"{baseline}-faithful", P1_BASELINE_SAMPLES, FAITHFUL_MPC_NOTES[baseline])
             for arm, base in ((bilevel, _strong(baseline)), (ours, faithful_base)):
-                claims.append(Claim(scenario, arm, base, COLLISIONS, expect, collisions))
-                claims.append(Claim(scenario, arm, base, SPEED, NO_WORSE, speed))
+                claims.append(Claim(scenario, arm, base, COLLISIONS, expect, collisions, effect=effect))
+                claims.append(Claim(scenario, arm, base, SPEED, NO_WORSE, speed, effect=P1_FIG7_SPEED))
+    # Primary: the figure's headline (the only stated size, 4-10x fewer in dense four-lane traffic) as the paper's
+    # method ran, against MPC-Random, the baseline P1's text singles out as colliding most: its higher rate makes
+    # the stated ratio the cheapest of the four to decide.
     return FigureProtocol("p1", "fig7", "MPC baselines against the bi-level optimiser, two and four lanes, two densities",
-                          tuple(claims))
+                          tuple(claims), primary="fig7:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions")
 
 
-def _p1_rl(figure: str, title: str, scenarios: tuple[str, ...], paper: dict[str, str]) -> FigureProtocol:
+RL_NOTE = "P1's agent, trained 10 000 of P1's 5 M steps (shipped policy)"
+RL_LABEL = "under-trained reference (10,000 of 5 M steps)"
+
+
+def _p1_rl(figure: str, title: str, scenarios: tuple[str, ...], paper: dict[str, str],
+           effects: dict[str, PaperEffect], primary: str) -> FigureProtocol:
     claims = []
     for scenario in scenarios:
         for agent in ("dqn", "ppo"):
-            rl = Arm(agent, FAITHFUL, note="P1's agent, trained 10 000 of P1's 5 M steps (shipped policy)")
+            rl = Arm(agent, FAITHFUL, note=RL_NOTE, label_note=RL_LABEL)
             for arm in (_strong("bilevel"), _faithful(FAITHFUL_BILEVEL, note=FAITHFUL_BILEVEL_NOTE)):
-                claims.append(Claim(scenario, arm, rl, COLLISIONS, BETTER, paper["collisions"]))
-                claims.append(Claim(scenario, arm, rl, SPEED, BETTER, paper["speed"]))
-    return FigureProtocol("p1", figure, title, tuple(claims))
+                claims.append(Claim(scenario, arm, rl, COLLISIONS, BETTER, paper["collisions"],
+                                    effect=effects["collisions"]))
+                claims.append(Claim(scenario, arm, rl, SPEED, BETTER, paper["speed"], effect=effects["speed"]))
+    return FigureProtocol("p1", figure, title, tuple(claims), primary=primary)
 
 
 def _p1_start_pairs(samples: int) -> tuple[tuple[Arm, Arm], ...]:
@@ -294,34 +391,54 @@ def _p1_start_pairs(samples: int) -> tuple[tuple[Arm, Arm], ...]:
 
 def _p1_figure9() -> FigureProtocol:
     claims = []
-    for samples, paper in ((250, "4x fewer collisions with the CVAE start at 250 samples"),
-                           (1000, "fewer collisions with the CVAE start at 1000 samples; the gap shrinks")):
+    for samples, paper, effect in (
+            (250, "4x fewer collisions with the CVAE start at 250 samples",
+             PaperEffect.times_fewer(4, 4, "P1's text on Fig. 9: '4x fewer collisions' with the CVAE start at 250 samples")),
+            (1000, "fewer collisions with the CVAE start at 1000 samples; the gap shrinks",
+             PaperEffect("P1's text on Fig. 9: fewer collisions at 1000 samples, the gap shrinking (no value)"))):
         for cvae, gauss in _p1_start_pairs(samples):
-            claims.append(Claim("four-lane-d3.0", cvae, gauss, COLLISIONS, BETTER, paper))
-            claims.append(Claim("four-lane-d3.0", cvae, gauss, SPEED, NO_WORSE, "not stated"))
-    return FigureProtocol("p1", "fig9", "CVAE start against the Gaussian start, 250 and 1000 samples", tuple(claims))
+            claims.append(Claim("four-lane-d3.0", cvae, gauss, COLLISIONS, BETTER, paper, effect=effect))
+            claims.append(Claim("four-lane-d3.0", cvae, gauss, SPEED, NO_WORSE, "not stated",
+                                effect=PaperEffect("P1 states nothing on Fig. 9's speeds; judged no worse")))
+    # Primary: the one stated size, 4x fewer at 250 samples, with the starts as the authors' code draws them.
+    return FigureProtocol("p1", "fig9", "CVAE start against the Gaussian start, 250 and 1000 samples", tuple(claims),
+                          primary="fig9:four-lane-d3.0:cvae-faithful@n250-vs-bilevel-faithful@n250:collisions")
 
 
 def _p1_figure10() -> FigureProtocol:
     claims = tuple(Claim("four-lane-d3.0", cvae, gauss, PLAN_TIME, NO_WORSE,
-                         f"CVAE inference overhead 'very minimal'; {t} s per call on an RTX 3080")
+                         f"CVAE inference overhead 'very minimal'; {t} s per call on an RTX 3080",
+                         effect=PaperEffect(f"P1's text on Fig. 10: overhead 'very minimal', {t} s per call on an RTX "
+                                            "3080 (a GPU time, not comparable with this machine's; judged no worse)"))
                    for n, t in ((250, "0.03"), (1000, "< 0.06")) for cvae, gauss in _p1_start_pairs(n))
-    return FigureProtocol("p1", "fig10", "planning time per call, CVAE against Gaussian start (closed-loop calls)", claims)
+    # Primary: the faithful pair at P1's benchmark batch of 250, the batch of the closed-loop results.
+    return FigureProtocol("p1", "fig10", "planning time per call, CVAE against Gaussian start (closed-loop calls)", claims,
+                          primary="fig10:four-lane-d3.0:cvae-faithful@n250-vs-bilevel-faithful@n250:plan-time")
 
 
 def p1_figures() -> tuple[FigureProtocol, ...]:
     """P1 Figs. 7-12 in order."""
     return (
         _p1_figure7(),
+        # Primary: the faithful MPC-Bi-Level against DQN on the sparse two-lane road, where P1 says the agents worked
+        # at all (elsewhere their failure is no test of the optimiser).
         _p1_rl("fig8", "RL baselines (DQN, PPO) against the bi-level optimiser", ("two-lane-d1.0", "four-lane-d3.0"),
-               {"collisions": "DQN and PPO 'drastically worse'", "speed": "DQN and PPO slower"}),
+               {"collisions": "DQN and PPO 'drastically worse'", "speed": "DQN and PPO slower"},
+               {"collisions": PaperEffect("P1's text on Fig. 8: DQN and PPO 'drastically worse' (no value)"),
+                "speed": PaperEffect("P1's text on Fig. 8: DQN and PPO slower (no value)")},
+               "fig8:two-lane-d1.0:cvae-faithful-vs-dqn:collisions"),
         _p1_figure9(),
         _p1_figure10(),
         FigureProtocol("p1", "fig11", "the two-way scenario (an illustration)",
                        not_run="an illustration of the scenario, nothing to measure (driveopt drive --scenario two-way "
                                "--video FILE renders it); its results are Fig. 12"),
+        # Primary: the faithful MPC-Bi-Level's stated 0% on the two-way road (against DQN, the first agent).
         _p1_rl("fig12", "two-way road: RL baselines against the bi-level optimiser", ("two-way",),
-               {"collisions": "0% for the MPC approaches, RL collides", "speed": "MPC approaches faster than RL"}),
+               {"collisions": "0% for the MPC approaches, RL collides", "speed": "MPC approaches faster than RL"},
+               {"collisions": PaperEffect("P1's text on Fig. 12: 0% collisions for the MPC approaches (the arm); the "
+                                          "agents' rate is not given", arm_level=(0.0, 0.0)),
+                "speed": PaperEffect("P1's text on Fig. 12: MPC approaches faster than RL (no value)")},
+               "fig12:two-way:cvae-faithful-vs-dqn:collisions"),
     )
 
 
@@ -370,6 +487,26 @@ LEARNED_FILTER = Question("learned-filter", "the learned filter against the plai
                           min_pairs=150)
 
 
+LEARNED_FILTER_EFFECT = PaperEffect("driveopt's question: P2 proposes the learned filter but states no value against "
+                                    "the plain one; judged no worse")
+P2_SPEED = PaperEffect("P2's text on Fig. 7: 'similar velocity profiles' (no value); judged no worse")
+
+
+def _p2_fig7_collisions(scenario: str, baseline: Arm) -> tuple[str, PaperEffect]:
+    """(paper's words, effect) of a P2 Fig. 7 collision claim against ``baseline``."""
+    against_5 = baseline.planner.startswith("cvae-multipliers")
+    if scenario == "p2-four-lane-d3.0" and against_5:
+        return ("up to 12x fewer collisions than the CVAE baseline (density 3)",
+                PaperEffect.times_fewer(12, 12, "P2's text on Fig. 7: 'up to 12x fewer collisions' than the CVAE baseline "
+                                                "at density 3 (at the headline speed limit; 'up to' is its largest factor)"))
+    if "d3.0" in scenario:
+        return ("fewer collisions than the CVAE baseline (density 3; 'up to 12x' is the largest factor)",
+                PaperEffect("P2's text on Fig. 7: 'up to 12x fewer' names the largest factor, not this setting's or "
+                            "P1's CVAE's through P2's filter; the direction is judged"))
+    return ("fewer collisions than the CVAE baseline as density rises or traffic slows",
+            PaperEffect("P2's text on Fig. 7: fewer collisions as density rises or traffic slows (no value)"))
+
+
 def _p2_figure7() -> FigureProtocol:
     claims = []
     learned, plain = _p2("vqvae-filter", note="P2's pipeline with the learned filter"), _p2("vqvae", note="plain filter")
@@ -379,23 +516,26 @@ def _p2_figure7() -> FigureProtocol:
         (_p2("cvae-filter", note=CVAE_BESIDE_NOTE), _p2_arm("cvae-filter", FAITHFUL, note=CVAE_BESIDE_NOTE)))
         for arm, base in ((learned, base), (plain, base), (learned_faithful, base_faithful)))
     for scenario in P2_FIGURE7_SCENARIOS:
-        paper = ("up to 12x fewer collisions than the CVAE baseline (density 3)" if "d3.0" in scenario
-                 else "fewer collisions than the CVAE baseline as density rises or traffic slows")
         for arm, base in pairs:
-            claims.append(Claim(scenario, arm, base, COLLISIONS, BETTER, paper))
-            claims.append(Claim(scenario, arm, base, SPEED, NO_WORSE, "similar velocity profiles"))
+            paper, effect = _p2_fig7_collisions(scenario, base)
+            claims.append(Claim(scenario, arm, base, COLLISIONS, BETTER, paper, effect=effect))
+            claims.append(Claim(scenario, arm, base, SPEED, NO_WORSE, "similar velocity profiles", effect=P2_SPEED))
         # The learned filter against the plain one on the same episodes (both ran above): does it change anything?
         for metric in (COLLISIONS, SPEED, PLAN_TIME):
             claims.append(Claim(scenario, learned, plain, metric, NO_WORSE, LEARNED_FILTER_CLAIM,
-                                question=LEARNED_FILTER.tag))
+                                question=LEARNED_FILTER.tag, effect=LEARNED_FILTER_EFFECT))
+    # Primary: the headline, 12x fewer than the baseline [5] at density 3, with both pipelines as their authors ran them.
     return FigureProtocol("p2", "fig7", "VQ-VAE against the CVAE baseline, two densities and two speed limits",
-                          tuple(claims))
+                          tuple(claims),
+                          primary="fig7:p2-four-lane-d3.0:vqvae-filter-faithful-vs-cvae-multipliers-faithful:collisions")
 
 
 def _p2_budget(figure: str, title: str, points: tuple[tuple[int, int], ...], reduced: tuple[int, int],
-               paper: str) -> FigureProtocol:
+               paper: str, effect: PaperEffect) -> FigureProtocol:
     """Fig. 8a/8b: (samples, iterations) points; the reduced budget against P2's full one (driveopt's pipeline and the
-    faithful one), and driveopt's learned filter against its plain one at each point (collisions, speed, plan time)."""
+    faithful one; ``effect``: the collision level P2 states at the reduced budget), and driveopt's learned filter
+    against its plain one at each point (collisions, speed, plan time). Primary: the faithful pipeline's level at the
+    reduced budget, the text's number as P2's pipeline reached it."""
     scenario = "p2-four-lane-d3.0"
 
     def iterations(k: int) -> int | None:
@@ -407,16 +547,23 @@ def _p2_budget(figure: str, title: str, points: tuple[tuple[int, int], ...], red
     def faithful(n: int, k: int) -> Arm:
         return _p2_arm("vqvae-filter", FAITHFUL, n, iterations(k))
 
-    claims = [Claim(scenario, pipeline(*reduced), pipeline(P2_SAMPLES, P2_ITERATIONS), COLLISIONS, NO_WORSE, paper)
-              for pipeline in (learned, faithful)]
+    claims = [Claim(scenario, pipeline(*reduced), pipeline(P2_SAMPLES, P2_ITERATIONS), COLLISIONS, NO_WORSE, paper,
+                    effect=effect) for pipeline in (learned, faithful)]
     for n, k in points:
         claims += [Claim(scenario, learned(n, k), _p2("vqvae", n, iterations(k)), metric, NO_WORSE, LEARNED_FILTER_CLAIM,
-                         question=LEARNED_FILTER.tag) for metric in (COLLISIONS, SPEED, PLAN_TIME)]
-    return FigureProtocol("p2", figure, title, tuple(claims))
+                         question=LEARNED_FILTER.tag, effect=LEARNED_FILTER_EFFECT) for metric in (COLLISIONS, SPEED, PLAN_TIME)]
+    primary = claim_ids(figure, tuple(claims))[1]
+    return FigureProtocol("p2", figure, title, tuple(claims), primary=primary)
 
 
 def _p2_figure9() -> FigureProtocol:
     claims = []
+    eight = PaperEffect.times_fewer(8, 8, "P2's text on Fig. 9: 'CVAE without filter 8x more collisions' than the VQ-VAE "
+                                          "without filter (the CVAE: P2's baseline [5])")
+    beside = PaperEffect("P2's text on Fig. 9 gives its 8x against its baseline [5]; against P1's CVAE through P2's "
+                         "filter only the direction is judged")
+    needed = PaperEffect("P2's text on Fig. 9: 'the filter is needed at high density' (no value)")
+    slower = PaperEffect("P2's text on Fig. 9: the filter makes the car more conservative (no value)")
     for density in ("1.0", "1.5", "3.0"):
         scenario = f"p2-four-lane-d{density}"
         for version in (STRENGTHENED, FAITHFUL):
@@ -426,17 +573,21 @@ def _p2_figure9() -> FigureProtocol:
             cv = _p2_arm("cvae-filter", version, note=CVAE_BESIDE_NOTE)
             cv0 = _p2_arm("cvae-filter", version, iterations=0, note=f"{CVAE_BESIDE_NOTE}; {NO_FILTER_NOTES[version]}")
             if density != "3.0":
-                for without in (b50, cv0):
-                    claims.append(Claim(scenario, vq0, without, COLLISIONS, BETTER, "CVAE without filter 8x more collisions"))
+                for without, effect in ((b50, eight), (cv0, beside)):
+                    claims.append(Claim(scenario, vq0, without, COLLISIONS, BETTER, "CVAE without filter 8x more collisions",
+                                        effect=effect))
             else:
                 for with_filter, without in ((vq, vq0), (b5, b50), (cv, cv0)):
                     claims.append(Claim(scenario, with_filter, without, COLLISIONS, BETTER,
-                                        "the filter is needed at high density"))
+                                        "the filter is needed at high density", effect=needed))
             for with_filter, without in ((vq, vq0), (b5, b50), (cv, cv0)):
                 claims.append(Claim(scenario, with_filter, without, SPEED, WORSE,
                                     "the filter makes the car more conservative (slower)",
-                                    NO_FILTER_EXPLANATION if version == STRENGTHENED else ""))
-    return FigureProtocol("p2", "fig9", "with and without the safety filter, densities 1.0, 1.5, 3.0", tuple(claims))
+                                    NO_FILTER_EXPLANATION if version == STRENGTHENED else "", effect=slower))
+    # Primary: the stated 8x, the faithful pipelines without filter at density 1.5, the denser of the two settings it
+    # is read at (more collisions: fewer pairs decide it).
+    return FigureProtocol("p2", "fig9", "with and without the safety filter, densities 1.0, 1.5, 3.0", tuple(claims),
+                          primary="fig9:p2-four-lane-d1.5:vqvae-filter-faithful-vs-cvae-multipliers-faithful:collisions")
 
 
 def p2_figures() -> tuple[FigureProtocol, ...]:
@@ -448,10 +599,14 @@ def p2_figures() -> tuple[FigureProtocol, ...]:
         _p2_figure7(),
         _p2_budget("fig8a", "filter iterations 10, 25, 50, 100, learned against plain filter",
                    tuple((P2_SAMPLES, k) for k in (10, 25, 50, 100)), (P2_SAMPLES, 50),
-                   "collision rate 'mere 3%' at 50 iterations"),
+                   "collision rate 'mere 3%' at 50 iterations",
+                   PaperEffect("P2's text on Fig. 8a: a collision rate of 'a mere 3%' at 50 filter iterations",
+                               arm_level=(0.03, 0.03))),
         _p2_budget("fig8b", "samples 250, 500, 750, 1000, learned against plain filter",
                    tuple((n, P2_ITERATIONS) for n in (250, 500, 750, 1000)), (750, P2_ITERATIONS),
-                   "collision rate 'only increased to 4%' at 750 samples"),
+                   "collision rate 'only increased to 4%' at 750 samples",
+                   PaperEffect("P2's text on Fig. 8b: the collision rate 'only increased to 4%' at 750 samples",
+                               arm_level=(0.04, 0.04))),
         _p2_figure9(),
     )
 

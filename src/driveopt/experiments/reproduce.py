@@ -13,10 +13,15 @@ Ctrl-C keeps the finished episodes. A ``DIR`` laid out by figure (``runs/<figure
 merged into this layout first (:func:`merge_figure_folders`). Every protocol, name and option is checked before ``DIR`` is created or touched; one
 reproduction at a time writes into ``DIR`` (it holds ``DIR/.lock``). The report covers the episodes of the
 protocol as run (seeds and episodes per seed), read back from the folders and checked by the store.
+
+``claim``: run only one claim's two arms (its id, :func:`driveopt.experiments.protocols.claim_ids`), only the episodes
+missing for its pairs, through the same bench folders; the report still covers every claim. :func:`plan` reads the
+records alone and says, for each undecided claim, the pairs a decision needs and what they cost.
 """
 
 from __future__ import annotations
 
+import math
 import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -46,7 +51,17 @@ from driveopt.experiments.store import (
     load_folder,
     merged_spec,
 )
-from driveopt.experiments.verdicts import ClaimResult, answer, evaluate
+from driveopt.experiments.error_control import obrien_fleming_levels
+from driveopt.experiments.verdicts import (
+    ALPHA,
+    UNDECIDED,
+    ClaimResult,
+    answer,
+    control_figure,
+    evaluate,
+    information,
+    pairs_to_decide,
+)
 from driveopt.files import lock_output_folder, make_output_folder, write_json
 
 RUNS = "runs"
@@ -173,28 +188,35 @@ def _samples(run: BenchRun) -> int | None:
 def reproduce(paper: str, out: str | Path, *, figures: list[str] | None = None, quick: bool = False,
               seeds: tuple[int, ...] | None = None, episodes: int | None = None, only: RunSlice = RunSlice(),
               report_only: bool = False, workers: int | None = None, backend: str = "local",
-              episode_fn: EpisodeFn = episode_record, progress: bool = True,
+              episode_fn: EpisodeFn = episode_record, progress: bool = True, claim: str | None = None,
               ) -> tuple[tuple[FigureProtocol, ...], list[ClaimResult]]:
     """Run what is missing of ``paper``'s protocols (``figures``: only those; ``quick``: their quick variants;
     ``seeds``/``episodes``: replace every figure's; ``only``: run only those episodes), then write
     ``DIR/report.md``, ``report.json`` and one PNG per figure. The report always covers every claim of the chosen
     figures, each over the episodes recorded for both its arms (a claim with none says "not run"); ``report_only``
-    runs nothing and writes the report of what ``DIR`` holds. Returns the protocols and the claim rows. A
+    runs nothing and writes the report of what ``DIR`` holds; ``claim``: run only that claim's arms (its id). Returns
+    the protocols and the claim rows. A
     DriveoptError before anything is written when an option, figure, planner, scenario or weights file is wrong;
     KeyboardInterrupt keeps the finished episodes."""
     chosen = figures_of(paper, figures, quick=quick, seeds=seeds, episodes=episodes)
-    return chosen, run_figures(paper, chosen, out, only=only, report_only=report_only,
-                               workers=workers, backend=backend, episode_fn=episode_fn, progress=progress)
+    return chosen, run_figures(paper, chosen, out, only=only, report_only=report_only, workers=workers,
+                               backend=backend, episode_fn=episode_fn, progress=progress, claim=claim)
 
 
 def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path, *, only: RunSlice = RunSlice(),
                 report_only: bool = False, workers: int | None = None, backend: str = "local",
-                episode_fn: EpisodeFn = episode_record, progress: bool = True) -> list[ClaimResult]:
+                episode_fn: EpisodeFn = episode_record, progress: bool = True,
+                claim: str | None = None) -> list[ClaimResult]:
     """:func:`reproduce` for protocols given as objects (e.g. a protocol of one's own)."""
     from driveopt.experiments.reproduce_report import write_report
 
     out = Path(out)
-    runs = only.cut(check(figures, out, backend, workers))
+    if claim is not None:
+        if report_only or not only.everything:
+            raise ReproduceError("a claim names what to run: give it without report-only, scenarios, planners or samples")
+        runs = check((claim_protocol(figures, claim),), out, backend, workers)
+    else:
+        runs = only.cut(check(figures, out, backend, workers))
     if report_only:
         if not only.everything:
             raise ReproduceError("a report-only run runs nothing; scenarios, planners and samples choose what to run")
@@ -216,6 +238,23 @@ def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path
         results = judge(figures, out)
         write_report(paper, figures, results, out, code_versions(figures, out), answer_questions(paper, figures, out))
     return results
+
+
+def find_claim(figures: tuple[FigureProtocol, ...], claim_id: str) -> tuple[FigureProtocol, Claim]:
+    """The figure and claim of ``claim_id`` among ``figures``; ReproduceError naming where the ids are listed."""
+    for figure in figures:
+        for claim, this in zip(figure.claims, figure.claim_ids()):
+            if this == claim_id:
+                return figure, claim
+    raise ReproduceError(f"no claim {claim_id!r} in the chosen figures; `driveopt reproduce {figures[0].paper if figures else 'p1'} "
+                         "--plan --out DIR` lists the undecided claims' ids")
+
+
+def claim_protocol(figures: tuple[FigureProtocol, ...], claim_id: str) -> FigureProtocol:
+    """The protocol of one claim: its figure with that claim alone (its runs are the claim's two arms, in the bench
+    folders the whole figure uses, so only their missing episodes run)."""
+    figure, claim = find_claim(figures, claim_id)
+    return replace(figure, claims=(claim,), primary="")
 
 
 def episodes_to_run(runs: list[BenchRun]) -> int:
@@ -274,18 +313,150 @@ def code_versions(figures: tuple[FigureProtocol, ...], out: Path) -> dict[str, d
     return versions
 
 
+def test_key(figure: FigureProtocol, claim: Claim) -> str:
+    """The same string for claims that are one test: the same arms (planner and bench folder), scenario, metric,
+    expectation and paper's effect, whichever figures declare them (P2 Fig. 8a's 100-iteration point is Fig. 7's
+    density-3 learned against plain filter)."""
+    arm, base = claim.arm, claim.baseline
+    return (f"{claim.scenario}|{arm.planner}@{arm.folder(figure.duration)}|{base.planner}@{base.folder(figure.duration)}|"
+            f"{claim.metric}|{claim.expect}|{claim.effect.ratio}|{claim.effect.arm_level}|{claim.effect.baseline_level}")
+
+
+PROVENANCE_FIELDS = ("code", "jax", "numpy", "cpu_model", "device")  # what a record says about where it ran
+
+
+def provenance(folder: str, planner: str, records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Where one arm's records of a claim come from: the bench folder (under ``DIR/runs``), the planner, how many
+    episodes, and per distinct (code digest, jax, numpy, processor, device) the episodes that name it (a field a
+    record lacks is null)."""
+    groups: dict[tuple, int] = {}
+    for record in records:
+        key = tuple(record.get(name) for name in PROVENANCE_FIELDS)
+        groups[key] = groups.get(key, 0) + 1
+    return {"folder": f"{RUNS}/{folder}", "planner": planner, "episodes": len(records),
+            "sources": [{**dict(zip(PROVENANCE_FIELDS, key)), "episodes": n}
+                        for key, n in sorted(groups.items(), key=lambda item: -item[1])]}
+
+
 def judge(figures: tuple[FigureProtocol, ...], out: Path) -> list[ClaimResult]:
     """Every claim of ``figures`` measured on the records under ``out``: only the episodes of the protocol as run
-    (its seeds, episodes 0 .. episodes - 1)."""
+    (its seeds, episodes 0 .. episodes - 1), each figure's claims at the levels of its looks with Holm's adjustment
+    (:func:`~driveopt.experiments.verdicts.control_figure`)."""
     cache: dict[Path, Any] = {}
     results = []
     for figure in figures:
         arm_records = _protocol_records(figure, out, cache)
-        for claim in figure.claims:
-            results.append(evaluate(figure.figure, claim, arm_records(claim.arm, claim.scenario),
-                                    arm_records(claim.baseline, claim.scenario), figure.seeds, figure.full_episodes,
-                                    figure.reduced))
+        measured = []
+        for claim, claim_id in zip(figure.claims, figure.claim_ids()):
+            arm, baseline = arm_records(claim.arm, claim.scenario), arm_records(claim.baseline, claim.scenario)
+            keys = sorted(arm.keys() & baseline.keys())
+            result = evaluate(figure.figure, claim, arm, baseline, figure.seeds, figure.full_episodes, figure.reduced,
+                              claim_id=claim_id, primary=claim_id == figure.primary)
+            used = {side: provenance(a.folder(figure.duration), a.planner,
+                                     [records[k] for k in keys] if keys else list(records.values()))
+                    for side, a, records in (("arm", claim.arm, arm), ("baseline", claim.baseline, baseline))}
+            measured.append(replace(result, test_key=test_key(figure, claim), records=used))
+        results += control_figure(measured, figure.look_pairs)
     return results
+
+
+@dataclass(frozen=True)
+class PlanRow:
+    """One undecided claim as :func:`plan` costs it. ``paper_pairs``/``measured_pairs``: total pairs at which its rule
+    decides with 80% power at the figure's final level, at the paper's stated size (NaN: it states none) and at the
+    measured rates (inf: they never decide it); ``seconds_per_pair``: the two arms' mean wall seconds per episode
+    (planning plus simulation, one worker) from the recorded episodes; ``cost``: the seconds the pairs still needed
+    take, up to the first look beyond the pairs held that holds them (at the paper's size where stated, else at the
+    measured rates; inf when the rates never decide it or the protocol's pairs are spent). ``pairs``: those held (for
+    plan time, those compared on one processor)."""
+
+    claim_id: str
+    verdict: str
+    pairs: int
+    full_pairs: int
+    paper_pairs: float
+    measured_pairs: float
+    seconds_per_pair: float
+    cost: float
+
+
+def _planner_seconds(out: Path, cache: dict[Path, Any], folder: str, planner: str) -> float:
+    """Mean wall seconds per episode of ``planner`` in ``DIR/runs/folder`` over every scenario (NaN: none recorded)."""
+    path = out / RUNS / folder
+    if path not in cache:
+        cache[path] = records_by_arm(path) if path.is_dir() else {}
+    seconds = [float(r["plan_seconds"]) + float(r["sim_seconds"])
+               for (_, name), records in cache[path].items() if name == planner for r in records.values()]
+    return sum(seconds) / len(seconds) if seconds else math.nan
+
+
+def plan(paper: str, out: str | Path, *, figures: list[str] | None = None, seeds: tuple[int, ...] | None = None,
+         episodes: int | None = None) -> tuple[list[PlanRow], int]:
+    """The undecided claims of ``paper``'s figures on the records under ``out`` (nothing runs), cheapest decision
+    first (a claim whose cost cannot be estimated last), and how many claims the figures have. An arm without a
+    record of the claim's scenario is costed by its records on the figure's other scenarios."""
+    out = Path(out)
+    chosen = figures_of(paper, figures, seeds=seeds, episodes=episodes)
+    if not (out / RUNS).is_dir():
+        raise ReproduceError(f"{out} holds no runs to plan from ({out / RUNS} is missing)")
+    results = judge(chosen, out)
+    by_id = {(f.figure, i): (f, c) for f in chosen for c, i in zip(f.claims, f.claim_ids())}
+    cache: dict[Path, Any] = {}
+    rows = []
+    for r in results:
+        if r.verdict not in UNDECIDED:
+            continue
+        figure, claim = by_id[(r.figure, r.claim_id)]
+        final = obrien_fleming_levels(figure.look_pairs, ALPHA)[-1]
+        paper_pairs, measured_pairs = pairs_to_decide(r, final)
+        seconds = 0.0
+        for arm, stats_ in ((claim.arm, r.arm), (claim.baseline, r.baseline)):
+            each = stats_.episode_seconds
+            if not math.isfinite(each):
+                each = _planner_seconds(out, cache, arm.folder(figure.duration), arm.planner)
+            seconds += each
+        info = information(r)  # plan time: the pairs compared on one processor
+        target = paper_pairs if math.isfinite(paper_pairs) else measured_pairs
+        if info >= figure.look_pairs[-1] or not math.isfinite(target):
+            cost = math.inf  # the protocol's pairs are spent, or the rates never decide it
+        else:  # decisions fall at looks: the first look beyond the pairs held with the pairs needed
+            target = next((n for n in figure.look_pairs if n >= max(target, info + 1)), target)
+            cost = seconds * (target - info)
+        rows.append(PlanRow(r.claim_id, r.verdict + (" (interim)" if r.interim else ""), info, r.full_pairs,
+                            paper_pairs, measured_pairs, seconds, cost))
+    rows.sort(key=lambda row: (not math.isfinite(row.cost), row.cost if math.isfinite(row.cost) else 0.0, row.claim_id))
+    return rows, len(results)
+
+
+def _count(value: float) -> str:
+    if math.isnan(value):
+        return "-"
+    return "never" if math.isinf(value) else f"{value:.0f}"
+
+
+def _duration(seconds: float) -> str:
+    if math.isnan(seconds):
+        return "unknown"
+    if math.isinf(seconds):
+        return "beyond the protocol or never"
+    return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
+
+
+def _seconds(seconds: float) -> str:
+    return "unknown" if math.isnan(seconds) else f"{seconds:.0f} s"
+
+
+def plan_text(paper: str, rows: list[PlanRow], claims: int) -> str:
+    """The lines ``driveopt reproduce --plan`` prints: a header, then one line per undecided claim."""
+    lines = [f"{paper}: {len(rows)} of {claims} claims undecided, cheapest decision first. Pairs: in all, for 80% power "
+             "at the figure's final level, at the paper's stated size (- where it states none) and at the measured "
+             "rates; cost: wall time of one worker for the pairs still needed, from the recorded episodes.",
+             "claim | verdict | pairs | at the paper's size | at the measured rates | per pair | to decide"]
+    for row in rows:
+        lines.append(f"{row.claim_id} | {row.verdict} | {row.pairs}/{row.full_pairs} | {_count(row.paper_pairs)} | "
+                     f"{_count(row.measured_pairs)} | {_seconds(row.seconds_per_pair)} | "
+                     f"{_duration(row.cost)}")
+    return "\n".join(lines) + "\n"
 
 
 def answer_questions(paper: str, figures: tuple[FigureProtocol, ...], out: Path) -> list[ClaimResult]:

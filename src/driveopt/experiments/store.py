@@ -80,6 +80,9 @@ _OPTIONAL: tuple[tuple[str, str, Callable[[Any], bool]], ...] = (
     ("device", "a string", lambda v: isinstance(v, str)),
     ("settings", "a string", lambda v: isinstance(v, str)),
     ("code", "a string", lambda v: isinstance(v, str)),  # digest of the driveopt sources that ran the episode
+    ("cpu_model", "a string", lambda v: isinstance(v, str)),  # the processor model it planned on
+    ("jax", "a string", lambda v: isinstance(v, str)),  # the jax version that ran it
+    ("numpy", "a string", lambda v: isinstance(v, str)),  # the numpy version
 )
 
 
