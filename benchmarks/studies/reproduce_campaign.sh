@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The full protocols of `driveopt reproduce p1` and `p2`, run a slice at a time in priority order, into the committed
 # records under benchmarks/results/reproduction/{p1,p2}; then the reports over everything recorded, copied to
-# docs/reproduction/p1.md and p2.md (with their figures).
+# docs/reproduction/p1-claims.md and p2-claims.md (with their figures).
 #
 #   nohup bash benchmarks/studies/reproduce_campaign.sh [WORKERS] > LOG 2>&1 &     # run (or resume) the stages, then report
 #   bash benchmarks/studies/reproduce_campaign.sh --report                          # only the reports
@@ -52,7 +52,7 @@ main() {
         local paper=$1
         [ -d "$records/$paper/runs" ] || return 0
         python -m driveopt.cli reproduce "$paper" --report-only --out "$records/$paper"
-        sed -E "s#\]\((fig[0-9a-z]+\.png)\)#](${paper}-\1)#" "$records/$paper/report.md" > "$repo/docs/reproduction/$paper.md"
+        sed -E "s#\]\((fig[0-9a-z]+\.png)\)#](${paper}-\1)#" "$records/$paper/report.md" > "$repo/docs/reproduction/$paper-claims.md"
         for png in "$records/$paper"/fig*.png; do
             cp "$png" "$repo/docs/reproduction/$paper-$(basename "$png")"
         done

@@ -10,7 +10,8 @@ Verdicts on a collision claim, from the paired episodes (``only_arm``/``only_bas
 :mod:`driveopt.experiments.error_control`):
 
 * a ratio: McNemar's exact test decides the direction, :func:`~driveopt.experiments.paired_stats.rate_ratio_interval`
-  the size. Direction significant the paper's way: **reproduced** when the interval meets the paper's range,
+  at level 1 - ``alpha`` the size (so an interim look, whose ``alpha`` is the sequential boundary's, excludes a size
+  only with the same protection as it declares a direction: Jennison and Turnbull's repeated confidence intervals). Direction significant the paper's way: **reproduced** when the interval meets the paper's range,
   **smaller than the paper's** when it lies wholly on the side of no effect, **larger than the paper's** on the other;
   significant the other way: **contradicted**; not significant but the interval misses the paper's range: **paper's
   size excluded**; otherwise **not decidable here** when even the baseline's 95 % upper rate would need more pairs
@@ -94,7 +95,7 @@ def judge_ratio(only_arm: int, only_baseline: int, arm_events: int, baseline_eve
     docstring); ``max_pairs``: the most pairs the protocol runs."""
     if pairs == 0:
         return Judgement(NOT_RUN)
-    interval = rate_ratio_interval(arm_events, baseline_events, pairs)
+    interval = rate_ratio_interval(arm_events, baseline_events, pairs, level=1.0 - alpha)
     fewer_claimed = ratio[1] < 1.0
     if mcnemar_exact(only_arm, only_baseline) < alpha and only_arm != only_baseline:
         if (only_arm < only_baseline) != fewer_claimed:

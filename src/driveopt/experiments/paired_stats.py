@@ -12,8 +12,8 @@ outcomes. The functions here test them without distributional assumptions:
   same every time it is written;
 * :func:`paired_risk_difference_interval` -- a conservative 95% interval of a paired difference of rates from two
   simultaneous 97.5% Wilson intervals of the discordant shares;
-* :func:`rate_ratio_interval` -- a conservative 95% interval of the ratio of two paired rates (what "4x fewer
-  collisions" states), from two simultaneous 97.5% Wilson intervals of the marginal rates;
+* :func:`rate_ratio_interval` -- a conservative interval of the ratio of two paired rates (what "4x fewer
+  collisions" states), from two simultaneous Wilson intervals of the marginal rates (97.5% each for 95%);
 * :func:`t_mean_interval` -- Student's t interval of a mean (paired differences of speed), which holds its level at
   small samples where the percentile bootstrap covers too little;
 * :func:`mcnemar_pairs_needed` -- the pairs McNemar's test needs to show a rate ratio with a given power.
@@ -88,17 +88,18 @@ def paired_risk_difference_interval(only_first: int, only_second: int, pairs: in
     return (low10 - high01, high10 - low01)
 
 
-def rate_ratio_interval(arm_events: int, baseline_events: int, pairs: int) -> tuple[float, float]:
-    """Conservative 95% interval of rate(arm) / rate(baseline) over ``pairs`` paired episodes, with ``arm_events``
-    and ``baseline_events`` the episodes each collided in (both collided counts in each).
+def rate_ratio_interval(arm_events: int, baseline_events: int, pairs: int, level: float = 0.95) -> tuple[float, float]:
+    """Conservative ``level`` interval of rate(arm) / rate(baseline) over ``pairs`` paired episodes, with
+    ``arm_events`` and ``baseline_events`` the episodes each collided in (both collided counts in each).
 
-    Each marginal rate gets a 97.5% Wilson interval and the ratio takes the extreme combinations, so by Bonferroni
-    it covers with at least 95% whatever the pairing's correlation. A baseline that never collided leaves the upper
-    end infinite. (NaN, NaN) for no pairs."""
+    Each marginal rate gets a Wilson interval at (1 + ``level``) / 2 and the ratio takes the extreme combinations, so
+    by Bonferroni it covers with at least ``level`` whatever the pairing's correlation. A baseline that never
+    collided leaves the upper end infinite. (NaN, NaN) for no pairs."""
     if pairs == 0:
         return (math.nan, math.nan)
-    arm_low, arm_high = wilson_interval(arm_events, pairs, z=Z_97_5)
-    base_low, base_high = wilson_interval(baseline_events, pairs, z=Z_97_5)
+    z = float(stats.norm.isf((1.0 - level) / 4.0))
+    arm_low, arm_high = wilson_interval(arm_events, pairs, z=z)
+    base_low, base_high = wilson_interval(baseline_events, pairs, z=z)
     return (arm_low / base_high, arm_high / base_low if base_low > 0 else math.inf)
 
 

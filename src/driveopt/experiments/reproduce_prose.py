@@ -95,7 +95,7 @@ def readme_sentence(reports: dict[str, dict[str, Any]]) -> str:
     return (f"Every claim of both papers as a paired, like-for-like test on seeds 42 and 123, judged by `driveopt "
             f"reproduce` on the size the paper states, at sequential looks with one primary claim per figure "
             f"({verdict_tallies(reports)}; most claims at {most} of the protocol's {full} pairs, the most-run at "
-            f"{highest}): [P1](docs/reproduction/p1.md), [P2](docs/reproduction/p2.md). "
+            f"{highest}): [P1](docs/reproduction/p1-claims.md), [P2](docs/reproduction/p2-claims.md). "
             f"{_question(reports['p2'])}.")
 
 
