@@ -5,12 +5,14 @@ driveopt's own planners (``bilevel``, ``grid``, ``vqvae-filter``, ...) carry its
 authors' public code: P1's ``MPC-Bi-Level`` (``main_bilevel.py``, ``main_baseline.py``, ``utils/env_config.py``,
 ``expert_mpc/``) and P2's ``VQOptMain`` (``inferenceJax3.py``, ``utils/config.py``, ``model/DOptimizerJax.py``).
 
-Common to all of them (:func:`without_driveopt_machinery`): the paper's ranking (the residual leading: P1's with its
-authors' driving cost, :class:`~driveopt.ranking.P1AuthorsRanking`; P2's and [5]'s
-:class:`~driveopt.ranking.CostPlusResidual`), no stop rows, the chosen plan executed whatever its residual (the
-fallback only on NUMERICAL_ERROR, without straightening or sideways stops), no contact guard, constant-velocity
-prediction of the 10 nearest neighbours, :data:`FAITHFUL_MATHS`, and a new plan every policy period
-(:data:`AUTHORS_REPLAN_EVERY`), for the bi-level optimiser and its baselines alike. MPC-Bi-Level carries its
+Common to all of them (:func:`without_driveopt_machinery`: one ``dataclasses.replace`` of the spec's ``method``,
+``loop`` and maths): the papers' method (:meth:`driveopt.method.Method.as_papers`: the paper's ranking, the residual
+leading: P1's with its authors' driving cost, :class:`~driveopt.ranking.P1AuthorsRanking`; P2's and [5]'s
+:class:`~driveopt.ranking.CostPlusResidual`; no stop rows; a fallback without straightening or sideways stops), the
+papers' loop (:meth:`driveopt.drivers.optimiser.ClosedLoop.papers`: the chosen plan executed whatever its residual, the
+fallback only on NUMERICAL_ERROR, no contact guard, constant-velocity prediction of the 10 nearest neighbours) with a
+new plan every policy period (:data:`AUTHORS_REPLAN_EVERY`), and :data:`FAITHFUL_MATHS`, for the bi-level optimiser
+and its baselines alike. MPC-Bi-Level carries its
 sampling mean from call to call (``policy_bilevel.py``: ``self.mean_param``), the baselines do not. Both authors'
 loops call the planner once per ``env.step`` for every method, at a 25 Hz policy over a 100 Hz simulation; P1
 §V-A3's "first five elements" executed open loop are controls 0.01 s apart (the plan resampled at 1500 nodes over
@@ -27,10 +29,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from driveopt.batch_rows import SamplesOnly
 from driveopt.config import PlannerConfig
-from driveopt.drivers.optimiser import OptimiserSpec
-from driveopt.fallback import Fallback
+from driveopt.drivers.optimiser import ClosedLoop, OptimiserSpec
 from driveopt.priors.cvae import cvae_prior
 from driveopt.priors.p1_authors import FixedGaussian, LearnedStart, SpeedOffsetGrid, VanillaGuesses
 from driveopt.qp import NUM_SEGMENTS
@@ -79,15 +79,12 @@ P1_RANDOM_LATERAL_VAR = (46.0,) * NUM_SEGMENTS  # [m^2] policy_random.py
 
 def without_driveopt_machinery(spec: OptimiserSpec, *, name: str, description: str, ranking: Ranking,
                                replan_every: int, maths: dict = P1_MATHS) -> OptimiserSpec:
-    """``spec`` without driveopt's safety machinery: the paper's ``ranking``, no stop rows, a
-    fallback without straightening or sideways stops followed only on NUMERICAL_ERROR, no contact guard,
-    constant-velocity prediction of the nearest neighbours, ``maths`` (:data:`P1_MATHS`), a plan every ``replan_every``
-    policy periods."""
+    """``spec`` without driveopt's safety machinery: the papers' method with ``ranking`` (no stop rows, a fallback
+    without straightening or sideways stops; its row sharing kept), the papers' loop (that fallback followed only on
+    NUMERICAL_ERROR, no contact guard, constant-velocity prediction of the nearest neighbours) with a plan every
+    ``replan_every`` policy periods, and ``maths`` (:data:`P1_MATHS`)."""
     return dataclasses.replace(spec, name=name, description=description, config=spec.config.replace(**maths),
-                               ranking=ranking, batch_rows=SamplesOnly(),
-                               fallback=Fallback(straightens=False, evasion=False), contact_guard=False,
-                               executes_infeasible=True, braking_prediction=False, approach_selection=False,
-                               replan_every=replan_every)
+                               method=spec.method.as_papers(ranking), loop=ClosedLoop.papers(replan_every))
 
 
 def _faithful(spec: OptimiserSpec, ranking: Ranking) -> OptimiserSpec:

@@ -25,6 +25,7 @@ from driveopt.priors.cvae_multipliers import prior_for as cvae_multipliers_prior
 from driveopt.priors.grids import GoalGridPrior, GridPrior, VanillaPrior
 from driveopt.priors.vqvae import vqvae_prior
 from driveopt.ranking import CostPlusResidual
+from driveopt.method import Method
 from driveopt.row_sharing import DistinctRows
 from driveopt.safety.cvae_multipliers import filter_for as cvae_multipliers_filter
 
@@ -78,12 +79,12 @@ _OPTIMISERS = (
     OptimiserSpec("vqvae", "P2: 1000 PixelCNN/VQ-VAE samples, one pass of the barrier projection (100 iterations), "
                            "least-cost feasible (shipped weights; Gaussian if none)",
                   _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
-                                projection={"max_iterations": 100, "barrier": True}), vqvae_prior(), row_sharing=DistinctRows()),
+                                projection={"max_iterations": 100, "barrier": True}), vqvae_prior(), method=Method(row_sharing=DistinctRows())),
     OptimiserSpec("vqvae-filter", "P2's full pipeline: vqvae with the learned safety filter setting up the barrier projection "
                                   "(shipped weights; without filter weights the plain filter, without VQ-VAE weights the Gaussian)",
                   _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
                                 projection={"max_iterations": 100, "barrier": True}), vqvae_prior(), learned_filter=True,
-                  row_sharing=DistinctRows()),
+                  method=Method(row_sharing=DistinctRows())),
     OptimiserSpec("vqvae-cem", "P1 bi-level optimiser started from PixelCNN/VQ-VAE samples (shipped weights; Gaussian if none)",
                   _BASE, vqvae_prior()),
     OptimiserSpec("cvae-filter", "P1's CVAE through P2's pipeline: 1000 CVAE samples through vqvae's one pass (barrier projection, 100 iterations), "
