@@ -268,7 +268,8 @@ def test_p1_baselines_rank_by_residual_first_as_the_authors_code():
     driving on is not. On driveopt's cost scale an unweighted cost + residual picked driving on, through a car (the
     speed cost outweighs a collision's residual: every -p1 episode crashed within seconds); with P1's authors' weight
     the residual leads and a feasible stop is chosen."""
-    from driveopt.registry import P1_RANKING_COST_WEIGHT, get_optimiser
+    from driveopt.faithful import P1_RANKING_COST_WEIGHT
+    from driveopt.registry import get_optimiser
 
     assert all(get_optimiser(f"{name}-p1").method.ranking == CostPlusResidual(P1_RANKING_COST_WEIGHT)
                for name in ("random", "grid", "vanilla", "batch"))

@@ -1,6 +1,8 @@
 """Planner registry and the baseline proposal distributions."""
 
 import dataclasses
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -9,8 +11,9 @@ import pytest
 
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, faithful
 from driveopt.config import QPConfig
-from driveopt.drivers.optimiser import DRIVEOPT_LOOP, PAPERS_LOOP, ClosedLoop
+from driveopt.drivers.optimiser import DRIVEOPT_LOOP, PAPERS_LOOP, ClosedLoop, OptimiserSpec
 from driveopt.errors import UnknownNameError
+from driveopt.faithful import P1_RANKING_COST_WEIGHT
 from driveopt.fallback import Fallback
 from driveopt.method import DRIVEOPT_METHOD, PAPERS_FALLBACK, Method
 from driveopt.planner import goal_from_setpoints, plan
@@ -27,7 +30,7 @@ from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
 from driveopt.ranking import CostPlusResidual, FeasibilityFirst, P1AuthorsRanking
 from driveopt.row_sharing import EveryRow
-from driveopt.registry import P1_RANKING_COST_WEIGHT, REALTIME_SAMPLES, get_optimiser, get_planner, list_planners
+from driveopt.registry import REALTIME_SAMPLES, get_optimiser, get_planner, list_planners, planner_rows
 from driveopt.scene import load_scene
 from driveopt.trajectory import evaluate
 
@@ -40,6 +43,27 @@ def test_registry_names_and_clear_error():
     with pytest.raises(UnknownNameError, match="optimisers: bilevel"):
         get_optimiser("idm")
     assert get_optimiser("grid") is get_planner("grid")
+
+
+def test_every_row_builds_its_spec_once_with_the_rows_name_and_description():
+    """The descriptions live in the rows; a factory's spec carries its row's, and is built once; every planner outside
+    the references runs the optimiser."""
+    assert [row.name for row in planner_rows()] == list_planners()
+    for row in planner_rows():
+        spec = get_planner(row.name)
+        assert (spec.name, spec.description) == (row.name, row.description)
+        assert get_planner(row.name) is spec
+        assert isinstance(spec, OptimiserSpec) == spec.is_optimiser == (row.family != "reference"), row.name
+
+
+def test_a_planner_is_built_only_when_asked_for():
+    """Importing the registry builds nothing; asking for grid-p1 builds it and grid (its base), and loads no Flax."""
+    code = ("import sys\nfrom driveopt import registry\nbefore = registry._built.cache_info().currsize\n"
+            "registry.get_planner('grid-p1')\n"
+            "print(before, registry._built.cache_info().currsize, 'flax' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["0", "2", "False"]
 
 
 def test_batch_size_override_caps_elites_and_keeps_vanilla_single():
