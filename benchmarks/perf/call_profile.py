@@ -43,13 +43,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.batch_rows import StopRows
 from driveopt.cli.common import positive_int
 from driveopt.config import PlannerConfig
 from driveopt.costs import COST_TERMS, cost_terms, weighted_cost
 from driveopt.experiments.runner import cpu_model
 from driveopt.fallback import Fallback, braking_coeffs, stop_setpoints
 from driveopt.files import write_json
+from driveopt.method import Method
 from driveopt.planner import _to_result, compiled_solve, plan, project_batch, setpoint_batch
 from driveopt.problem import build_problem
 from driveopt.qp import make_model
@@ -200,7 +200,7 @@ def profile(samples: int, calls: int, iterations: int = 5, projection_iterations
 
     solve = compiled_solve()
     solve_args = (problem, key, cfg, prior, None, None, None)
-    solve_kw = {"ranking": ranking, "fallback": fallback, "batch_rows": StopRows()}  # as plan() passes them
+    solve_kw = {"method": Method(ranking, fallback)}  # as plan() passes it
     whole_compile_s = _compile_s(solve, *solve_args, **solve_kw)
     whole_ms = _median_ms(lambda: solve(*solve_args, **solve_kw), calls)
     # A solution of its own for each read-out, on the device as plan() reads it: a JAX array keeps its host copy after

@@ -91,12 +91,12 @@ def run(args: argparse.Namespace) -> dict:
             problem = build_problem(scene, spec.config.basis, braking_time=spec.braking_time,
                                     selection_time=spec.selection_time)
             cases[f"{variant}-{k}"] = dict(config=spec.config, prior=spec.prior(lanes), safety_filter=spec.safety_filter(lanes),
-                                           problem=problem, strategies=spec.strategies)
+                                           problem=problem, method=spec.method)
 
     def call(case: dict, key: int) -> float:
         start = time.perf_counter()
         plan(case["problem"], case["config"], key=jax.random.PRNGKey(key), prior=case["prior"],
-             safety_filter=case["safety_filter"], x_offset=scene.ego.x, **case["strategies"])
+             safety_filter=case["safety_filter"], x_offset=scene.ego.x, method=case["method"])
         return time.perf_counter() - start
 
     first = {name: call(case, 0) for name, case in tqdm(cases.items(), desc="compile", unit="case")}

@@ -97,7 +97,7 @@ def profile(planner_name: str, samples: int, problem_name: str, calls: int, fixe
 
     def call(seed: int):
         return planner.plan(problem, config, key=jax.random.PRNGKey(seed), prior=prior, safety_filter=safety_filter,
-                            x_offset=scene.ego.x, **spec.strategies)
+                            x_offset=scene.ego.x, method=spec.method)
 
     start = time.perf_counter()
     first = call(0)

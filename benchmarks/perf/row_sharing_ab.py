@@ -17,6 +17,7 @@ the same arguments resumes. The machine's load average is recorded before and af
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -66,8 +67,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     spec = get_optimiser(args.planner)
     spec = spec if args.samples is None else spec.with_samples(args.samples)
-    if not isinstance(spec.row_sharing, DistinctRows):
-        parser.error(f"{args.planner} projects every row (row_sharing {spec.row_sharing}); pick a planner that shares rows")
+    if not isinstance(spec.method.row_sharing, DistinctRows):
+        parser.error(f"{args.planner} projects every row (row_sharing {spec.method.row_sharing}); pick a planner that shares rows")
 
     arguments = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k != "json"}
     report = {"arguments": arguments, "machine": machine(), "load_before": os.getloadavg(), "states": []}
@@ -79,12 +80,12 @@ def main(argv=None) -> int:
     problems = states(args.scenario, args.episodes, args.every, args.steps, args.seed)
     lanes = get_scenario(args.scenario).lanes
     prior, safety_filter = spec.prior(lanes), spec.safety_filter(lanes)
-    sides = {"every_row": EveryRow(), "distinct_rows": spec.row_sharing}
+    sides = {"every_row": EveryRow(), "distinct_rows": spec.method.row_sharing}
 
     def call(problem, key: int, sharing):
         start = time.perf_counter()
         result = planner.plan(problem, spec.config, key=jax.random.PRNGKey(key), prior=prior, safety_filter=safety_filter,
-                              **{**spec.strategies, "row_sharing": sharing})
+                              method=dataclasses.replace(spec.method, row_sharing=sharing))
         return result, 1e3 * (time.perf_counter() - start)
 
     for sharing in sides.values():  # compile both before timing either

@@ -31,7 +31,6 @@ import multiprocessing
 import sys
 from pathlib import Path
 
-from driveopt.batch_rows import StopRows
 from driveopt.cli import stop_cleanly_on_signals
 from driveopt.cli.common import positive_int
 from driveopt.errors import DriveoptError
@@ -44,11 +43,11 @@ from driveopt.registry import get_planner
 from driveopt.sim import get_scenario
 
 VARIANTS = {
-    "faithful": {},
-    "stop-net": {"batch_rows": StopRows(), "fallback": Fallback(), "executes_infeasible": False},
-    "feasibility-first": {"ranking": FeasibilityFirst()},
-    "prediction": {"braking_prediction": True, "approach_selection": True},
-    "contact-guard": {"contact_guard": True},
+    "faithful": ({}, {}),  # (the method's fields, the loop's fields) given back
+    "stop-net": ({"fallback": Fallback()}, {"executes_infeasible": False}),
+    "feasibility-first": ({"ranking": FeasibilityFirst()}, {}),
+    "prediction": ({}, {"braking_prediction": True, "approach_selection": True}),
+    "contact-guard": ({}, {"contact_guard": True}),
 }
 
 
@@ -57,7 +56,9 @@ def variant_spec(planner: str, variant: str, samples: int):
     if not planner.endswith(SUFFIX):
         raise DriveoptError(f"--planner must be a faithful planner (a name ending in {SUFFIX}), got {planner}")
     spec = get_planner(planner)
-    return dataclasses.replace(spec, **VARIANTS[variant]).with_samples(samples)
+    method, loop = VARIANTS[variant]
+    return dataclasses.replace(spec, method=dataclasses.replace(spec.method, **method),
+                               loop=dataclasses.replace(spec.loop, **loop)).with_samples(samples)
 
 
 def run_episode(scenario: str, planner: str, variant: str, samples: int, seed: int, episode: int,

@@ -11,9 +11,9 @@ Where things live, in layers (each imports only those before it): ``errors``, ``
 ``scene`` (the world), ``prediction`` (neighbours' motion), ``observation`` (the learned components'
 features), ``problem`` (arrays for the planner); the numerics ``basis``, ``qp``, ``xla``, ``chunks``, ``trajectory``,
 ``projection``, ``costs``, ``sampler`` (the Prior contract and the Gaussian prior); the strategies
-``ranking``, ``fallback``, ``batch_rows``, ``row_sharing``; ``filtering`` (the SafetyFilter contract); ``planner`` (``solve``
-and ``plan``); ``files``; ``learned/`` (networks), ``priors/``, ``safety/``, ``data/`` (demonstrations),
-``sim/`` (highway-env), ``rl/``, ``drivers/`` and ``registry`` (who drives); ``training/``;
+``ranking``, ``fallback``, ``row_sharing``, and ``method`` (the three as one value); ``filtering`` (the SafetyFilter
+contract); ``planner`` (``solve`` and ``plan``); ``files``; ``learned/`` (networks), ``priors/``, ``safety/``, ``data/``
+(demonstrations), ``sim/`` (highway-env), ``rl/``, ``drivers/`` and ``registry`` (who drives); ``training/``;
 ``experiments/`` (rollout, bench, collect); ``controller`` (:class:`Controller`: a planner driving the user's own
 highway-env env); ``viz/``, ``cli/``.
 """
@@ -25,11 +25,11 @@ from driveopt.lazy import lazy_exports
 # A new export is one line here.
 _EXPORTS = {
     "ConfigError": "driveopt.checks",
-    "SamplesOnly": "driveopt.batch_rows", "StopRows": "driveopt.batch_rows",
     "BasisConfig": "driveopt.config", "CostConfig": "driveopt.config", "PlannerConfig": "driveopt.config",
     "ProjectionConfig": "driveopt.config", "QPConfig": "driveopt.config", "SamplerConfig": "driveopt.config",
     "DriveoptError": "driveopt.errors",
     "Fallback": "driveopt.fallback",
+    "DRIVEOPT_METHOD": "driveopt.method", "Method": "driveopt.method", "papers_method": "driveopt.method",
     "PlanResult": "driveopt.planner", "PlanStatus": "driveopt.planner", "Solution": "driveopt.planner",
     "plan": "driveopt.planner", "solve": "driveopt.planner",
     "GaussianPrior": "driveopt.priors", "Prior": "driveopt.priors", "Proposal": "driveopt.priors",

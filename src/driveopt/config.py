@@ -201,8 +201,8 @@ class PlannerConfig:
     """The planner's maths: basis, set-point QP, projection, sampler and cost. Hashable: a jit static argument.
 
     What is not maths lives elsewhere: how rows are ranked, what rides in a batch, which stops the fallback weighs and
-    whether repeated rows are projected once are strategies passed to the planner (:mod:`driveopt.ranking`,
-    :mod:`driveopt.batch_rows`, :class:`driveopt.fallback.Fallback`, :mod:`driveopt.row_sharing`); what only a
+    whether repeated rows are projected once are the planner's method (:class:`driveopt.method.Method`: a
+    :mod:`driveopt.ranking`, a :class:`driveopt.fallback.Fallback`, a :mod:`driveopt.row_sharing`); what only a
     closed-loop driver reads is in its spec
     (:class:`driveopt.drivers.optimiser.OptimiserSpec`).
     """

@@ -5,12 +5,14 @@ driveopt's own planners (``bilevel``, ``grid``, ``vqvae-filter``, ...) carry its
 authors' public code: P1's ``MPC-Bi-Level`` (``main_bilevel.py``, ``main_baseline.py``, ``utils/env_config.py``,
 ``expert_mpc/``) and P2's ``VQOptMain`` (``inferenceJax3.py``, ``utils/config.py``, ``model/DOptimizerJax.py``).
 
-Common to all of them (:func:`without_driveopt_machinery`): the paper's ranking (the residual leading: P1's with its
-authors' driving cost, :class:`~driveopt.ranking.P1AuthorsRanking`; P2's and [5]'s
-:class:`~driveopt.ranking.CostPlusResidual`), no stop rows, the chosen plan executed whatever its residual (the
-fallback only on NUMERICAL_ERROR, without straightening or sideways stops), no contact guard, constant-velocity
-prediction of the 10 nearest neighbours, :data:`FAITHFUL_MATHS`, and a new plan every policy period
-(:data:`AUTHORS_REPLAN_EVERY`), for the bi-level optimiser and its baselines alike. MPC-Bi-Level carries its
+Common to all of them (:func:`without_driveopt_machinery`: one ``dataclasses.replace`` of the spec's ``method``,
+``loop`` and maths): the papers' method (:meth:`driveopt.method.Method.as_papers`: the paper's ranking, the residual
+leading: P1's with its authors' driving cost, :class:`~driveopt.ranking.P1AuthorsRanking`; P2's and [5]'s
+:class:`~driveopt.ranking.CostPlusResidual`; no stop rows; a fallback without straightening or sideways stops), the
+papers' loop (:meth:`driveopt.drivers.optimiser.ClosedLoop.papers`: the chosen plan executed whatever its residual, the
+fallback only on NUMERICAL_ERROR, no contact guard, constant-velocity prediction of the 10 nearest neighbours) with a
+new plan every policy period (:data:`AUTHORS_REPLAN_EVERY`), and :data:`FAITHFUL_MATHS`, for the bi-level optimiser
+and its baselines alike. MPC-Bi-Level carries its
 sampling mean from call to call (``policy_bilevel.py``: ``self.mean_param``), the baselines do not. Both authors'
 loops call the planner once per ``env.step`` for every method, at a 25 Hz policy over a 100 Hz simulation; P1
 §V-A3's "first five elements" executed open loop are controls 0.01 s apart (the plan resampled at 1500 nodes over
@@ -27,10 +29,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from driveopt.batch_rows import SamplesOnly
 from driveopt.config import PlannerConfig
-from driveopt.drivers.optimiser import OptimiserSpec
-from driveopt.fallback import Fallback
+from driveopt.drivers.optimiser import ClosedLoop, OptimiserSpec
 from driveopt.priors.cvae import cvae_prior
 from driveopt.priors.p1_authors import FixedGaussian, LearnedStart, SpeedOffsetGrid, VanillaGuesses
 from driveopt.qp import NUM_SEGMENTS
@@ -79,19 +79,18 @@ P1_RANDOM_LATERAL_VAR = (46.0,) * NUM_SEGMENTS  # [m^2] policy_random.py
 
 def without_driveopt_machinery(spec: OptimiserSpec, *, name: str, description: str, ranking: Ranking,
                                replan_every: int, maths: dict = P1_MATHS) -> OptimiserSpec:
-    """``spec`` without driveopt's safety machinery: the paper's ``ranking``, no stop rows, a
-    fallback without straightening or sideways stops followed only on NUMERICAL_ERROR, no contact guard,
-    constant-velocity prediction of the nearest neighbours, ``maths`` (:data:`P1_MATHS`), a plan every ``replan_every``
-    policy periods."""
+    """``spec`` without driveopt's safety machinery: the papers' method with ``ranking`` (no stop rows, a fallback
+    without straightening or sideways stops; its row sharing kept), the papers' loop (that fallback followed only on
+    NUMERICAL_ERROR, no contact guard, constant-velocity prediction of the nearest neighbours) with a plan every
+    ``replan_every`` policy periods, and ``maths`` (:data:`P1_MATHS`)."""
     return dataclasses.replace(spec, name=name, description=description, config=spec.config.replace(**maths),
-                               ranking=ranking, batch_rows=SamplesOnly(),
-                               fallback=Fallback(straightens=False, evasion=False), contact_guard=False,
-                               executes_infeasible=True, braking_prediction=False, approach_selection=False,
-                               replan_every=replan_every)
+                               method=spec.method.as_papers(ranking), loop=ClosedLoop.papers(replan_every))
 
 
-def _faithful(spec: OptimiserSpec, ranking: Ranking) -> OptimiserSpec:
-    return without_driveopt_machinery(spec, name=spec.name + SUFFIX, description=spec.description, ranking=ranking,
+def faithful_version(spec: OptimiserSpec, *, name: str, description: str, ranking: Ranking) -> OptimiserSpec:
+    """``spec`` as its paper's authors ran it (:func:`without_driveopt_machinery` with the paper's ``ranking``, a plan
+    every period and :data:`FAITHFUL_MATHS`), registered as ``name`` with ``description``."""
+    return without_driveopt_machinery(spec, name=name, description=description, ranking=ranking,
                                       replan_every=AUTHORS_REPLAN_EVERY, maths=FAITHFUL_MATHS)
 
 
@@ -105,66 +104,45 @@ def _learned_start(start: FixedGaussian):
     return make
 
 
-_COMMON = "P1's ranking and its authors' cost, no driveopt safety machinery, a plan every 0.1 s"
+P1_METHODS = ("bilevel", "cvae", "random", "grid", "vanilla", "batch")  # P1's bi-level optimiser (Gaussian and CVAE
+# start) and its four MPC baselines (P1 §V-A3), each with a faithful planner
 
 
-def p1_planners(base: PlannerConfig) -> tuple[OptimiserSpec, ...]:
-    """P1's bi-level optimiser (Gaussian and CVAE start) and its four MPC baselines (P1 §V-A3), faithful."""
+def p1_planner(method: str, *, name: str, description: str) -> OptimiserSpec:
+    """P1's ``method`` (one of :data:`P1_METHODS`) as its authors ran it: their samples, grids, guesses, iterations,
+    elites and ranking (:class:`~driveopt.ranking.P1AuthorsRanking` with their speed weight), a plan every period."""
+    base = PlannerConfig()
     bilevel = base.replace(sampler={"num_samples": P1_SAMPLES, "num_iterations": P1_BILEVEL_ITERATIONS,
                                     "num_constraint_elites": P1_CONSTRAINT_ELITES, "num_elites": P1_ELITES},
                            projection={"max_iterations": P1_BILEVEL_PROJECTION})
     single = base.replace(sampler={"num_samples": P1_SAMPLES, "num_iterations": 1,
                                    "num_constraint_elites": P1_CONSTRAINT_ELITES, "num_elites": P1_ELITES},
                           projection={"max_iterations": P1_BASELINE_PROJECTION})
-    vanilla = single.replace(sampler={"num_constraint_elites": P1_VANILLA_CONSTRAINT_ELITES})
     start = FixedGaussian(P1_START_SPEED, P1_START_SPEED_VAR, P1_START_LATERAL_VAR, follows_warm_start=True)
-    grid = SpeedOffsetGrid()
-    specs = (
-        (OptimiserSpec("bilevel", "P1 Alg. 1 as P1's authors ran it: 1000 samples from N(m, diag(30, 46)), m the "
-                       "previous call's final mean (before the first call the current motion), 5 CEM iterations x 20 "
-                       f"projection iterations, elites 150 -> 50; {_COMMON}",
-                       bilevel, lambda c, *_: dataclasses.replace(start, v_max=c.projection.v_max), warm_start=True),
-         P1_BILEVEL_SPEED_WEIGHT),
-        (OptimiserSpec("cvae", "P1's MPC-Bi-Level as its authors' main_bilevel.py ran it: bilevel-faithful with the "
-                       f"learned CVAE's samples as its first batch (shipped weights; Gaussian if none); {_COMMON}",
-                       bilevel, _learned_start(start), warm_start=True),
-         P1_BILEVEL_SPEED_WEIGHT),
-        (OptimiserSpec("random", "MPC-Random as P1's authors ran it: 1000 samples from N((v_des, y0), diag(16, 46)), "
-                       f"one pass of 100 projection iterations, elites 150; {_COMMON}", single,
-                       lambda c, *_: FixedGaussian(None, P1_RANDOM_SPEED_VAR, P1_RANDOM_LATERAL_VAR, c.projection.v_max)),
-         P1_RANDOM_SPEED_WEIGHT),
-        (OptimiserSpec("grid", "MPC-Grid as P1's authors ran it: 50 speeds on v_des +- 16 m/s x 20 offsets across the "
-                       f"road, held over the horizon, one pass of 100 projection iterations, elites 150; {_COMMON}",
-                       single, lambda *_: grid),
-         P1_GRID_SPEED_WEIGHT),
-        (OptimiserSpec("vanilla", "MPC-Vanilla as P1's authors ran it: speed set-point v_des, 1000 lateral guesses (the "
-                       "least obstructed of 30000 smooth paths), one pass of 100 projection iterations, elites 300; "
-                       f"{_COMMON}", vanilla,
-                       lambda c, *_: VanillaGuesses(horizon=c.basis.horizon, v_max=c.projection.v_max)),
-         P1_RANDOM_SPEED_WEIGHT),
-        (OptimiserSpec("batch", "Batch-MPC as P1's authors' MPC-Grid: goals (x_0 + v T, y_f) on grid-faithful's 50 x 20 "
-                       f"grid with terminal constraints, one pass of 100 projection iterations, elites 150; {_COMMON}",
-                       single.replace(qp={"terminal_position": True}), lambda *_: grid),
-         P1_GRID_SPEED_WEIGHT),
-    )
-    return tuple(_faithful(spec, P1AuthorsRanking(speed_weight=weight)) for spec, weight in specs)
+    methods = {  # method -> (configuration, prior factory, carries its mean, the authors' speed weight)
+        "bilevel": (bilevel, lambda c, *_: dataclasses.replace(start, v_max=c.projection.v_max), True, P1_BILEVEL_SPEED_WEIGHT),
+        "cvae": (bilevel, _learned_start(start), True, P1_BILEVEL_SPEED_WEIGHT),
+        "random": (single, lambda c, *_: FixedGaussian(None, P1_RANDOM_SPEED_VAR, P1_RANDOM_LATERAL_VAR, c.projection.v_max),
+                   False, P1_RANDOM_SPEED_WEIGHT),
+        "grid": (single, lambda *_: SpeedOffsetGrid(), False, P1_GRID_SPEED_WEIGHT),
+        "vanilla": (single.replace(sampler={"num_constraint_elites": P1_VANILLA_CONSTRAINT_ELITES}),
+                    lambda c, *_: VanillaGuesses(horizon=c.basis.horizon, v_max=c.projection.v_max), False, P1_RANDOM_SPEED_WEIGHT),
+        "batch": (single.replace(qp={"terminal_position": True}), lambda *_: SpeedOffsetGrid(), False, P1_GRID_SPEED_WEIGHT),
+    }
+    config, make_prior, warm_start, speed_weight = methods[method]
+    spec = OptimiserSpec(method, description, config, make_prior, warm_start=warm_start)
+    return faithful_version(spec, name=name, description=description, ranking=P1AuthorsRanking(speed_weight=speed_weight))
 
 
-def p2_planner(spec: OptimiserSpec) -> OptimiserSpec:
+def p2_planner(spec: OptimiserSpec, *, name: str, description: str) -> OptimiserSpec:
     """P2's one-pass pipeline ``spec`` (vqvae, vqvae-filter, cvae-filter) as P2's authors ran it: the 150 lowest
     residuals, the least cost + residual of those executed whatever its residual, no driveopt safety machinery,
     a plan every 0.1 s."""
-    description = (f"{spec.name} as P2's authors ran it (inferenceJax3.py): the same samples, prior and filter, the "
-                   "least cost + residual of the 150 lowest residuals executed whatever its residual, no driveopt "
-                   "safety machinery, a plan every 0.1 s")
-    return _faithful(dataclasses.replace(spec, description=description), CostPlusResidual(P2_RANKING_COST_WEIGHT))
+    return faithful_version(spec, name=name, description=description, ranking=CostPlusResidual(P2_RANKING_COST_WEIGHT))
 
 
-def shrestha_planner(spec: OptimiserSpec) -> OptimiserSpec:
+def shrestha_planner(spec: OptimiserSpec, *, name: str, description: str) -> OptimiserSpec:
     """``cvae-multipliers`` as [5]'s authors ran it (main_diffproj.py, expert_mpc/expert_cvae.py): the same samples
     and multipliers, the 10 lowest residuals ranked by residual + 1e-3 x speed error, executed whatever the residual,
     no driveopt safety machinery, a plan every 0.1 s."""
-    description = ("cvae-multipliers as [5]'s authors ran it (main_diffproj.py): the same samples and multipliers, the least "
-                   "residual + 1e-3 speed error of the 10 lowest residuals executed whatever its residual, no driveopt "
-                   "safety machinery, a plan every 0.1 s")
-    return _faithful(dataclasses.replace(spec, description=description), CostPlusResidual(SHRESTHA_COST_WEIGHT))
+    return faithful_version(spec, name=name, description=description, ranking=CostPlusResidual(SHRESTHA_COST_WEIGHT))

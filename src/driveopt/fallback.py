@@ -1,4 +1,5 @@
-"""Stopping plans: the two stop rows that ride in every sampler batch, and the fallback, a stop by construction.
+"""Stopping plans: the two stop rows that ride in every sampler batch (unless ``Fallback.in_batch`` is off), and the
+fallback, a stop by construction.
 
 The fallback is what a planner offers when no sample is feasible (``PlanResult.fallback``). It is
 not a polynomial and it is never projected: it brakes at a constant deceleration along a path
@@ -263,13 +264,18 @@ class Fallback:
 
     The comfortable stop brakes at ``deceleration`` easing to the nearest lane centre, the emergency stop at the
     projection's ``a_max`` holding the current lateral position; with ``evasion`` the emergency stops towards
-    :data:`EVASIONS` are weighed too. A frozen dataclass: :func:`driveopt.planner.solve` takes it as a static argument.
+    :data:`EVASIONS` are weighed too. With ``in_batch`` (driveopt's default) the comfortable and the emergency stop
+    also ride in every sampler batch (:meth:`batch_stops`): projected and ranked like any sample, so a stop that meets
+    the constraints can be the chosen plan and the elite set can learn from it; without it (P1) a batch holds the
+    samples alone. A frozen dataclass, part of the planner's :class:`driveopt.method.Method`, which
+    :func:`driveopt.planner.solve` takes as a static argument.
     """
 
     deceleration: float = 3.0  # [m/s^2] comfortable braking of the fallback plan
     straightens: bool = True  # the stop points along the road by the time the car stops (:func:`easing`)
     evasion: bool = True  # also weigh emergency stops that move sideways (to the neighbouring lane lines and centres)
     # and rank every stop by its first touch of a car's box before its entry into the car's ellipse (:func:`box_contact`)
+    in_batch: bool = True  # the comfortable and the emergency stop ride in every sampler batch (P1: False)
 
     def __post_init__(self) -> None:
         check_types(self, "fallback")
@@ -278,6 +284,11 @@ class Fallback:
     def stops(self, a_max: float) -> tuple[tuple[float, str], tuple[float, str]]:
         """(deceleration [m/s^2], lateral target) of the comfortable and of the emergency stop (``a_max`` [m/s^2])."""
         return (self.deceleration, LANE_CENTRE), (a_max, HOLD)
+
+    def batch_stops(self, a_max: float) -> tuple[tuple[float, str], ...]:
+        """(deceleration [m/s^2], lateral target) of each stop appended to every sampler batch, in row order: the
+        comfortable and the emergency stop (:meth:`stops`) with ``in_batch``, none without."""
+        return self.stops(a_max) if self.in_batch else ()
 
     def braking(self, emergency: bool, a_max: float) -> float:
         """[m/s^2] the deceleration of the chosen stop: ``a_max`` for the emergency stop and its sideways variants."""

@@ -13,19 +13,19 @@ reverse-mode differentiation needs). :func:`plan` validates the input, runs the 
 
 Per sampler iteration: draw set-points (the prior's proposal first, then the adapted Gaussian),
 solve the set-point QP for the batch, project the batch onto the constraints, rank, and update the
-Gaussian with P1 eq. 6 over the elite set. Three strategies, frozen dataclasses passed as static
-arguments, decide what differs between driveopt's planner and P1's: ``ranking`` (:mod:`driveopt.ranking`:
-feasible rows first, or P1's cost + residual), ``batch_rows`` (:mod:`driveopt.batch_rows`: the
-comfortable and emergency stops ride in every batch, or the samples alone) and ``fallback``
-(:class:`driveopt.fallback.Fallback`: the stops weighed when nothing is feasible, and how one is chosen).
-A fourth, ``row_sharing`` (:mod:`driveopt.row_sharing`), decides whether a batch's repeated rows (a discrete
-prior's samples) are projected once.
+Gaussian with P1 eq. 6 over the elite set. The planner's ``method`` (:class:`driveopt.method.Method`, one frozen
+dataclass passed as one static argument) decides what differs between driveopt's planner and the papers', with three
+strategies: ``method.ranking`` (:mod:`driveopt.ranking`: feasible rows first, or P1's cost + residual),
+``method.fallback`` (:class:`driveopt.fallback.Fallback`: the stops weighed when nothing is feasible and how one is
+chosen, and with ``in_batch`` the comfortable and emergency stops ride in every batch, without it the samples alone)
+and ``method.row_sharing`` (:mod:`driveopt.row_sharing`: whether a batch's repeated rows, a discrete prior's samples,
+are projected once).
 
 Rows appended to a batch (their :class:`RowKind` is in ``Snapshot.kind``) are ranked like any sample:
-the previous replan's set-points when given, and the stops of ``batch_rows``. The chosen trajectory is
+the previous replan's set-points when given, and the fallback's stops when ``in_batch``. The chosen trajectory is
 the best candidate over all iterations by the ranking's key. The status is SUCCESS only when it is
 feasible; otherwise it is INFEASIBLE, the chosen candidate is reported, and ``result.fallback`` offers
-the stop that ``fallback`` chooses (computed whether or not the stops ride in the batch).
+the stop that ``method.fallback`` chooses (computed whether or not the stops ride in the batch).
 
 Given the previous replan's plan (``previous``), the ``consistency`` cost term measures each
 sample's lateral deviation from that plan: between two near-equal manoeuvres (pass left or right)
@@ -51,7 +51,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.batch_rows import BatchRows, StopRows
 from driveopt.config import PlannerConfig, split_runtime, with_runtime
 from driveopt.costs import COST_TERMS, cost_terms
 from driveopt.fallback import Fallback, braking_coeffs, stop_setpoints
@@ -59,8 +58,9 @@ from driveopt.filtering import SafetyFilter, check_filter_init
 from driveopt.problem import PlanningProblem, check_problem
 from driveopt.projection import FAMILIES, ProjectionResult, project
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, boundary_values, make_model, solve_setpoint_qp
-from driveopt.ranking import Candidate, FeasibilityFirst, Ranking
-from driveopt.row_sharing import EveryRow, RowSharing
+from driveopt.method import DRIVEOPT_METHOD, Method
+from driveopt.ranking import Candidate
+from driveopt.row_sharing import EveryRow
 from driveopt.sampler import GaussianPrior, Prior, cem_update, clip_setpoints, default_mean, sample_gaussian
 from driveopt.scene import RANGES, ProblemError
 from driveopt.solve_export import ExportedCalls
@@ -206,13 +206,15 @@ def project_batch(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs
 
 
 def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: PreviousPlan | None, safety_filter, unroll: bool,
-               ranking: Ranking, stops: tuple[tuple[float, str], ...], row_sharing: RowSharing):
+               method: Method):
     """QP + projection + ranking for one batch of set-points (the appended rows: see the module docstring).
 
     Returns (pick, snapshot, score, stats): the best row, the batch, every row's cost + residual, and
     the iteration's History entries.
     """
     s = cfg.sampler
+    ranking = method.ranking
+    stops = method.fallback.batch_stops(cfg.projection.a_max)
     num_samples = setpoints.shape[0]
     # An absent previous plan's row copies the first sample (the projection's batch-wide stop is unchanged) and is
     # excluded below wherever rows are ranked or counted.
@@ -231,7 +233,7 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
         qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), target))
     # Unrolled (to be differentiated) every row is projected: row sharing's loops run for a number of chunks that the
     # data decide, which reverse mode cannot differentiate; the rows' results are the same either way.
-    sharing = EveryRow() if unroll else row_sharing
+    sharing = EveryRow() if unroll else method.row_sharing
     proj = sharing.project(lambda c, bx, by: project_batch(model, problem, cfg, c, bx, by, safety_filter, unroll),
                            qp_coeffs, b_x, b_y)
     lateral = None if previous is None else previous.lateral
@@ -288,14 +290,10 @@ def solve(
     previous: PreviousPlan | None = None,
     safety_filter: SafetyFilter | None = None,
     unroll: bool = False,
-    ranking: Ranking = FeasibilityFirst(),
-    fallback: Fallback = Fallback(),
-    batch_rows: BatchRows = StopRows(),
-    row_sharing: RowSharing = EveryRow(),
+    method: Method = DRIVEOPT_METHOD,
     runtime: Mapping[str, Mapping[str, jax.Array]] | None = None,
 ) -> Solution:
-    """The bi-level optimiser as a pure function; jit it with ``config``, ``unroll``, ``ranking``, ``fallback``,
-    ``batch_rows`` and ``row_sharing`` static.
+    """The bi-level optimiser as a pure function; jit it with ``config``, ``unroll`` and ``method`` static.
 
     problem: a checked PlanningProblem (planning frame, ego at x = 0). key: PRNG key.
     prior: first-iteration proposal (any pytree with ``propose``, :mod:`driveopt.priors`).
@@ -303,9 +301,8 @@ def solve(
     previous: the previous replan's plan, or None (or its placeholder: ``PreviousPlan.absent``).
     safety_filter: pytree with ``initialise(problem, coeffs) -> FilterInit``, or None (the projection as configured).
     unroll: project with exactly ``projection.max_iterations`` steps (differentiable in reverse mode).
-    ranking: how rows are ranked (:mod:`driveopt.ranking`); fallback: the stops weighed as fallback
-    (:class:`driveopt.fallback.Fallback`); batch_rows: what rides in every batch besides the samples
-    (:mod:`driveopt.batch_rows`); row_sharing: whether repeated rows are projected once (:mod:`driveopt.row_sharing`).
+    method: how rows are ranked, which stops ride in every batch and are weighed as fallback, and whether repeated
+    rows are projected once (:class:`driveopt.method.Method`; driveopt's by default).
     runtime: values of the configuration's runtime fields (:func:`driveopt.config.split_runtime`) that replace
     ``config``'s, as inputs of the compiled call, so that configurations that differ only in them share a compilation.
     No validation happens here: :func:`plan` checks its input first.
@@ -319,10 +316,8 @@ def solve(
         warm_start = jnp.where(warm_start.present, warm_start.mean, default_mean(problem))
     proposal = prior.propose(problem, key_prior, s.num_samples, warm_start)
 
-    stops = batch_rows.stops(fallback, config.projection.a_max)
-
     def iteration(setpoints):
-        return _iteration(model, problem, config, setpoints, previous, safety_filter, unroll, ranking, stops, row_sharing)
+        return _iteration(model, problem, config, setpoints, previous, safety_filter, unroll, method)
 
     def adapt(mean, cov, snapshot, score):
         elites = snapshot.setpoints[snapshot.elite_index]
@@ -348,12 +343,12 @@ def solve(
         PlanStatus.NUMERICAL_ERROR,
         jnp.where(best.feasible, PlanStatus.SUCCESS, PlanStatus.INFEASIBLE),
     ).astype(jnp.int32)
-    offered, emergency, fallback_trajectory = fallback.choose(model, problem, config, ranking)
+    offered, emergency, fallback_trajectory = method.fallback.choose(model, problem, config, method.ranking)
     return Solution(status, best, mean, cov, history, first, last, evaluate(model, best.coeffs), offered,
                     fallback_trajectory, emergency)
 
 
-_STATIC = ("config", "unroll", "ranking", "fallback", "batch_rows", "row_sharing")
+_STATIC = ("config", "unroll", "method")
 
 
 def _jit_options() -> dict[str, Any]:
@@ -437,10 +432,7 @@ def plan(
     warm_start: np.ndarray | WarmStart | None = None,
     previous: PreviousPlan | None = None,
     safety_filter: SafetyFilter | None = None,
-    ranking: Ranking = FeasibilityFirst(),
-    fallback: Fallback = Fallback(),
-    batch_rows: BatchRows = StopRows(),
-    row_sharing: RowSharing = EveryRow(),
+    method: Method = DRIVEOPT_METHOD,
     x_offset: float = 0.0,
 ) -> PlanResult:
     """Plan one trajectory. Raises ProblemError on malformed or non-finite input; never returns NaN.
@@ -458,8 +450,8 @@ def plan(
         compiled function (the absent plan's placeholder row makes the batch one row longer, which can change the
         result's rounding: a call with None does not have it).
     safety_filter: sets the projection's barrier parameters and initialisation (:mod:`driveopt.safety`).
-    ranking, fallback, batch_rows, row_sharing: the strategies of :func:`solve` (driveopt's by default; P1's baselines
-        swap the first three, P2's pipelines share repeated rows).
+    method: the strategies of :func:`solve` (:class:`driveopt.method.Method`: driveopt's by default; the papers' rules
+        swap the ranking and the fallback, P2's pipelines share repeated rows).
     x_offset: [m] added to x of the returned trajectories (the ego's road-frame x): a finite real number within the
         scene's position range (``driveopt.scene.RANGES["x"]``), as the command line's problem files require.
     """
@@ -484,13 +476,12 @@ def plan(
         placeholder = not present
     compiled_config, runtime = split_runtime(config)
     solution = jax.device_get(exported_solve()(problem, key, prior=prior, warm_start=warm_start, previous=previous,
-                                               safety_filter=safety_filter, config=compiled_config, ranking=ranking,
-                                               fallback=fallback, batch_rows=batch_rows, row_sharing=row_sharing,
+                                               safety_filter=safety_filter, config=compiled_config, method=method,
                                                runtime=runtime))
     if placeholder:  # the result as without a previous plan
         row = config.sampler.num_samples
         solution = solution._replace(first=_without_row(solution.first, row), last=_without_row(solution.last, row))
-    return _to_result(solution, config, fallback, x_offset)
+    return _to_result(solution, config, method.fallback, x_offset)
 
 
 def _shown(value: Any) -> str:

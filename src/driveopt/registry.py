@@ -1,138 +1,346 @@
-"""Planner names -> driver specs: the bi-level optimiser, its baselines (P1 §V) and highway-env's IDM.
+"""Planner names -> driver specs, as a table: one row per planner (name, family, one-line description, factory).
 
-Every optimiser is an :class:`~driveopt.drivers.optimiser.OptimiserSpec` (a ``PlannerConfig`` and a
-prior factory) run by the same ``plan()``; ``idm`` hands the ego to highway-env's IDM/MOBIL driver;
-``dqn`` and ``ppo`` are P1's RL baselines (:mod:`driveopt.drivers.rl`: a learned policy, ``--weights``).
-A new planner is one entry of :data:`PLANNERS`; ``driveopt plan``, ``drive``, ``bench`` and
-``collect`` all look names up here. ``random-p1``, ``grid-p1``, ``vanilla-p1`` and ``batch-p1`` are driveopt's
-MPC baselines without the machinery driveopt adds (:func:`_p1_faithful`), at driveopt's budgets, each plan executed
-for five periods. The ``*-faithful`` planners (:mod:`driveopt.faithful`) are P1's and P2's planners as the papers and
-their authors' code ran them: the authors' samples, grids, guesses, iterations and ranking, a plan every period.
+Every optimiser is an :class:`~driveopt.drivers.optimiser.OptimiserSpec` (a ``PlannerConfig``, a prior factory, a
+method and a closed loop) run by the same ``plan()``; ``idm`` hands the ego to highway-env's IDM/MOBIL driver;
+``dqn`` and ``ppo`` are P1's RL baselines (:mod:`driveopt.drivers.rl`: a learned policy, ``--weights``). The
+families (:data:`FAMILIES`): driveopt's planners; the MPC baselines of P1 §V-A3 (``random``, ``grid``, ``vanilla``,
+``batch``) and their ``-p1`` versions without the machinery driveopt adds, at driveopt's budgets, each plan executed
+for five periods (:func:`_p1_version`); the ``*-faithful`` planners (:mod:`driveopt.faithful`), P1's and P2's planners
+as the papers and their authors' code ran them (the authors' samples, grids, guesses, iterations and ranking, a plan
+every period); and the references.
+
+A new planner is one row of :data:`PLANNER_ROWS`; ``driveopt plan``, ``drive``, ``bench`` and ``collect`` all look
+names up here. A row's description is the one its spec carries; its factory builds the spec only when the planner is
+asked for (:func:`get_planner`, cached), importing what it needs then, so this module, and ``driveopt planners``
+which lists the rows, load neither JAX nor Flax nor the simulator.
 """
 
 from __future__ import annotations
 
-from driveopt import faithful
-from driveopt.config import PlannerConfig
-from driveopt.drivers.base import DriverSpec
-from driveopt.drivers.idm import IDMSpec
-from driveopt.drivers.optimiser import OptimiserSpec
-from driveopt.drivers.rl import RLSpec
+import functools
+from typing import TYPE_CHECKING, Callable, NamedTuple
+
 from driveopt.errors import UnknownNameError
-from driveopt.faithful import P1_RANKING_COST_WEIGHT, without_driveopt_machinery
-from driveopt.priors.cvae import cvae_prior
-from driveopt.priors.cvae_multipliers import prior_for as cvae_multipliers_prior
-from driveopt.priors.grids import GoalGridPrior, GridPrior, VanillaPrior
-from driveopt.priors.vqvae import vqvae_prior
-from driveopt.ranking import CostPlusResidual
-from driveopt.row_sharing import DistinctRows
-from driveopt.safety.cvae_multipliers import filter_for as cvae_multipliers_filter
+
+if TYPE_CHECKING:
+    from driveopt.drivers.base import DriverSpec
+    from driveopt.drivers.optimiser import OptimiserSpec
 
 
 class UnknownPlannerError(UnknownNameError):
     """No planner of that name is registered."""
 
 
-def _single_iteration(config: PlannerConfig, samples: int) -> PlannerConfig:
-    return config.with_samples(samples).replace(sampler={"num_iterations": 1})
+DRIVEOPT, MPC, FAITHFUL, REFERENCE = "driveopt", "mpc", "faithful", "reference"
+FAMILIES: dict[str, str] = {  # family -> its heading in ``driveopt planners``, in listing order
+    DRIVEOPT: "driveopt's planners",
+    MPC: "MPC baselines (P1 §V-A3) and their P1-faithful versions (-p1)",
+    FAITHFUL: "the papers' planners as their authors ran them (-faithful)",
+    REFERENCE: "references (rule-based driver, P1's RL baselines)",
+}
 
 
-def _p1_faithful(spec: OptimiserSpec, p1_name: str) -> OptimiserSpec:
-    """``spec`` (same prior, samples and iterations) without driveopt's machinery, as P1 describes its ``p1_name``:
-    P1's ranking (:data:`P1_RANKING_COST_WEIGHT`), P1's batch (no stop rows), a fallback without straightening or
-    sideways stops, no contact guard, :data:`P1_MATHS`, constant-velocity prediction of the nearest neighbours now,
-    its plan executed feasible or not for five periods (0.5 s). Not the authors' runs: their samples, grids, guesses
-    and iterations, and a plan every period, are the ``*-faithful`` planners' (:mod:`driveopt.faithful`)."""
-    description = (f"P1-faithful {p1_name}: {spec.name} without feasibility-first ranking, stop rows, structured first "
-                   "batch, free lateral start, plan consistency, course bound, per-sample turned box, brake-now fallback "
-                   "(nor its straightening or sideways stops), contact guard, braking prediction or approach-ranked neighbours; 5 periods per plan")
-    return without_driveopt_machinery(spec, name=f"{spec.name}-p1", description=description,
-                                      ranking=CostPlusResidual(P1_RANKING_COST_WEIGHT), replan_every=5)
+class PlannerRow(NamedTuple):
+    """One registered planner: its name, family (:data:`FAMILIES`), one-line description, and the factory that builds
+    its spec (no arguments; the spec's ``name`` and ``description`` are the row's)."""
+
+    name: str
+    family: str
+    description: str
+    factory: Callable[[], "DriverSpec"]
+
+
+def _row(name: str, family: str, description: str, build: Callable[[str, str], "DriverSpec"]) -> PlannerRow:
+    """A row whose factory is ``build(name, description)``."""
+    return PlannerRow(name, family, description, functools.partial(build, name, description))
 
 
 REALTIME_SAMPLES = 150  # [-] bilevel's samples per sampler iteration: its planning time in closed loop on the 2-core CPU
 # machine (dense four-lane traffic, one process) is 60 ms median, 77 ms p95 at 150 samples, within the 0.1 s control
 # period, and 107 / 129 ms at 250 (docs/results/speed.md); P1's batch of 1000 is `--samples 1000`.
-_BASE = PlannerConfig()
-_MPC_BASELINES = {  # P1 §V-A3's name -> driveopt's version
-    "MPC-Random": OptimiserSpec("random", "one Gaussian draw of set-points, no adaptation (MPC-Random)", _single_iteration(_BASE, 1000)),
-    "MPC-Grid": OptimiserSpec("grid", "fixed grid: constant speed x target lane x change quarter (MPC-Grid)",
-                              _single_iteration(_BASE, 320), lambda c, *_: GridPrior(v_max=c.projection.v_max)),
-    "MPC-Vanilla": OptimiserSpec("vanilla", "single speed set-point v_des (reached by at most 5 m/s per quarter of the "
-                                            "horizon) in the current lane, no behavioural layer (MPC-Vanilla)",
-                                 _single_iteration(_BASE, 1).replace(projection={"max_iterations": 100}),
-                                 lambda c, *_: VanillaPrior(v_max=c.projection.v_max), fixed_batch=True),
-    "Batch-MPC": OptimiserSpec("batch", "goal positions (x_f, y_f) on a grid with terminal constraints (Batch-MPC)",
-                               _single_iteration(_BASE.replace(qp={"terminal_position": True}), 200),
-                               lambda c, *_: GoalGridPrior(v_max=c.projection.v_max)),
-}
-_OPTIMISERS = (
-    OptimiserSpec("bilevel", "P1 bi-level optimiser: Gaussian start, 150 samples x 5 CEM iterations x 20 projection iterations (real time on 2 CPU cores; P1: 1000 samples)",
-                  _BASE.with_samples(REALTIME_SAMPLES), warm_start=True),
-    OptimiserSpec("bilevel-p1", "P1's Gaussian start exactly: independent set-points, no warm start (Fig. 9's baseline)",
-                  _BASE.replace(sampler={"structured_fraction": 0.0})),
-    OptimiserSpec("cvae", "P1 bi-level optimiser started from the learned CVAE only (shipped weights; Gaussian if none)",
-                  _BASE, cvae_prior(0.0)),
-    OptimiserSpec("cvae-mix", "bi-level optimiser: half the first batch from the CVAE, half from the bilevel Gaussian (warm start)",
-                  _BASE, cvae_prior(0.5), warm_start=True),
-    OptimiserSpec("vqvae", "P2: 1000 PixelCNN/VQ-VAE samples, one pass of the barrier projection (100 iterations), "
-                           "least-cost feasible (shipped weights; Gaussian if none)",
-                  _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
-                                projection={"max_iterations": 100, "barrier": True}), vqvae_prior(), row_sharing=DistinctRows()),
-    OptimiserSpec("vqvae-filter", "P2's full pipeline: vqvae with the learned safety filter setting up the barrier projection "
-                                  "(shipped weights; without filter weights the plain filter, without VQ-VAE weights the Gaussian)",
-                  _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
-                                projection={"max_iterations": 100, "barrier": True}), vqvae_prior(), learned_filter=True,
-                  row_sharing=DistinctRows()),
-    OptimiserSpec("vqvae-cem", "P1 bi-level optimiser started from PixelCNN/VQ-VAE samples (shipped weights; Gaussian if none)",
-                  _BASE, vqvae_prior()),
-    OptimiserSpec("cvae-filter", "P1's CVAE through P2's pipeline: 1000 CVAE samples through vqvae's one pass (barrier projection, 100 iterations), "
-                                 "least-cost feasible; differs from vqvae only in the prior (shipped weights; Gaussian if none)",
-                  _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": 150},
-                                projection={"max_iterations": 100, "barrier": True}), cvae_prior(0.0)),
-    OptimiserSpec("cvae-multipliers", "P2's CVAE baseline as its reference [5] built it: 1000 CVAE samples of set-points, each "
-                                      "projected (75 iterations) from the initial multipliers the model predicts for it, one pass "
-                                      "(shipped four-lane weights, or --weights from `driveopt train cvae-multipliers`; Gaussian and zero multipliers if none)",
-                  _BASE.replace(sampler={"num_iterations": 1, "num_constraint_elites": faithful.SHRESTHA_CONSTRAINT_ELITES,
-                                         "num_elites": faithful.SHRESTHA_ELITES},
-                                projection={"max_iterations": faithful.SHRESTHA_PROJECTION}),
-                  cvae_multipliers_prior, make_filter=cvae_multipliers_filter),
-    *_MPC_BASELINES.values(),
-    *(_p1_faithful(spec, p1_name) for p1_name, spec in _MPC_BASELINES.items()),
+
+
+# The factories: each imports what its spec needs when it is built.
+
+def _optimiser(name: str, description: str, config, make_prior=None, **fields) -> "OptimiserSpec":
+    from driveopt.drivers.optimiser import OptimiserSpec
+
+    return OptimiserSpec(name, description, config, make_prior, **fields)
+
+
+def _config(**sections):
+    """driveopt's configuration with ``sections`` replaced."""
+    from driveopt.config import PlannerConfig
+
+    return PlannerConfig().replace(**sections)
+
+
+def _single_iteration(samples: int, **sections):
+    """driveopt's configuration at ``samples`` samples and one sampler iteration (``sections`` replaced first)."""
+    return _config(**sections).with_samples(samples).replace(sampler={"num_iterations": 1})
+
+
+def _p2_pass():
+    """P2's one pass: 1000 samples, the 150 lowest residuals, the barrier projection of 100 iterations."""
+    return _config(sampler={"num_iterations": 1, "num_constraint_elites": 150}, projection={"max_iterations": 100, "barrier": True})
+
+
+def _distinct_rows():
+    """driveopt's method projecting each distinct row once (a discrete prior's repeated samples)."""
+    from driveopt.method import Method
+    from driveopt.row_sharing import DistinctRows
+
+    return Method(row_sharing=DistinctRows())
+
+
+def _bilevel(name: str, description: str):
+    from driveopt.config import PlannerConfig
+
+    return _optimiser(name, description, PlannerConfig().with_samples(REALTIME_SAMPLES), warm_start=True)
+
+
+def _bilevel_p1(name: str, description: str):
+    return _optimiser(name, description, _config(sampler={"structured_fraction": 0.0}))
+
+
+def _cvae(mix: float, warm_start: bool):
+    def build(name: str, description: str):
+        from driveopt.priors.cvae import cvae_prior
+
+        return _optimiser(name, description, _config(), cvae_prior(mix), warm_start=warm_start)
+
+    return build
+
+
+def _vqvae(name: str, description: str):
+    from driveopt.priors.vqvae import vqvae_prior
+
+    return _optimiser(name, description, _p2_pass(), vqvae_prior(), method=_distinct_rows())
+
+
+def _vqvae_filter(name: str, description: str):
+    from driveopt.priors.vqvae import vqvae_prior
+
+    return _optimiser(name, description, _p2_pass(), vqvae_prior(), learned_filter=True, method=_distinct_rows())
+
+
+def _vqvae_cem(name: str, description: str):
+    from driveopt.priors.vqvae import vqvae_prior
+
+    return _optimiser(name, description, _config(), vqvae_prior())
+
+
+def _cvae_filter(name: str, description: str):
+    from driveopt.priors.cvae import cvae_prior
+
+    return _optimiser(name, description, _p2_pass(), cvae_prior(0.0))
+
+
+def _cvae_multipliers(name: str, description: str):
+    from driveopt import faithful
+    from driveopt.priors.cvae_multipliers import prior_for
+    from driveopt.safety.cvae_multipliers import filter_for
+
+    config = _config(sampler={"num_iterations": 1, "num_constraint_elites": faithful.SHRESTHA_CONSTRAINT_ELITES,
+                              "num_elites": faithful.SHRESTHA_ELITES},
+                     projection={"max_iterations": faithful.SHRESTHA_PROJECTION})
+    return _optimiser(name, description, config, prior_for, make_filter=filter_for)
+
+
+def _random(name: str, description: str):
+    return _optimiser(name, description, _single_iteration(1000))
+
+
+def _grid(name: str, description: str):
+    from driveopt.priors.grids import GridPrior
+
+    return _optimiser(name, description, _single_iteration(320), lambda c, *_: GridPrior(v_max=c.projection.v_max))
+
+
+def _vanilla(name: str, description: str):
+    from driveopt.priors.grids import VanillaPrior
+
+    return _optimiser(name, description, _single_iteration(1).replace(projection={"max_iterations": 100}),
+                      lambda c, *_: VanillaPrior(v_max=c.projection.v_max), fixed_batch=True)
+
+
+def _batch(name: str, description: str):
+    from driveopt.priors.grids import GoalGridPrior
+
+    return _optimiser(name, description, _single_iteration(200, qp={"terminal_position": True}),
+                      lambda c, *_: GoalGridPrior(v_max=c.projection.v_max))
+
+
+def _p1_version(base: str):
+    """Factory of ``base`` (same prior, samples and iterations) without driveopt's machinery, as P1 describes it: P1's
+    ranking (:data:`driveopt.faithful.P1_RANKING_COST_WEIGHT`), P1's batch (no stop rows), a fallback without
+    straightening or sideways stops, no contact guard, :data:`driveopt.faithful.P1_MATHS`, constant-velocity
+    prediction of the nearest neighbours now, its plan executed feasible or not for five periods (0.5 s). Not the
+    authors' runs: their samples, grids, guesses and iterations, and a plan every period, are the ``*-faithful``
+    planners' (:mod:`driveopt.faithful`)."""
+
+    def build(name: str, description: str):
+        from driveopt.faithful import P1_RANKING_COST_WEIGHT, without_driveopt_machinery
+        from driveopt.ranking import CostPlusResidual
+
+        return without_driveopt_machinery(get_optimiser(base), name=name, description=description,
+                                          ranking=CostPlusResidual(P1_RANKING_COST_WEIGHT), replan_every=5)
+
+    return build
+
+
+def _p1_faithful(method: str):
+    def build(name: str, description: str):
+        from driveopt.faithful import p1_planner
+
+        return p1_planner(method, name=name, description=description)
+
+    return build
+
+
+def _p2_faithful(base: str):
+    def build(name: str, description: str):
+        from driveopt.faithful import p2_planner
+
+        return p2_planner(get_optimiser(base), name=name, description=description)
+
+    return build
+
+
+def _shrestha_faithful(name: str, description: str):
+    from driveopt.faithful import shrestha_planner
+
+    return shrestha_planner(get_optimiser("cvae-multipliers"), name=name, description=description)
+
+
+def _idm(name: str, description: str):
+    from driveopt.drivers.idm import IDMSpec
+
+    return IDMSpec(name, description)
+
+
+def _rl(algo: str):
+    def build(name: str, description: str):
+        from driveopt.drivers.rl import RLSpec
+
+        return RLSpec(name, description, algo=algo)
+
+    return build
+
+
+def _p1_description(base: str, p1_name: str) -> str:
+    return (f"P1-faithful {p1_name}: {base} without feasibility-first ranking, stop rows, structured first batch, free "
+            "lateral start, plan consistency, course bound, per-sample turned box, brake-now fallback (nor its "
+            "straightening or sideways stops), contact guard, braking prediction or approach-ranked neighbours; "
+            "5 periods per plan")
+
+
+_AUTHORS_P1 = "P1's ranking and its authors' cost, no driveopt safety machinery, a plan every 0.1 s"
+
+
+def _p2_description(base: str) -> str:
+    return (f"{base} as P2's authors ran it (inferenceJax3.py): the same samples, prior and filter, the least cost + "
+            "residual of the 150 lowest residuals executed whatever its residual, no driveopt safety machinery, a plan "
+            "every 0.1 s")
+
+
+_RL = ("one of five behaviours every 1 s, tracked by upstream's set-point controller (shipped policy for the road's "
+       "lane count, or --weights)")
+
+PLANNER_ROWS: tuple[PlannerRow, ...] = (
+    _row("bilevel", DRIVEOPT, "P1 bi-level optimiser: Gaussian start, 150 samples x 5 CEM iterations x 20 projection "
+         "iterations (real time on 2 CPU cores; P1: 1000 samples)", _bilevel),
+    _row("bilevel-p1", DRIVEOPT, "P1's Gaussian start exactly: independent set-points, no warm start (Fig. 9's baseline)",
+         _bilevel_p1),
+    _row("cvae", DRIVEOPT, "P1 bi-level optimiser started from the learned CVAE only (shipped weights; Gaussian if none)",
+         _cvae(0.0, warm_start=False)),
+    _row("cvae-mix", DRIVEOPT, "bi-level optimiser: half the first batch from the CVAE, half from the bilevel Gaussian "
+         "(warm start)", _cvae(0.5, warm_start=True)),
+    _row("vqvae", DRIVEOPT, "P2: 1000 PixelCNN/VQ-VAE samples, one pass of the barrier projection (100 iterations), "
+         "least-cost feasible (shipped weights; Gaussian if none)", _vqvae),
+    _row("vqvae-filter", DRIVEOPT, "P2's full pipeline: vqvae with the learned safety filter setting up the barrier "
+         "projection (shipped weights; without filter weights the plain filter, without VQ-VAE weights the Gaussian)",
+         _vqvae_filter),
+    _row("vqvae-cem", DRIVEOPT, "P1 bi-level optimiser started from PixelCNN/VQ-VAE samples (shipped weights; Gaussian "
+         "if none)", _vqvae_cem),
+    _row("cvae-filter", DRIVEOPT, "P1's CVAE through P2's pipeline: 1000 CVAE samples through vqvae's one pass (barrier "
+         "projection, 100 iterations), least-cost feasible; differs from vqvae only in the prior (shipped weights; "
+         "Gaussian if none)", _cvae_filter),
+    _row("cvae-multipliers", DRIVEOPT, "P2's CVAE baseline as its reference [5] built it: 1000 CVAE samples of "
+         "set-points, each projected (75 iterations) from the initial multipliers the model predicts for it, one pass "
+         "(shipped four-lane weights, or --weights from `driveopt train cvae-multipliers`; Gaussian and zero "
+         "multipliers if none)", _cvae_multipliers),
+    _row("random", MPC, "one Gaussian draw of set-points, no adaptation (MPC-Random)", _random),
+    _row("grid", MPC, "fixed grid: constant speed x target lane x change quarter (MPC-Grid)", _grid),
+    _row("vanilla", MPC, "single speed set-point v_des (reached by at most 5 m/s per quarter of the horizon) in the "
+         "current lane, no behavioural layer (MPC-Vanilla)", _vanilla),
+    _row("batch", MPC, "goal positions (x_f, y_f) on a grid with terminal constraints (Batch-MPC)", _batch),
+    _row("random-p1", MPC, _p1_description("random", "MPC-Random"), _p1_version("random")),
+    _row("grid-p1", MPC, _p1_description("grid", "MPC-Grid"), _p1_version("grid")),
+    _row("vanilla-p1", MPC, _p1_description("vanilla", "MPC-Vanilla"), _p1_version("vanilla")),
+    _row("batch-p1", MPC, _p1_description("batch", "Batch-MPC"), _p1_version("batch")),
+    _row("bilevel-faithful", FAITHFUL, "P1 Alg. 1 as P1's authors ran it: 1000 samples from N(m, diag(30, 46)), m the "
+         "previous call's final mean (before the first call the current motion), 5 CEM iterations x 20 projection "
+         f"iterations, elites 150 -> 50; {_AUTHORS_P1}", _p1_faithful("bilevel")),
+    _row("cvae-faithful", FAITHFUL, "P1's MPC-Bi-Level as its authors' main_bilevel.py ran it: bilevel-faithful with the "
+         f"learned CVAE's samples as its first batch (shipped weights; Gaussian if none); {_AUTHORS_P1}",
+         _p1_faithful("cvae")),
+    _row("random-faithful", FAITHFUL, "MPC-Random as P1's authors ran it: 1000 samples from N((v_des, y0), diag(16, "
+         f"46)), one pass of 100 projection iterations, elites 150; {_AUTHORS_P1}", _p1_faithful("random")),
+    _row("grid-faithful", FAITHFUL, "MPC-Grid as P1's authors ran it: 50 speeds on v_des +- 16 m/s x 20 offsets across "
+         f"the road, held over the horizon, one pass of 100 projection iterations, elites 150; {_AUTHORS_P1}",
+         _p1_faithful("grid")),
+    _row("vanilla-faithful", FAITHFUL, "MPC-Vanilla as P1's authors ran it: speed set-point v_des, 1000 lateral guesses "
+         "(the least obstructed of 30000 smooth paths), one pass of 100 projection iterations, elites 300; "
+         f"{_AUTHORS_P1}", _p1_faithful("vanilla")),
+    _row("batch-faithful", FAITHFUL, "Batch-MPC as P1's authors' MPC-Grid: goals (x_0 + v T, y_f) on grid-faithful's "
+         f"50 x 20 grid with terminal constraints, one pass of 100 projection iterations, elites 150; {_AUTHORS_P1}",
+         _p1_faithful("batch")),
+    _row("vqvae-faithful", FAITHFUL, _p2_description("vqvae"), _p2_faithful("vqvae")),
+    _row("vqvae-filter-faithful", FAITHFUL, _p2_description("vqvae-filter"), _p2_faithful("vqvae-filter")),
+    _row("cvae-filter-faithful", FAITHFUL, _p2_description("cvae-filter"), _p2_faithful("cvae-filter")),
+    _row("cvae-multipliers-faithful", FAITHFUL, "cvae-multipliers as [5]'s authors ran it (main_diffproj.py): the same "
+         "samples and multipliers, the least residual + 1e-3 speed error of the 10 lowest residuals executed whatever "
+         "its residual, no driveopt safety machinery, a plan every 0.1 s", _shrestha_faithful),
+    _row("idm", REFERENCE, "highway-env's IDM/MOBIL driver on the ego (rule-based reference)", _idm),
+    _row("dqn", REFERENCE, f"P1's DQN baseline: {_RL}", _rl("dqn")),
+    _row("ppo", REFERENCE, f"P1's PPO baseline: {_RL}", _rl("ppo")),
 )
-_P2_PIPELINES = ("vqvae", "vqvae-filter", "cvae-filter")  # P2's one-pass pipelines, each with a faithful version
-PLANNERS: dict[str, DriverSpec] = {
-    spec.name: spec
-    for spec in (
-        *_OPTIMISERS,
-        *faithful.p1_planners(_BASE),
-        *(faithful.p2_planner(spec) for spec in _OPTIMISERS if spec.name in _P2_PIPELINES),
-        *(faithful.shrestha_planner(spec) for spec in _OPTIMISERS if spec.name == "cvae-multipliers"),
-        IDMSpec("idm", "highway-env's IDM/MOBIL driver on the ego (rule-based reference)"),
-        RLSpec("dqn", "P1's DQN baseline: one of five behaviours every 1 s, tracked by upstream's set-point controller "
-                      "(shipped policy for the road's lane count, or --weights)", algo="dqn"),
-        RLSpec("ppo", "P1's PPO baseline: one of five behaviours every 1 s, tracked by upstream's set-point controller "
-                      "(shipped policy for the road's lane count, or --weights)", algo="ppo"),
-    )
-}
+_ROWS = {row.name: row for row in PLANNER_ROWS}
 
 
-def get_planner(name: str) -> DriverSpec:
-    """The registered planner ``name``; UnknownPlannerError listing the valid names otherwise."""
-    try:
-        return PLANNERS[name]
-    except KeyError:
-        raise UnknownPlannerError(f"unknown planner '{name}'; valid planners: {', '.join(PLANNERS)}") from None
+def planner_rows(family: str | None = None) -> tuple[PlannerRow, ...]:
+    """The registered planners' rows in registration order (of ``family`` only, when given); nothing is built."""
+    return tuple(row for row in PLANNER_ROWS if family is None or row.family == family)
 
 
 def list_planners() -> list[str]:
-    return list(PLANNERS)
+    """The registered planners' names, in registration order."""
+    return list(_ROWS)
 
 
-def get_optimiser(name: str) -> OptimiserSpec:
-    """The registered optimiser ``name`` (a planner that runs ``plan()``); UnknownPlannerError otherwise."""
-    spec = get_planner(name)
-    if not isinstance(spec, OptimiserSpec):
-        optimisers = [n for n, s in PLANNERS.items() if isinstance(s, OptimiserSpec)]
+def _row_of(name: str) -> PlannerRow:
+    try:
+        return _ROWS[name]
+    except KeyError:
+        raise UnknownPlannerError(f"unknown planner '{name}'; valid planners: {', '.join(_ROWS)}") from None
+
+
+@functools.cache
+def _built(name: str) -> "DriverSpec":
+    return _ROWS[name].factory()
+
+
+def get_planner(name: str) -> "DriverSpec":
+    """The registered planner ``name``, built by its row's factory on the first request and the same object after;
+    UnknownPlannerError listing the valid names otherwise."""
+    return _built(_row_of(name).name)
+
+
+def get_optimiser(name: str) -> "OptimiserSpec":
+    """The registered optimiser ``name`` (a planner that runs ``plan()``: every family's but the references');
+    UnknownPlannerError otherwise."""
+    if _row_of(name).family == REFERENCE:
+        optimisers = [row.name for row in PLANNER_ROWS if row.family != REFERENCE]
         raise UnknownPlannerError(f"planner '{name}' does not plan with the optimiser; optimisers: {', '.join(optimisers)}")
-    return spec
+    return get_planner(name)

@@ -8,11 +8,12 @@ the ``driveopt-solve`` folder inside the compilation cache's folder, one file pe
 (milliseconds), and compiling it is a hit in the compilation cache.
 
 A graph is named by everything that shapes it: driveopt's source files, the versions of JAX, Flax and numpy, the
-backend and numerical settings, the static arguments (configuration and strategies, by their ``repr``: frozen
+backend and numerical settings, the static arguments (configuration and method, by their ``repr``: frozen
 dataclasses), the structure of the arguments (pytree types with their static fields) and every argument's shape and
 dtype. Values (the problem, network weights, keys) are arguments of the exported program, never part of it. A graph
-with an argument or strategy of a type defined outside driveopt and those libraries (a user's own prior, filter or
-ranking) is never exported: its code could change without changing the name, so it is traced as usual. A file that
+with an argument or strategy of a type defined outside driveopt and those libraries (a user's own prior, filter, or
+ranking inside a method) is never exported: its code could change without changing the name, so it is traced as
+usual. A file that
 cannot be read or loaded is exported again and replaced; a graph that cannot be exported runs as a plain ``jax.jit``,
 with one warning.
 
@@ -25,6 +26,7 @@ the processes that read it, so it lives in driveopt's private cache folder. With
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import hashlib
 import os
@@ -86,17 +88,28 @@ def _tree_text(tree: Any) -> str | None:
     return f"{name}[{aux!r}]({', '.join(children)})"
 
 
+def _trusted(value: Any) -> bool:
+    """Whether the static argument ``value`` and every value inside it (the fields of a dataclass, the items of a tuple
+    or list: a method's strategies) are of types whose code the name covers (:func:`_type_name`)."""
+    if _type_name(type(value)) is None:
+        return False
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return all(_trusted(getattr(value, f.name)) for f in dataclasses.fields(value))
+    if isinstance(value, (tuple, list)):
+        return all(_trusted(item) for item in value)
+    return True
+
+
 def graph_key(fun: Callable[..., Any], static: dict[str, Any], in_tree: Any, avals: tuple[Any, ...]) -> str | None:
     """The name of the graph that ``fun`` with ``static`` arguments and arguments of structure ``in_tree`` and abstract
     values ``avals`` (shapes, dtypes and weak types, not values) lowers to; None when ``fun`` or an argument's type
     comes from code the name does not cover (it is then never exported)."""
     tree = _tree_text(in_tree)
-    names = [_type_name(fun), *(_type_name(type(value)) for value in static.values())]
-    if tree is None or None in names:
+    if tree is None or _type_name(fun) is None or not all(map(_trusted, static.values())):
         return None
     versions = {name: getattr(sys.modules[name], "__version__", "") for name in TRUSTED_MODULES if name in sys.modules}
     parts = [
-        f"format {FORMAT}", names[0], source_digest(), repr(sorted(versions.items())),
+        f"format {FORMAT}", _type_name(fun), source_digest(), repr(sorted(versions.items())),
         jax.default_backend(), f"x64 {jax.config.jax_enable_x64}", f"precision {jax.config.jax_default_matmul_precision}",
         repr(sorted(static.items())), tree, *map(repr, avals),
     ]

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from driveopt.fallback import Fallback
+from driveopt.method import Method
 from driveopt.planner import compiled_solve
 from driveopt.problem import build_problem
 from driveopt.ranking import FeasibilityFirst
@@ -26,7 +27,7 @@ def test_the_parts_reproduce_the_planners_first_iteration():
     prior, ranking, fallback = GaussianPrior.from_config(cfg.sampler, cfg.projection.v_max), FeasibilityFirst(), Fallback()
     key = jax.random.PRNGKey(3)
     pipeline = call_profile.Pipeline(cfg, problem, prior, ranking, fallback, key)
-    first = compiled_solve()(problem, key, cfg, prior, None, None, None, ranking=ranking, fallback=fallback).first
+    first = compiled_solve()(problem, key, cfg, prior, None, None, None, method=Method(ranking, fallback)).first
     assert pipeline.rows.shape == (24 + 2, 8) and pipeline.runs["projection"] == 2 and pipeline.runs["proposal_next"] == 1
     np.testing.assert_array_equal(pipeline.rows, first.setpoints)
     np.testing.assert_allclose(pipeline.qp_coeffs, first.qp_coeffs, rtol=1e-4, atol=1e-3)

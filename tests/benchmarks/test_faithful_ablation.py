@@ -7,7 +7,6 @@ import json
 
 import pytest
 
-from driveopt.batch_rows import SamplesOnly, StopRows
 from driveopt.ranking import CostPlusResidual, FeasibilityFirst
 
 from benchmarks.studies import faithful_ablation as ablation
@@ -15,16 +14,16 @@ from benchmarks.studies import faithful_ablation as ablation
 
 def test_each_variant_changes_only_its_piece():
     faithful = ablation.variant_spec("vqvae-faithful", "faithful", 100)
-    assert isinstance(faithful.batch_rows, SamplesOnly) and faithful.executes_infeasible
-    assert isinstance(faithful.ranking, CostPlusResidual) and not faithful.contact_guard
+    assert not faithful.method.fallback.in_batch and faithful.loop.executes_infeasible
+    assert isinstance(faithful.method.ranking, CostPlusResidual) and not faithful.loop.contact_guard
     net = ablation.variant_spec("vqvae-faithful", "stop-net", 100)
-    assert isinstance(net.batch_rows, StopRows) and not net.executes_infeasible and net.fallback.evasion
-    assert net.ranking == faithful.ranking and net.config == faithful.config
+    assert net.method.fallback.in_batch and not net.loop.executes_infeasible and net.method.fallback.evasion
+    assert net.method.ranking == faithful.method.ranking and net.config == faithful.config
     ranked = ablation.variant_spec("vqvae-faithful", "feasibility-first", 100)
-    assert isinstance(ranked.ranking, FeasibilityFirst) and ranked.executes_infeasible
-    assert ablation.variant_spec("vqvae-faithful", "contact-guard", 100).contact_guard
+    assert isinstance(ranked.method.ranking, FeasibilityFirst) and ranked.loop.executes_infeasible
+    assert ablation.variant_spec("vqvae-faithful", "contact-guard", 100).loop.contact_guard
     predicted = ablation.variant_spec("vqvae-faithful", "prediction", 100)
-    assert predicted.braking_prediction and predicted.approach_selection and not faithful.braking_prediction
+    assert predicted.loop.braking_prediction and predicted.loop.approach_selection and not faithful.loop.braking_prediction
 
 
 def test_episodes_are_written_and_a_rerun_resumes(tmp_path, capsys):

@@ -15,6 +15,7 @@ from driveopt.cli import main
 from driveopt.config import from_dict
 from driveopt.experiments.rollout import Rollout
 from driveopt.fallback import Fallback
+from driveopt.method import Method
 from driveopt.planner import PlanStatus, plan
 from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, ProblemError, Road, Scene, load_scene, scene_from_dict
@@ -106,7 +107,7 @@ def test_a_straightening_fallback_is_a_stop_too(small_config, ego_y, ego_v, ego_
     """``Fallback.straightens``: the same promises, and the path points along the road once the car stands."""
     scene = Scene(ego=EgoState(x=0.0, y=ego_y, vx=ego_v, vy=ego_vy), road=Road(num_lanes=3), neighbours=tuple(neighbours))
     result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0),
-                  fallback=Fallback(straightens=True))
+                  method=Method(fallback=Fallback(straightens=True)))
     assert_finite(result)
     assert_fallback_is_a_stop(result, scene)
     fb = result.fallback
@@ -119,7 +120,7 @@ def test_a_straightening_stop_shorter_than_its_easing_ends_along_the_road(small_
     """Found by the property above over egos at -40 to 40 m/s: 1 m/s, 1 m beside a lane centre, stops in 0.17 m."""
     scene = Scene(ego=EgoState(x=0.0, y=1.0, vx=1.0), road=Road(num_lanes=3))
     fb = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0),
-              fallback=Fallback(straightens=True)).fallback
+              method=Method(fallback=Fallback(straightens=True))).fallback
     assert np.all(np.abs(np.asarray(fb.heading)[np.asarray(fb.speed) <= 1e-6]) <= TOLERANCE)
 
 

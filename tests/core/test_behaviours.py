@@ -9,6 +9,7 @@ from conftest import RUNTIME_CHANGES, box_corners
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, build_problem, plan
 from driveopt.config import ProjectionConfig, QPConfig
 from driveopt.fallback import Fallback, braking_coeffs
+from driveopt.method import Method
 from driveopt.planner import PreviousPlan, WarmStart, _to_result, compiled_solve, previous_plan
 from driveopt.prediction import is_follower, predict_neighbour, relevant_neighbours
 from driveopt.projection import constraint_residuals, project
@@ -267,16 +268,17 @@ def test_p1_baselines_rank_by_residual_first_as_the_authors_code():
     driving on is not. On driveopt's cost scale an unweighted cost + residual picked driving on, through a car (the
     speed cost outweighs a collision's residual: every -p1 episode crashed within seconds); with P1's authors' weight
     the residual leads and a feasible stop is chosen."""
-    from driveopt.registry import P1_RANKING_COST_WEIGHT, get_optimiser
+    from driveopt.faithful import P1_RANKING_COST_WEIGHT
+    from driveopt.registry import get_optimiser
 
-    assert all(get_optimiser(f"{name}-p1").ranking == CostPlusResidual(P1_RANKING_COST_WEIGHT)
+    assert all(get_optimiser(f"{name}-p1").method.ranking == CostPlusResidual(P1_RANKING_COST_WEIGHT)
                for name in ("random", "grid", "vanilla", "batch"))
     spec = get_optimiser("grid-p1")
     scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=10.0), road=Road(num_lanes=3),
                   neighbours=(Neighbour(x=35.0, y=4.0, vx=0.0), Neighbour(x=2.0, y=0.0, vx=10.0), Neighbour(x=2.0, y=8.0, vx=10.0)))
     problem = build_problem(scene, spec.config.basis, ignore_followers=True, braking_time=0.0, selection_time=0.0)
     prior = spec.prior(3)
-    p1 = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=prior, **spec.strategies)
+    p1 = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=prior, method=spec.method)
     assert p1.status == PlanStatus.SUCCESS and p1.residuals["total"] <= spec.config.sampler.residual_tolerance
 
 
@@ -352,7 +354,8 @@ def test_fallback_straightens_is_a_planner_setting(small_config):
     scene = Scene(ego=EgoState(x=0.0, y=8.0, vx=4.99, vy=-1.07), road=Road(num_lanes=4))  # on a lane centre
     assert Fallback().straightens
     problem = build_problem(scene, small_config.basis)
-    ends = [abs(float(plan(problem, small_config, key=jax.random.PRNGKey(0), fallback=Fallback(straightens=flag)).fallback.heading[-1]))
+    ends = [abs(float(plan(problem, small_config, key=jax.random.PRNGKey(0),
+                         method=Method(fallback=Fallback(straightens=flag))).fallback.heading[-1]))
             for flag in (False, True)]
     assert ends[1] < 0.01 < ends[0]
 
@@ -371,7 +374,8 @@ def test_the_far_lane_stop_leaves_the_lane_of_the_car_it_would_meet(small_config
     nodes = problem.obstacle_x.shape[-1]
     config = small_config.replace(projection={"a_max": 5.0})  # highway-env's
     assert Fallback().evasion
-    before, after = (plan(problem, config, key=jax.random.PRNGKey(0), fallback=Fallback(evasion=flag)).fallback for flag in (False, True))
+    before, after = (plan(problem, config, key=jax.random.PRNGKey(0),
+                                 method=Method(fallback=Fallback(evasion=flag))).fallback for flag in (False, True))
     assert int(first_contact(problem, before)) < nodes and float(before.y[-1]) < 9.5
     assert int(first_contact(problem, after)) == int(box_contact(problem, after)) == nodes and float(after.y[-1]) > 11.0
     assert np.all(np.diff(np.asarray(after.speed)) <= 1e-6)  # still a stop
@@ -445,7 +449,8 @@ def test_evasion_offers_a_stop_past_a_car_that_every_stop_in_the_lane_would_touc
     problem = build_problem(scene, small_config.basis)
     nodes = problem.obstacle_x.shape[-1]
     config = small_config.replace(projection={"a_max": 5.0})
-    before, after = (plan(problem, config, key=jax.random.PRNGKey(0), fallback=Fallback(evasion=flag)).fallback for flag in (False, True))
+    before, after = (plan(problem, config, key=jax.random.PRNGKey(0),
+                                 method=Method(fallback=Fallback(evasion=flag))).fallback for flag in (False, True))
     assert int(box_contact(problem, before)) < nodes
     assert int(box_contact(problem, after)) == nodes and float(after.y[-1]) > 5.0
     speed = np.asarray(after.speed)
@@ -463,7 +468,8 @@ def test_evasion_leaves_the_fallback_alone_where_no_stop_in_the_lane_touches_a_c
     problem = build_problem(scene, small_config.basis)
     nodes = problem.obstacle_x.shape[-1]
     config = small_config.replace(projection={"a_max": 5.0})
-    before, after = (plan(problem, config, key=jax.random.PRNGKey(0), fallback=Fallback(evasion=flag)).fallback for flag in (False, True))
+    before, after = (plan(problem, config, key=jax.random.PRNGKey(0),
+                                 method=Method(fallback=Fallback(evasion=flag))).fallback for flag in (False, True))
     assert int(first_contact(problem, before)) == 0 and int(box_contact(problem, before)) == nodes
     np.testing.assert_array_equal(np.asarray(after.y), np.asarray(before.y))
     np.testing.assert_array_equal(np.asarray(after.speed), np.asarray(before.speed))

@@ -42,12 +42,13 @@ def test_cvae_filter_differs_from_vqvae_only_in_the_prior(shipped_prior):
     assert (sampler.num_samples, sampler.num_iterations, sampler.num_constraint_elites) == (1000, 1, 150)
     assert projection.barrier and projection.max_iterations == 100
     same = dataclasses.replace(cvae_filter, name=vqvae.name, description=vqvae.description, make_prior=vqvae.make_prior,
-                               row_sharing=vqvae.row_sharing)
+                               method=vqvae.method)
     assert same == vqvae  # warm start, fallback, prediction, replanning: all vqvae's
     assert cvae_filter.make_prior is not vqvae.make_prior
     # and how repeated rows are projected: the CVAE's samples (continuous latent noise) never repeat, the VQ-VAE's do;
     # the projection's maths is the same either way (tests/core/test_row_sharing.py)
-    assert cvae_filter.row_sharing == EveryRow() and isinstance(vqvae.row_sharing, DistinctRows)
+    assert cvae_filter.method.row_sharing == EveryRow() and isinstance(vqvae.method.row_sharing, DistinctRows)
+    assert dataclasses.replace(vqvae.method, row_sharing=EveryRow()) == cvae_filter.method
     assert isinstance(shipped_prior, CVAEPrior)  # the shipped four-lane CVAE
 
 

@@ -26,7 +26,7 @@ def test_registered_with_the_authors_settings_and_a_faithful_version():
     assert {"cvae-multipliers", "cvae-multipliers-faithful"} <= set(list_planners())
     config = get_optimiser("cvae-multipliers").config
     assert (config.sampler.num_samples, config.sampler.num_iterations, config.projection.max_iterations) == (1000, 1, 75)
-    assert get_optimiser("cvae-multipliers-faithful").executes_infeasible
+    assert get_optimiser("cvae-multipliers-faithful").loop.executes_infeasible
 
 
 def test_without_weights_it_warns_and_plans_from_the_gaussian_with_zero_multipliers():
@@ -42,9 +42,9 @@ def test_shipped_four_lane_weights_load_by_default_and_their_multipliers_change_
     assert isinstance(prior, MultiplierCVAEPrior) and isinstance(head, CVAEMultipliers)
     problem = build_problem(load_scene("slow-leader-four-lane"), SPEC.config.basis)
     config = SPEC.config.with_samples(200)
-    result = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior, safety_filter=head, **SPEC.strategies)
+    result = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior, safety_filter=head, method=SPEC.method)
     assert result.status == PlanStatus.SUCCESS and result.residuals["total"] <= config.sampler.residual_tolerance
-    zero = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior, **SPEC.strategies)
+    zero = plan(problem, config, key=jax.random.PRNGKey(0), prior=prior, method=SPEC.method)
     assert not np.allclose(result.trajectory.x, zero.trajectory.x)  # the predicted multipliers change the projection
 
 
@@ -55,7 +55,7 @@ def test_with_weights_it_plans_a_finite_trajectory_or_offers_the_fallback(tmp_pa
         prior, head = spec.prior(4), spec.safety_filter(4)
     assert isinstance(prior, MultiplierCVAEPrior) and isinstance(head, CVAEMultipliers)
     problem = build_problem(load_scene("dense-snapshot"), spec.config.basis)
-    result = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=prior, safety_filter=head, **spec.strategies)
+    result = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=prior, safety_filter=head, method=spec.method)
     assert result.status in (PlanStatus.SUCCESS, PlanStatus.INFEASIBLE)
     chosen = result.safe_trajectory
     assert all(np.all(np.isfinite(np.asarray(getattr(chosen, f)))) for f in ("x", "y", "speed"))

@@ -1,15 +1,21 @@
 """Planner registry and the baseline proposal distributions."""
 
+import dataclasses
+import subprocess
+import sys
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, faithful
-from driveopt.batch_rows import SamplesOnly, StopRows
 from driveopt.config import QPConfig
+from driveopt.drivers.optimiser import DRIVEOPT_LOOP, PAPERS_LOOP, ClosedLoop, OptimiserSpec
 from driveopt.errors import UnknownNameError
+from driveopt.faithful import P1_RANKING_COST_WEIGHT
 from driveopt.fallback import Fallback
+from driveopt.method import DRIVEOPT_METHOD, PAPERS_FALLBACK, Method
 from driveopt.planner import goal_from_setpoints, plan
 from driveopt.priors.grids import GoalGridPrior, GridPrior
 from driveopt.priors.p1_authors import (
@@ -23,7 +29,8 @@ from driveopt.priors.p1_authors import (
 from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
 from driveopt.ranking import CostPlusResidual, FeasibilityFirst, P1AuthorsRanking
-from driveopt.registry import P1_RANKING_COST_WEIGHT, REALTIME_SAMPLES, get_optimiser, get_planner, list_planners
+from driveopt.row_sharing import EveryRow
+from driveopt.registry import REALTIME_SAMPLES, get_optimiser, get_planner, list_planners, planner_rows
 from driveopt.scene import load_scene
 from driveopt.trajectory import evaluate
 
@@ -36,6 +43,27 @@ def test_registry_names_and_clear_error():
     with pytest.raises(UnknownNameError, match="optimisers: bilevel"):
         get_optimiser("idm")
     assert get_optimiser("grid") is get_planner("grid")
+
+
+def test_every_row_builds_its_spec_once_with_the_rows_name_and_description():
+    """The descriptions live in the rows; a factory's spec carries its row's, and is built once; every planner outside
+    the references runs the optimiser."""
+    assert [row.name for row in planner_rows()] == list_planners()
+    for row in planner_rows():
+        spec = get_planner(row.name)
+        assert (spec.name, spec.description) == (row.name, row.description)
+        assert get_planner(row.name) is spec
+        assert isinstance(spec, OptimiserSpec) == spec.is_optimiser == (row.family != "reference"), row.name
+
+
+def test_a_planner_is_built_only_when_asked_for():
+    """Importing the registry builds nothing; asking for grid-p1 builds it and grid (its base), and loads no Flax."""
+    code = ("import sys\nfrom driveopt import registry\nbefore = registry._built.cache_info().currsize\n"
+            "registry.get_planner('grid-p1')\n"
+            "print(before, registry._built.cache_info().currsize, 'flax' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["0", "2", "False"]
 
 
 def test_batch_size_override_caps_elites_and_keeps_vanilla_single():
@@ -77,16 +105,36 @@ def test_p1_faithful_baselines_differ_only_in_what_p1_did_not_have(name):
     assert p1.config == base.config.replace(sampler={"structured_fraction": 0.0}, qp={"initial_lateral_acceleration": True},
                                             cost={"consistency": 0.0}, projection={"course_max": 0.0, "ego_turn_rate": 0.0})
     assert base.config.projection.course_max > 0 and base.config.projection.ego_turn_rate > 0
-    # three strategies swapped, and the driver's contact guard off
-    assert (p1.ranking, p1.batch_rows, p1.fallback) == (CostPlusResidual(P1_RANKING_COST_WEIGHT), SamplesOnly(),
-                                                         Fallback(straightens=False, evasion=False))
-    assert (base.ranking, base.batch_rows, base.fallback) == (FeasibilityFirst(), StopRows(), Fallback())
-    assert base.contact_guard and not p1.contact_guard
+    # the papers' method (ranking, no stop rows, a plain fallback) and loop (the contact guard off, ...)
+    assert p1.method == Method(CostPlusResidual(P1_RANKING_COST_WEIGHT), Fallback(straightens=False, evasion=False,
+                                                                                  in_batch=False))
+    assert base.method == Method(FeasibilityFirst(), Fallback(), EveryRow()) == DRIVEOPT_METHOD
+    assert base.loop.contact_guard and not p1.loop.contact_guard
     assert p1.make_prior is base.make_prior and p1.fixed_batch == base.fixed_batch and p1.warm_start == base.warm_start
-    assert (p1.executes_infeasible, p1.braking_prediction, p1.replan_every) == (True, False, 5)
-    assert (base.executes_infeasible, base.braking_prediction, base.replan_every) == (False, True, 1)
+    assert (p1.loop.executes_infeasible, p1.loop.braking_prediction, p1.loop.replan_every) == (True, False, 5)
+    assert (base.loop.executes_infeasible, base.loop.braking_prediction, base.loop.replan_every) == (False, True, 1)
+    assert p1.loop == ClosedLoop.papers(replan_every=5) and base.loop == DRIVEOPT_LOOP
     assert p1.description.startswith("P1-faithful")
-    assert p1.with_replan_every(1).replan_every == 1  # bench --replan-every still overrides it
+    assert p1.with_replan_every(1).loop.replan_every == 1  # bench --replan-every still overrides it
+
+
+@pytest.mark.parametrize("name", ["random", "grid", "vanilla", "batch"])
+def test_a_p1_baseline_is_one_replace_of_driveopts(name):
+    """Name, description, P1's maths, the papers' method and the papers' loop: nothing else differs."""
+    base, p1 = get_optimiser(name), get_optimiser(f"{name}-p1")
+    assert p1 == dataclasses.replace(base, name=p1.name, description=p1.description, config=base.config.replace(**faithful.P1_MATHS),
+                                     method=base.method.as_papers(CostPlusResidual(P1_RANKING_COST_WEIGHT)),
+                                     loop=ClosedLoop.papers(replan_every=5))
+
+
+@pytest.mark.parametrize("name", ["vqvae", "vqvae-filter", "cvae-filter", "cvae-multipliers"])
+def test_a_faithful_pipeline_is_one_replace_of_driveopts(name):
+    """P2's pipelines and [5]'s: the same spec with the papers' method (the row sharing kept), the papers' loop and
+    the faithful maths."""
+    strong, spec = get_optimiser(name), get_optimiser(f"{name}-faithful")
+    assert spec == dataclasses.replace(strong, name=spec.name, description=spec.description,
+                                       config=strong.config.replace(**faithful.FAITHFUL_MATHS),
+                                       method=strong.method.as_papers(spec.method.ranking), loop=PAPERS_LOOP)
 
 
 def test_grid_prior_fills_the_batch_and_changes_lane_from_its_quarter_on():
@@ -177,12 +225,15 @@ def test_faithful_planners_are_registered_beside_the_strengthened_ones():
 @pytest.mark.parametrize("name", P1_FAITHFUL + P2_FAITHFUL)
 def test_faithful_planners_have_no_driveopt_machinery_and_replan_every_period(name):
     spec, strong = get_optimiser(f"{name}-faithful"), get_optimiser(name)
-    assert isinstance(spec.ranking, P1AuthorsRanking if name in P1_FAITHFUL else CostPlusResidual)
-    assert spec.batch_rows == SamplesOnly() and spec.fallback == Fallback(straightens=False, evasion=False)
-    assert not spec.contact_guard and spec.executes_infeasible and not spec.braking_prediction
-    assert not spec.approach_selection and spec.warm_start == (name in ("bilevel", "cvae"))  # MPC-Bi-Level carries its mean
+    assert isinstance(spec.method.ranking, P1AuthorsRanking if name in P1_FAITHFUL else CostPlusResidual)
+    assert spec.method.fallback == Fallback(straightens=False, evasion=False, in_batch=False) == PAPERS_FALLBACK
+    assert spec.method.row_sharing == strong.method.row_sharing  # P2's pipelines keep projecting repeated rows once
+    assert spec.loop == PAPERS_LOOP
+    assert not spec.loop.contact_guard and spec.loop.executes_infeasible and not spec.loop.braking_prediction
+    assert not spec.loop.approach_selection and spec.warm_start == (name in ("bilevel", "cvae"))  # MPC-Bi-Level carries its mean
     # the bi-level optimiser and every baseline plan with one period: the strengthened bilevel's
-    assert spec.replan_every == strong.replan_every == get_optimiser("bilevel").replan_every == faithful.AUTHORS_REPLAN_EVERY == 1
+    assert (spec.loop.replan_every == strong.loop.replan_every == get_optimiser("bilevel").loop.replan_every
+            == faithful.AUTHORS_REPLAN_EVERY == 1)
     c = spec.config
     assert (c.sampler.structured_fraction, c.cost.consistency, c.projection.course_max, c.projection.ego_turn_rate) == (0, 0, 0, 0)
     assert not c.qp.initial_lateral_acceleration and spec.description  # the lateral start free (FAITHFUL_MATHS)
@@ -200,7 +251,7 @@ def test_p1_faithful_budgets_are_the_authors(name, iterations, projection, elite
     s = get_optimiser(f"{name}-faithful")
     assert s.config.sampler.num_samples == 1000 and s.config.sampler.num_iterations == iterations
     assert s.config.projection.max_iterations == projection and s.config.sampler.num_constraint_elites == elites
-    assert s.config.sampler.num_elites == 50 and s.ranking == P1AuthorsRanking(speed_weight=weight)
+    assert s.config.sampler.num_elites == 50 and s.method.ranking == P1AuthorsRanking(speed_weight=weight)
     assert s.config.qp.terminal_position == (name == "batch")
     assert not s.fixed_batch and s.with_samples(100).config.sampler.num_samples == 100  # --quick can shrink them
     if name in ("grid", "batch", "vanilla"):  # driveopt's versions: a fifth of the iterations, coarser grids, one sample
@@ -315,13 +366,13 @@ def test_p2_faithful_pipelines_keep_samples_prior_and_filter_and_take_p2s_rankin
     assert spec.config == strong.config.replace(**faithful.FAITHFUL_MATHS)
     assert spec.config.sampler.num_constraint_elites == 150 and spec.config.projection.max_iterations == 100
     assert spec.make_prior is strong.make_prior and spec.learned_filter == strong.learned_filter
-    assert spec.ranking == CostPlusResidual(faithful.P2_RANKING_COST_WEIGHT) and strong.ranking == FeasibilityFirst()
+    assert spec.method.ranking == CostPlusResidual(faithful.P2_RANKING_COST_WEIGHT) and strong.method.ranking == FeasibilityFirst()
 
 
 @pytest.mark.parametrize("name", ["grid-faithful", "vanilla-faithful", "bilevel-faithful"])
 def test_faithful_planners_plan_finite_trajectories(name):
     spec = get_optimiser(name).with_samples(60).with_overrides(projection={"max_iterations": 5})
     problem = build_problem(load_scene("dense-snapshot"), spec.config.basis)
-    result = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=spec.prior(), **spec.strategies)
+    result = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=spec.prior(), method=spec.method)
     for arr in (*result.trajectory, result.coeffs, result.setpoints):
         assert np.all(np.isfinite(arr))

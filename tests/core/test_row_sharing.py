@@ -10,6 +10,7 @@ from test_solve import FixedPrior
 
 from driveopt.checks import ConfigError
 from driveopt.config import PlannerConfig
+from driveopt.method import Method
 from driveopt.planner import plan, project_batch, setpoint_batch
 from driveopt.problem import build_problem
 from driveopt.qp import make_model
@@ -95,7 +96,7 @@ def test_a_planner_sharing_rows_picks_what_one_projecting_every_row_picks():
     distinct = np.asarray(sample_gaussian(jax.random.PRNGKey(4), default_mean(problem), jnp.eye(8) * 3.0, 6))
     batch = FixedPrior(jnp.asarray(_repeated(distinct, 4)))
     every = plan(problem, CONFIG, key=jax.random.PRNGKey(0), prior=batch)
-    shared = plan(problem, CONFIG, key=jax.random.PRNGKey(0), prior=batch, row_sharing=DistinctRows((4, 2)))
+    shared = plan(problem, CONFIG, key=jax.random.PRNGKey(0), prior=batch, method=Method(row_sharing=DistinctRows((4, 2))))
     assert shared.status == every.status
     np.testing.assert_array_equal(shared.setpoints, every.setpoints)
     np.testing.assert_allclose(shared.costs["total"], every.costs["total"], rtol=1e-5)
@@ -107,6 +108,6 @@ def test_row_sharing_is_checked_and_p2_pipelines_share_rows():
         with pytest.raises(ConfigError, match="chunks"):
             DistinctRows(chunks)
     for name in ("vqvae", "vqvae-filter", "vqvae-faithful", "vqvae-filter-faithful"):
-        assert isinstance(get_optimiser(name).row_sharing, DistinctRows), name
+        assert isinstance(get_optimiser(name).method.row_sharing, DistinctRows), name
     for name in ("bilevel", "cvae-filter", "vqvae-cem"):  # continuous samples, or a sampler that iterates
-        assert get_optimiser(name).row_sharing == EveryRow(), name
+        assert get_optimiser(name).method.row_sharing == EveryRow(), name

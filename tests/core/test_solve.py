@@ -1,5 +1,5 @@
 """solve(): the pure, jittable, differentiable optimiser behind plan(); status decided inside; row kinds;
-the ranking and batch-row strategies (driveopt's and P1's)."""
+the method's ranking and stop rows (driveopt's and P1's)."""
 
 import dataclasses
 
@@ -8,8 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from driveopt.batch_rows import SamplesOnly
 from driveopt.config import PlannerConfig
+from driveopt.fallback import Fallback
+from driveopt.method import Method
 from driveopt.planner import PlanStatus, PreviousPlan, RowKind, WarmStart, compiled_solve, plan, previous_plan, solve
 from driveopt.problem import build_problem
 from driveopt.ranking import CostPlusResidual, FeasibilityFirst
@@ -83,8 +84,9 @@ class FixedPrior:
         return Proposal(self.samples, self.samples[0], jnp.eye(self.samples.shape[1], dtype=self.samples.dtype))
 
 
-# Two rows, one iteration, no stops (SamplesOnly): every row is in both elite sets, so only the ranking decides.
+# Two rows, one iteration, no stops (SAMPLES_ONLY): every row is in both elite sets, so only the ranking decides.
 P1_BATCH = PlannerConfig().replace(sampler={"num_samples": 2, "num_iterations": 1, "num_constraint_elites": 2, "num_elites": 2})
+SAMPLES_ONLY = Method(fallback=Fallback(in_batch=False))  # driveopt's method without the stop rows
 
 
 STOP_SPEEDS = [5.0, 0.0, 0.0, 0.0]  # [m/s] a stop in the lane that the projection makes feasible (set-points of 0 from
@@ -104,7 +106,8 @@ def test_p1_ranking_picks_the_lowest_cost_plus_residual_even_when_infeasible():
     problem, prior = _blockage_rows()
     results = {}
     for first, ranking in ((True, FeasibilityFirst()), (False, CostPlusResidual())):
-        results[first] = plan(problem, P1_BATCH, key=jax.random.PRNGKey(0), prior=prior, ranking=ranking, batch_rows=SamplesOnly())
+        results[first] = plan(problem, P1_BATCH, key=jax.random.PRNGKey(0), prior=prior,
+                              method=dataclasses.replace(SAMPLES_ONLY, ranking=ranking))
     residual = results[True].first.residual
     assert residual[0] > P1_BATCH.sampler.residual_tolerance >= residual[1]  # the case is what it claims
 
@@ -122,7 +125,7 @@ def test_without_stop_rows_the_batch_is_the_samples_alone():
     """The call the placeholder test below makes without a previous plan (one compilation for both)."""
     problem, prior = _blockage_rows()
     config = P1_BATCH
-    result = compiled_solve()(problem, jax.random.PRNGKey(0), config, prior, batch_rows=SamplesOnly())
+    result = compiled_solve()(problem, jax.random.PRNGKey(0), config, prior, method=SAMPLES_ONLY)
     for snapshot in (result.first, result.last):
         assert list(snapshot.kind) == [RowKind.SAMPLE] * config.sampler.num_samples
         assert snapshot.setpoints.shape[0] == len(snapshot.residual) == config.sampler.num_samples
@@ -170,12 +173,12 @@ def test_absent_warm_start_and_previous_plan_give_the_result_of_a_call_without_t
     constraint elites) and batch, where a copy of a cheap or feasible row would otherwise take another's place."""
     config = small_config.replace(**TINY)
     prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
-    for strategies in ({}, {"ranking": CostPlusResidual(), "batch_rows": SamplesOnly()}):
+    for method in (Method(), dataclasses.replace(SAMPLES_ONLY, ranking=CostPlusResidual())):
         for scene in ("static-blockage", "dense-snapshot"):
             problem = build_problem(load_scene(scene), config.basis)
-            plain = plan(problem, config, key=jax.random.PRNGKey(2), prior=prior, **strategies)
+            plain = plan(problem, config, key=jax.random.PRNGKey(2), prior=prior, method=method)
             placeheld = plan(problem, config, key=jax.random.PRNGKey(2), prior=prior, warm_start=WarmStart.absent(),
-                             previous=PreviousPlan.absent(config.basis.num_nodes), **strategies)
+                             previous=PreviousPlan.absent(config.basis.num_nodes), method=method)
             assert placeheld.status == plain.status
             # XLA may round the projection of the appended stop rows differently in a 27-row batch than in a 26-row one
             # (up to 7% of a coefficient seen), so the snapshots' projected coefficients are left out of the comparison
@@ -188,9 +191,9 @@ def test_the_placeholder_row_is_in_solve_s_batch_but_never_ranked(small_config):
     """Row 0 of a fixed batch is the only feasible sample; its copy (the placeholder) is neither picked nor counted."""
     problem, prior = _blockage_rows()
     prior = FixedPrior(prior.samples[::-1])  # row 0 stops (feasible), row 1 runs into the blockage
-    plain = compiled_solve()(problem, jax.random.PRNGKey(0), P1_BATCH, prior, batch_rows=SamplesOnly())
+    plain = compiled_solve()(problem, jax.random.PRNGKey(0), P1_BATCH, prior, method=SAMPLES_ONLY)
     placeheld = compiled_solve()(problem, jax.random.PRNGKey(0), P1_BATCH, prior, previous=PreviousPlan.absent(P1_BATCH.basis.num_nodes),
-                                 batch_rows=SamplesOnly())
+                                 method=SAMPLES_ONLY)
     assert list(placeheld.first.kind) == [RowKind.SAMPLE, RowKind.SAMPLE, RowKind.PLACEHOLDER]
     np.testing.assert_array_equal(placeheld.first.setpoints[2], placeheld.first.setpoints[0])
     assert int(plain.history.num_feasible[0]) == int(placeheld.history.num_feasible[0]) == 1

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from driveopt import solve_export
+from driveopt.method import Method
 from driveopt.planner import compiled_solve, exported_solve, solve
 from driveopt.problem import build_problem
 from driveopt.ranking import FeasibilityFirst
@@ -103,14 +104,16 @@ def test_the_key_names_what_shapes_the_graph(inputs):
         avals = tuple(map(jax.typeof, leaves))
         if samples is not None:
             avals = avals[:-1] + (jax.core.ShapedArray((samples,), jnp.float32),)
-        return graph_key(solve, {"config": config, "ranking": ranking}, in_tree, avals)
+        return graph_key(solve, {"config": config, "method": Method(ranking=ranking)}, in_tree, avals)
 
     assert key() == key() and len(key()) == 40
     assert key(config=config.replace(projection={"max_iterations": 4})) != key()  # a static argument
+    assert key(ranking=FeasibilityFirst(2.0)) != key()  # a strategy inside the method
     assert key(samples=7) != key()  # an argument's shape
     assert key(tree=(problem, prior, None)) != key()  # the arguments' structure
 
-    class UserRanking(FeasibilityFirst):  # a user's strategy: its code is not in the key, so it is never exported
+    class UserRanking(FeasibilityFirst):  # a user's strategy (in a driveopt Method): its code is not in the key, so it
+        # is never exported
         pass
 
     assert key(ranking=UserRanking()) is None

@@ -8,9 +8,9 @@ import pytest
 from conftest import reset_env
 
 from driveopt.checks import ConfigError
-from driveopt.drivers.optimiser import OptimiserSpec, adapt_to_vehicle
+from driveopt.drivers.optimiser import DRIVEOPT_LOOP, PAPERS_LOOP, ClosedLoop, OptimiserSpec, adapt_to_vehicle
 from driveopt.planner import PlanResult, PlanStatus
-from driveopt.prediction import BRAKING_TIME
+from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
 from driveopt.registry import get_planner
 from driveopt.scene import EgoState, Neighbour, Road, Scene
@@ -120,7 +120,26 @@ def test_p1_driver_predicts_neighbours_at_constant_velocity():
     np.testing.assert_allclose(build_problem(scene, braking_time=0.0).obstacle_x[0], rows["grid-p1"], rtol=1e-6)
 
 
-@pytest.mark.parametrize("field", ["executes_infeasible", "braking_prediction", "warm_start"])
+@pytest.mark.parametrize("field", ["warm_start", "fixed_batch", "learned_filter"])
 def test_optimiser_spec_flags_must_be_bools(field):
     with pytest.raises(ConfigError, match=field):
         OptimiserSpec("x", "y", **{field: 1})
+
+
+@pytest.mark.parametrize("field", ["executes_infeasible", "braking_prediction", "approach_selection", "contact_guard"])
+def test_closed_loop_flags_must_be_bools(field):
+    with pytest.raises(ConfigError, match=f"loop.{field}"):
+        ClosedLoop(**{field: 1})
+
+
+def test_the_closed_loop_is_driveopts_by_default_and_the_papers_in_one_value():
+    """driveopt's loop executes the safe trajectory, predicts braking, ranks neighbours by approach, guards; the papers'
+    turns all four off, at the given replanning period (P1's -p1 baselines: 5, the faithful planners: 1)."""
+    assert OptimiserSpec("x", "y").loop == DRIVEOPT_LOOP == ClosedLoop(1, False, True, True, True)
+    assert ClosedLoop.papers(5) == ClosedLoop(5, executes_infeasible=True, braking_prediction=False,
+                                              approach_selection=False, contact_guard=False)
+    assert PAPERS_LOOP == ClosedLoop.papers(1)
+    assert (DRIVEOPT_LOOP.braking_time, DRIVEOPT_LOOP.selection_time) == (BRAKING_TIME, SELECTION_TIME)
+    assert (PAPERS_LOOP.braking_time, PAPERS_LOOP.selection_time) == (0.0, 0.0)
+    with pytest.raises(ConfigError, match="replan_every"):
+        ClosedLoop(replan_every=0)

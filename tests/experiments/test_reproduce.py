@@ -327,7 +327,7 @@ def test_the_faithful_arms_replan_with_one_period_like_driveopts():
                 assert arm.replan_every is None
                 spec = get_planner(arm.planner)
                 if spec.is_optimiser:
-                    assert spec.replan_every == 1, arm.planner
+                    assert spec.loop.replan_every == 1, arm.planner
 
 
 def test_quick_variants_and_overrides():

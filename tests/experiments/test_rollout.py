@@ -38,7 +38,7 @@ def _runs(planner, scenario):
     assert len(episode.speeds) >= 1 and np.all(np.isfinite(episode.speeds))
     assert episode.sim_duration > 0
     if spec.is_optimiser:  # one plan every replan_every steps (the -p1 baselines: 5)
-        plans = -(-len(episode.speeds) // spec.replan_every)
+        plans = -(-len(episode.speeds) // spec.loop.replan_every)
         assert sum(episode.statuses.values()) == plans == len(episode.plan_ms)
         assert episode.compile_seconds > 0
 

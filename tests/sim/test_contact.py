@@ -115,8 +115,9 @@ def test_the_driver_guards_only_when_configured(contact_guard):
     plan_ = _accelerating_plan()
     result = PlanResult(**dict.fromkeys(PlanResult._fields))._replace(
         status=PlanStatus.SUCCESS, trajectory=plan_, fallback=plan_, fallback_deceleration=3.0)
-    spec = dataclasses.replace(get_planner("grid"), contact_guard=contact_guard)
-    assert get_planner("grid").contact_guard and not get_planner("grid-p1").contact_guard
+    grid = get_planner("grid")
+    spec = dataclasses.replace(grid, loop=dataclasses.replace(grid.loop, contact_guard=contact_guard))
+    assert get_planner("grid").loop.contact_guard and not get_planner("grid-p1").loop.contact_guard
     driver = spec.driver()
     driver.model = MODEL
     env = SimpleNamespace(unwrapped=SimpleNamespace(vehicle=SimpleNamespace(speed=0.0)))

@@ -1,14 +1,14 @@
 """``driveopt scenarios`` and ``driveopt planners``: what can be named on the other commands.
 
 Neither imports JAX, highway-env or Flax: scenarios come from their registry (:mod:`driveopt.sim.scenarios`), planners
-from :mod:`driveopt.cli.catalogue`, whose rows the tests keep equal to the planner registry's.
+from the rows of theirs (:mod:`driveopt.registry`), whose specs are built only when a planner is asked for.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from driveopt.cli.catalogue import PLANNERS
+from driveopt.registry import FAMILIES, PlannerRow, planner_rows
 
 
 def register(sub) -> None:
@@ -24,10 +24,16 @@ def scenario_lines(rows: list) -> list[str]:
             f"targets {r.target_speed_range[0]:g}-{r.target_speed_range[1]:g} m/s  {r.duration:.0f} s" for r in rows]
 
 
-def planner_lines(rows: list[tuple[str, str]]) -> list[str]:
-    """One line per planner: its name and one-line description."""
-    width = max(len(name) for name, _ in rows)
-    return [f"{name:{width}s}  {description}" for name, description in rows]
+def planner_lines(rows: tuple[PlannerRow, ...]) -> list[str]:
+    """The planners grouped by family (:data:`driveopt.registry.FAMILIES`, in its order): a heading line per family,
+    then one indented line per planner with its name and one-line description; a blank line between families."""
+    width = max(len(row.name) for row in rows)
+    lines: list[str] = []
+    for family, heading in FAMILIES.items():
+        members = [row for row in rows if row.family == family]
+        if members:
+            lines += [""] * bool(lines) + [f"{heading}:"] + [f"  {row.name:{width}s}  {row.description}" for row in members]
+    return lines
 
 
 def run_scenarios(args: argparse.Namespace) -> int:
@@ -38,5 +44,5 @@ def run_scenarios(args: argparse.Namespace) -> int:
 
 
 def run_planners(args: argparse.Namespace) -> int:
-    print("\n".join(planner_lines(list(PLANNERS))))
+    print("\n".join(planner_lines(planner_rows())))
     return 0

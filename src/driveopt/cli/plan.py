@@ -72,12 +72,12 @@ def run(args: argparse.Namespace) -> int:
                             selection_time=spec.selection_time)
     key = jax.random.PRNGKey(args.seed)
     start = time.perf_counter()
-    result = plan(problem, config, key=key, prior=prior, safety_filter=safety_filter, x_offset=scene.ego.x, **spec.strategies)
+    result = plan(problem, config, key=key, prior=prior, safety_filter=safety_filter, x_offset=scene.ego.x, method=spec.method)
     first = time.perf_counter() - start
     solves = []
     for _ in range(args.repeats):
         start = time.perf_counter()
-        plan(problem, config, key=key, prior=prior, safety_filter=safety_filter, x_offset=scene.ego.x, **spec.strategies)
+        plan(problem, config, key=key, prior=prior, safety_filter=safety_filter, x_offset=scene.ego.x, method=spec.method)
         solves.append(time.perf_counter() - start)
     solve = float(np.median(solves)) if solves else None
     timing = {"compile_s": None if solve is None else max(first - solve, 0.0), "solve_s": solve, "first_call_s": first}
@@ -91,9 +91,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"  timing: compile {timing['compile_s']:.2f} s, solve {1e3 * solve:.1f} ms (median of {len(solves)})")
     if args.json:
-        strategies = {name: {"type": type(s).__name__, **dataclasses.asdict(s)} for name, s in spec.strategies.items()}
+        method = {f.name: {"type": type(s).__name__, **dataclasses.asdict(s)}
+                  for f in dataclasses.fields(spec.method) for s in [getattr(spec.method, f.name)]}
         report = {**result.to_json(), "timing": timing, "problem": scene_to_dict(scene), "planner": spec.name,
-                  "config": to_dict(config), "strategies": strategies}
+                  "config": to_dict(config), "method": method}
         print(f"  wrote {write_json(args.json, report)}")
     if args.plot:
         from driveopt.viz.plan_plot import plot_plan

@@ -6,11 +6,11 @@ configuration, and turns the plan's first action period into a ``ContinuousActio
 inverse of upstream's bicycle model. It carries the sampling mean to the next call when the spec
 warm-starts, and the executed plan when its configuration weighs ``cost.consistency``. When the
 planner reports anything but SUCCESS it follows the fallback and brakes at once at the fallback's
-deceleration; a spec with ``executes_infeasible`` (P1) tracks the chosen plan whatever its residual,
-and follows the fallback only on NUMERICAL_ERROR. Neighbours are predicted braking-aware
-(:data:`driveopt.prediction.BRAKING_TIME`) unless the spec's ``braking_prediction`` is False (P1:
-constant velocity), and the neighbours planned against are those that come closest within
-:data:`driveopt.prediction.SELECTION_TIME` unless ``approach_selection`` is False (P1: the nearest
+deceleration. How the loop runs around the planner is the spec's :class:`ClosedLoop` (``spec.loop``): with
+``executes_infeasible`` (P1) it tracks the chosen plan whatever its residual, and follows the fallback only on
+NUMERICAL_ERROR. Neighbours are predicted braking-aware (:data:`driveopt.prediction.BRAKING_TIME`) unless
+``braking_prediction`` is False (P1: constant velocity), and the neighbours planned against are those that come
+closest within :data:`driveopt.prediction.SELECTION_TIME` unless ``approach_selection`` is False (P1: the nearest
 now). With ``replan_every`` N > 1 (P1 §V executes five control periods per plan) it
 plans every N-th step and tracks the same plan open-loop in between. With a real-time ``latency``
 (:mod:`driveopt.drivers.latency`) the same open-loop tracking pays for planning time: a plan started at step k
@@ -25,11 +25,12 @@ delivered, and no sooner than N steps after it started: one call in flight at a 
 made synchronously (the simulator waits for it). Its PRNG key derives from the
 episode seed: same seed, same episode. A learned safety filter (P2 §III-C; ``filter_weights``, or the
 shipped weights for a spec with ``learned_filter``) sets up every batch's projection
-(:mod:`driveopt.safety.learned`). With the spec's ``contact_guard``, a command at crawling speed that would take
+(:mod:`driveopt.safety.learned`). With the loop's ``contact_guard``, a command at crawling speed that would take
 the ego's box within 0.1 m of a car's, where braking now would keep it further, is replaced by braking now
-(:mod:`driveopt.sim.contact`). The spec's ``ranking``, ``batch_rows``, ``fallback`` and ``row_sharing`` are the
-planner's strategies (:func:`driveopt.planner.solve`): P1's baselines swap the first three for P1's; P2's pipelines
-project repeated rows once.
+(:mod:`driveopt.sim.contact`). The spec's ``method`` (:class:`driveopt.method.Method`) is the planner's strategies
+(:func:`driveopt.planner.solve`), its fallback's comfortable braking capped at what the car can do: the papers' planners
+swap the ranking and the fallback for the papers'; P2's pipelines project repeated rows once. A planner as the papers'
+authors ran it is driveopt's with the papers' ``method`` and ``loop`` (:data:`PAPERS_LOOP`; :mod:`driveopt.faithful`).
 """
 
 from __future__ import annotations
@@ -43,18 +44,16 @@ from typing import Any, Callable, NamedTuple
 import jax
 import numpy as np
 
-from driveopt.batch_rows import BatchRows, StopRows
 from driveopt.checks import check_count, check_types
 from driveopt.config import PlannerConfig
 from driveopt.drivers.base import Decision, DriverSpec
 from driveopt.drivers.latency import Latency, Synchronous, parse_latency
 from driveopt.fallback import Fallback
 from driveopt.files import pytree_digest
+from driveopt.method import DRIVEOPT_METHOD, Method
 from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, plan, previous_plan
 from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
-from driveopt.ranking import FeasibilityFirst, Ranking
-from driveopt.row_sharing import EveryRow, RowSharing
 from driveopt.sim.contact import guard
 from driveopt.sim.control import BicycleModel, Command, EgoKinematics, brake_at_least, ego_kinematics, predict, sample_trajectory, track
 from driveopt.sim.perception import Perception, RoadPreview, perceive
@@ -104,33 +103,28 @@ def adapt_fallback(fallback: Fallback, model: BicycleModel) -> Fallback:
 
 
 @dataclasses.dataclass(frozen=True)
-class OptimiserSpec(DriverSpec):
-    """A planner run by :func:`driveopt.planner.plan`: a configuration and a prior factory."""
+class ClosedLoop:
+    """How a closed loop runs around the planner: what it executes, how it predicts and picks the neighbours it plans
+    against, whether it guards commands at crawling speed, and how often it plans; driveopt's by default, the papers'
+    in :data:`PAPERS_LOOP` (:meth:`papers`)."""
 
-    config: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
-    make_prior: PriorFactory | None = None  # None: the Gaussian prior of ``config.sampler``
-    warm_start: bool = False  # carry the sampling mean between replans
-    weights: str | None = None  # learned priors: checkpoint file (default: the weights shipped for the road)
-    fixed_batch: bool = False  # the batch size is part of the method (vanilla: one sample); with_samples keeps it
     replan_every: int = 1  # [policy periods] each plan is executed for this many periods (P1 §V: 5)
     executes_infeasible: bool = False  # track the chosen plan even when INFEASIBLE, no brake-now fallback (P1)
     braking_prediction: bool = True  # braking neighbours keep braking for BRAKING_TIME (False: constant velocity, P1)
     approach_selection: bool = True  # plan against the neighbours closest within SELECTION_TIME (False: nearest now, P1)
-    learned_filter: bool = False  # project with the learned safety filter shipped for the road (none: the plain filter, warned)
-    filter_weights: str | None = None  # learned safety filter checkpoint for any optimiser (default: none, or the shipped one)
-    make_filter: FilterFactory | None = None  # a filter that comes with the prior's ``weights`` (cvae-multipliers:
-    # the multiplier head of the same checkpoint); ``filter_weights`` replaces it with P2's learned filter
-    ranking: Ranking = FeasibilityFirst()  # how the planner ranks a batch's rows (P1: CostPlusResidual)
-    batch_rows: BatchRows = StopRows()  # what rides in every batch besides the samples (P1: SamplesOnly)
-    row_sharing: RowSharing = EveryRow()  # whether repeated rows are projected once (P2's pipelines: DistinctRows)
-    fallback: Fallback = Fallback()  # the stops weighed when nothing is feasible
     contact_guard: bool = True  # brake now when a command at crawling speed would take the ego's box within 0.1 m of a
     # car's and braking now would not (driveopt.sim.contact; not for drivers that execute infeasible plans, P1)
-    latency: Latency = Synchronous()  # how planning time delays a plan (driveopt.drivers.latency; default: the sim waits)
 
     def __post_init__(self) -> None:
-        check_types(self, "")
+        check_types(self, "loop")
         check_count("replan_every", self.replan_every)
+
+    @classmethod
+    def papers(cls, replan_every: int) -> "ClosedLoop":
+        """The papers' loop: the chosen plan executed whatever its residual, no contact guard, constant-velocity
+        prediction of the nearest neighbours now, a plan every ``replan_every`` policy periods."""
+        return cls(replan_every=replan_every, executes_infeasible=True, braking_prediction=False,
+                   approach_selection=False, contact_guard=False)
 
     @property
     def braking_time(self) -> float:
@@ -142,11 +136,40 @@ class OptimiserSpec(DriverSpec):
         """[s] look-ahead of the obstacle selection (0: the nearest neighbours now)."""
         return SELECTION_TIME if self.approach_selection else 0.0
 
+
+DRIVEOPT_LOOP = ClosedLoop()  # driveopt's: the safe trajectory executed, braking-aware and approach-ranked, guarded
+PAPERS_LOOP = ClosedLoop.papers(replan_every=1)  # as the papers' authors ran their planners: a plan every period
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimiserSpec(DriverSpec):
+    """A planner run by :func:`driveopt.planner.plan`: a configuration and a prior factory."""
+
+    config: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
+    make_prior: PriorFactory | None = None  # None: the Gaussian prior of ``config.sampler``
+    warm_start: bool = False  # carry the sampling mean between replans
+    weights: str | None = None  # learned priors: checkpoint file (default: the weights shipped for the road)
+    fixed_batch: bool = False  # the batch size is part of the method (vanilla: one sample); with_samples keeps it
+    learned_filter: bool = False  # project with the learned safety filter shipped for the road (none: the plain filter, warned)
+    filter_weights: str | None = None  # learned safety filter checkpoint for any optimiser (default: none, or the shipped one)
+    make_filter: FilterFactory | None = None  # a filter that comes with the prior's ``weights`` (cvae-multipliers:
+    # the multiplier head of the same checkpoint); ``filter_weights`` replaces it with P2's learned filter
+    method: Method = DRIVEOPT_METHOD  # how the planner ranks a batch, what rides in it, its fallback, its row sharing
+    loop: ClosedLoop = DRIVEOPT_LOOP  # how the closed loop runs around the planner (the papers': PAPERS_LOOP)
+    latency: Latency = Synchronous()  # how planning time delays a plan (driveopt.drivers.latency; default: the sim waits)
+
+    def __post_init__(self) -> None:
+        check_types(self, "")
+
     @property
-    def strategies(self) -> dict[str, Any]:
-        """The planner's strategies of this spec, as keyword arguments of :func:`driveopt.planner.plan`."""
-        return {"ranking": self.ranking, "batch_rows": self.batch_rows, "fallback": self.fallback,
-                "row_sharing": self.row_sharing}
+    def braking_time(self) -> float:
+        """[s] how long the planning problem predicts a braking neighbour to keep braking (``loop.braking_time``)."""
+        return self.loop.braking_time
+
+    @property
+    def selection_time(self) -> float:
+        """[s] look-ahead of the obstacle selection (``loop.selection_time``)."""
+        return self.loop.selection_time
 
     @property
     def is_optimiser(self) -> bool:
@@ -214,7 +237,7 @@ class OptimiserSpec(DriverSpec):
 
     def with_replan_every(self, periods: int | None) -> "OptimiserSpec":
         """Copy that executes each plan for ``periods`` policy periods (unchanged for ``None``)."""
-        return self if periods is None else dataclasses.replace(self, replan_every=periods)
+        return self if periods is None else dataclasses.replace(self, loop=dataclasses.replace(self.loop, replan_every=periods))
 
     def with_latency(self, latency: Any) -> "OptimiserSpec":
         """Copy whose plans take effect after their planning time (:func:`driveopt.drivers.latency.parse_latency`:
@@ -260,7 +283,7 @@ class OptimiserDriver:
         self.preview = RoadPreview(lateral_acceleration=self.spec.config.projection.centripetal_max)
         first = perceive(env, scenario, self.preview)
         self.config = adapt_to_vehicle(self.spec.config, self.model, first.frame.curvature_between(-math.inf, math.inf))
-        self.strategies = {**self.spec.strategies, "fallback": adapt_fallback(self.spec.fallback, self.model)}
+        self.method = dataclasses.replace(self.spec.method, fallback=adapt_fallback(self.spec.method.fallback, self.model))
         lanes = first.scene.road.num_lanes
         self.prior = self.spec.prior(lanes)
         self.safety_filter = self.spec.safety_filter(lanes)
@@ -275,7 +298,7 @@ class OptimiserDriver:
         start = time.perf_counter()
         problem = self._problem(first.scene)
         plan(problem, self.config, key=jax.random.fold_in(self.key, 1), prior=self.prior, warm_start=self.warm,
-             previous=self.previous, safety_filter=self.safety_filter, **self.strategies)
+             previous=self.previous, safety_filter=self.safety_filter, method=self.method)
         self.compile_seconds = time.perf_counter() - start
         self.executing: _Call | None = None  # the plan in effect
         self.executed_periods = 0  # [policy periods] into the plan in effect at the current step
@@ -295,7 +318,7 @@ class OptimiserDriver:
 
     def _executes_chosen(self, result: PlanResult) -> bool:
         """Whether the car follows the chosen plan whatever its status (P1), not the safe trajectory."""
-        return self.spec.executes_infeasible and result.status != PlanStatus.NUMERICAL_ERROR
+        return self.spec.loop.executes_infeasible and result.status != PlanStatus.NUMERICAL_ERROR
 
     def followed(self, result: PlanResult) -> Any:
         """The trajectory of ``result`` the car follows (road frame): the chosen plan (P1, unless NUMERICAL_ERROR) or the
@@ -315,7 +338,7 @@ class OptimiserDriver:
                 delivered = self._take_effect(call)
             else:
                 self.pending = call
-        elif self.spec.contact_guard:
+        elif self.spec.loop.contact_guard:
             perception = perceive(env, self.scenario, self.preview)
         executing, elapsed = self.executing, self.executed_periods * self.period
         if command is None:
@@ -334,7 +357,7 @@ class OptimiserDriver:
         steps since the latest started."""
         if self.executing is None:
             return True
-        return self.pending is None and self.steps - self.started_at >= self.spec.replan_every
+        return self.pending is None and self.steps - self.started_at >= self.spec.loop.replan_every
 
     def _ahead(self) -> int:
         """[policy periods] how far ahead of now a call started now plans: 0 synchronously and for the episode's first
@@ -356,7 +379,7 @@ class OptimiserDriver:
         self.key, sub = jax.random.split(self.key)
         start = time.perf_counter()
         result = plan(problem, self.config, key=sub, prior=self.prior, warm_start=self.warm, previous=self.previous,
-                      safety_filter=self.safety_filter, x_offset=scene.ego.x, **self.strategies)
+                      safety_filter=self.safety_filter, x_offset=scene.ego.x, method=self.method)
         seconds = time.perf_counter() - start
         index = 0 if self.executing is None else self.executing.index + 1
         periods = 0 if self.executing is None else self.spec.latency.periods(seconds, self.period)
@@ -405,7 +428,7 @@ class OptimiserDriver:
         self.executing, self.executed_periods = call, call.delivered_after - call.ahead
         if call.periods:
             self.expected = call.periods
-        gap = max(self.spec.replan_every, call.delivered_after) + self._ahead() - call.ahead
+        gap = max(self.spec.loop.replan_every, call.delivered_after) + self._ahead() - call.ahead
         self.warm, self.previous = self._carried(call.result, gap * self.period)
         return call
 
@@ -420,6 +443,6 @@ class OptimiserDriver:
         if result.status != PlanStatus.SUCCESS:  # executing the fallback: brake now, not after a ramp
             command = brake_at_least(command, result.fallback_deceleration, self.model, float(env.unwrapped.vehicle.speed))
         guarded = False
-        if self.spec.contact_guard and perception is not None:
+        if self.spec.loop.contact_guard and perception is not None:
             command, guarded = guard(command, perception.kinematics, perception.scene, self.model)
         return command, guarded
