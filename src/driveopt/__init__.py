@@ -7,15 +7,13 @@
 ``import driveopt`` registers the gymnasium ids ``driveopt/highway-v0``, ``driveopt/two-way-v0``, ``driveopt/merge-v0``
 and ``driveopt/driving-v0`` without importing gymnasium (:mod:`driveopt.gym_envs`).
 
-Where things live, in layers (each imports only those before it): ``errors``, ``checks`` and ``config``;
-``scene`` (the world), ``prediction`` (neighbours' motion), ``observation`` (the learned components'
-features), ``problem`` (arrays for the planner); the numerics ``basis``, ``qp``, ``xla``, ``chunks``, ``trajectory``,
-``projection``, ``costs``, ``sampler`` (the Prior contract and the Gaussian prior); the strategies
-``ranking``, ``fallback``, ``row_sharing``, and ``method`` (the three as one value); ``filtering`` (the SafetyFilter
-contract); ``planner`` (``solve`` and ``plan``); ``files``; ``learned/`` (networks), ``priors/``, ``safety/``, ``data/``
-(demonstrations), ``sim/`` (highway-env), ``rl/``, ``drivers/`` and ``registry`` (who drives); ``training/``;
-``experiments/`` (rollout, bench, collect); ``controller`` (:class:`Controller`: a planner driving the user's own
-highway-env env); ``viz/``, ``cli/``.
+Where things live: the inputs (``config``, ``scene``, ``prediction``, ``problem``), the numerics (``basis``, ``qp``,
+``projection``, ``costs``, ``sampler``), the planner's strategies (``ranking``, ``fallback``, ``row_sharing``, and
+``method``: the three as one value), ``planner`` (``solve`` and ``plan``), the learned components (``learned/``,
+``priors/``, ``safety/``; one row each in ``learned_kinds``), ``sim/`` (highway-env), ``drivers/`` and ``registry`` (who
+drives), ``training/``, ``experiments/``, ``controller`` (:class:`Controller`: a planner driving the user's own
+highway-env env), ``viz/`` and ``cli/``. The layer order, each part importing only parts of earlier layers, is written
+once, in :data:`driveopt.layers.LAYERS`.
 """
 
 from driveopt.lazy import lazy_exports

@@ -23,7 +23,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("projection", "costs", "sampler", "filtering", "sim"),  # the numerics; the SafetyFilter contract; highway-env
     ("ranking", "row_sharing", "rl"),  # the planner's strategies; P1's RL baselines
     ("fallback",),
-    ("batch_rows",),
+    ("method",),  # ranking, fallback and row sharing as one value
     ("planner",),  # solve() and plan()
     ("learned", "data"),  # networks and checkpoints; demonstrations
     ("priors", "safety"),  # first-batch proposals; the learned safety filter
