@@ -93,6 +93,14 @@ def _distinct_rows():
     return Method(row_sharing=DistinctRows())
 
 
+def _learned_prior(kind: str, *options):
+    """The prior factory, ``(config, lanes, weights) -> prior``, of the learned ``kind``'s row in
+    :data:`driveopt.learned_kinds.KINDS`, made with ``options`` (the CVAE's: the share of its samples)."""
+    from driveopt.learned_kinds import kind as learned_kind, resolve
+
+    return resolve(learned_kind(kind).prior_factory)(*options)
+
+
 def _bilevel(name: str, description: str):
     from driveopt.config import PlannerConfig
 
@@ -105,46 +113,37 @@ def _bilevel_p1(name: str, description: str):
 
 def _cvae(mix: float, warm_start: bool):
     def build(name: str, description: str):
-        from driveopt.priors.cvae import cvae_prior
-
-        return _optimiser(name, description, _config(), cvae_prior(mix), warm_start=warm_start)
+        return _optimiser(name, description, _config(), _learned_prior("cvae", mix), warm_start=warm_start)
 
     return build
 
 
 def _vqvae(name: str, description: str):
-    from driveopt.priors.vqvae import vqvae_prior
-
-    return _optimiser(name, description, _p2_pass(), vqvae_prior(), method=_distinct_rows())
+    return _optimiser(name, description, _p2_pass(), _learned_prior("vqvae"), method=_distinct_rows())
 
 
 def _vqvae_filter(name: str, description: str):
-    from driveopt.priors.vqvae import vqvae_prior
-
-    return _optimiser(name, description, _p2_pass(), vqvae_prior(), learned_filter=True, method=_distinct_rows())
+    return _optimiser(name, description, _p2_pass(), _learned_prior("vqvae"), learned_filter=True,
+                      method=_distinct_rows())
 
 
 def _vqvae_cem(name: str, description: str):
-    from driveopt.priors.vqvae import vqvae_prior
-
-    return _optimiser(name, description, _config(), vqvae_prior())
+    return _optimiser(name, description, _config(), _learned_prior("vqvae"))
 
 
 def _cvae_filter(name: str, description: str):
-    from driveopt.priors.cvae import cvae_prior
-
-    return _optimiser(name, description, _p2_pass(), cvae_prior(0.0))
+    return _optimiser(name, description, _p2_pass(), _learned_prior("cvae", 0.0))
 
 
 def _cvae_multipliers(name: str, description: str):
     from driveopt import faithful
-    from driveopt.priors.cvae_multipliers import prior_for
-    from driveopt.safety.cvae_multipliers import filter_for
+    from driveopt.learned_kinds import kind, resolve
 
     config = _config(sampler={"num_iterations": 1, "num_constraint_elites": faithful.SHRESTHA_CONSTRAINT_ELITES,
                               "num_elites": faithful.SHRESTHA_ELITES},
                      projection={"max_iterations": faithful.SHRESTHA_PROJECTION})
-    return _optimiser(name, description, config, prior_for, make_filter=filter_for)
+    return _optimiser(name, description, config, _learned_prior("cvae-multipliers"),
+                      make_filter=resolve(kind("cvae-multipliers").filter_factory))
 
 
 def _random(name: str, description: str):
