@@ -800,3 +800,53 @@ def test_generated_blocks_are_rewritten_and_unknown_ones_refused(tmp_path):
         "inconclusive<!-- end generated -->) b")
     with pytest.raises(ValueError, match="unknown generated block 'nope'"):
         prose.render("<!-- generated: nope -->x<!-- end generated -->", {"p1": report, "p2": report})
+
+
+def test_decide_runs_the_cheapest_claims_to_their_next_look_while_the_hours_last(tmp_path, cheap_bench, monkeypatch):
+    """--decide: the cheapest undecided claim of --plan runs up to its next look, then the next cheapest; the slice
+    keeps claims whose arms it holds; the deadline is checked before each claim."""
+    from driveopt.experiments import reproduce as rp
+
+    figure = _headline_figure(40)  # the full protocol; 4 episodes recorded first
+    monkeypatch.setattr(rp, "figures_of", lambda paper, names=None, *, episodes=None, **kw:
+                        (figure.with_runs(None, episodes) if episodes else figure,))
+    ran = []
+
+    def episode(job, options):
+        ran.append((job.scenario, job.planner, job.episode))
+        record = fake_episode(job, options)
+        record["sim_seconds"] = 1.0 if job.scenario == "two-lane-d1.0" else 50.0
+        return record
+
+    run_figures("p1", (figure.with_runs(None, 4),), tmp_path, workers=1, episode_fn=episode, progress=False)
+    rows = rp.plan("p1", tmp_path)[0]
+    cheapest = rows[0]
+    assert cheapest.claim_id.startswith("figX:two-lane-d1.0") and cheapest.target_pairs > 4
+    ran.clear()
+    ticks = iter([0.0, 0.0, 1e9])  # the deadline passes after the first claim
+    ids = rp.decide("p1", tmp_path, hours=1.0, workers=1, episode_fn=episode, progress=False, clock=lambda: next(ticks))
+    assert ids == [cheapest.claim_id]
+    assert sorted(ran) == sorted(("two-lane-d1.0", planner, e) for planner in ("cvae-faithful", "random-faithful")
+                                 for e in range(4, cheapest.target_pairs))
+    assert json.loads((tmp_path / "report.json").read_text())["figures"][0]["claims"][2]["pairs"] == cheapest.target_pairs
+    # only the four-lane road's claims: the two-lane one is left alone, the headline runs to its next look
+    headline = next(row for row in rp.plan("p1", tmp_path)[0] if row.claim_id.startswith("figX:four-lane-d3.0"))
+    ran.clear()
+    ticks = iter([0.0, 0.0, 1e9])
+    ids = rp.decide("p1", tmp_path, only=rp.RunSlice(scenarios=("four-lane-d3.0",)), hours=1.0, workers=1,
+                    episode_fn=episode, progress=False, clock=lambda: next(ticks))
+    assert ids == [headline.claim_id] and {scenario for scenario, _, _ in ran} == {"four-lane-d3.0"}
+    assert max(e for _, _, e in ran) == headline.target_pairs - 1
+
+
+@pytest.mark.parametrize("extra", [["--claim", "figX:a"], ["--episodes", "5"], ["--plan"], ["--quick"]])
+def test_decide_chooses_claims_and_episodes_itself(tmp_path, extra):
+    from driveopt.cli.reproduce import register
+
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["reproduce", "p1", "--decide", "2", *extra, "--out", str(tmp_path / "o")])
+    with pytest.raises(DriveoptError, match="--decide|--plan runs nothing"):
+        args.func(args)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["reproduce", "p1", "--decide", "0", "--out", str(tmp_path / "o")])

@@ -4,6 +4,7 @@ output files."""
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +39,16 @@ def add_split_arguments(p) -> None:
 
 def positive_int(text: str) -> int:
     return _int_at_least(text, 1)
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
+    return value
 
 
 def non_negative_int(text: str) -> int:

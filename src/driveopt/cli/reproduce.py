@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from driveopt.cli.common import positive_int, seed
+from driveopt.cli.common import positive_float, positive_int, seed
 
 
 def register(sub) -> None:
@@ -37,6 +37,10 @@ def register(sub) -> None:
     p.add_argument("--claim", metavar="ID",
                    help="run only this claim's two arms, only its missing pairs (ids as --plan prints them, e.g. "
                         "fig7:four-lane-d3.0:cvae-faithful-vs-random-faithful:collisions); the report covers every claim")
+    p.add_argument("--decide", type=positive_float, metavar="HOURS",
+                   help="buy decisions at least cost for HOURS: run the cheapest undecided claim up to its next look, "
+                        "plan again, and so on (--figures, --scenarios, --planners and --arm-samples narrow the claims "
+                        "to those whose arms they hold); ends with the full report")
     p.add_argument("--workers", type=positive_int, help="parallel episodes (default: the CPUs it may use)")
     p.add_argument("--backend", choices=["local", "ray"], default="local",
                    help="local processes, or Ray (RAY_ADDRESS names the cluster; needs driveopt[ray])")
@@ -45,20 +49,32 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from driveopt.experiments.reproduce import ReproduceError, RunSlice, plan, plan_text, reproduce
+    from driveopt.experiments.reproduce import ReproduceError, RunSlice, decide, plan, plan_text, reproduce
     from driveopt.experiments.reproduce_report import distinct_tests, verdict_counts
 
     seeds = tuple(args.seeds) if args.seeds else None
     if args.plan:
-        if args.claim or args.report_only or args.quick:
-            raise ReproduceError("--plan runs nothing: give it without --claim, --report-only or --quick")
+        if args.claim or args.report_only or args.quick or args.decide:
+            raise ReproduceError("--plan runs nothing: give it without --claim, --decide, --report-only or --quick")
         rows, claims = plan(args.paper, args.out, figures=args.figures, seeds=seeds, episodes=args.episodes)
         print(plan_text(args.paper, rows, claims), end="")
+        return 0
+    only = RunSlice(_names(args.scenarios), _names(args.planners), _names(args.arm_samples))
+    if args.decide:
+        if args.claim or args.report_only or args.quick or args.seeds or args.episodes:
+            raise ReproduceError("--decide chooses the claims and their episodes: give it without --claim, "
+                                 "--report-only, --quick, --seeds or --episodes")
+        try:
+            ran = decide(args.paper, args.out, figures=args.figures, only=only, hours=args.decide,
+                         workers=args.workers, backend=args.backend)
+        except KeyboardInterrupt:
+            raise KeyboardInterrupt(f"finished episodes kept under {args.out}/runs; rerun the same command to resume") from None
+        print(f"ran {len(ran)} claims to their next look; wrote {args.out}/report.md, report.json and one PNG per figure")
         return 0
     try:
         _, results = reproduce(args.paper, args.out, figures=args.figures, quick=args.quick, seeds=seeds,
                                episodes=args.episodes,
-                               only=RunSlice(_names(args.scenarios), _names(args.planners), _names(args.arm_samples)),
+                               only=only,
                                report_only=args.report_only, workers=args.workers, backend=args.backend,
                                claim=args.claim)
     except KeyboardInterrupt:

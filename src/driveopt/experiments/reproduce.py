@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import math
 import shutil
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from driveopt.errors import DriveoptError
 from driveopt.experiments.bench import BenchSpec, episode_record, run_bench
@@ -365,10 +366,10 @@ class PlanRow:
     """One undecided claim as :func:`plan` costs it. ``paper_pairs``/``measured_pairs``: total pairs at which its rule
     decides with 80% power at the figure's final level, at the paper's stated size (NaN: it states none) and at the
     measured rates (inf: they never decide it); ``seconds_per_pair``: the two arms' mean wall seconds per episode
-    (planning plus simulation, one worker) from the recorded episodes; ``cost``: the seconds the pairs still needed
-    take, up to the first look beyond the pairs held that holds them (at the paper's size where stated, else at the
-    measured rates; inf when the rates never decide it or the protocol's pairs are spent). ``pairs``: those held (for
-    plan time, those compared on one processor)."""
+    (planning plus simulation, one worker) from the recorded episodes; ``target_pairs``: the first look beyond the
+    pairs held that holds the pairs needed (at the paper's size where stated, else at the measured rates); ``cost``:
+    the seconds the pairs up to it take (inf when the rates never decide it or the protocol's pairs are spent).
+    ``pairs``: those held (for plan time, those compared on one processor)."""
 
     claim_id: str
     verdict: str
@@ -377,6 +378,7 @@ class PlanRow:
     paper_pairs: float
     measured_pairs: float
     seconds_per_pair: float
+    target_pairs: float
     cost: float
 
 
@@ -418,14 +420,58 @@ def plan(paper: str, out: str | Path, *, figures: list[str] | None = None, seeds
         info = information(r)  # plan time: the pairs compared on one processor
         target = paper_pairs if math.isfinite(paper_pairs) else measured_pairs
         if info >= figure.look_pairs[-1] or not math.isfinite(target):
-            cost = math.inf  # the protocol's pairs are spent, or the rates never decide it
+            target, cost = math.inf, math.inf  # the protocol's pairs are spent, or the rates never decide it
         else:  # decisions fall at looks: the first look beyond the pairs held with the pairs needed
             target = next((n for n in figure.look_pairs if n >= max(target, info + 1)), target)
             cost = seconds * (target - info)
         rows.append(PlanRow(r.claim_id, r.verdict + (" (interim)" if r.interim else ""), info, r.full_pairs,
-                            paper_pairs, measured_pairs, seconds, cost))
+                            paper_pairs, measured_pairs, seconds, target, cost))
     rows.sort(key=lambda row: (not math.isfinite(row.cost), row.cost if math.isfinite(row.cost) else 0.0, row.claim_id))
     return rows, len(results)
+
+
+def _in_slice(claim: Claim, only: RunSlice) -> bool:
+    """Whether both arms of ``claim`` lie in ``only`` (its scenario, planners and samples)."""
+    arms = (claim.arm, claim.baseline)
+    return ((only.scenarios is None or claim.scenario in only.scenarios)
+            and (only.planners is None or all(arm.planner in only.planners for arm in arms))
+            and (only.samples is None or all(arm.samples in only.samples for arm in arms)))
+
+
+def decide(paper: str, out: str | Path, *, figures: list[str] | None = None, only: RunSlice = RunSlice(),
+           hours: float = math.inf, workers: int | None = None, backend: str = "local",
+           episode_fn: EpisodeFn = episode_record, progress: bool = True,
+           clock: Callable[[], float] = time.monotonic) -> list[str]:
+    """Buy decisions at least cost: while ``hours`` last, run the cheapest undecided claim of :func:`plan` (among
+    those whose arms lie in ``only``) up to its next look, and plan again, so each claim stops at the look where its
+    sequential boundary decides it. A claim whose pairs a run did not raise (its arms' episodes are all recorded) is
+    not chosen again. Ends with the report of the full protocols over everything recorded; returns the ids run, in
+    order. A claim started before the deadline runs to its look."""
+    out = Path(out)
+    chosen = figures_of(paper, figures)
+    deadline = clock() + hours * 3600.0
+    ran: list[str] = []
+    stuck: set[str] = set()
+    while clock() < deadline:
+        rows, _ = plan(paper, out, figures=figures)
+        candidates = [row for row in rows if math.isfinite(row.cost) and row.claim_id not in stuck
+                      and _in_slice(find_claim(chosen, row.claim_id)[1], only)]
+        if not candidates:
+            break
+        row = candidates[0]
+        figure, _ = find_claim(chosen, row.claim_id)
+        episodes = math.ceil(row.target_pairs / len(figure.seeds))
+        if progress:
+            print(f"driveopt reproduce: deciding {row.claim_id} ({row.verdict}, {row.pairs} pairs): to {episodes} "
+                  f"episodes per seed, about {_duration(row.cost)}", flush=True)
+        reproduce(paper, out, figures=figures, episodes=episodes, claim=row.claim_id, workers=workers,
+                  backend=backend, episode_fn=episode_fn, progress=progress)
+        after = {r.claim_id: r.pairs for r in plan(paper, out, figures=figures)[0]}
+        if after.get(row.claim_id, math.inf) <= row.pairs:
+            stuck.add(row.claim_id)
+        ran.append(row.claim_id)
+    reproduce(paper, out, figures=figures, report_only=True, progress=progress)
+    return ran
 
 
 def _count(value: float) -> str:
