@@ -146,7 +146,8 @@ def test_collect_resumes_without_duplicates(tmp_path):
 
 
 @pytest.mark.parametrize("bad", [["--duration", "nan"], ["--duration", "inf"], ["--duration", "0"], ["--duration", "-1"],
-                                 ["--scenarios", "nowhere"], ["--seed", "-1"]])
+                                 ["--scenarios", "nowhere"], ["--seed", "-1"], ["--seed", "200000000000000"],
+                                 ["--seed", "42949"]])  # 42949 x 100003 + episode is beyond 2**32 - 1
 def test_collect_checks_options_before_touching_the_file(tmp_path, capsys, bad):
     out = tmp_path / "sub" / "demo.h5"
     try:

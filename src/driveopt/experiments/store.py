@@ -33,6 +33,22 @@ ENV_SEED_STRIDE = 100_003  # traffic seed of an episode: seed * ENV_SEED_STRIDE 
 MAX_ENV_SEED = 2**32 - 1  # traffic seeds feed JAX's 32-bit PRNG seed and highway-env's generator, as `drive --seed`
 
 
+def highest_seed(episodes: int) -> int:
+    """The largest seed whose ``episodes`` episodes all have traffic seeds (:attr:`JobKey.env_seed`) within
+    [0, MAX_ENV_SEED]: beyond it JAX's 32-bit seed would repeat another episode's randomness, or overflow."""
+    return (MAX_ENV_SEED - max(episodes - 1, 0)) // ENV_SEED_STRIDE
+
+
+def seed_range_problem(seed: int, episodes: int) -> str | None:
+    """Why ``seed`` cannot drive ``episodes`` episodes (outside [0, :func:`highest_seed`]), naming the range; None
+    when it can."""
+    highest = highest_seed(episodes)
+    if 0 <= seed <= highest:
+        return None
+    return (f"seed {seed!r} is out of range: seeds are integers from 0 to {highest} with {episodes} episodes (traffic "
+            f"seed = seed x {ENV_SEED_STRIDE} + episode, at most {MAX_ENV_SEED})")
+
+
 class StoreError(DriveoptError):
     """The results file is corrupted, holds a record twice or of other settings, or was written by an incompatible
     version."""
