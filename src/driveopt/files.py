@@ -147,13 +147,29 @@ def check_output_file(path: str | Path, what: str, suffixes: Sequence[str] = ())
         raise OutputError(f"{what} {path} is not a regular file; give a file path")
     if target.exists() and not os.access(target, os.W_OK):
         raise OutputError(f"{what} {path} cannot be written (permission denied)")
-    folder = target.parent
+    _probe_nearest_folder(target.parent, f"{what} {path}")
+    return target
+
+
+def check_writable_folder(path: str | Path, what: str) -> Path:
+    """Refuse, before any long work, an output folder that cannot take files: an existing file or a path under one,
+    or a folder (the nearest that exists, where the missing ones would be made) that cannot be written (``/proc``,
+    read-only, full). ``what`` names the option in the one-line OutputError."""
+    target = Path(path)
+    if target.exists() and not target.is_dir():
+        raise OutputError(f"{what} {path} is an existing file; give a folder")
+    _probe_nearest_folder(target, f"{what} {path}")
+    return target
+
+
+def _probe_nearest_folder(folder: Path, label: str) -> None:
+    """:func:`_probe_folder` on ``folder`` or, while it does not exist, the nearest folder above it that does (where
+    it would be created); OutputError naming ``label`` when that is not a folder."""
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
     if not folder.is_dir():
-        raise OutputError(f"{what} {path} cannot be written ({folder} is not a folder)")
-    _probe_folder(folder, f"{what} {path}")
-    return target
+        raise OutputError(f"{label} cannot be written ({folder} is not a folder)")
+    _probe_folder(folder, label)
 
 
 def _probe_folder(folder: Path, what: str) -> None:

@@ -62,3 +62,30 @@ def test_a_valid_duration_is_a_float():
     assert isinstance(duration("1e3"), float)
     with pytest.raises(argparse.ArgumentTypeError):
         duration("3601")
+
+
+def _seed_options(parser: argparse.ArgumentParser, command: tuple[str, ...] = ()):
+    """(command words, option) of every ``--seed`` and ``--seeds`` option of ``parser`` and its subcommands."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, subparser in action.choices.items():
+                yield from _seed_options(subparser, (*command, name))
+        elif {"--seed", "--seeds"} & set(action.option_strings):
+            yield command, action.option_strings[0]
+
+
+def test_every_seed_option_refuses_a_seed_beyond_the_simulators_range_when_parsed(capsys):
+    """``collect --seed 200000000000000`` ended in an OverflowError traceback after the file was opened; the trainers
+    and ``bench`` took any integer too."""
+    from driveopt.cli import build_parser
+
+    options = list(_seed_options(build_parser()))
+    commands = {" ".join(command) for command, _ in options}
+    assert {"collect", "bench", "drive", "plan", "reproduce", "train cvae", "train filter", "trace-episode"} <= commands
+    for command, option in options:
+        for value in ("200000000000000", str(2**32), "-1", "10" * 200):
+            with pytest.raises(SystemExit) as info:
+                build_parser().parse_args([*command, option, value])
+            err = capsys.readouterr().err
+            assert info.value.code == 2, (command, option, value)
+            assert f"argument {option}: seed must be in [0, 4294967295]" in err and err.count("\n") == 1, (command, err)

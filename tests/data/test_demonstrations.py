@@ -146,7 +146,8 @@ def test_collect_resumes_without_duplicates(tmp_path):
 
 
 @pytest.mark.parametrize("bad", [["--duration", "nan"], ["--duration", "inf"], ["--duration", "0"], ["--duration", "-1"],
-                                 ["--scenarios", "nowhere"], ["--seed", "-1"]])
+                                 ["--scenarios", "nowhere"], ["--seed", "-1"], ["--seed", "200000000000000"],
+                                 ["--seed", "42949"]])  # 42949 x 100003 + episode is beyond 2**32 - 1
 def test_collect_checks_options_before_touching_the_file(tmp_path, capsys, bad):
     out = tmp_path / "sub" / "demo.h5"
     try:
@@ -318,3 +319,68 @@ def test_files_without_checksums_stay_readable_and_appendable(tmp_path):
         f["observation"][3, 2] += 1.0  # unnoticed without checksums
     _writer(path).append_episode(_entry(2), synthetic_rows(np.random.default_rng(1), 8))
     assert len(load_demonstrations(path)) == 24
+
+
+def _disk_full_beyond(monkeypatch, limit: int) -> None:
+    """``os.pwrite`` as on a disk with room for the files up to byte ``limit``: a write that ends beyond it fails with
+    ENOSPC (overwriting bytes below it still works, as on a full disk)."""
+    import errno
+    import os
+
+    real = os.pwrite
+
+    def pwrite(fd, data, offset):
+        if offset + len(memoryview(data).cast("B")) > limit:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real(fd, data, offset)
+
+    monkeypatch.setattr(os, "pwrite", pwrite)
+
+
+def test_a_write_that_finds_the_disk_full_leaves_the_file_as_it_was(tmp_path, monkeypatch):
+    path = write_synthetic(tmp_path / "d.h5", episodes=2, rows=8)
+    before = path.read_bytes()
+    rows = synthetic_rows(np.random.default_rng(3), 300)  # more rows than the last chunks hold: new space is needed
+    writer = _writer(path)
+    with monkeypatch.context() as m:
+        _disk_full_beyond(m, len(before))
+        with pytest.raises(DatasetError) as info:
+            writer.append_episode(_entry(2, rows=300), rows)
+    message = str(info.value)
+    assert "No space left on device" in message and "as it was before" in message and "\n" not in message
+    assert path.read_bytes() == before  # not a byte changed: HDF5's metadata rewritten in place is restored
+    writer.append_episode(_entry(2, rows=300), rows)  # the rerun, once there is room
+    assert sorted(load_demonstrations(path).episodes["episode"]) == [0, 1, 2]
+
+
+def test_a_file_the_full_disk_keeps_from_being_created_is_removed(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "demo.h5"
+    with monkeypatch.context() as m:
+        _disk_full_beyond(m, 0)
+        assert main(["collect", "--scenarios", "two-lane-d1.0", "--episodes", "1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("driveopt: error: cannot write demonstrations") and err.count("\n") == 1
+    assert "No space left on device" in err and not out.exists()
+
+
+def test_collect_on_a_real_full_disk_ends_in_one_line_and_resumes(tmp_path, capsys):
+    """A 24 KB tmpfs (the lock and the file's empty schema fit, an episode does not); skipped where it cannot be mounted."""
+    import subprocess
+
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=24k", "tmpfs", str(disk)], capture_output=True).returncode:
+        pytest.skip("a tmpfs cannot be mounted here (not root)")
+    try:
+        out = disk / "c.h5"
+        args = ["collect", "--scenarios", "two-lane-d1.0", "--episodes", "1", "--samples", "40", "--iterations", "1",
+                "--duration", "0.3", "--seed", "3", "--out", str(out)]
+        assert main(args) == 2
+        err = capsys.readouterr().err  # the progress bar's lines, then the error's one line
+        assert err.split("\n")[-2].startswith("driveopt: error: cannot write demonstrations") and "Traceback" not in err
+        assert len(load_demonstrations(out).episodes["num_rows"]) == 0  # the file as created, readable
+        subprocess.run(["mount", "-o", "remount,size=4m", str(disk)], check=True)
+        assert main(args) == 0  # the rerun resumes
+        assert len(load_demonstrations(out).episodes["num_rows"]) == 1
+    finally:
+        subprocess.run(["umount", str(disk)], check=False)

@@ -399,7 +399,11 @@ def _cli_bench_with_fake_episodes(monkeypatch, episode_fn=fake_episode):
 def _one_line_error(capsys, argv) -> str:
     from driveopt.cli import main
 
-    assert main(argv) == 2
+    try:
+        status = main(argv)
+    except SystemExit as exc:  # a value an argument's type refuses: the parser exits
+        status = exc.code
+    assert status == 2
     err = capsys.readouterr().err
     assert err.startswith("driveopt: error: ") and err.count("\n") == 1 and "Traceback" not in err
     return err
@@ -498,8 +502,8 @@ def test_a_record_of_another_run_s_settings_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize("seeds, needle", [
-    (["-1"], "seed -1 is out of range: seeds are integers from 0 to 42948 with 2 episodes"),
-    (["200000000000000"], "seed 200000000000000 is out of range"),
+    (["-1"], "argument --seeds: seed must be in [0, 4294967295], got -1"),
+    (["200000000000000"], "argument --seeds: seed must be in [0, 4294967295], got 200000000000000"),
     (["42949"], "seed 42949 is out of range"),  # 42949 x 100003 + 1 > 2**32 - 1: JAX's seed would wrap
     (["42", "42"], "seeds [42, 42]: give each once"),
 ])
@@ -534,3 +538,91 @@ def test_summaries_are_strict_json_with_null_for_missing_numbers(tmp_path, capsy
 def idle_episode(job, options):
     """An episode of a planner that never plans: no plan times."""
     return {**fake_episode(job, options), "plan_ms": []}
+
+
+# --- records that cannot belong to their folder's runs ------------------------------------------------------------
+
+def _four_episodes(tmp_path):
+    """A folder of 4 idm episodes of seed 42 (fake episodes) and the path of its records."""
+    out = tmp_path / "out"
+    run_bench(BenchSpec(("two-lane-d1.0",), ("idm",), (42,), 4), out, workers=1, episode_fn=fake_episode, progress=False)
+    return out, out / "episodes.jsonl"
+
+
+def _append_line(path, text: str) -> int:
+    """Append ``text`` as a line of ``path``; its line number."""
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(text + "\n")
+    return len(path.read_text().splitlines())
+
+
+def test_a_record_nested_deeper_than_input_files_may_be_is_refused_with_file_and_line(tmp_path, capsys, monkeypatch):
+    """A line nested 100 000 deep ended `summarise` and `bench` in a RecursionError traceback."""
+    from driveopt.experiments.store import load_folder
+
+    out, records = _four_episodes(tmp_path)
+    first = json.loads(records.read_text().splitlines()[0])
+    line = _append_line(records, json.dumps({**first, "episode": 3})[:-1] + ', "x": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    needle = f"{records}:{line}: corrupted line (nested deeper than 64 levels"
+    with pytest.raises(StoreError, match=re.escape(needle)):
+        load_folder(out)
+    assert needle in _one_line_error(capsys, ["summarise", str(out), "--out", str(tmp_path / "merged")])
+    _cli_bench_with_fake_episodes(monkeypatch)
+    assert needle in _one_line_error(capsys, [*TINY_ARGV, "--episodes", "4", "--seeds", "42", "--out", str(out)])
+    (out / "spec.json").write_text("[" * 100_000 + "]" * 100_000)
+    records.write_text(records.read_text().splitlines(keepends=True)[0])
+    assert "spec.json is unreadable (nested deeper than 64 levels)" in _one_line_error(
+        capsys, ["summarise", str(out), "--out", str(tmp_path / "merged")])
+
+
+@pytest.mark.parametrize("change, needle", [
+    ({"episode": 77}, "is not an episode of the runs"),  # of a 4-episode run
+    ({"seed": 10**400 - 1}, "seeds 42, not 999999999999... (400 characters)"),
+    ({"seed": 43}, "seeds 42, not 43"),
+    ({"planner": "grid"}, "planners idm, not grid"),
+])
+def test_a_record_outside_its_folder_s_runs_is_refused_with_file_and_line(tmp_path, capsys, change, needle):
+    """Episode 77 of a 4-episode run, carrying the folder's settings digest, was counted: the table showed 5 episodes of
+    4; so was a seed of 400 digits."""
+    from driveopt.experiments.store import load_folder
+
+    out, records = _four_episodes(tmp_path)
+    first = json.loads(records.read_text().splitlines()[0])
+    line = _append_line(records, json.dumps({**first, **change}))
+    with pytest.raises(StoreError, match=re.escape(f"{records}:{line}: ")) as info:
+        load_folder(out)
+    assert needle in str(info.value) and "belongs to another run" in str(info.value)
+    err = _one_line_error(capsys, ["summarise", str(out), "--out", str(tmp_path / "merged")])
+    assert f"{records}:{line}: " in err and needle in err
+
+
+def test_records_of_a_run_that_extended_the_folder_still_count(tmp_path):
+    """A folder run with 2 episodes, then an episode list beyond them, then 6 episodes and another seed (as `driveopt
+    reproduce` extends its runs): spec.json grows with each run, so every record lies within it."""
+    from driveopt.experiments.store import load_folder
+
+    out = tmp_path / "out"
+    spec = BenchSpec(("two-lane-d1.0",), ("idm",), (42,), 2)
+    for step in (spec, dataclasses.replace(spec, episodes=9, episode_list=(8,)),
+                 dataclasses.replace(spec, seeds=(42, 7), episodes=6)):
+        run_bench(step, out, workers=1, episode_fn=fake_episode, progress=False)
+    folder, records = load_folder(out)
+    assert folder["seeds"] == [42, 7] and folder["episodes"] == 9 and folder["episode_list"] == []
+    assert sorted((r["seed"], r["episode"]) for r in records) == [(7, e) for e in range(6)] + [(42, e) for e in (*range(6), 8)]
+
+
+def test_a_results_line_nested_too_deep_is_malformed_not_a_recursion_error(tmp_path):
+    """The offline benchmarks' resumable rows (rows_file): a deep row is dropped and redone like a torn one, a deep
+    settings line refuses the file; neither overflows the parser's stack."""
+    from driveopt.experiments.rows_file import resume_rows, row_line
+
+    class RowsError(DriveoptError):
+        pass
+
+    path, deep = tmp_path / "rows.jsonl", "[" * 100_000 + "]" * 100_000
+    path.write_text(row_line({"settings": {"k": 1}}) + row_line({"x": 1}) + deep + "\n" + row_line({"x": 2}))
+    assert resume_rows(path, {"k": 1}, lambda record: record["x"], RowsError, "test") == [1]
+    assert path.read_text() == row_line({"settings": {"k": 1}}) + row_line({"x": 1})
+    path.write_text(deep + "\n")
+    with pytest.raises(RowsError, match="is not a test results file"):
+        resume_rows(path, {"k": 1}, lambda record: record["x"], RowsError, "test")

@@ -59,3 +59,12 @@ def test_bad_options_are_one_line_errors(tmp_path, capsys):
     assert main(["trace-episode", "--scenario", "two-lane-d1.0", "--planner", "vqvae", "--episode", "0",
                  "--weights", str(tmp_path / "missing.ckpt")]) == 2
     assert "missing.ckpt does not exist" in capsys.readouterr().err
+
+
+def test_a_seed_whose_traffic_seed_overflows_is_a_one_line_error(capsys):
+    """--seed 42949 passes the 32-bit seed type, but its traffic seed (seed x 100003 + episode) does not fit: refused
+    before the episode, naming the range, not an OverflowError from the simulator."""
+    assert main(["trace-episode", "--scenario", "two-lane-d1.0", "--planner", "idm", "--episode", "0", "--seed", "42949"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("driveopt: error: seed 42949 is out of range: seeds are integers from 0 to 42948")
+    assert err.count("\n") == 1

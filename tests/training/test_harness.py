@@ -284,3 +284,59 @@ def test_an_output_folder_that_is_a_file_is_refused_before_anything_is_read(tmp_
     with pytest.raises(CheckpointError, match="is an existing file; give a folder .*last.ckpt, toy.ckpt, history.json"):
         harness.check_output_folder(out, "toy.ckpt")
     assert out.read_text() == "keep me"
+
+
+@pytest.mark.parametrize("model", [["cvae"], ["vqvae"], ["filter"], ["cvae-multipliers"]])
+@pytest.mark.parametrize("where", ["full disk", "read-only", "under a file"])
+def test_train_refuses_an_output_folder_it_cannot_write_before_reading_any_data(tmp_path, capsys, monkeypatch, model,
+                                                                                  where):
+    """`train cvae` on a full disk failed only after its first epoch (21 s): the folder is now probed first, as the
+    other commands probe their outputs."""
+    import errno
+    import os
+
+    from driveopt import files
+    from driveopt.cli import main
+
+    def disk_full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def fail_if_called(*args, **kwargs):
+        pytest.fail("the data were read before the output folder was checked")
+
+    out = {"full disk": tmp_path / "new" / "run", "read-only": "/proc/run", "under a file": tmp_path / "f" / "run"}[where]
+    reason = {"full disk": "No space left on device", "read-only": "folder /proc", "under a file": "is not a folder"}[where]
+    if where == "full disk":
+        monkeypatch.setattr(files.os, "fsync", disk_full)
+    (tmp_path / "f").write_text("a file")
+    monkeypatch.setattr(harness, "load_split", fail_if_called)
+    monkeypatch.setattr(harness, "load_demonstrations", fail_if_called)
+    assert main(["train", *model, "--data", str(tmp_path / "d.h5"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"driveopt: error: --out {out} cannot be written") and reason in err and err.count("\n") == 1
+    assert not (tmp_path / "new").exists()
+
+
+def test_train_rl_refuses_an_output_folder_on_a_full_disk_before_the_first_step(tmp_path, capsys, monkeypatch):
+    """The RL trainers probe --out too, before the folder is made or an environment built."""
+    pytest.importorskip("stable_baselines3")
+    import errno
+    import os
+
+    from driveopt import files
+    from driveopt.cli import main
+    from driveopt.training import rl
+
+    def disk_full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def fail_if_called(*args, **kwargs):
+        pytest.fail("an environment was built before the output folder was checked")
+
+    monkeypatch.setattr(files.os, "fsync", disk_full)
+    monkeypatch.setattr(rl, "_vec_env", fail_if_called)
+    out = tmp_path / "run"
+    assert main(["train", "dqn", "--scenario", "two-lane-d1.0", "--steps", "5", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"driveopt: error: --out {out} cannot be written") and "No space left on device" in err
+    assert err.count("\n") == 1 and not out.exists()

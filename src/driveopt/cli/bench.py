@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from driveopt.cli.common import config_overrides, positive_int
+from driveopt.cli.common import config_overrides, positive_int, seed
 from driveopt.cli.parser import duration, latency
 
 
@@ -18,7 +18,7 @@ def register(sub) -> None:
     p = sub.add_parser("bench", help="scenarios x planners x seeds x episodes; resumable; summary table and plots")
     p.add_argument("--scenarios", nargs="+", default=["four-lane-d3.0", "two-lane-d2.5"])
     p.add_argument("--planners", nargs="+", default=["bilevel", "vanilla", "grid", "random", "batch", "idm"])
-    p.add_argument("--seeds", nargs="+", type=int, default=[42],
+    p.add_argument("--seeds", nargs="+", type=seed, default=[42],
                    help="traffic seeds (episode e of seed s drives traffic seed s x 100003 + e, which must fit in 32 bits)")
     p.add_argument("--episodes", type=positive_int, default=50, help="episodes per scenario, planner and seed")
     p.add_argument("--episode-list", nargs="+", type=int, metavar="E",

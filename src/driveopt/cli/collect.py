@@ -2,21 +2,24 @@
 
 The options and the ``--json`` path are checked (:func:`driveopt.experiments.collect.check_options`,
 :func:`driveopt.files.check_output_file`) before the file is created or opened; the summary is strict JSON, written
-whole.
+whole. A write of the file that fails (a full disk) is one line, and leaves the file as it was before that episode
+(:mod:`driveopt.data.demonstrations`), so a rerun resumes.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from driveopt.cli.common import positive_int, writable_file, write_json
+from driveopt.cli.common import positive_int, seed, writable_file, write_json
 from driveopt.cli.parser import duration
 
 
 def register(sub) -> None:
     p = sub.add_parser("collect", help="expert demonstrations (bi-level planner, large batch) into an HDF5 file; resumable")
     p.add_argument("--scenarios", nargs="+", default=["four-lane-d3.0", "two-lane-d2.5"])
-    p.add_argument("--seed", type=int, default=7, help="traffic seed (keep it apart from evaluation seeds)")
+    p.add_argument("--seed", type=seed, default=7,
+                   help="traffic seed s (keep it apart from evaluation seeds; episode e drives traffic seed s x 100003 + e, "
+                        "which must fit in 32 bits)")
     p.add_argument("--episodes", type=positive_int, default=10, help="episodes per scenario")
     p.add_argument("--samples", type=positive_int, default=250, help="expert samples per sampler iteration (250, the shipped demonstrations' setting: with 1000 the expert crashed more)")
     p.add_argument("--iterations", type=positive_int, default=5, help="expert sampler iterations")

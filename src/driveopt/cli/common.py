@@ -34,7 +34,7 @@ def add_split_arguments(p) -> None:
     p.add_argument("--validation-data", nargs="+", help="hold out these demonstration files instead (--validation unused)")
     p.add_argument("--train-episodes", type=int, default=0,
                    help="learn from only this many of the other episodes (0: all; the held-out ones stay the same)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed, default=0, help="initialisation, split and minibatch seed")
 
 
 def positive_int(text: str) -> int:

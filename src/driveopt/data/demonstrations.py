@@ -55,6 +55,11 @@ so are episodes appended to them. A truncated file is reported as corrupted at o
 file's length with the one it recorded). The file keeps HDF5's default (earliest) format: the newer
 formats mark a file open for writing in its superblock, and a collector killed mid-write would leave it
 unreadable until ``h5clear``.
+
+A write that fails (a full disk, a quota, an I/O error; also Ctrl-C during the write) leaves the file as it was
+before it, byte for byte, or removes the file when that write created it (:func:`_writing`): HDF5 rewrites its
+metadata in place, so a write cut short there would otherwise leave a file that HDF5 refuses to open and no rerun
+could resume. The failure is a DatasetError of one line naming the file and the reason.
 """
 
 from __future__ import annotations
@@ -64,6 +69,7 @@ import errno
 import hashlib
 import itertools
 import json
+import os
 import time
 from pathlib import Path
 from typing import Any, Iterable, NamedTuple
@@ -71,6 +77,11 @@ from typing import Any, Iterable, NamedTuple
 import numpy as np
 
 from driveopt.errors import DriveoptError
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - no flock (Windows): readers and the writer are not kept apart
+    fcntl = None
 
 FORMAT = "driveopt-demonstrations"
 SCHEMA_VERSION = 2  # written
@@ -211,14 +222,14 @@ class DemonstrationWriter:
 
     @contextlib.contextmanager
     def _open(self):
+        """The file open for one write (:func:`_writing`), created when missing; DatasetError when it cannot be
+        opened (held longer than LOCK_WAIT_S, corrupted) or a write fails (the file is then left as it was)."""
         try:
-            f = _open_waiting_for_lock(self.path, "a")
-        except OSError as exc:
-            raise DatasetError(f"cannot open demonstrations {self.path}{_unreadable_hint(exc)}: {exc}") from None
-        try:
-            yield f
-        finally:
-            f.close()
+            with _writing(self.path) as f:
+                yield f
+        except _OpenError as exc:
+            cause = exc.__cause__
+            raise DatasetError(f"cannot open demonstrations {self.path}{_unreadable_hint(cause)}: {cause}") from None
 
     def done(self) -> set[EpisodeKey]:
         with self._open() as f:
@@ -376,6 +387,180 @@ def _open_waiting_for_lock(path: Path, mode: str) -> Any:
                 raise
         time.sleep(delay)
         delay = min(2 * delay, 1.0)
+
+
+class _OpenError(Exception):
+    """Opening the file for a write failed (held by another process, corrupted); ``__cause__`` is the OSError."""
+
+
+class _JournaledFile:
+    """The demonstrations file as h5py's ``fileobj`` driver writes it during one write, kept undoable.
+
+    Before a write replaces bytes the file held when opened, those bytes are kept, so :meth:`undo` restores the file
+    exactly: cut back to its former length, the replaced bytes written back (HDF5 rewrites its metadata in place, so
+    a write cut short by a full disk would otherwise leave a file HDF5 cannot open). After the first write that fails
+    the rest are dropped unwritten while HDF5 carries on, so HDF5 closes the file without errors of its own and the
+    failure (:attr:`failure`) is reported once, by the caller."""
+
+    def __init__(self, path: Path, fd: int, created: bool):
+        self.path, self.created = path, created
+        self._fd = fd
+        self.length = os.fstat(fd).st_size  # [bytes] when opened: what undo restores
+        self._pos = 0
+        self._kept: list[tuple[int, bytes]] = []  # (offset, the bytes a write replaced), in the order written
+        self.failure: OSError | None = None
+        self._ended = False  # undone or closed: nothing more reaches the disk
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        base = {os.SEEK_SET: 0, os.SEEK_CUR: self._pos, os.SEEK_END: os.fstat(self._fd).st_size}[whence]
+        self._pos = base + offset
+        return self._pos
+
+    def tell(self) -> int:
+        return self._pos
+
+    def readinto(self, buffer: Any) -> int:
+        view = memoryview(buffer).cast("B")
+        data = os.pread(self._fd, len(view), self._pos)
+        view[:len(data)] = data
+        self._pos += len(data)
+        return len(data)
+
+    def read(self, size: int = -1) -> bytes:
+        if size < 0:
+            size = max(os.fstat(self._fd).st_size - self._pos, 0)
+        data = os.pread(self._fd, size, self._pos)
+        self._pos += len(data)
+        return data
+
+    def write(self, data: Any) -> int:
+        view = memoryview(data).cast("B")
+        if self.failure is None and not self._ended:
+            try:
+                self._keep(self._pos, len(view))
+                done = 0
+                while done < len(view):
+                    done += os.pwrite(self._fd, view[done:], self._pos + done)
+            except OSError as exc:
+                self.failure = exc
+        self._pos += len(view)
+        return len(view)
+
+    def truncate(self, size: int | None = None) -> int:
+        size = self._pos if size is None else size
+        if self.failure is None and not self._ended:
+            try:
+                self._keep(size, self.length - size)
+                os.ftruncate(self._fd, size)
+            except OSError as exc:
+                self.failure = exc
+        return size
+
+    def flush(self) -> None:
+        """Nothing is buffered here: writes go to the descriptor as HDF5 makes them (see :meth:`sync`)."""
+
+    def _keep(self, offset: int, size: int) -> None:
+        end = min(offset + size, self.length)
+        if offset < end:
+            self._kept.append((offset, os.pread(self._fd, end - offset, offset)))
+
+    def sync(self) -> None:
+        """Flush the written bytes to the disk (a disk that cannot hold them says so now, not at a later read); the
+        failure of a write, or of this flush, is raised as the OSError."""
+        if self.failure is None:
+            try:
+                os.fsync(self._fd)
+            except OSError as exc:
+                self.failure = exc
+        if self.failure is not None:
+            raise self.failure
+
+    def undo(self) -> None:
+        """The file as it was when opened: removed when this write created it, else cut back to its former length
+        (which frees the space the write took) and the replaced bytes written back, latest first. OSError when that
+        fails too."""
+        self._ended = True
+        if self.created:
+            self.path.unlink(missing_ok=True)
+            return
+        os.ftruncate(self._fd, self.length)
+        for offset, data in reversed(self._kept):
+            done = 0
+            while done < len(data):
+                done += os.pwrite(self._fd, data[done:], offset + done)
+        os.fsync(self._fd)
+
+    def close(self) -> None:
+        self._ended = True
+        os.close(self._fd)  # releases the lock
+
+
+def _open_journaled(path: Path) -> _JournaledFile:
+    """``path`` opened for one write (created when missing) and locked as HDF5 locks a file open for writing, so
+    readers (which take HDF5's shared lock) and this writer exclude each other; the lock is retried while another
+    process holds it (:data:`LOCK_WAIT_S`, as :func:`_open_waiting_for_lock`). _OpenError when it cannot be opened
+    or locked in time."""
+    try:
+        try:
+            fd, created = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644), True
+        except FileExistsError:
+            fd, created = os.open(path, os.O_RDWR), False
+    except OSError as exc:
+        raise _OpenError() from exc
+    journal = _JournaledFile(path, fd, created)
+    deadline = time.monotonic() + LOCK_WAIT_S
+    delay = 0.05
+    while fcntl is not None:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            break
+        except OSError as exc:
+            if not _is_lock_error(exc) or time.monotonic() + delay > deadline:
+                journal.undo()
+                journal.close()
+                raise _OpenError() from exc
+        time.sleep(delay)
+        delay = min(2 * delay, 1.0)
+    return journal
+
+
+@contextlib.contextmanager
+def _writing(path: Path):
+    """The demonstrations file open for one write (HDF5 through :class:`_JournaledFile`), created when missing, whole
+    or not at all: when the body or the write fails (a full disk, Ctrl-C), the file is left as it was before
+    (removed when this write created it). A failed write is a DatasetError naming the file and the reason in one
+    line; _OpenError when the file cannot be opened (held longer than LOCK_WAIT_S, corrupted); any other exception
+    of the body propagates as it was, after the undo."""
+    journal = _open_journaled(path)
+    try:
+        try:
+            f = _h5py().File(journal, "w" if journal.length == 0 else "r+")
+        except OSError as exc:
+            raise _OpenError() from exc
+        with f:
+            yield f
+        journal.sync()
+    except BaseException as exc:
+        failure = journal.failure
+        try:
+            journal.undo()
+        except OSError as undo_exc:
+            if failure is not None:
+                raise DatasetError(f"cannot write demonstrations {path}: {_os_reason(failure)}; restoring the file "
+                                   f"failed too ({_os_reason(undo_exc)}): it may be damaged") from None
+            raise
+        if failure is not None:
+            kept = ("the file it was creating is removed" if journal.created
+                    else "the file is as it was before this write, so a rerun resumes")
+            raise DatasetError(f"cannot write demonstrations {path}: {_os_reason(failure)}; {kept} (once there is "
+                               "room)") from None
+        raise
+    finally:
+        journal.close()
+
+
+def _os_reason(exc: OSError) -> str:
+    return exc.strerror or str(exc) or type(exc).__name__
 
 
 def _unreadable_hint(exc: BaseException) -> str:

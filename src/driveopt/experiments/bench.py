@@ -35,8 +35,6 @@ from driveopt.errors import DriveoptError
 from driveopt.experiments.rollout import run_episode
 from driveopt.experiments.runner import EpisodeFn, check_backend, cpu_model, execute, usable_cpus
 from driveopt.experiments.store import (
-    ENV_SEED_STRIDE,
-    MAX_ENV_SEED,
     RECORDS_FILE,
     SPEC_FILE,
     JobKey,
@@ -48,6 +46,7 @@ from driveopt.experiments.store import (
     merged_spec,
     pending,
     repair,
+    seed_range_problem,
     settings_digest,
 )
 from driveopt.experiments.summary import markdown_table, plot_summary, summarise, write_csv
@@ -150,12 +149,12 @@ class BenchSpec:
 def check_seeds(seeds: tuple[int, ...], episodes: int) -> None:
     """BenchOptionError unless every seed is an integer whose episodes' traffic seeds (``seed * ENV_SEED_STRIDE +
     episode``) lie in [0, MAX_ENV_SEED]: beyond it JAX's 32-bit seed would repeat another episode's randomness."""
-    highest = (MAX_ENV_SEED - max(episodes - 1, 0)) // ENV_SEED_STRIDE
     for seed in seeds:
-        if not (isinstance(seed, numbers.Integral) and not isinstance(seed, bool) and 0 <= seed <= highest):
-            raise BenchOptionError(f"seed {seed!r} is out of range: seeds are integers from 0 to {highest} with "
-                                   f"{episodes} episodes (traffic seed = seed x {ENV_SEED_STRIDE} + episode, at most "
-                                   f"{MAX_ENV_SEED})")
+        if not (isinstance(seed, numbers.Integral) and not isinstance(seed, bool)):
+            raise BenchOptionError(f"seed {seed!r} is not an integer")
+        problem = seed_range_problem(seed, episodes)
+        if problem:
+            raise BenchOptionError(problem)
 
 
 def check_options(options: dict[str, Any]) -> None:

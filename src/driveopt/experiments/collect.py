@@ -34,7 +34,7 @@ from driveopt.data.modes import select_modes
 from driveopt.drivers.optimiser import OptimiserSpec
 from driveopt.experiments.rollout import Rollout
 from driveopt.experiments.runner import execute
-from driveopt.experiments.store import JobKey
+from driveopt.experiments.store import JobKey, seed_range_problem
 from driveopt.files import lock_output_file
 from driveopt.observation import OBSERVATION_DIM
 from driveopt.registry import get_optimiser
@@ -81,8 +81,9 @@ def demonstration_episode(job: JobKey, options: dict[str, Any]) -> dict[str, Any
 
 def check_options(scenarios: Sequence[str], *, seed: int, episodes: int, samples: int, iterations: int,
                   duration: float, workers: int, modes: int = MAX_MODES) -> None:
-    """ConfigError (ScenarioError for an unknown scenario) unless the scenarios are registered, seed >= 0,
-    episodes, samples, iterations, workers and modes are integers >= 1 and duration is finite and > 0 [s]."""
+    """ConfigError (ScenarioError for an unknown scenario) unless the scenarios are registered, episodes, samples,
+    iterations, workers and modes are integers >= 1, the seed is an integer whose episodes' traffic seeds lie in the
+    simulator's range (:func:`driveopt.experiments.store.seed_range_problem`) and duration is finite and > 0 [s]."""
     if not scenarios:
         raise ConfigError("collect needs at least one scenario")
     for name in scenarios:
@@ -91,6 +92,9 @@ def check_options(scenarios: Sequence[str], *, seed: int, episodes: int, samples
     for name, value in (("episodes", episodes), ("samples", samples), ("iterations", iterations), ("workers", workers),
                         ("modes", modes)):
         check_count(name, value)
+    problem = seed_range_problem(seed, episodes)
+    if problem:
+        raise ConfigError(problem)
     check_number("duration", duration, 0.0, low_open=True, unit="s")
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Callable, TypeVar
 
 from driveopt.files import atomic_write, json_text, refuse_constant
+from driveopt.jsonfile import MAX_DEPTH, nesting_depth
 
 T = TypeVar("T")
 
@@ -36,7 +37,7 @@ def resume_rows(path: str | Path, settings: dict[str, Any], parse: Callable[[dic
         atomic_write(path, row_line({"settings": settings}).encode())
         return []
     try:
-        earlier = _strict(lines[0])["settings"]
+        earlier = _loads(lines[0], strict=True)["settings"]
         now = json.loads(json_text(settings))  # as the file holds them: lists for tuples, null for NaN
         changed = sorted(k for k in set(earlier) | set(now) if earlier.get(k) != now.get(k))
     except (UnicodeDecodeError, ValueError, KeyError, TypeError, AttributeError):
@@ -46,7 +47,7 @@ def resume_rows(path: str | Path, settings: dict[str, Any], parse: Callable[[dic
     rows, kept = [], lines[:1]
     for line in lines[1:]:
         try:
-            rows.append(parse(json.loads(line.decode("utf-8"))))
+            rows.append(parse(_loads(line)))
         except (UnicodeDecodeError, ValueError, KeyError, TypeError):
             break  # an interrupted write: redo from here
         kept.append(line)
@@ -65,5 +66,11 @@ def _lines(path: Path, error: type[Exception]) -> list[bytes]:
     return [line for line in data.split(b"\n") if line.strip()]
 
 
-def _strict(line: bytes) -> Any:
-    return json.loads(line.decode("utf-8"), parse_constant=refuse_constant)
+def _loads(line: bytes, strict: bool = False) -> Any:
+    """The JSON value of ``line`` (``strict``: NaN and Infinity refused); ValueError, as for any malformed line, when it
+    is nested deeper than an input file may be (:data:`driveopt.jsonfile.MAX_DEPTH`): Python's parser recurses, and a
+    deep line would overflow its stack."""
+    text = line.decode("utf-8")
+    if nesting_depth(text) > MAX_DEPTH:
+        raise ValueError(f"nested deeper than {MAX_DEPTH} levels")
+    return json.loads(text, parse_constant=refuse_constant) if strict else json.loads(text)

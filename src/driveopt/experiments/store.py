@@ -6,10 +6,12 @@ run that is interrupted loses at most the episodes in flight; a rerun reads the 
 line cut short by a crash (no trailing newline) is not a record: it is ignored on load and cut off before the rerun
 appends.
 
-Every record is checked when read: strict JSON in UTF-8, the fields a summary counts with their types, one record
-per job, and (for records that name their settings) the settings of the folder's ``spec.json``. Anything else is
-refused with the file and line number, never counted; so is a folder whose records have no ``spec.json`` to say how
-they were run.
+Every record is checked when read: strict JSON in UTF-8 nested at most as deep as an input file may be
+(:data:`driveopt.jsonfile.MAX_DEPTH`), the fields a summary counts with their types, one record per job, one of the
+jobs the folder's ``spec.json`` declares (its scenarios, planners, seeds, episodes and episode list, which grow as
+later runs extend the folder) and (for records that name their settings) the settings of that ``spec.json``. Anything
+else is refused with the file and line number, never counted; so is a folder whose records have no ``spec.json`` to
+say how they were run.
 """
 
 from __future__ import annotations
@@ -25,12 +27,29 @@ from typing import Any, NamedTuple
 
 from driveopt.errors import DriveoptError
 from driveopt.files import atomic_write, json_text, refuse_constant
+from driveopt.jsonfile import MAX_DEPTH, nesting_depth
 
 SCHEMA_VERSION = 1
 RECORDS_FILE = "episodes.jsonl"
 SPEC_FILE = "spec.json"
 ENV_SEED_STRIDE = 100_003  # traffic seed of an episode: seed * ENV_SEED_STRIDE + episode
 MAX_ENV_SEED = 2**32 - 1  # traffic seeds feed JAX's 32-bit PRNG seed and highway-env's generator, as `drive --seed`
+
+
+def highest_seed(episodes: int) -> int:
+    """The largest seed whose ``episodes`` episodes all have traffic seeds (:attr:`JobKey.env_seed`) within
+    [0, MAX_ENV_SEED]: beyond it JAX's 32-bit seed would repeat another episode's randomness, or overflow."""
+    return (MAX_ENV_SEED - max(episodes - 1, 0)) // ENV_SEED_STRIDE
+
+
+def seed_range_problem(seed: int, episodes: int) -> str | None:
+    """Why ``seed`` cannot drive ``episodes`` episodes (outside [0, :func:`highest_seed`]), naming the range; None
+    when it can."""
+    highest = highest_seed(episodes)
+    if 0 <= seed <= highest:
+        return None
+    return (f"seed {seed!r} is out of range: seeds are integers from 0 to {highest} with {episodes} episodes (traffic "
+            f"seed = seed x {ENV_SEED_STRIDE} + episode, at most {MAX_ENV_SEED})")
 
 
 class StoreError(DriveoptError):
@@ -135,9 +154,13 @@ def _read_lines(path: Path) -> list[_Line]:
 
 def _parse(path: Path, number: int, raw: bytes) -> dict[str, Any]:
     try:
-        record = json.loads(raw.decode("utf-8"), parse_constant=refuse_constant)
+        text = raw.decode("utf-8")
     except UnicodeDecodeError:
         raise StoreError(f"{path}:{number}: corrupted line (not UTF-8 text)") from None
+    if nesting_depth(text) > MAX_DEPTH:  # Python's parser recurses: a deep line would overflow its stack
+        raise StoreError(f"{path}:{number}: corrupted line (nested deeper than {MAX_DEPTH} levels; a bench record has 2)")
+    try:
+        record = json.loads(text, parse_constant=refuse_constant)
     except ValueError as exc:  # JSONDecodeError, NaN or Infinity
         raise StoreError(f"{path}:{number}: corrupted line (not JSON: {str(exc).splitlines()[0]})") from None
     problem = record_problem(record)
@@ -169,7 +192,10 @@ def read_spec(path: str | Path) -> dict[str, Any] | None:
     exist, StoreError when it cannot be read or is malformed."""
     path = Path(path)
     try:
-        spec = json.loads(path.read_bytes().decode("utf-8"), parse_constant=refuse_constant)
+        text = path.read_bytes().decode("utf-8")
+        if nesting_depth(text) > MAX_DEPTH:  # Python's parser recurses: a deep file would overflow its stack
+            raise ValueError(f"nested deeper than {MAX_DEPTH} levels")
+        spec = json.loads(text, parse_constant=refuse_constant)
     except FileNotFoundError:
         return None
     except (OSError, UnicodeDecodeError, ValueError) as exc:
@@ -222,7 +248,35 @@ def load_folder(location: str | Path) -> tuple[dict[str, Any] | None, list[dict[
         if "settings" in record and record["settings"] != expected_settings(spec, record["scenario"], record["planner"]):
             raise StoreError(f"{records_path}:{number}: {record['planner']} on {record['scenario']} ran with other "
                              f"settings than {spec_path} holds; it belongs to another run: remove it")
+        outside = outside_spec(spec, record)
+        if outside:
+            raise StoreError(f"{records_path}:{number}: {record['planner']} on {record['scenario']}, seed "
+                             f"{_short(record['seed'])}, episode {_short(record['episode'])} is not an episode of the runs "
+                             f"{spec_path} describes ({outside}); it belongs to another run: remove it")
     return spec, [line.record for line in lines]
+
+
+def outside_spec(spec: dict[str, Any], record: dict[str, Any]) -> str | None:
+    """How ``record`` (a checked bench record) lies outside the jobs of a folder's ``spec.json`` (:func:`merged_spec`
+    of every run that wrote there: its scenarios, planners, seeds, episodes and episode list); None when it is one of
+    them. A field the spec does not have (a spec.json of an older driveopt) is not checked."""
+    for name, field in (("scenarios", "scenario"), ("planners", "planner"), ("seeds", "seed")):
+        declared = spec.get(name)
+        if isinstance(declared, list) and record[field] not in declared:
+            shown = ", ".join(_short(value) for value in declared)
+            return f"{name} {shown}, not {_short(record[field])}"
+    episodes, episode_list = spec.get("episodes"), spec.get("episode_list") or []
+    if _is_int(episodes) and not record["episode"] < episodes:
+        return f"episodes 0 to {episodes - 1}"
+    if isinstance(episode_list, list) and episode_list and record["episode"] not in episode_list:
+        return f"episode list {', '.join(map(_short, episode_list))}"
+    return None
+
+
+def _short(value: Any) -> str:
+    """``value`` for a message: an integer of more than 20 digits by its first digits and length."""
+    text = str(value)
+    return f"{text[:12]}... ({len(text)} characters)" if len(text) > 20 else text
 
 
 def repair(path: str | Path) -> None:

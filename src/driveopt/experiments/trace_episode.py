@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from driveopt.errors import DriveoptError
-from driveopt.experiments.bench import check_options
+from driveopt.experiments.bench import check_options, check_seeds
 from driveopt.experiments.rollout import Rollout
 from driveopt.experiments.store import JobKey
 from driveopt.registry import get_planner
@@ -63,9 +63,11 @@ def trace(scenario_name: str, planner: str, episode: int, *, seed: int = 42, sam
     """(episode summary, one row per policy step) of the replayed bench episode. ``samples`` and ``overrides`` (planner-
     config overrides, as bench's ``--config``) apply to an optimiser; ``weights``: a learned prior's or policy's
     checkpoint instead of the shipped one (as bench's ``--weights``). DriveoptError (one line) for an unknown scenario
-    or planner, unusable weights, or overrides given to a planner without a planner configuration."""
+    or planner, unusable weights, a seed and episode whose traffic seed is beyond the simulator's 32 bits, or
+    overrides given to a planner without a planner configuration."""
     scenario = get_scenario(scenario_name)
     check_options({"weights": weights})
+    check_seeds((seed,), episode + 1)  # its traffic seed, seed x ENV_SEED_STRIDE + episode, must fit in 32 bits
     spec = get_planner(planner).with_weights(weights)
     if spec.is_optimiser:
         spec = spec.with_samples(samples).with_overrides(**(overrides or {}))

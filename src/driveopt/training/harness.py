@@ -296,9 +296,13 @@ def make_optimiser(tcfg: BaseTrainConfig, steps_per_epoch: int, decay_mask: Any 
 
 
 def check_output_folder(out_dir: str | Path, weights: str) -> Path:
-    """``out_dir`` as a Path; CheckpointError, before anything is read or written, when it is an existing file
-    (a trainer writes last.ckpt, ``weights`` and history.json there)."""
-    return files.check_output_folder(out_dir, CheckpointError, f"{LAST}, {weights}, {HISTORY}")
+    """``out_dir`` as a Path; before anything is read or written, CheckpointError when it is an existing file (a
+    trainer writes last.ckpt, ``weights`` and history.json there) and OutputError when it, or the folder it would be
+    made in, cannot take a file (read-only, full: :func:`driveopt.files.check_writable_folder`), so that the first
+    checkpoint does not fail after the data are loaded and an epoch has run."""
+    out = files.check_output_folder(out_dir, CheckpointError, f"{LAST}, {weights}, {HISTORY}")
+    files.check_writable_folder(out, "--out")
+    return out
 
 
 def make_output_folder(out: Path) -> Path:

@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from driveopt.errors import DriveoptError
-from driveopt.files import atomic_write, make_output_folder
+from driveopt.files import atomic_write, check_writable_folder, make_output_folder
 from driveopt.rl.env import DrivingEnv, RewardWeights, policy_scenario
 from driveopt.rl.policy import (
     ALGORITHMS,
@@ -223,6 +223,7 @@ def train_agent(
         except RuntimeError as exc:
             raise TrainingError(f"device {device!r} is not a PyTorch device (cpu, cuda, cuda:N, auto): {exc}") from None
     torch.set_num_threads(1)
+    check_writable_folder(out, "--out")  # full or read-only: refused now, not at the first checkpoint
     make_output_folder(out, TrainingError, "last.zip, best.zip, curve.csv")
     record = {"algo": algo, "scenario": scenario.to_dict(), "lanes": scenario.lanes, "seed": seed, "envs": envs,
               "settings": settings, "reward_weights": RewardWeights().to_dict()}
