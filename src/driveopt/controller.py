@@ -44,6 +44,40 @@ class ControllerError(DriveoptError):
     """The env or the controller's settings cannot be used (not a highway-env env, reset missing, bad values)."""
 
 
+@dataclasses.dataclass
+class _Episode:
+    """The env and the episode a controller was reset on, which ``act`` must be given.
+
+    The driver holds what it read at ``reset``: the car's acceleration and steering ranges, the frequencies, the road
+    frame, the warm start and the previous plan. On another env its actions would be normalised to the first env's
+    ranges, and after ``env.reset`` it would start from the old episode's plan; both would pass silently. An episode is
+    told by the objects highway-env makes anew at every ``env.reset`` (its road and its ego vehicle, the latter read
+    after the driver may have swapped it, as ``idm`` does) and by the env's clock, which only moves forward within
+    an episode."""
+
+    sim: Any  # env.unwrapped
+    road: Any
+    vehicle: Any
+    time: float  # [s] the env's clock at the latest check
+
+    @classmethod
+    def of(cls, sim: Any) -> "_Episode":
+        return cls(sim, sim.road, sim.vehicle, float(getattr(sim, "time", 0.0)))
+
+    def check(self, env: Any) -> None:
+        """ControllerError, saying what to call, unless ``env`` is the env and the episode of ``reset``."""
+        sim = getattr(env, "unwrapped", env)
+        if sim is not self.sim:
+            raise ControllerError(f"act() was given another env ({type(sim).__name__} at {id(sim):#x}) than the one "
+                                  "controller.reset(env, seed) read the car, timing and road from: call "
+                                  "controller.reset(env, seed) with this env first (one Controller per env to drive several)")
+        now = float(getattr(sim, "time", 0.0))
+        if sim.road is not self.road or sim.vehicle is not self.vehicle or now < self.time:
+            raise ControllerError("the env was reset since controller.reset(env, seed): call controller.reset(env, seed) "
+                                  "after every env.reset(), so that the new episode does not start from the old one's plan")
+        self.time = now
+
+
 def _env_speed_limit(env: Any) -> float:
     """[m/s] the speed limit of the ego's lane."""
     sim = env.unwrapped
@@ -93,6 +127,7 @@ class Controller:
         self.task: Task | None = None
         self.last: Decision | None = None  # what the latest act() decided: action, result, scene, timing, frame
         self.planned: Decision | None = None  # the latest decision that planned (act() may follow a plan open-loop)
+        self.episode: _Episode | None = None  # the env and episode that reset() bound the controller to
 
     @property
     def name(self) -> str:
@@ -101,7 +136,8 @@ class Controller:
     def reset(self, env: Any, seed: int = 0) -> None:
         """Start an episode on ``env`` (already reset): read the car, the timing and the road, warm the planner up
         (compile; ``compile_seconds``); ``seed`` seeds the planner's sampling. RoadFrameError when the route's road
-        cannot be represented."""
+        cannot be represented. It binds the controller to this env and episode: call it again after every
+        ``env.reset`` and for another env (``act`` refuses both otherwise)."""
         sim = getattr(env, "unwrapped", None)
         if getattr(sim, "road", None) is None or getattr(sim, "vehicle", None) is None:
             raise ControllerError("the env must be a highway-env env that has been reset (env.reset(seed=...)) first")
@@ -117,6 +153,7 @@ class Controller:
         self.driver = self.spec.driver()
         self.driver.reset(env, self.task, seed)
         self.last = self.planned = None
+        self.episode = _Episode.of(sim)
 
     @property
     def compile_seconds(self) -> float:
@@ -124,9 +161,12 @@ class Controller:
         return float(getattr(self.driver, "compile_seconds", 0.0))
 
     def act(self, env: Any) -> np.ndarray:
-        """The (2,) float32 ``ContinuousAction`` (acceleration, steering in [-1, 1]) for the env's current state."""
+        """The (2,) float32 ``ContinuousAction`` (acceleration, steering in [-1, 1]) for the env's current state.
+        ControllerError when ``env`` is not the env ``reset`` was given, or was reset since: the controller plans with
+        what it read from that env in that episode."""
         if self.driver is None:
             raise ControllerError("call controller.reset(env, seed) after env.reset() before act()")
+        self.episode.check(env)
         self.last = self.driver.act(env)
         if self.last.result is not None or self.planned is None:
             self.planned = self.last

@@ -128,3 +128,25 @@ def test_act_before_reset_and_unknown_route_nodes_raise():
         driveopt.Controller().act(env)
     with pytest.raises(ControllerError, match="not in the env's lane graph"):
         driveopt.Controller(route=["0", "nowhere"]).reset(env, seed=0)
+
+
+def test_act_is_bound_to_the_env_and_the_episode_of_reset():
+    """The controller plans with the car, timing and warm start it read at reset: another env, or the same env reset
+    without controller.reset, is refused with what to call, rather than driven with the wrong ranges or plan."""
+    config = {**CONTINUOUS, "vehicles_count": 3}
+    first, other = driveopt.gym_make("highway-v0", config=config), driveopt.gym_make("highway-v0", config=config)
+    first.reset(seed=0)
+    other.reset(seed=1)
+    controller = driveopt.Controller("idm")
+    controller.reset(first, seed=0)
+    first.step(controller.act(first))
+    controller.act(first.unwrapped)  # the same env, unwrapped: still bound
+    with pytest.raises(ControllerError, match=r"another env .* call controller.reset\(env, seed\) with this env first"):
+        controller.act(other)
+    first.reset(seed=2)
+    with pytest.raises(ControllerError, match=r"reset since controller.reset.*after every env.reset\(\)"):
+        controller.act(first)
+    controller.reset(other, seed=1)
+    other.step(controller.act(other))
+    with pytest.raises(ControllerError, match="another env"):
+        controller.act(first)
