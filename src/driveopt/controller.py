@@ -34,7 +34,7 @@ import gymnasium
 import numpy as np
 
 from driveopt.config import PlannerConfig
-from driveopt.drivers.base import Decision, DriverSpec
+from driveopt.drivers.base import Decision, DriverSpec, check_given_weights
 from driveopt.errors import DriveoptError
 from driveopt.registry import get_planner
 from driveopt.sim.perception import Task
@@ -91,7 +91,8 @@ class Controller:
     iteration (default: the planner's own; ``bilevel``: 150, real time on two CPU cores); ``config``: a
     :class:`~driveopt.config.PlannerConfig`, or overrides as nested sections (``{"cost": {"consistency": 1.0}}``);
     ``v_des`` [m/s]: desired speed (default: the speed limit of the ego's lane at ``reset``); ``route``: node names of the env's lane graph to follow (e.g. ``["0", "1", "2", "exit"]`` takes
-    exit-v0's exit; default: the ego's own route, else straight on); ``weights``: a learned prior's checkpoint;
+    exit-v0's exit; default: the ego's own route, else straight on); ``weights``: a learned prior's checkpoint (a
+    path that is not a file, or weights for a planner without a learned prior, is a WeightsError here);
     ``latency``: ``"sync"`` (default: each ``act`` returns the command of the plan it just made), ``"measured"`` or a
     compute time [ms]: each plan takes effect that many policy periods (rounded up, at least one) after the ``act``
     that started it, and the car keeps tracking the previous plan meanwhile (:mod:`driveopt.drivers.latency`).
@@ -120,6 +121,7 @@ class Controller:
             raise ControllerError(f"v_des must be a speed in (0, 60] m/s, got {v_des!r}")
         if route is not None and (isinstance(route, str) or not all(isinstance(node, str) for node in route)):
             raise ControllerError(f"route must be a sequence of node names of the env's lane graph, got {route!r}")
+        check_given_weights(spec, weights, getattr(spec, "filter_weights", None))
         self.spec = spec.with_samples(samples).with_weights(weights).with_latency(latency)
         self.v_des = None if v_des is None else float(v_des)
         self.route = None if route is None else tuple(route)

@@ -10,6 +10,7 @@ import pytest
 
 import driveopt
 from driveopt.controller import ControllerError
+from driveopt.drivers.base import WeightsError
 from driveopt.sim.road_frame import RoadFrameError
 
 README = Path(__file__).resolve().parents[2] / "README.md"
@@ -150,3 +151,21 @@ def test_act_is_bound_to_the_env_and_the_episode_of_reset():
     other.step(controller.act(other))
     with pytest.raises(ControllerError, match="another env"):
         controller.act(first)
+
+
+@pytest.mark.parametrize("planner, weights, message", [
+    ("cvae", "missing.ckpt", "weights file {tmp}/missing.ckpt does not exist"),
+    ("cvae", "folder.ckpt", "weights file {tmp}/folder.ckpt is not a regular file"),
+    ("bilevel", "given.ckpt", "planner bilevel takes no weights"),
+    ("idm", "given.ckpt", "planner idm takes no weights"),
+])
+def test_weights_that_are_not_a_file_or_not_used_are_refused_at_construction(tmp_path, planner, weights, message):
+    """A mistyped checkpoint, or one given to a planner whose prior is not learned, is refused before any episode
+    rather than ignored (bilevel would plan with its Gaussian prior as if the weights had been read)."""
+    (tmp_path / "given.ckpt").write_bytes(b"weights")
+    (tmp_path / "folder.ckpt").mkdir()
+    with pytest.raises(WeightsError) as raised:
+        driveopt.Controller(planner, weights=str(tmp_path / weights))
+    assert str(raised.value).startswith(message.format(tmp=tmp_path))
+    with pytest.raises(WeightsError, match=r"filter weights file .*missing.ckpt does not exist"):
+        driveopt.Controller("bilevel", config={"safety_filter": {"weights": str(tmp_path / "missing.ckpt")}})
