@@ -16,7 +16,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from driveopt.checks import ConfigError, check_budget, check_types, require
+from driveopt.checks import ConfigError, check_budget, check_count, check_types, require
 
 MIN_HORIZON = 1.0  # [s] shortest planning horizon (each of the four set-point quarters lasts T / 4); far below it
 # (1e-30 s) the basis's derivatives (1/T, 1/T^2) leave float32's range and every plan is NaN
@@ -245,11 +245,65 @@ MAX_PLANNING_WORK = 1e10  # [sample-node-iterations]
 MAX_SAMPLE_NODES = 2e7  # [samples x nodes]
 
 
-def planning_work(config: PlannerConfig) -> float:
+# Obstacles. The projection handles each obstacle in its own copy of the obstacle terms (a loop unrolled when the
+# planner is traced: it fuses far better on the CPU than (samples, obstacles, nodes) arrays), so the compiled program,
+# its compile time and the compiler's memory grow with the obstacle count whatever the batch, and every projection
+# iteration's work grows with it too. Measured on the project's 2 shared CPU cores, one run each:
+#   /usr/bin/time -v driveopt plan --samples 60 --max-obstacles N --repeats 1   (static-blockage, bilevel)
+#   N = 10, 30, 60, 100 obstacles: compile 19, 22, 84, 108 s; solve 23, 35, 46, 1723 ms; peak RSS 0.73, 0.82, 1.03,
+#   1.65 GB.
+# Compilation: about COMPILE_SECONDS_PER_OBSTACLE and COMPILE_BYTES_PER_OBSTACLE per obstacle (the secants from 10 to
+# 100); MAX_OBSTACLES, 10 times the default's (build_problem's and the drivers' 10), is the largest count measured
+# (~2 minutes to compile, 1.7 GB). Work: up to 60 obstacles a call grows by 0.45 ms an obstacle on a 23 ms call at
+# 10, so its work is that of OBSTACLE_WORK_OFFSET + N obstacles (:func:`obstacle_factor`); at 100 the solve was
+# 27 times slower than that predicts (the unrolled loop no longer fuses), which MAX_OBSTACLES keeps out of reach
+# unless DRIVEOPT_ALLOW_LARGE=1. Memory: the working arrays of the barrier projection hold one (samples, nodes) slice
+# per obstacle (the ratios of the previous node), so BYTES_PER_SAMPLE_NODE, measured at 10 obstacles, is scaled by
+# obstacles / 10 above 10.
+REFERENCE_OBSTACLES = 10  # [-] the obstacles PLANNING_WORK_PER_SECOND and BYTES_PER_SAMPLE_NODE were measured with
+OBSTACLE_WORK_OFFSET = 42.0  # [obstacles] the work of a projection iteration apart from its obstacles, in obstacles
+COMPILE_SECONDS_PER_OBSTACLE = 1.0  # [s] (108 - 19 s) / 90 obstacles
+COMPILE_BYTES_PER_OBSTACLE = 1.0e7  # [bytes] (1.65 - 0.73 GB) / 90 obstacles
+MAX_OBSTACLES = 100  # [-] obstacles a planning call is compiled for
+
+
+def obstacle_factor(obstacles: int) -> float:
+    """[-] the work of a planning call against ``obstacles`` relative to one against REFERENCE_OBSTACLES."""
+    return (OBSTACLE_WORK_OFFSET + obstacles) / (OBSTACLE_WORK_OFFSET + REFERENCE_OBSTACLES)
+
+
+def planning_work(config: PlannerConfig, obstacles: int = REFERENCE_OBSTACLES) -> float:
     """[sample-node-iterations] the work of one planning call: every sampler iteration projects every sample, each
-    projection iteration touching every node (an unprojected batch, max_iterations 0, still costs one pass)."""
+    projection iteration touching every node (an unprojected batch, max_iterations 0, still costs one pass), against
+    ``obstacles`` (in units of a call against REFERENCE_OBSTACLES, :func:`obstacle_factor`)."""
     return (float(config.sampler.num_samples) * config.sampler.num_iterations
-            * max(config.projection.max_iterations, 1) * config.basis.num_nodes)
+            * max(config.projection.max_iterations, 1) * config.basis.num_nodes * obstacle_factor(obstacles))
+
+
+def check_obstacles(obstacles: int) -> None:
+    """ConfigError unless a planning call against ``obstacles`` (an integer >= 1) compiles within MAX_OBSTACLES (or
+    the user opted in): its program grows with every obstacle, whatever the batch. Checked where the count is given
+    (``build_problem``, ``driveopt plan --max-obstacles``) and again by ``plan``, before anything is allocated or
+    compiled."""
+    check_count("max_obstacles", obstacles)
+    check_budget("obstacles a planning call is compiled for (max_obstacles)", obstacles, MAX_OBSTACLES,
+                 f"about {_hours(obstacles * COMPILE_SECONDS_PER_OBSTACLE)} and "
+                 f"{obstacles * COMPILE_BYTES_PER_OBSTACLE / 1e9:.3g} GB to compile on 2 CPU cores")
+
+
+def check_planning_size(config: PlannerConfig, obstacles: int) -> None:
+    """ConfigError unless one planning call of ``config`` against ``obstacles`` is within the compile, work and memory
+    limits (or the user opted in): :class:`PlannerConfig` checks its own sizes at the reference obstacle count, this
+    counts the obstacles given (samples x sampler iterations x projection iterations x nodes x obstacles)."""
+    check_obstacles(obstacles)
+    work = planning_work(config, obstacles)
+    check_budget(f"planning work per call against {obstacles} obstacles (samples x sampler iterations x projection "
+                 "iterations x nodes, x the obstacles' share)", work, MAX_PLANNING_WORK,
+                 f"about {_hours(work / PLANNING_WORK_PER_SECOND)} a call on 2 CPU cores")
+    sample_nodes = config.sampler.num_samples * config.basis.num_nodes * max(obstacles, REFERENCE_OBSTACLES) / REFERENCE_OBSTACLES
+    check_budget(f"planning memory per call against {obstacles} obstacles (samples x nodes x obstacles / "
+                 f"{REFERENCE_OBSTACLES})", sample_nodes, MAX_SAMPLE_NODES,
+                 f"about {sample_nodes * BYTES_PER_SAMPLE_NODE / 1e9:.1f} GB of working arrays")
 
 
 def _hours(seconds: float) -> str:

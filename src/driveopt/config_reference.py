@@ -22,7 +22,8 @@ import tokenize
 from pathlib import Path
 
 from driveopt import config as config_module
-from driveopt.config import (BYTES_PER_SAMPLE_NODE, MAX_PLANNING_WORK, MAX_SAMPLE_NODES, PLANNING_WORK_PER_SECOND,
+from driveopt.config import (BYTES_PER_SAMPLE_NODE, COMPILE_BYTES_PER_OBSTACLE, COMPILE_SECONDS_PER_OBSTACLE, MAX_OBSTACLES,
+                             MAX_PLANNING_WORK, MAX_SAMPLE_NODES, PLANNING_WORK_PER_SECOND, REFERENCE_OBSTACLES,
                              RUNTIME_FIELDS, PlannerConfig)
 
 COMMAND = "python -m driveopt.config_reference docs/configuration.md"
@@ -124,7 +125,10 @@ def render(source: str | None = None) -> str:
         f"({runtime}) share one compilation ([how](design.md#collision-ellipses-and-compilation)).",
         f"A call above {_power(MAX_PLANNING_WORK)} units of work (samples x iterations x projection iterations x nodes,",
         f"~{minutes:.0f} min on the project's 2-core CPU machine) or {_power(MAX_SAMPLE_NODES)} sample-nodes",
-        f"(~{gigabytes:.1f} GB) needs `DRIVEOPT_ALLOW_LARGE=1`.",
+        f"(~{gigabytes:.1f} GB) needs `DRIVEOPT_ALLOW_LARGE=1`, and so does planning against more than {MAX_OBSTACLES}",
+        f"obstacles (`max_obstacles`; each adds ~{COMPILE_SECONDS_PER_OBSTACLE:g} s and ~{COMPILE_BYTES_PER_OBSTACLE / 1e6:g} MB "
+        f"to the compilation). Both estimates count the obstacles beyond {REFERENCE_OBSTACLES}",
+        "(`driveopt.config.check_planning_size`).",
         "",
         "How rows are ranked, what rides in a batch and which stops the fallback weighs are strategies passed to the",
         "planner, not fields: [design.md](design.md#the-planners-strategies).",

@@ -34,7 +34,7 @@ import gymnasium
 import numpy as np
 
 from driveopt.config import PlannerConfig
-from driveopt.drivers.base import Decision, DriverSpec
+from driveopt.drivers.base import Decision, DriverSpec, check_given_weights
 from driveopt.errors import DriveoptError
 from driveopt.registry import get_planner
 from driveopt.sim.perception import Task
@@ -42,6 +42,40 @@ from driveopt.sim.perception import Task
 
 class ControllerError(DriveoptError):
     """The env or the controller's settings cannot be used (not a highway-env env, reset missing, bad values)."""
+
+
+@dataclasses.dataclass
+class _Episode:
+    """The env and the episode a controller was reset on, which ``act`` must be given.
+
+    The driver holds what it read at ``reset``: the car's acceleration and steering ranges, the frequencies, the road
+    frame, the warm start and the previous plan. On another env its actions would be normalised to the first env's
+    ranges, and after ``env.reset`` it would start from the old episode's plan; both would pass silently. An episode is
+    told by the objects highway-env makes anew at every ``env.reset`` (its road and its ego vehicle, the latter read
+    after the driver may have swapped it, as ``idm`` does) and by the env's clock, which only moves forward within
+    an episode."""
+
+    sim: Any  # env.unwrapped
+    road: Any
+    vehicle: Any
+    time: float  # [s] the env's clock at the latest check
+
+    @classmethod
+    def of(cls, sim: Any) -> "_Episode":
+        return cls(sim, sim.road, sim.vehicle, float(getattr(sim, "time", 0.0)))
+
+    def check(self, env: Any) -> None:
+        """ControllerError, saying what to call, unless ``env`` is the env and the episode of ``reset``."""
+        sim = getattr(env, "unwrapped", env)
+        if sim is not self.sim:
+            raise ControllerError(f"act() was given another env ({type(sim).__name__} at {id(sim):#x}) than the one "
+                                  "controller.reset(env, seed) read the car, timing and road from: call "
+                                  "controller.reset(env, seed) with this env first (one Controller per env to drive several)")
+        now = float(getattr(sim, "time", 0.0))
+        if sim.road is not self.road or sim.vehicle is not self.vehicle or now < self.time:
+            raise ControllerError("the env was reset since controller.reset(env, seed): call controller.reset(env, seed) "
+                                  "after every env.reset(), so that the new episode does not start from the old one's plan")
+        self.time = now
 
 
 def _env_speed_limit(env: Any) -> float:
@@ -57,7 +91,8 @@ class Controller:
     iteration (default: the planner's own; ``bilevel``: 150, real time on two CPU cores); ``config``: a
     :class:`~driveopt.config.PlannerConfig`, or overrides as nested sections (``{"cost": {"consistency": 1.0}}``);
     ``v_des`` [m/s]: desired speed (default: the speed limit of the ego's lane at ``reset``); ``route``: node names of the env's lane graph to follow (e.g. ``["0", "1", "2", "exit"]`` takes
-    exit-v0's exit; default: the ego's own route, else straight on); ``weights``: a learned prior's checkpoint;
+    exit-v0's exit; default: the ego's own route, else straight on); ``weights``: a learned prior's checkpoint (a
+    path that is not a file, or weights for a planner without a learned prior, is a WeightsError here);
     ``latency``: ``"sync"`` (default: each ``act`` returns the command of the plan it just made), ``"measured"`` or a
     compute time [ms]: each plan takes effect that many policy periods (rounded up, at least one) after the ``act``
     that started it, and the car keeps tracking the previous plan meanwhile (:mod:`driveopt.drivers.latency`).
@@ -86,6 +121,7 @@ class Controller:
             raise ControllerError(f"v_des must be a speed in (0, 60] m/s, got {v_des!r}")
         if route is not None and (isinstance(route, str) or not all(isinstance(node, str) for node in route)):
             raise ControllerError(f"route must be a sequence of node names of the env's lane graph, got {route!r}")
+        check_given_weights(spec, weights, getattr(spec, "filter_weights", None))
         self.spec = spec.with_samples(samples).with_weights(weights).with_latency(latency)
         self.v_des = None if v_des is None else float(v_des)
         self.route = None if route is None else tuple(route)
@@ -93,6 +129,7 @@ class Controller:
         self.task: Task | None = None
         self.last: Decision | None = None  # what the latest act() decided: action, result, scene, timing, frame
         self.planned: Decision | None = None  # the latest decision that planned (act() may follow a plan open-loop)
+        self.episode: _Episode | None = None  # the env and episode that reset() bound the controller to
 
     @property
     def name(self) -> str:
@@ -101,7 +138,8 @@ class Controller:
     def reset(self, env: Any, seed: int = 0) -> None:
         """Start an episode on ``env`` (already reset): read the car, the timing and the road, warm the planner up
         (compile; ``compile_seconds``); ``seed`` seeds the planner's sampling. RoadFrameError when the route's road
-        cannot be represented."""
+        cannot be represented. It binds the controller to this env and episode: call it again after every
+        ``env.reset`` and for another env (``act`` refuses both otherwise)."""
         sim = getattr(env, "unwrapped", None)
         if getattr(sim, "road", None) is None or getattr(sim, "vehicle", None) is None:
             raise ControllerError("the env must be a highway-env env that has been reset (env.reset(seed=...)) first")
@@ -117,6 +155,7 @@ class Controller:
         self.driver = self.spec.driver()
         self.driver.reset(env, self.task, seed)
         self.last = self.planned = None
+        self.episode = _Episode.of(sim)
 
     @property
     def compile_seconds(self) -> float:
@@ -124,9 +163,12 @@ class Controller:
         return float(getattr(self.driver, "compile_seconds", 0.0))
 
     def act(self, env: Any) -> np.ndarray:
-        """The (2,) float32 ``ContinuousAction`` (acceleration, steering in [-1, 1]) for the env's current state."""
+        """The (2,) float32 ``ContinuousAction`` (acceleration, steering in [-1, 1]) for the env's current state.
+        ControllerError when ``env`` is not the env ``reset`` was given, or was reset since: the controller plans with
+        what it read from that env in that episode."""
         if self.driver is None:
             raise ControllerError("call controller.reset(env, seed) after env.reset() before act()")
+        self.episode.check(env)
         self.last = self.driver.act(env)
         if self.last.result is not None or self.planned is None:
             self.planned = self.last

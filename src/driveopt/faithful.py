@@ -130,7 +130,7 @@ def p1_planner(method: str, *, name: str, description: str) -> OptimiserSpec:
         "batch": (single.replace(qp={"terminal_position": True}), lambda *_: SpeedOffsetGrid(), False, P1_GRID_SPEED_WEIGHT),
     }
     config, make_prior, warm_start, speed_weight = methods[method]
-    spec = OptimiserSpec(method, description, config, make_prior, warm_start=warm_start)
+    spec = OptimiserSpec(method, description, config, make_prior, warm_start=warm_start, learned_prior=method == "cvae")
     return faithful_version(spec, name=name, description=description, ranking=P1AuthorsRanking(speed_weight=speed_weight))
 
 

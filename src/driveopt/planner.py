@@ -51,7 +51,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.config import PlannerConfig, split_runtime, with_runtime
+from driveopt.config import PlannerConfig, check_planning_size, split_runtime, with_runtime
 from driveopt.costs import COST_TERMS, cost_terms
 from driveopt.fallback import Fallback, braking_coeffs, stop_setpoints
 from driveopt.filtering import SafetyFilter, check_filter_init
@@ -435,7 +435,9 @@ def plan(
     method: Method = DRIVEOPT_METHOD,
     x_offset: float = 0.0,
 ) -> PlanResult:
-    """Plan one trajectory. Raises ProblemError on malformed or non-finite input; never returns NaN.
+    """Plan one trajectory. Raises ProblemError on malformed or non-finite input, ConfigError for a call estimated above
+    the compile, work or memory limits against its obstacles (:func:`driveopt.config.check_planning_size`, unless
+    ``DRIVEOPT_ALLOW_LARGE=1``); never returns NaN.
 
     problem: from ``build_problem`` (planning frame, ego at x = 0).
     key: one JAX PRNG key (``jax.random.PRNGKey``: shape (2,) uint32, or a typed ``jax.random.key``); split it
@@ -456,6 +458,7 @@ def plan(
         scene's position range (``driveopt.scene.RANGES["x"]``), as the command line's problem files require.
     """
     check_problem(problem, config.basis)
+    check_planning_size(config, int(np.shape(problem.obstacle_x)[0]))  # before anything is compiled
     _check_key(key)
     x_offset = _checked_x_offset(x_offset)
     if prior is None:

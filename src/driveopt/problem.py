@@ -16,7 +16,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.config import BasisConfig
+from driveopt.config import BasisConfig, check_obstacles
 from driveopt.observation import OBSERVATION_DIM, observation_vector
 from driveopt.prediction import (
     BRAKING_TIME,
@@ -83,11 +83,13 @@ def build_problem(
     braking_time: [s] how long a braking neighbour is predicted to keep braking (0: constant velocity, P1).
     selection_time: [s] the ``max_obstacles`` planned against are those that come closest to the ego
     within this time (0: the nearest now, P1); see :func:`driveopt.prediction.relevant_neighbours`.
+    ConfigError for more than :data:`driveopt.config.MAX_OBSTACLES` unless ``DRIVEOPT_ALLOW_LARGE=1``.
     """
     if not isinstance(scene, Scene):
         raise ProblemError(f"build_problem needs a Scene, got {type(scene).__name__}")
     if max_obstacles < 1:
         raise ProblemError("max_obstacles must be >= 1")
+    check_obstacles(max_obstacles)  # before its (max_obstacles, nodes) arrays are allocated
     t = np.linspace(0.0, basis.horizon, basis.num_nodes)
     ego = scene.ego
     body = dataclasses.replace(ego, yaw=box_heading(ego))  # the same box, its heading within [-pi/2, pi/2]

@@ -113,26 +113,28 @@ def _bilevel_p1(name: str, description: str):
 
 def _cvae(mix: float, warm_start: bool):
     def build(name: str, description: str):
-        return _optimiser(name, description, _config(), _learned_prior("cvae", mix), warm_start=warm_start)
+        return _optimiser(name, description, _config(), _learned_prior("cvae", mix), warm_start=warm_start,
+                          learned_prior=True)
 
     return build
 
 
 def _vqvae(name: str, description: str):
-    return _optimiser(name, description, _p2_pass(), _learned_prior("vqvae"), method=_distinct_rows())
+    return _optimiser(name, description, _p2_pass(), _learned_prior("vqvae"), method=_distinct_rows(),
+                      learned_prior=True)
 
 
 def _vqvae_filter(name: str, description: str):
     return _optimiser(name, description, _p2_pass(), _learned_prior("vqvae"), learned_filter=True,
-                      method=_distinct_rows())
+                      method=_distinct_rows(), learned_prior=True)
 
 
 def _vqvae_cem(name: str, description: str):
-    return _optimiser(name, description, _config(), _learned_prior("vqvae"))
+    return _optimiser(name, description, _config(), _learned_prior("vqvae"), learned_prior=True)
 
 
 def _cvae_filter(name: str, description: str):
-    return _optimiser(name, description, _p2_pass(), _learned_prior("cvae", 0.0))
+    return _optimiser(name, description, _p2_pass(), _learned_prior("cvae", 0.0), learned_prior=True)
 
 
 def _cvae_multipliers(name: str, description: str):
@@ -143,7 +145,7 @@ def _cvae_multipliers(name: str, description: str):
                               "num_elites": faithful.SHRESTHA_ELITES},
                      projection={"max_iterations": faithful.SHRESTHA_PROJECTION})
     return _optimiser(name, description, config, _learned_prior("cvae-multipliers"),
-                      make_filter=resolve(kind("cvae-multipliers").filter_factory))
+                      make_filter=resolve(kind("cvae-multipliers").filter_factory), learned_prior=True)
 
 
 def _random(name: str, description: str):

@@ -86,3 +86,31 @@ def test_a_programming_error_is_not_reported_as_a_usage_error(monkeypatch):
     monkeypatch.setattr(listing, "run_planners", broken)
     with pytest.raises(ValueError, match="internal invariant"):
         main(["planners"])
+
+
+@pytest.mark.parametrize("command", [["plan"], ["plan", "--planner", "cvae"], ["drive", "--planner", "cvae"],
+                                     ["drive", "--planner", "dqn"], ["drive"]])
+def test_weights_that_are_not_a_file_are_refused_in_one_line(tmp_path, capsys, command):
+    """A mistyped --weights or --filter-weights path is named before any planning, whichever planner is asked for."""
+    for option in ("--weights", "--filter-weights"):
+        if option == "--filter-weights" and "dqn" in command:
+            continue  # dqn takes no filter weights: refused for that, below
+        assert main([*command, option, str(tmp_path / "missing.ckpt")]) == 2
+        err = capsys.readouterr().err.strip()
+        what = "weights" if option == "--weights" else "filter weights"
+        assert err == f"driveopt: error: {what} file {tmp_path / 'missing.ckpt'} does not exist"
+
+
+@pytest.mark.parametrize("command, name", [(["plan"], "bilevel"), (["plan", "--planner", "grid"], "grid"),
+                                           (["drive", "--planner", "bilevel"], "bilevel"),
+                                           (["drive", "--planner", "idm"], "idm")])
+def test_weights_for_a_planner_without_a_learned_prior_are_refused(tmp_path, capsys, command, name):
+    """bilevel's Gaussian prior (or grid's, or idm) reads no checkpoint: --weights is an error, not ignored."""
+    given = tmp_path / "given.ckpt"
+    given.write_bytes(b"weights")
+    assert main([*command, "--weights", str(given)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"driveopt: error: planner {name} takes no weights") and "\n" not in err
+    if name == "idm":
+        assert main([*command, "--filter-weights", str(given)]) == 2
+        assert "planner idm takes no filter weights" in capsys.readouterr().err

@@ -10,6 +10,7 @@ import pytest
 
 import driveopt
 from driveopt.controller import ControllerError
+from driveopt.drivers.base import WeightsError
 from driveopt.sim.road_frame import RoadFrameError
 
 README = Path(__file__).resolve().parents[2] / "README.md"
@@ -128,3 +129,43 @@ def test_act_before_reset_and_unknown_route_nodes_raise():
         driveopt.Controller().act(env)
     with pytest.raises(ControllerError, match="not in the env's lane graph"):
         driveopt.Controller(route=["0", "nowhere"]).reset(env, seed=0)
+
+
+def test_act_is_bound_to_the_env_and_the_episode_of_reset():
+    """The controller plans with the car, timing and warm start it read at reset: another env, or the same env reset
+    without controller.reset, is refused with what to call, rather than driven with the wrong ranges or plan."""
+    config = {**CONTINUOUS, "vehicles_count": 3}
+    first, other = driveopt.gym_make("highway-v0", config=config), driveopt.gym_make("highway-v0", config=config)
+    first.reset(seed=0)
+    other.reset(seed=1)
+    controller = driveopt.Controller("idm")
+    controller.reset(first, seed=0)
+    first.step(controller.act(first))
+    controller.act(first.unwrapped)  # the same env, unwrapped: still bound
+    with pytest.raises(ControllerError, match=r"another env .* call controller.reset\(env, seed\) with this env first"):
+        controller.act(other)
+    first.reset(seed=2)
+    with pytest.raises(ControllerError, match=r"reset since controller.reset.*after every env.reset\(\)"):
+        controller.act(first)
+    controller.reset(other, seed=1)
+    other.step(controller.act(other))
+    with pytest.raises(ControllerError, match="another env"):
+        controller.act(first)
+
+
+@pytest.mark.parametrize("planner, weights, message", [
+    ("cvae", "missing.ckpt", "weights file {tmp}/missing.ckpt does not exist"),
+    ("cvae", "folder.ckpt", "weights file {tmp}/folder.ckpt is not a regular file"),
+    ("bilevel", "given.ckpt", "planner bilevel takes no weights"),
+    ("idm", "given.ckpt", "planner idm takes no weights"),
+])
+def test_weights_that_are_not_a_file_or_not_used_are_refused_at_construction(tmp_path, planner, weights, message):
+    """A mistyped checkpoint, or one given to a planner whose prior is not learned, is refused before any episode
+    rather than ignored (bilevel would plan with its Gaussian prior as if the weights had been read)."""
+    (tmp_path / "given.ckpt").write_bytes(b"weights")
+    (tmp_path / "folder.ckpt").mkdir()
+    with pytest.raises(WeightsError) as raised:
+        driveopt.Controller(planner, weights=str(tmp_path / weights))
+    assert str(raised.value).startswith(message.format(tmp=tmp_path))
+    with pytest.raises(WeightsError, match=r"filter weights file .*missing.ckpt does not exist"):
+        driveopt.Controller("bilevel", config={"safety_filter": {"weights": str(tmp_path / "missing.ckpt")}})

@@ -90,6 +90,58 @@ def test_a_plan_that_cannot_finish_is_refused_before_compiling():
     assert "planning work per call" in errors[0] and "DRIVEOPT_ALLOW_LARGE=1" in errors[0]
 
 
+def test_obstacles_beyond_the_compile_limit_are_refused_in_one_line_before_planning():
+    """Each obstacle adds its own terms to the compiled program: 10^6 would never finish compiling, and 101 is past
+    the largest count measured (driveopt.config.MAX_OBSTACLES); both are refused before the prior or the compiler."""
+    statuses, errors = _cli_in_child(["plan", "--max-obstacles", "1000000", "--repeats", "0"],
+                                     ["plan", "--samples", "60", "--max-obstacles", "101", "--repeats", "0"])
+    assert statuses == [2, 2] and len(errors) == 2
+    for error, count in zip(errors, ("1e+06", "101")):
+        assert error.startswith(f"driveopt: error: obstacles a planning call is compiled for (max_obstacles) is {count}")
+        assert "above the limit of 100; set DRIVEOPT_ALLOW_LARGE=1 to run it anyway" in error
+
+
+def test_the_work_and_memory_estimates_count_the_obstacles(monkeypatch):
+    """A configuration within the limits at the default 10 obstacles is refused against more obstacles: its work
+    (samples x iterations x projection iterations x nodes) and its memory (samples x nodes) grow with them."""
+    from driveopt.config import PlannerConfig, check_obstacles, check_planning_size
+
+    monkeypatch.delenv("DRIVEOPT_ALLOW_LARGE", raising=False)
+    heavy = PlannerConfig().replace(sampler={"num_iterations": 50}, projection={"max_iterations": 1000})  # 5e9 at 10
+    wide = PlannerConfig().with_samples(100_000).replace(sampler={"num_iterations": 1},
+                                                         projection={"max_iterations": 1})  # 1e7 sample-nodes at 10
+    check_planning_size(heavy, 10)
+    check_planning_size(wide, 10)
+    with pytest.raises(ConfigError, match=r"planning work per call against 100 obstacles .* above the limit of 1e\+10"):
+        check_planning_size(heavy, 100)
+    with pytest.raises(ConfigError, match=r"planning memory per call against 30 obstacles .* above the limit of 2e\+07"):
+        check_planning_size(wide, 30)
+    monkeypatch.setenv("DRIVEOPT_ALLOW_LARGE", "1")
+    check_planning_size(heavy, 100)
+    check_planning_size(wide, 30)
+    check_obstacles(10**6)  # opted in: the check passes (nothing is planned here)
+
+
+def test_plan_refuses_a_problem_with_too_many_obstacles_without_compiling(monkeypatch):
+    import jax
+
+    from driveopt import planner
+    from driveopt.problem import build_problem
+
+    monkeypatch.setenv("DRIVEOPT_ALLOW_LARGE", "1")
+    problem = build_problem(load_scene("static-blockage"), max_obstacles=101)
+    monkeypatch.delenv("DRIVEOPT_ALLOW_LARGE")
+    with pytest.raises(ConfigError, match="compiled for .* is 101"):
+        build_problem(load_scene("static-blockage"), max_obstacles=101)
+
+    def compiled(*args, **kwargs):
+        raise AssertionError("plan compiled a call above the obstacle limit")
+
+    monkeypatch.setattr(planner, "exported_solve", compiled)
+    with pytest.raises(ConfigError, match="compiled for .* is 101"):
+        planner.plan(problem, key=jax.random.PRNGKey(0))
+
+
 def test_a_missing_problem_file_says_no_such_file_and_an_unknown_name_lists_the_builtins(tmp_path):
     with pytest.raises(ProblemError, match=r"nope\.json: no such file") as info:
         load_scene(tmp_path / "nope.json")

@@ -120,10 +120,19 @@ def test_p1_driver_predicts_neighbours_at_constant_velocity():
     np.testing.assert_allclose(build_problem(scene, braking_time=0.0).obstacle_x[0], rows["grid-p1"], rtol=1e-6)
 
 
-@pytest.mark.parametrize("field", ["warm_start", "fixed_batch", "learned_filter"])
+@pytest.mark.parametrize("field", ["warm_start", "fixed_batch", "learned_filter", "learned_prior"])
 def test_optimiser_spec_flags_must_be_bools(field):
     with pytest.raises(ConfigError, match=field):
         OptimiserSpec("x", "y", **{field: 1})
+
+
+def test_the_planners_that_take_weights_are_those_that_read_a_checkpoint():
+    """--weights is refused for the others (driveopt.drivers.base.check_given_weights): their priors read none."""
+    from driveopt.registry import list_planners
+
+    taking = {name for name in list_planners() if get_planner(name).takes_weights}
+    learned = {"cvae", "cvae-mix", "vqvae", "vqvae-filter", "vqvae-cem", "cvae-filter", "cvae-multipliers"}
+    assert taking == learned | {f"{name}-faithful" for name in learned - {"cvae-mix", "vqvae-cem"}} | {"dqn", "ppo"}
 
 
 @pytest.mark.parametrize("field", ["executes_infeasible", "braking_prediction", "approach_selection", "contact_guard"])

@@ -220,6 +220,7 @@ def test_ray_backend_without_ray_is_a_clear_error(tmp_path, monkeypatch):
     ({"duration": float("inf")}, "duration must be a finite number > 0"),
     ({"samples": 0}, "samples must be an integer >= 1"),
     ({"weights": "no/such/file.ckpt"}, "weights file no/such/file.ckpt does not exist"),
+    ({"weights": __file__}, "none of the planners grid, bilevel takes weights"),  # a file, but no planner reads it
     ({"config": {"cost": {"no_such_weight": 1.0}}}, "no_such_weight"),
 ])
 def test_invalid_options_are_refused_before_anything_is_written(tmp_path, options, match):

@@ -61,6 +61,22 @@ def test_discrete_action_env_is_rejected():
         BicycleModel.from_env(env)
 
 
+@pytest.mark.parametrize("simulation_hz, policy_hz, message", [
+    (10, 20, "policy_frequency (20 Hz) is above its simulation_frequency (10 Hz): the simulation frequency must be at "
+             "least the policy frequency"),
+    (15, 0, "policy_frequency must be a finite number > 0 Hz, got 0 (simulation_frequency 15 Hz, policy_frequency 0 Hz)"),
+])
+def test_frequencies_out_of_order_are_named(simulation_hz, policy_hz, message):
+    """A policy faster than the simulation holds each action for no simulation step: the error names both frequencies
+    and which must be the larger, not the model's derived fields."""
+    env = gym.make("highway-v0", config={"action": {"type": "ContinuousAction"}, "vehicles_count": 1,
+                                         "simulation_frequency": simulation_hz, "policy_frequency": policy_hz},
+                   disable_env_checker=True)
+    with pytest.raises(ControlError) as raised:
+        BicycleModel.from_env(env)
+    assert message in str(raised.value)
+
+
 @pytest.mark.parametrize("acceleration, steering", [(0.0, 0.0), (3.2, -0.3), (-5.0, math.pi / 4), (-1.7, 0.05)])
 def test_action_mapping_inverts_upstreams(empty_env, acceleration, steering):
     _, env = empty_env

@@ -25,7 +25,8 @@ def register(sub) -> None:
                    help="projection iterations (default: the planner's; 0: samples ranked unprojected)")
     p.add_argument("--seed", type=seed, default=0, help="PRNG seed")
     p.add_argument("--config", help="planner config JSON (nested sections: basis, qp, projection, sampler, cost)")
-    p.add_argument("--max-obstacles", type=positive_int, default=10, help="nearest neighbours considered")
+    p.add_argument("--max-obstacles", type=positive_int, default=10,
+                   help="nearest neighbours considered (at most 100, the compile limit, unless DRIVEOPT_ALLOW_LARGE=1)")
     p.add_argument("--repeats", type=non_negative_int, default=3, help="extra timed calls after the first (compile) call; 0: none")
     p.add_argument("--json", help="write the result as JSON here")
     p.add_argument("--plot", help="write a plot here (PNG, or PDF/SVG/... by extension)")
@@ -36,11 +37,15 @@ def register(sub) -> None:
 
 
 def _spec(args: argparse.Namespace):
-    """The planner's spec with the config file, --samples, --iterations and --projection-iterations applied."""
+    """The planner's spec with the config file, --samples, --iterations and --projection-iterations applied; WeightsError
+    for weights that are not a file or that the planner takes no use of."""
+    from driveopt.drivers.base import check_given_weights
     from driveopt.registry import get_optimiser
 
-    spec = get_optimiser(args.planner).with_weights(args.weights)
-    spec = spec.with_overrides(**config_overrides(args.config, args.filter_weights))
+    spec = get_optimiser(args.planner)
+    check_given_weights(spec, args.weights, args.filter_weights)
+    spec = spec.with_weights(args.weights).with_overrides(**config_overrides(args.config, args.filter_weights))
+    check_given_weights(spec, filter_weights=spec.filter_weights)  # or the --config file's safety_filter section
     spec = spec.with_samples(args.samples)
     if args.iterations is not None:
         spec = spec.with_overrides(sampler={"num_iterations": args.iterations})
@@ -53,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     import jax
     import numpy as np
 
-    from driveopt.config import to_dict
+    from driveopt.config import check_planning_size, to_dict
     from driveopt.planner import plan
     from driveopt.problem import build_problem
     from driveopt.scene import load_scene, scene_to_dict
@@ -66,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.problem)
     spec = _spec(args)
     config = spec.config
+    check_planning_size(config, args.max_obstacles)  # refused in one line before the prior is loaded or anything compiles
     prior = spec.prior(scene.road.num_lanes)
     safety_filter = spec.safety_filter(scene.road.num_lanes)
     problem = build_problem(scene, config.basis, args.max_obstacles, braking_time=spec.braking_time,

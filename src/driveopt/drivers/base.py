@@ -10,10 +10,12 @@ planner (``driveopt planners``) and makes a fresh driver for each episode.
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
+from driveopt.errors import DriveoptError
 from driveopt.planner import PlanResult
 from driveopt.problem import PlanningProblem
 from driveopt.scene import Scene
@@ -68,6 +70,12 @@ class DriverSpec:
         env with a task (:class:`driveopt.sim.perception.Task`): False by default."""
         return False
 
+    @property
+    def takes_weights(self) -> bool:
+        """Whether ``with_weights`` changes what it drives with (a learned prior's checkpoint, a policy file): False
+        by default, and for optimisers whose prior is not learned (``bilevel``'s Gaussian, the grids)."""
+        return False
+
     def driver(self) -> Driver:
         raise NotImplementedError
 
@@ -97,3 +105,34 @@ class DriverSpec:
 
     def with_latency(self, latency: Any) -> "DriverSpec":
         return self
+
+
+class WeightsError(DriveoptError):
+    """A weights file that is not a regular file, or weights given to a planner that takes none."""
+
+
+def check_weights_file(path: str | Path | None, what: str = "weights") -> None:
+    """WeightsError naming ``path`` unless it is None or a regular file: a checkpoint is read only when a driver is
+    reset, so a mistyped path would otherwise fail late, or never for a planner that reads no checkpoint."""
+    if path is None:
+        return
+    if not Path(path).exists():
+        raise WeightsError(f"{what} file {path} does not exist")
+    if not Path(path).is_file():
+        raise WeightsError(f"{what} file {path} is not a regular file")
+
+
+def check_given_weights(spec: DriverSpec, weights: str | Path | None = None,
+                        filter_weights: str | Path | None = None) -> None:
+    """WeightsError unless the weights a user gave for the one planner ``spec`` (the Controller, ``driveopt plan``,
+    ``driveopt drive``) are regular files it uses: ``weights`` for a planner that :attr:`~DriverSpec.takes_weights`,
+    ``filter_weights`` (a learned safety filter's checkpoint) for an optimiser. Weights a planner takes no use of are
+    refused, not ignored: a run without them is not the run asked for. (``bench`` applies one weights option to a list
+    of planners and refuses it only when none of them takes weights.)"""
+    check_weights_file(weights)
+    check_weights_file(filter_weights, "filter weights")
+    if weights is not None and not spec.takes_weights:
+        raise WeightsError(f"planner {spec.name} takes no weights (its prior is not learned): leave the weights out, "
+                           "or pick a learned planner (`driveopt planners`)")
+    if filter_weights is not None and not spec.is_optimiser:
+        raise WeightsError(f"planner {spec.name} takes no filter weights (it does not plan with the optimiser)")

@@ -154,6 +154,7 @@ class OptimiserSpec(DriverSpec):
     filter_weights: str | None = None  # learned safety filter checkpoint for any optimiser (default: none, or the shipped one)
     make_filter: FilterFactory | None = None  # a filter that comes with the prior's ``weights`` (cvae-multipliers:
     # the multiplier head of the same checkpoint); ``filter_weights`` replaces it with P2's learned filter
+    learned_prior: bool = False  # ``make_prior`` loads a learned checkpoint: ``weights`` names it (else no weights)
     method: Method = DRIVEOPT_METHOD  # how the planner ranks a batch, what rides in it, its fallback, its row sharing
     loop: ClosedLoop = DRIVEOPT_LOOP  # how the closed loop runs around the planner (the papers': PAPERS_LOOP)
     latency: Latency = Synchronous()  # how planning time delays a plan (driveopt.drivers.latency; default: the sim waits)
@@ -174,6 +175,10 @@ class OptimiserSpec(DriverSpec):
     @property
     def is_optimiser(self) -> bool:
         return True
+
+    @property
+    def takes_weights(self) -> bool:
+        return self.learned_prior
 
     def prior(self, lanes: int = 4) -> Any:
         """The first-iteration proposal for a road with ``lanes`` lanes (learned priors pick weights by it)."""

@@ -53,6 +53,11 @@ class RLSpec(DriverSpec):
         """The policy was trained on a driveopt scenario's observation, car and timing, for its lane count."""
         return True
 
+    @property
+    def takes_weights(self) -> bool:
+        """``weights`` is its policy file."""
+        return True
+
     def check(self, scenario: Scenario) -> None:
         self.policy(scenario)
 

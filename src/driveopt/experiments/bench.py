@@ -29,7 +29,7 @@ import numpy as np
 from tqdm import tqdm
 
 from driveopt.checks import check_count, check_number
-from driveopt.drivers.base import DriverSpec
+from driveopt.drivers.base import DriverSpec, check_weights_file
 from driveopt.drivers.latency import parse_latency
 from driveopt.errors import DriveoptError
 from driveopt.experiments.rollout import run_episode
@@ -57,7 +57,8 @@ from driveopt.solve_export import source_digest
 
 
 class BenchOptionError(DriveoptError):
-    """A bench option naming a file that does not exist (weights); ranges are ConfigErrors (driveopt.config)."""
+    """A bench option that cannot be used (a latency, an episode list, weights no planner takes); ranges are
+    ConfigErrors (driveopt.config), weights paths that are not files WeightsErrors (driveopt.drivers.base)."""
 
 
 CODE_DIGITS = 16  # hex digits of the source digest a record keeps
@@ -114,8 +115,9 @@ class BenchSpec:
         whose traffic seeds fall outside [0, MAX_ENV_SEED], an episode list with an index twice or outside
         ``episodes``, an unknown scenario or planner, a duration that is not a finite number > 0, samples that are not
         an integer >= 1, a latency that is not ``"measured"`` or a number of ms in [0, MAX_LATENCY_MS] (``"sync"`` is
-    left out of the options: :func:`bench_latency`), a weights file that does not exist, config overrides the planner config rejects, weights a
-        planner cannot use on a scenario's road (``DriverSpec.check``). Other options (those of a custom episode
+    left out of the options: :func:`bench_latency`), a weights file that does not exist, weights none of the planners
+        takes, config overrides the planner config rejects, weights a planner cannot use on a scenario's road
+        (``DriverSpec.check``). Other options (those of a custom episode
         function) pass unchecked."""
         for name, values in (("scenarios", self.scenarios), ("planners", self.planners), ("seeds", self.seeds)):
             if len(set(values)) < len(values):
@@ -128,8 +130,11 @@ class BenchSpec:
         if outside or len(set(self.episode_list)) < len(self.episode_list):
             raise BenchOptionError(f"episode list {list(self.episode_list)}: each episode once, from 0 to {self.episodes - 1} "
                                    "(--episodes)")
-        for name in self.planners:
-            spec = planner_spec(name, self.options)
+        specs = [planner_spec(name, self.options) for name in self.planners]
+        if self.options.get("weights") is not None and not any(spec.takes_weights for spec in specs):
+            raise BenchOptionError(f"weights {self.options['weights']}: none of the planners {', '.join(self.planners)} "
+                                   "takes weights (their priors are not learned); leave the weights out")
+        for spec in specs:
             for scenario in scenarios:
                 spec.check(scenario)
 
@@ -158,7 +163,8 @@ def check_seeds(seeds: tuple[int, ...], episodes: int) -> None:
 
 
 def check_options(options: dict[str, Any]) -> None:
-    """BenchOptionError or ConfigError for a bench option out of range or a weights file that does not exist."""
+    """BenchOptionError or ConfigError for a bench option out of range, WeightsError (driveopt.drivers.base) for a
+    weights path that is not a regular file, as everywhere weights are given."""
     duration, samples, weights = options.get("duration"), options.get("samples"), options.get("weights")
     if duration is not None:
         check_number("duration", duration, 0.0, low_open=True, unit="s")
@@ -167,8 +173,7 @@ def check_options(options: dict[str, Any]) -> None:
     if "latency" in options and bench_latency(options["latency"]) != options["latency"]:
         raise BenchOptionError(f"latency {options['latency']!r}: give \"measured\" or a number of ms, or leave the option "
                                "out for synchronous planning")
-    if weights is not None and not Path(weights).is_file():
-        raise BenchOptionError(f"weights file {weights} does not exist")
+    check_weights_file(weights)
 
 
 def bench_latency(latency: Any) -> str | float | None:

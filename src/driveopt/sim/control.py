@@ -28,6 +28,7 @@ the default ±pi/4 steering range.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -87,6 +88,7 @@ class BicycleModel:
         if getattr(action_type, "dynamical", False):
             raise ControlError("ContinuousAction(dynamical=True) uses BicycleVehicle, not the kinematic model inverted here")
         sim_hz, policy_hz = sim.config["simulation_frequency"], sim.config["policy_frequency"]
+        check_frequencies(sim_hz, policy_hz)
         return cls(
             length=float(sim.vehicle.LENGTH),
             acceleration_range=tuple(action_type.acceleration_range),
@@ -94,6 +96,20 @@ class BicycleModel:
             simulation_dt=1.0 / sim_hz,
             steps_per_action=int(sim_hz // policy_hz),
         )
+
+
+def check_frequencies(simulation_hz: Any, policy_hz: Any) -> None:
+    """ControlError naming both frequencies unless each is a finite number > 0 [Hz] and the simulation frequency is
+    at least the policy frequency: each action is held for ``simulation // policy`` simulation steps, which must be
+    at least one."""
+    for name, value in (("simulation_frequency", simulation_hz), ("policy_frequency", policy_hz)):
+        if not (isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value) and value > 0):
+            raise ControlError(f"the env's {name} must be a finite number > 0 Hz, got {value!r} (simulation_frequency "
+                               f"{simulation_hz!r} Hz, policy_frequency {policy_hz!r} Hz)")
+    if simulation_hz // policy_hz < 1:
+        raise ControlError(f"the env's policy_frequency ({policy_hz:g} Hz) is above its simulation_frequency "
+                           f"({simulation_hz:g} Hz): the simulation frequency must be at least the policy frequency, "
+                           "since each action is held for whole simulation steps")
 
 
 class Command(NamedTuple):
