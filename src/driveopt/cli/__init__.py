@@ -82,9 +82,9 @@ def _run_program() -> NoReturn:
     """The process as ``driveopt``: signal handling from the first line, one-line warnings, the command, then
     :func:`interrupts.exit_process`. Only the first signal raises (and only until :func:`interrupts.stop_raising`),
     so the outer ``except`` catches it wherever it lands, and nothing after can be interrupted."""
-    stop_cleanly_on_signals("driveopt")
     _one_line_warnings()
     try:
+        stop_cleanly_on_signals("driveopt")  # its last step sets the handlers: a signal from then on is caught here
         status = _status_of_command(sys.argv[1:])
         interrupts.stop_raising()
     except KeyboardInterrupt as exc:  # the signal, landing where the command's own handling could not catch it

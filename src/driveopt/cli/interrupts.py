@@ -104,9 +104,6 @@ def install(program: str) -> None:
     if threading.current_thread() is not threading.main_thread():
         return
     _state.program = program
-    # Also where the shell that started us ignored SIGINT (a background job of a script): Ctrl-C stops it too.
-    for signum in STOPPING_SIGNALS:
-        signal.signal(signum, _raise_in_main_thread)
     if _state.wake_fd is None:
         _state.wake_fd = _start_watchdog()
         _state.unraisable_hook = sys.unraisablehook
@@ -114,6 +111,10 @@ def install(program: str) -> None:
         atexit.register(_exit_with_signal_status)
         if hasattr(os, "register_at_fork"):
             os.register_at_fork(after_in_child=_uninstall_in_forked_child)
+    # Last, so that the first signal raises only once everything above is in place (the caller's ``try`` catches it).
+    # Also where the shell that started us ignored SIGINT (a background job of a script): Ctrl-C stops it too.
+    for signum in STOPPING_SIGNALS:
+        signal.signal(signum, _raise_in_main_thread)
 
 
 def _uninstall_in_forked_child() -> None:
