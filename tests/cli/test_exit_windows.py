@@ -187,6 +187,26 @@ def test_a_command_that_finishes_exits_with_its_status_and_no_pause_line_by_defa
     assert len(proc.stderr.splitlines()) == 1
 
 
+def test_each_warning_of_a_command_is_one_line():
+    # three lanes: no CVAE weights are shipped for them, so the planner warns and plans from the Gaussian start
+    proc = subprocess.run([sys.executable, "-m", "driveopt.cli", "plan", "--problem", "slow-leader-three-lane",
+                           "--planner", "cvae", "--samples", "16", "--repeats", "0"],
+                          capture_output=True, text=True, timeout=REACH_S, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stderr.splitlines() == [
+        "driveopt: warning: no CVAE weights shipped for 3-lane roads: using the Gaussian start instead"]
+
+
+def test_the_warning_format_is_the_programs_not_a_callers():
+    import warnings
+
+    from driveopt.cli import main
+
+    plain = warnings.formatwarning
+    assert main(["problems"]) == 0
+    assert warnings.formatwarning is plain
+
+
 # ---- the slow runs: REPEATS signals per window and command ----
 
 @pytest.mark.slow
