@@ -7,7 +7,14 @@ checkpoint) print one line ``driveopt: error: ...`` on stderr and exit with stat
 ``driveopt: interrupted`` (and what the command kept, when it says) and exits with status 130, SIGTERM
 ``driveopt: terminated`` the same way with status 143, within two seconds whatever the command is doing
 (:mod:`driveopt.cli.interrupts`); a reader of stdout that goes away (``driveopt plan | head -1``) ends it
-quietly with status 141; any other exception is a bug and keeps its traceback.
+quietly with status 141; any other exception is a bug and keeps its traceback (status 1). Every warning is one line
+``driveopt: warning: ...``.
+
+Run as the program (``main()`` without arguments: the ``driveopt`` script, ``python -m driveopt.cli``), ``main``
+does not return: it ends the process itself (:func:`driveopt.cli.interrupts.exit_process`), so that a signal at any
+moment from its first line to the last output ends it with 130 / 143 and the one line, never with Python's default
+handling or a crash in the interpreter's teardown. Called with arguments (``main(["plan", ...])``, from Python) it
+returns the status and leaves the warnings' format alone.
 
 ``driveopt --help``, each command's ``--help`` and the listings (``scenarios``, ``planners``, ``problems``) import
 neither JAX nor highway-env nor Flax: every command module imports them inside its run function. Commands that
@@ -22,6 +29,7 @@ import signal
 import sys
 import warnings
 from collections.abc import Sequence
+from typing import NoReturn
 
 from driveopt.cli import (
     bench,
@@ -40,7 +48,6 @@ from driveopt.cli import (
 )
 from driveopt.cli.common import UsageError
 from driveopt.cli.parser import OneLineArgumentParser
-from driveopt.compilation_cache import CacheSetupWarning
 from driveopt.errors import DriveoptError
 
 __all__ = ["UsageError", "build_parser", "main"]
@@ -64,10 +71,49 @@ def stop_cleanly_on_signals(program: str | None = None) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command ``argv`` and return its status; without ``argv``, run the command line's and end the process
+    with its status (see the module docstring)."""
+    if argv is None:
+        _run_program()
+    return _run_command(argv)
+
+
+def _run_program() -> NoReturn:
+    """The process as ``driveopt``: signal handling from the first line, one-line warnings, the command, then
+    :func:`interrupts.exit_process`. Only the first signal raises (and only until :func:`interrupts.stop_raising`),
+    so the outer ``except`` catches it wherever it lands, and nothing after can be interrupted."""
+    _one_line_warnings()
+    try:
+        stop_cleanly_on_signals("driveopt")  # its last step sets the handlers: a signal from then on is caught here
+        status = _status_of_command(sys.argv[1:])
+        interrupts.stop_raising()
+    except KeyboardInterrupt as exc:  # the signal, landing where the command's own handling could not catch it
+        status = _interrupted(_first_line(exc))
+    interrupts.exit_process(status)
+
+
+def _status_of_command(argv: Sequence[str]) -> int:
+    """:func:`_run_command`'s status, with what would otherwise leave the process by Python's exit turned into one:
+    ``SystemExit`` (``--help``, a usage error) its code, a bug its traceback and 1."""
+    try:
+        status = _run_command(argv)
+    except SystemExit as exc:
+        if exc.code is None or isinstance(exc.code, int):
+            return exc.code or 0
+        print(exc.code, file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        raise
+    except BaseException:
+        sys.excepthook(*sys.exc_info())
+        return 1
+    return 0 if status is None else status
+
+
+def _run_command(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     stop_cleanly_on_signals("driveopt")
-    _one_line_cache_warnings()
     try:
         status = args.func(args)
         sys.stdout.flush()  # here, where a reader that went away can still be told from a bug
@@ -85,17 +131,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     return status
 
 
-def _one_line_cache_warnings() -> None:
-    """An unusable compilation-cache folder (:mod:`driveopt.compilation_cache`) is reported as one line
-    ``driveopt: warning: ...``; other warnings keep Python's format."""
-    plain = warnings.formatwarning
+def _one_line_warnings() -> None:
+    """In the ``driveopt`` process only: every warning printed as one line ``driveopt: warning: MESSAGE`` (the
+    message's lines joined), without Python's file, line number, category and source line, which speak to a
+    developer rather than to the user of a command."""
+    warnings.formatwarning = _format_warning
 
-    def format_warning(message, category, filename, lineno, line=None):
-        if issubclass(category, CacheSetupWarning):
-            return f"driveopt: warning: {message}\n"
-        return plain(message, category, filename, lineno, line)
 
-    warnings.formatwarning = format_warning
+def _format_warning(message, category, filename, lineno, line=None) -> str:
+    text = " ".join(part.strip() for part in str(message).splitlines() if part.strip())
+    return f"driveopt: warning: {text or category.__name__}\n"
 
 
 def _interrupted(detail: str) -> int:

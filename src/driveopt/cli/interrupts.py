@@ -13,10 +13,34 @@ sets up three things:
   doing, ends the process if it still runs :data:`GRACE_S` later: it writes ``PROGRAM: interrupted`` (or
   ``terminated``) unless the command has, flushes the output and calls ``os._exit``.
 
-Once a signal has arrived the process ends with status 128 + its number (130, 143) even where a command returned
-normally, through ``os._exit`` from the exit handler :func:`install` registers: exit handlers registered later (Ray's
-shutdown) still run, but not the rest of the interpreter's teardown, which can crash after XLA was stopped
-mid-compilation.
+How the process ends (:func:`exit_process`, which ``driveopt`` calls once its command has returned, whatever the
+outcome). Python's own exit is not safe from signals: after the exit handlers its finalisation gives the signals
+their default action back (a signal there kills the process, with no line and status -2 / -15 seen by the caller),
+and the exit handlers run in the reverse order of registration, so JAX's (registered when JAX is imported, after
+:func:`install`) runs before driveopt's and can crash (a segmentation fault that pygame's parachute turns into an
+abort, status 134) after a signal stopped XLA mid-compilation. So the process is ended with ``os._exit`` and never
+reaches that teardown:
+
+* from the moment the command has returned (:func:`stop_raising`) a stopping signal no longer raises: the watchdog
+  writes the line and ends the process at once with 128 + its number, whatever the main thread is doing;
+* without a signal, :func:`exit_process` does what Python's exit would do before its teardown, in the same order
+  (the threads' exit hooks and a join of the non-daemon threads, then every exit handler: JAX's, Ray's, logging's,
+  temporary files), with the handlers above still in force, then flushes the output and calls ``os._exit(status)``;
+* after a signal, it runs no exit handler but Ray's shutdown (when Ray is initialised: a cluster is told that this
+  driver has gone; a local instance is already stopped by the runner), since the others are what can crash or hang
+  once a compilation was cut short, then flushes and calls ``os._exit(128 + signum)``, within the watchdog's
+  :data:`GRACE_S` of the signal.
+
+Other entry points (benchmark scripts calling :func:`install`, a Python caller of ``driveopt.cli.main``) leave by
+Python's exit: the exit handler :func:`install` registers is moved to the front when the first signal arrives, so it
+runs before JAX's and ends the process the same way (Ray's shutdown, the line, ``os._exit(128 + signum)``).
+
+The one window not covered is the interpreter's start and the import of :mod:`driveopt.cli` (about 0.2 s), before
+``main`` calls :func:`install`: a signal there meets Python's default handling.
+
+For tests, ``DRIVEOPT_EXIT_PAUSE_S=SECONDS`` makes :func:`exit_process`, once the command has returned and its output
+is flushed, write ``PROGRAM: pausing before exit (DRIVEOPT_EXIT_PAUSE_S)`` on stderr and wait that long as the first
+exit handler, so that a test can aim a signal at the end of a command; unset (the default) it does nothing.
 
 A reader of stdout that goes away (``driveopt plan | head -1``) ends a command quietly with status 141, the status
 a shell reports for a process that SIGPIPE stopped (:func:`stdout_closed`).
@@ -33,6 +57,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import NoReturn
 
 GRACE_S = 1.2  # [s] from the signal to the forced exit, when the process has not ended by then (2 s in all, loaded)
 REDELIVER_S = 0.01  # [s] from a dropped exception to the signal's next delivery: the dropping callback has returned
@@ -42,6 +67,7 @@ BROKEN_PIPE_STATUS = 128 + signal.SIGPIPE
 WAKE = b"\0"  # what wakes the watchdog to look at the state (signals write their own number)
 WORDS = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
 NEVER = float("inf")
+EXIT_PAUSE_ENV = "DRIVEOPT_EXIT_PAUSE_S"
 
 
 class Terminated(KeyboardInterrupt):
@@ -59,6 +85,9 @@ class _State:
         self.redeliver_at = NEVER  # time.monotonic() at which the watchdog delivers the signal again
         self.raised = False  # the handler's exception is on its way (not dropped)
         self.announced = False  # the one line has been written
+        self.ending = False  # the command has returned: a signal now ends the process at once (stop_raising)
+        self.exit_handler_first = False  # _exit_with_signal_status has been moved to the front of the exit handlers
+        self.end_lock = threading.Lock()  # taken by whoever ends the process, never released: one line, one exit
         self.wake_fd: int | None = None  # the write end of the watchdog's pipe (also the wakeup descriptor)
         self.unraisable_hook = sys.unraisablehook  # the hook :func:`install` replaced
 
@@ -75,9 +104,6 @@ def install(program: str) -> None:
     if threading.current_thread() is not threading.main_thread():
         return
     _state.program = program
-    # Also where the shell that started us ignored SIGINT (a background job of a script): Ctrl-C stops it too.
-    for signum in STOPPING_SIGNALS:
-        signal.signal(signum, _raise_in_main_thread)
     if _state.wake_fd is None:
         _state.wake_fd = _start_watchdog()
         _state.unraisable_hook = sys.unraisablehook
@@ -85,6 +111,10 @@ def install(program: str) -> None:
         atexit.register(_exit_with_signal_status)
         if hasattr(os, "register_at_fork"):
             os.register_at_fork(after_in_child=_uninstall_in_forked_child)
+    # Last, so that the first signal raises only once everything above is in place (the caller's ``try`` catches it).
+    # Also where the shell that started us ignored SIGINT (a background job of a script): Ctrl-C stops it too.
+    for signum in STOPPING_SIGNALS:
+        signal.signal(signum, _raise_in_main_thread)
 
 
 def _uninstall_in_forked_child() -> None:
@@ -98,6 +128,35 @@ def _uninstall_in_forked_child() -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     sys.unraisablehook = _state.unraisable_hook
     _state = _State()
+
+
+def stop_raising() -> None:
+    """The command has returned: from now on a stopping signal raises nothing, and the watchdog ends the process at
+    once (the line, status 128 + its number). A signal already received keeps its course (its deadline)."""
+    with _state.lock:  # against the watchdog's _note: the deadline follows from the state it finds
+        _state.ending = True
+
+
+def exit_process(status: int) -> NoReturn:
+    """End this process with ``status`` (or 128 + the stopping signal received), never through Python's teardown.
+
+    Without a signal: the threads' exit hooks, the join of non-daemon threads and every exit handler, as Python's
+    exit runs them, then the output flushed and ``os._exit``. After a signal: Ray's shutdown only (when Ray is
+    initialised), the line unless written, the output flushed and ``os._exit``. Signals are handled throughout: one
+    arriving now ends the process at once with its status (see the module docstring). Call it from the main thread
+    once the command has returned, after :func:`stop_raising` (which it calls too).
+    """
+    stop_raising()
+    if stop_status() is None:
+        pause = os.environ.get(EXIT_PAUSE_ENV)
+        if pause:
+            atexit.register(_pause_before_exit, float(pause))  # the last registered runs first
+        _flush_streams()
+        threading._shutdown()  # what Python's exit does first: threading's exit hooks, the non-daemon threads joined
+        atexit._run_exitfuncs()  # then the exit handlers (it empties their list)
+    if stop_status() is not None:
+        _shutdown_ray()
+    _end_process(status)
 
 
 def stop_status() -> int | None:
@@ -153,19 +212,24 @@ def _claim_line(detail: str) -> str | None:
 
 
 def _note(signum: int) -> None:
-    """Keep ``signum`` when it is the first stopping signal, and start the count to the forced exit."""
+    """Keep ``signum`` when it is the first stopping signal, and start the count to the forced exit: GRACE_S, or none
+    once the command has returned (nothing is left to unwind)."""
     with _state.lock:
         if _state.signum is None:
             _state.signum = signum
-            _state.deadline = time.monotonic() + GRACE_S
+            _state.deadline = time.monotonic() + (0.0 if _state.ending else GRACE_S)
 
 
 def _raise_in_main_thread(signum: int, frame) -> None:
     _note(signum)
     _wake_watchdog()  # it has heard already, unless another library took the wakeup descriptor
-    if _state.raised or _state.announced:
+    if _state.raised or _state.announced or _state.ending:
         return  # the first is unwinding, or the command has ended; the watchdog bounds how long either takes
     _state.raised = True
+    if not _state.exit_handler_first:  # here, in the main thread, never while the exit handlers run (ending)
+        _state.exit_handler_first = True
+        atexit.unregister(_exit_with_signal_status)
+        atexit.register(_exit_with_signal_status)  # the last registered runs first: before JAX's clean-up
     raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
@@ -216,19 +280,43 @@ def _watch(read_fd: int) -> None:
 
 def _force_exit() -> None:
     """From the watchdog: the line (unless written) and buffered output, then exit with the signal's status."""
+    _end_process(1)
+
+
+def _end_process(status: int) -> NoReturn:
+    """The line for the signal (unless written), the buffered output, then ``os._exit`` with the signal's status, or
+    ``status`` without a signal. The first caller (main thread or watchdog) ends the process; a second waits for it."""
+    _state.end_lock.acquire()
     line = _claim_line("")
     if line is not None and os.isatty(2):
         line = "\n" + line  # a progress bar may have left the cursor at the end of its line
     _finish_output(line)
-    os._exit(stop_status() or 1)
+    os._exit(stop_status() or status)
 
 
 def _exit_with_signal_status() -> None:
-    """At interpreter exit after a stopping signal: flush, and exit with its status without the teardown."""
-    status = stop_status()
-    if status is not None:
-        _finish_output(None)
-        os._exit(status)
+    """Exit handler, for entry points that leave by Python's exit: after a stopping signal, Ray's shutdown (when Ray
+    is initialised), the line unless written, the output flushed and ``os._exit`` with the signal's status, before
+    the other exit handlers and the interpreter's teardown can run."""
+    if stop_status() is not None:
+        _shutdown_ray()
+        _end_process(1)
+
+
+def _shutdown_ray() -> None:
+    """Disconnect from Ray (stopping a local instance) when this process initialised it; the watchdog bounds it."""
+    ray = sys.modules.get("ray")
+    try:
+        if ray is not None and ray.is_initialized():
+            ray.shutdown()
+    except Exception:  # noqa: BLE001 - a half-imported or failing Ray: the process ends all the same
+        pass
+
+
+def _pause_before_exit(seconds: float) -> None:
+    """The test hook of :data:`EXIT_PAUSE_ENV` (see the module docstring)."""
+    print(f"{_state.program}: pausing before exit ({EXIT_PAUSE_ENV})", file=sys.stderr, flush=True)
+    time.sleep(seconds)
 
 
 def _finish_output(line: str | None) -> None:
@@ -240,13 +328,17 @@ def _finish_output(line: str | None) -> None:
 
 
 def _flush_and_write(line: str | None) -> None:
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError, AttributeError):  # closed, a broken pipe, or no stream at all
-            pass
+    _flush_streams()
     if line is not None:
         try:
             os.write(2, (line + "\n").encode())
         except OSError:  # no stderr: the status still says it
+            pass
+
+
+def _flush_streams() -> None:
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):  # closed, a broken pipe, or no stream at all
             pass
