@@ -21,7 +21,7 @@ def test_both_sharings_plan_each_state_and_a_rerun_resumes(tmp_path, monkeypatch
     real = ab.planner.plan
 
     def recording_plan(problem, config, **kwargs):
-        calls.append((int(kwargs["key"][1]), type(kwargs["row_sharing"]).__name__))
+        calls.append((int(kwargs["key"][1]), type(kwargs["method"].row_sharing).__name__))
         return real(problem, config, **kwargs)
 
     monkeypatch.setattr(ab.planner, "plan", recording_plan)

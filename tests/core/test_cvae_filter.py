@@ -31,8 +31,8 @@ def test_cvae_filter_is_listed(capsys):
     assert "cvae-filter" in list_planners()
     assert main(["planners"]) == 0
     rows = capsys.readouterr().out.splitlines()
-    assert "P1's CVAE through P2's pipeline" in next(row for row in rows if row.startswith("cvae-filter "))
-    assert "P2's CVAE baseline" in next(row for row in rows if row.startswith("cvae-multipliers "))
+    assert "P1's CVAE through P2's pipeline" in next(row for row in rows if row.split()[:1] == ["cvae-filter"])
+    assert "P2's CVAE baseline" in next(row for row in rows if row.split()[:1] == ["cvae-multipliers"])
 
 
 def test_cvae_filter_differs_from_vqvae_only_in_the_prior(shipped_prior):

@@ -220,11 +220,25 @@ def _note(signum: int) -> None:
             _state.deadline = time.monotonic() + (0.0 if _state.ending else GRACE_S)
 
 
+def _importing(frame) -> bool:
+    """Whether ``frame`` or a frame that called it runs Python's import machinery."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
 def _raise_in_main_thread(signum: int, frame) -> None:
     _note(signum)
     _wake_watchdog()  # it has heard already, unless another library took the wakeup descriptor
     if _state.raised or _state.announced or _state.ending:
         return  # the first is unwinding, or the command has ended; the watchdog bounds how long either takes
+    if _importing(frame):
+        # An exception raised into a module's import can land inside a compiled extension's initialisation, which
+        # does not survive it (a segmentation fault while jax imported its extensions, in 6 of 16 signals sent just
+        # after the handlers were installed); no work is in flight while a module imports, so the process ends here.
+        _end_process(1)
     _state.raised = True
     if not _state.exit_handler_first:  # here, in the main thread, never while the exit handlers run (ending)
         _state.exit_handler_first = True
