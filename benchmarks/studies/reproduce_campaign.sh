@@ -1,30 +1,31 @@
 #!/usr/bin/env bash
-# The full protocols of `driveopt reproduce p1` and `p2`, run a slice at a time in priority order, into the committed
-# records under benchmarks/results/reproduction/{p1,p2}; then the reports over everything recorded, copied to
+# The reproduction campaign: decisions on the papers' claims bought cheapest first, into the committed records under
+# benchmarks/results/reproduction/{p1,p2}; then the reports over everything recorded, copied to
 # docs/reproduction/p1-claims.md and p2-claims.md (with their figures).
 #
-#   nohup bash benchmarks/studies/reproduce_campaign.sh [WORKERS] > LOG 2>&1 &     # run (or resume) the stages, then report
+#   nohup bash benchmarks/studies/reproduce_campaign.sh [WORKERS] > LOG 2>&1 &     # run (or resume) the steps, then report
 #   bash benchmarks/studies/reproduce_campaign.sh --report                          # only the reports
+#   HOURS=1 bash benchmarks/studies/reproduce_campaign.sh 2                         # each step's budget (default 2 h)
 #
-# Resumable: every stage is a `driveopt reproduce` run, which skips the episodes its folders hold, so rerunning this
-# script continues where it stopped (SIGTERM or Ctrl-C keep the finished episodes). A stage asks for the first N
-# episodes of each seed; later stages ask for more, so the headline comparisons reach two seeds first and every
-# row grows over sessions. Both protocols whole are some 600 hours of the 2-core machine (docs/reproduction/README.md:
-# P2's 1000-sample pipelines take about 3.5 min per episode with two workers); the stages below state their costs.
+# Each step is `driveopt reproduce PAPER --decide HOURS` on a slice of the claims: it runs the cheapest undecided claim
+# of `--plan` up to its next sequential look, plans again, and so on, so every claim stops at the look where its
+# O'Brien-Fleming boundary decides it. Resumable: the bench runs skip the episodes their folders hold, so rerunning
+# this script continues where it stopped (SIGTERM or Ctrl-C keep the finished episodes).
+# The steps, in order: P1 Fig. 7's dense roads with the faithful MPC-Bi-Level (`cvae-faithful`) against the authors'
+# MPC-Random, MPC-Grid and MPC-Vanilla (their faithful arms crash within seconds, so a pair is cheap), and driveopt's
+# rows of the same figure; P2 Fig. 9's rows with and without the filter and P2 Fig. 7's density 3, driveopt's
+# pipelines. Not yet: the faithful P2 pipelines and `batch-faithful`, whose set-up is still to follow the authors'
+# code (docs/findings/p2-faithful-collisions.md); their decisive runs start once it does, on one code version.
 # One code version for every session: the episodes run the sources of commit CODE (a git worktree beside the
 # checkout), whose digest every record names and each report states; the reports are written by this checkout. When
 # the planning code changes its numbers, set CODE to the new commit and remove the records of the planners it changes
-# (they run again); records of the others stay, and a report that mixes digests says so. The first records ran
-# d621f34 (digest 7fba4df190b7d8b7); 75e44b5 changed `grid` (its records were rerun), 4d346d3 the P1 `*-faithful`
-# planners, baa1d47 `vanilla` (theirs were rerun); the other planners plan the same in all of them (0e4321d shares an
-# arm's bench folder among the figures that compare it: `driveopt reproduce` merged the earlier per-figure folders);
-# be3fcc9 ships the four-lane learned filter retrained on the shipped VQ-VAE's samples (the `vqvae-filter` and
-# `vqvae-filter-faithful` records were removed and run again); 5124923 ships P2's baseline [5] (`cvae-multipliers`);
-# 3b2f12a records each episode's processor model (plan times are compared within one model).
+# (they run again); records of the others stay, and a report that mixes digests says so. Records before a22a706's ran
+# 3b2f12a and earlier (the reports name each digest); CODE plans every registered planner bit for bit as 3992e16
+# (benchmarks/results/closed-loop-ab/every-planner/), whose rounding differs from 3b2f12a's.
 # The body is one function, read whole before it runs, so editing this file never changes a campaign in flight.
 set -euo pipefail
 
-CODE=3b2f12a
+CODE=a22a706
 
 main() {
     repo=$(cd "$(dirname "$0")/../.." && pwd)
@@ -39,11 +40,11 @@ main() {
         *) workers=$1 ;;
     esac
 
-    stage() {  # PAPER EPISODES FIGURE [driveopt reproduce options]
-        local paper=$1 episodes=$2 figure=$3
-        shift 3
-        echo "== $paper $figure, $episodes episodes per seed: $*  ($(date -u +%H:%M))"
-        PYTHONPATH="$code_tree/src" python -m driveopt.cli reproduce "$paper" --figures "$figure" --episodes "$episodes" \
+    decide() {  # PAPER [driveopt reproduce options]: the cheapest decisions among those claims, for HOURS
+        local paper=$1
+        shift
+        echo "== $paper: deciding for ${HOURS:-2} h: $*  ($(date -u +%H:%M))"
+        PYTHONPATH="$code_tree/src" python -m driveopt.cli reproduce "$paper" --decide "${HOURS:-2}" \
             --workers "$workers" --out "$records/$paper" "$@"
     }
 
@@ -59,45 +60,14 @@ main() {
     }
 
     if [ "$report_only" = 0 ]; then
-        local p1_dense="four-lane-d3.0 two-lane-d2.5" p1_driveopt="bilevel random grid batch vanilla"
-        # First, the learned filter against the plain one on at least 150 pairs (the pooled question of the P2 report): P2
-        # Fig. 8b's 250-sample point, 75 episodes per seed (at 250 samples an episode costs about a quarter of one at
-        # 1000, about 46 s with two workers).
-        stage p2 75 fig8b --planners vqvae-filter vqvae --arm-samples 250
-        # Then one episode per seed of every P2 figure, so that every claim has a measured row: the retrained learned
-        # filter's and P2's baseline [5]'s arms have none yet (39 arms, 78 episodes; a 1000-sample episode takes a
-        # worker 4-7 min and two run at once: about 4 h).
-        for figure in fig7 fig9 fig8a fig8b; do stage p2 1 $figure; done
-        # The headline comparisons at 5 episodes per seed: P1 Fig. 7's dense roads, driveopt's rows (about 7 min per
-        # episode index of both seeds and roads), and P2 Fig. 7's density 3, driveopt's pipelines (about 3.5 min per
-        # episode).
-        stage p1 5 fig7 --scenarios $p1_dense --planners $p1_driveopt
-        stage p2 5 fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-multipliers cvae-filter
-        # One episode per seed of every P1 figure: P1's cheaper arms first, then the authors' MPC baselines at their
-        # 1000 samples x 100 iterations.
-        stage p1 1 fig7 --planners $p1_driveopt cvae-faithful
-        for figure in fig8 fig12 fig9 fig10; do stage p1 1 $figure; done
-        stage p1 1 fig7
-        for episodes in 5 10; do
-            # P2 Fig. 7, density 3: driveopt's pipelines, then the faithful ones.
-            stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-multipliers cvae-filter
-            stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter-faithful \
-                cvae-multipliers-faithful cvae-filter-faithful
-            # P1 Fig. 7, dense roads, driveopt's rows and the faithful MPC-Bi-Level.
-            stage p1 $episodes fig7 --scenarios $p1_dense --planners $p1_driveopt cvae-faithful
-        done
-        # The authors' MPC baselines at their 1000 samples x 100 iterations: 5-7 min per episode, about 4 h for 2
-        # episodes per seed on both dense roads.
-        stage p1 2 fig7 --scenarios $p1_dense
-        for episodes in 25 50; do
-            stage p1 $episodes fig7 --scenarios $p1_dense --planners $p1_driveopt cvae-faithful
-            stage p2 $episodes fig7 --scenarios p2-four-lane-d3.0
-        done
-        # Then every other figure at its full protocol.
-        stage p1 50 fig7
-        stage p2 50 fig7
-        for figure in fig8 fig9 fig10 fig12; do stage p1 50 $figure; done
-        for figure in fig8a fig8b fig9; do stage p2 50 $figure; done
+        local p1_dense="four-lane-d3.0 two-lane-d2.5"
+        # P1 Fig. 7's dense roads: the faithful MPC-Bi-Level against the authors' MPC-Random, MPC-Grid and MPC-Vanilla,
+        # then driveopt's rows.
+        decide p1 --figures fig7 --scenarios $p1_dense --planners cvae-faithful random-faithful grid-faithful vanilla-faithful
+        decide p1 --figures fig7 --scenarios $p1_dense --planners bilevel random grid batch vanilla
+        # P2 Fig. 9 (with and without the filter) and Fig. 7 at density 3, driveopt's pipelines.
+        decide p2 --figures fig9 --planners vqvae-filter cvae-multipliers cvae-filter
+        decide p2 --figures fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter vqvae cvae-multipliers cvae-filter
     fi
     report p1
     report p2
