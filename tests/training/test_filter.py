@@ -449,11 +449,12 @@ def test_plan_command_plans_with_a_filter_checkpoint(trained, tmp_path):
 
 
 def test_plan_and_bench_commands_refuse_a_missing_or_mismatched_filter_checkpoint(trained, tmp_path, capsys):
-    assert main(["plan", "--problem", "static-blockage", "--filter-weights", str(tmp_path / "missing.ckpt")]) == 2
-    assert "cannot read checkpoint" in capsys.readouterr().err
+    missing = str(tmp_path / "missing.ckpt")
+    assert main(["plan", "--problem", "static-blockage", "--filter-weights", missing]) == 2
+    assert capsys.readouterr().err == f"driveopt: error: filter weights file {missing} does not exist\n"
     # bench checks the filter of every optimiser before its folder is touched (and records it with the config).
     bench = ["bench", "--scenarios", "two-lane-d1.0", "--planners", "idm", "grid", "--episodes", "1", "--out", str(tmp_path / "b")]
-    assert main([*bench, "--filter-weights", str(tmp_path / "missing.ckpt")]) == 2
+    assert main([*bench, "--filter-weights", missing]) == 2
     assert "cannot read checkpoint" in capsys.readouterr().err and not (tmp_path / "b").exists()
     assert main([*bench, "--filter-weights", str(trained[0] / "filter.ckpt")]) == 2  # trained for four lanes
     assert "not this 2-lane road" in capsys.readouterr().err and not (tmp_path / "b").exists()
