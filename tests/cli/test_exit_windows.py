@@ -46,7 +46,8 @@ CRASH = re.compile("Fatal Python error|Traceback|Segmentation|core dumped|Except
 REPEATS = int(os.environ.get("DRIVEOPT_EXIT_REPEATS", "60"))
 PARALLEL = 3  # children at once in the slow tests
 
-PLAN = ["plan", "--problem", "static-blockage", "--samples", "20", "--repeats", "5"]
+PLAN = ["plan", "--problem", "static-blockage", "--samples", "20", "--repeats", "40"]  # repeats: a run window longer than the
+# largest delay a signal is sent after (0.2 s)
 SHORT_EPISODE = ["--scenarios", "two-lane-d1.0", "--episodes", "1", "--samples", "16", "--iterations", "1",
                  "--duration", "0.3"]
 COMMANDS = {
