@@ -242,18 +242,10 @@ def _mark(what: str) -> None:
 
 
 def _mark_the_planner_compilation() -> None:
-    """Mark the start of XLA's compilation of the planner (``jit_solve``, the long one of a first call)."""
-    from jax._src import compiler
-    from jax._src.lib.mlir import ir
+    """Mark the start of XLA's compilation of the planner (run as a child: ``planner_marks`` is this folder's)."""
+    from planner_marks import on_planner_compilation
 
-    compile_module = compiler.backend_compile_and_load
-
-    def marked(backend, module, *args, **kwargs):
-        if ir.StringAttr(module.operation.attributes["sym_name"]).value == "jit_solve":
-            _mark("compile")
-        return compile_module(backend, module, *args, **kwargs)
-
-    compiler.backend_compile_and_load = marked
+    on_planner_compilation(lambda: _mark("compile"))
 
 
 def _mark_the_first_plan() -> None:
