@@ -13,6 +13,7 @@ from driveopt.scene import load_scene
 from benchmarks.perf import row_sharing_ab as ab
 
 
+@pytest.mark.slow  # two planner graphs compiled for one benchmark script: benchmark-sized
 def test_both_sharings_plan_each_state_and_a_rerun_resumes(tmp_path, monkeypatch):
     spec = ab.get_optimiser("vqvae").with_samples(24)
     problem = build_problem(load_scene("dense-snapshot"), spec.config.basis)
