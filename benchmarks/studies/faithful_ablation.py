@@ -5,14 +5,19 @@ planner as it is and with one piece of driveopt's machinery given back at a time
         --seeds 42 123 --episodes 5 --out OUT.jsonl [--variants faithful stop-net ...] [--samples 1000] [--workers 2] \
         [--duration S] [--pairs SEED:EPISODE ...]
 
-Variants (each the ``*-faithful`` planner of ``driveopt.faithful`` with one change):
+Variants (each the ``*-faithful`` planner of ``driveopt.faithful``, or its scenario, with one change):
 - ``faithful``: as it is (the paper's ranking, the pick executed whatever its residual, no stop rows, no contact
   guard, constant-velocity prediction of the nearest neighbours);
-- ``stop-net``: driveopt's stop rows in every batch and its fallback (a stop executed when no plan is feasible);
-- ``feasibility-first``: driveopt's ranking (feasible plans first) instead of the paper's cost + residual;
-- ``prediction``: driveopt's neighbour prediction (braking neighbours keep braking; the neighbours closest within the
-  look-ahead rather than the nearest now);
-- ``contact-guard``: driveopt's brake-now guard at crawling speed.
+- one piece of driveopt's machinery given back: ``stop-net`` (driveopt's stop rows in every batch and its fallback,
+  a stop executed when no plan is feasible), ``feasibility-first`` (driveopt's ranking, feasible plans first),
+  ``prediction`` (braking neighbours keep braking; the neighbours closest within the look-ahead rather than the
+  nearest now), ``contact-guard`` (driveopt's brake-now guard at crawling speed);
+- one of P2's authors' settings (``VQOptMain``: ``inferenceJax3.py``, ``utils/config.py``, ``model/DOptimizerJax3.py``
+  and their highway-env copy): ``authors-command`` (the mean speed and steering of the plan's first eight nodes,
+  passed to the simulator unscaled: :class:`driveopt.drivers.commands.FirstNodesMean`), ``authors-start`` (every plan
+  starts at zero acceleration, lateral included), ``authors-25hz`` (their 25 Hz policy over a 100 Hz simulation),
+  ``authors-cars`` (their cars: 4.0 x 1.4 m, upstream's 5.0 x 2.0 m; every car, so also the traffic's gaps), and
+  ``authors`` (all of these, and their ego's kinematics: no slip angle, heading rate v tan(steering) / (L / 2)).
 
 Each episode is the bench episode of that seed and number (the same traffic for every variant, ``JobKey.env_seed``;
 ``--pairs``: only those seed and episode pairs), one JSON line per episode appended to ``--out`` as it ends: a rerun
@@ -31,7 +36,11 @@ import multiprocessing
 import sys
 from pathlib import Path
 
+import numpy as np
+from highway_env.vehicle.kinematics import Vehicle
+
 from driveopt.cli import stop_cleanly_on_signals
+from driveopt.drivers.commands import P2_AUTHORS_COMMAND
 from driveopt.cli.common import positive_int
 from driveopt.errors import DriveoptError
 from driveopt.experiments.rollout import Rollout
@@ -42,30 +51,94 @@ from driveopt.ranking import FeasibilityFirst
 from driveopt.registry import get_planner
 from driveopt.sim import get_scenario
 
+AUTHORS_CAR = (4.0, 1.4)  # [m] length, width of every car in P2's authors' highway-env copy (vehicle/kinematics.py)
+AUTHORS_TIMING = {"policy_frequency": 25, "simulation_frequency": 100}  # [Hz] their utils/config.py
+
+
+@dataclasses.dataclass(frozen=True)
+class Variant:
+    """What a variant changes: the planner's method, loop and maths sections, the scenario's fields, and the cars."""
+
+    method: dict = dataclasses.field(default_factory=dict)
+    loop: dict = dataclasses.field(default_factory=dict)
+    maths: dict = dataclasses.field(default_factory=dict)  # PlannerConfig sections
+    scenario: dict = dataclasses.field(default_factory=dict)
+    cars: bool = False  # every car AUTHORS_CAR
+    ego_kinematics: bool = False  # the ego moves as the authors' copy moves it (AuthorsEgo)
+
+
 VARIANTS = {
-    "faithful": ({}, {}),  # (the method's fields, the loop's fields) given back
-    "stop-net": ({"fallback": Fallback()}, {"executes_infeasible": False}),
-    "feasibility-first": ({"ranking": FeasibilityFirst()}, {}),
-    "prediction": ({}, {"braking_prediction": True, "approach_selection": True}),
-    "contact-guard": ({}, {"contact_guard": True}),
+    "faithful": Variant(),
+    "stop-net": Variant(method={"fallback": Fallback()}, loop={"executes_infeasible": False}),
+    "feasibility-first": Variant(method={"ranking": FeasibilityFirst()}),
+    "prediction": Variant(loop={"braking_prediction": True, "approach_selection": True}),
+    "contact-guard": Variant(loop={"contact_guard": True}),
+    "authors-command": Variant(loop={"command": P2_AUTHORS_COMMAND}),
+    "authors-start": Variant(loop={"measured_start": False}, maths={"qp": {"initial_lateral_acceleration": True}}),
+    "authors-25hz": Variant(scenario=AUTHORS_TIMING),
+    "authors-cars": Variant(cars=True),
+    "authors": Variant(loop={"command": P2_AUTHORS_COMMAND, "measured_start": False},
+                       maths={"qp": {"initial_lateral_acceleration": True}}, scenario=AUTHORS_TIMING, cars=True,
+                       ego_kinematics=True),
 }
 
 
 def variant_spec(planner: str, variant: str, samples: int):
-    """The ``*-faithful`` ``planner`` with ``variant``'s piece of driveopt's machinery, at ``samples`` samples."""
+    """The ``*-faithful`` ``planner`` with ``variant``'s planner changes, at ``samples`` samples."""
     if not planner.endswith(SUFFIX):
         raise DriveoptError(f"--planner must be a faithful planner (a name ending in {SUFFIX}), got {planner}")
     spec = get_planner(planner)
-    method, loop = VARIANTS[variant]
-    return dataclasses.replace(spec, method=dataclasses.replace(spec.method, **method),
-                               loop=dataclasses.replace(spec.loop, **loop)).with_samples(samples)
+    change = VARIANTS[variant]
+    return dataclasses.replace(spec, method=dataclasses.replace(spec.method, **change.method),
+                               loop=dataclasses.replace(spec.loop, **change.loop),
+                               config=spec.config.replace(**change.maths)).with_samples(samples)
+
+
+class AuthorsEgo(Vehicle):
+    """The ego as P2's authors' highway-env copy moves it: no slip angle, heading rate v tan(steering) / (L / 2)."""
+
+    def step(self, dt: float) -> None:
+        self.clip_actions()
+        steering = self.action["steering"]
+        self.position += self.speed * np.array([np.cos(self.heading), np.sin(self.heading)]) * dt
+        if self.impact is not None:
+            self.position += self.impact
+            self.crashed = True
+            self.impact = None
+        self.heading += self.speed * np.tan(steering) / (self.LENGTH / 2) * dt
+        self.speed += self.action["acceleration"] * dt
+        self.on_state_update()
+
+
+class WithAuthorsCars:
+    """``driver`` on a road whose cars are the authors' (:data:`AUTHORS_CAR`), the ego moving as theirs if
+    ``ego_kinematics``: the cars are resized after the env's reset, before the driver reads them."""
+
+    def __init__(self, driver, ego_kinematics: bool) -> None:
+        self.driver, self.ego_kinematics = driver, ego_kinematics
+
+    def __getattr__(self, name: str):
+        return getattr(self.driver, name)
+
+    def reset(self, env, scenario, seed: int) -> None:
+        sim = env.unwrapped
+        length, width = AUTHORS_CAR
+        for vehicle in sim.road.vehicles:
+            vehicle.LENGTH, vehicle.WIDTH = length, width
+            vehicle.diagonal = float(np.hypot(length, width))
+        if self.ego_kinematics:
+            sim.vehicle.__class__ = AuthorsEgo
+        self.driver.reset(env, scenario, seed)
 
 
 def run_episode(scenario: str, planner: str, variant: str, samples: int, seed: int, episode: int,
                 duration: float | None = None) -> dict:
-    spec = variant_spec(planner, variant, samples)
-    rollout = Rollout(get_scenario(scenario), spec.driver(), JobKey(scenario, planner, seed, episode).env_seed,
-                      duration=duration)
+    change = VARIANTS[variant]
+    driver = variant_spec(planner, variant, samples).driver()
+    if change.cars:
+        driver = WithAuthorsCars(driver, change.ego_kinematics)
+    rollout = Rollout(get_scenario(scenario).replace(**change.scenario), driver,
+                      JobKey(scenario, planner, seed, episode).env_seed, duration=duration)
     for _ in rollout:
         pass
     done = rollout.episode
@@ -127,7 +200,7 @@ def main(argv=None) -> int:
     records = [r for r in records if r["planner"] == args.planner and r["scenario"] == args.scenario
                and r["samples"] == args.samples and r["duration"] == args.duration]
     done = {_key(r) for r in records}
-    todo = [(v, s, e) for s, e in pairs for v in args.variants if (v, s, e) not in done]
+    todo = [(v, s, e) for v in args.variants for s, e in pairs if (v, s, e) not in done]  # a variant's episodes together
     print(f"{len(todo)} episodes to run ({len(done)} in {out})", flush=True)
     stop_cleanly_on_signals()
     pool = concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn"))

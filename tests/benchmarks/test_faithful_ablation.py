@@ -7,7 +7,14 @@ import json
 
 import pytest
 
+import math
+
+import numpy as np
+
+from driveopt.drivers.commands import EXACT_TRACKING, P2_AUTHORS_COMMAND
 from driveopt.ranking import CostPlusResidual, FeasibilityFirst
+from driveopt.sim import get_scenario
+from driveopt.sim.env import make_env
 
 from benchmarks.studies import faithful_ablation as ablation
 
@@ -24,6 +31,39 @@ def test_each_variant_changes_only_its_piece():
     assert ablation.variant_spec("vqvae-faithful", "contact-guard", 100).loop.contact_guard
     predicted = ablation.variant_spec("vqvae-faithful", "prediction", 100)
     assert predicted.loop.braking_prediction and predicted.loop.approach_selection and not faithful.loop.braking_prediction
+
+    commanded = ablation.variant_spec("vqvae-faithful", "authors-command", 100)
+    assert commanded.loop.command is P2_AUTHORS_COMMAND and faithful.loop.command is EXACT_TRACKING
+    assert commanded.config == faithful.config and commanded.loop.measured_start
+    started = ablation.variant_spec("vqvae-faithful", "authors-start", 100)
+    assert not started.loop.measured_start and started.config.qp.initial_lateral_acceleration
+    assert not faithful.config.qp.initial_lateral_acceleration
+    everything = ablation.VARIANTS["authors"]
+    assert everything.cars and everything.ego_kinematics and everything.scenario == ablation.AUTHORS_TIMING
+
+
+def test_the_authors_cars_are_resized_and_their_ego_turns_without_slip():
+    class Recorder:
+        name = "recorder"
+
+        def reset(self, env, scenario, seed):
+            self.sizes = {(v.LENGTH, v.WIDTH, v.diagonal) for v in env.unwrapped.road.vehicles}
+
+    recorder = Recorder()
+    env = make_env(get_scenario("two-lane-d1.0"))
+    try:
+        env.reset(seed=3)
+        ablation.WithAuthorsCars(recorder, ego_kinematics=True).reset(env, None, 3)
+        assert recorder.sizes == {(4.0, 1.4, math.hypot(4.0, 1.4))}
+        ego = env.unwrapped.vehicle
+        assert isinstance(ego, ablation.AuthorsEgo)
+        ego.speed, ego.heading, start = 10.0, 0.0, ego.position.copy()
+        ego.act({"acceleration": 1.0, "steering": 0.1})
+        ego.step(0.01)
+        assert ego.heading == pytest.approx(10.0 * math.tan(0.1) / 2.0 * 0.01)  # L / 2 = 2 m
+        assert np.allclose(ego.position - start, [0.1, 0.0]) and ego.speed == pytest.approx(10.01)
+    finally:
+        env.close()
 
 
 def test_episodes_are_written_and_a_rerun_resumes(tmp_path, capsys):

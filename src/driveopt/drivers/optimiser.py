@@ -47,6 +47,7 @@ import numpy as np
 from driveopt.checks import check_count, check_types
 from driveopt.config import PlannerConfig
 from driveopt.drivers.base import Decision, DriverSpec
+from driveopt.drivers.commands import EXACT_TRACKING, ExactTracking, FirstNodesMean
 from driveopt.drivers.latency import Latency, Synchronous, parse_latency
 from driveopt.fallback import Fallback
 from driveopt.files import pytree_digest
@@ -55,7 +56,7 @@ from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, plan, previou
 from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
 from driveopt.sim.contact import guard
-from driveopt.sim.control import BicycleModel, Command, EgoKinematics, brake_at_least, ego_kinematics, predict, sample_trajectory, track
+from driveopt.sim.control import BicycleModel, Command, EgoKinematics, brake_at_least, ego_kinematics, predict, sample_trajectory
 from driveopt.sim.perception import Perception, RoadPreview, perceive
 from driveopt.sim.road_frame import RoadFrameError, slip_angle
 from driveopt.sim.scenarios import Scenario
@@ -66,6 +67,7 @@ MIN_PLANNING_CURVATURE = 0.02  # [1/m] path curvature a plan must keep on top of
 
 PriorFactory = Callable[[PlannerConfig, int, "str | None"], Any]  # (config, lanes, weights file) -> prior
 FilterFactory = Callable[[PlannerConfig, int, "str | None"], Any]  # (config, lanes, weights file) -> safety filter or None
+CommandRule = ExactTracking | FirstNodesMean  # (followed plan, elapsed [s], speed and heading, car model) -> Command
 
 
 def vehicle_acceleration(model: BicycleModel) -> float:
@@ -114,6 +116,8 @@ class ClosedLoop:
     approach_selection: bool = True  # plan against the neighbours closest within SELECTION_TIME (False: nearest now, P1)
     contact_guard: bool = True  # brake now when a command at crawling speed would take the ego's box within 0.1 m of a
     # car's and braking now would not (driveopt.sim.contact; not for drivers that execute infeasible plans, P1)
+    measured_start: bool = True  # a plan starts at the car's measured acceleration (False: at zero, P2's authors)
+    command: CommandRule = EXACT_TRACKING  # how the followed plan becomes the period's command (driveopt.drivers.commands)
 
     def __post_init__(self) -> None:
         check_types(self, "loop")
@@ -313,6 +317,8 @@ class OptimiserDriver:
         self.expected = self.spec.latency.periods(0.0, self.period)  # [policy periods] a call's expected compute time
 
     def _problem(self, scene: Any):
+        if not self.spec.loop.measured_start:
+            scene = dataclasses.replace(scene, ego=dataclasses.replace(scene.ego, ax=0.0, ay=0.0))
         return build_problem(scene, self.config.basis, ignore_followers=True, braking_time=self.spec.braking_time,
                              selection_time=self.spec.selection_time)
 
@@ -442,7 +448,7 @@ class OptimiserDriver:
         """(the command that tracks ``followed`` (:meth:`followed` of ``result`` in world coordinates) ``elapsed`` [s]
         after it was planned, whether the contact guard replaced it by braking now); ``tracking``: the ego's speed and
         world heading; ``perception``: the world now, read when the configuration guards."""
-        command = track(followed, elapsed, tracking, self.model)
+        command = self.spec.loop.command(followed, elapsed, tracking, self.model)
         if self._executes_chosen(result):  # P1: the chosen plan, feasible or not
             return command, False
         if result.status != PlanStatus.SUCCESS:  # executing the fallback: brake now, not after a ramp
