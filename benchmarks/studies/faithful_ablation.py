@@ -15,9 +15,10 @@ Variants (each the ``*-faithful`` planner of ``driveopt.faithful``, or its scena
 - one of P2's authors' settings (``VQOptMain``: ``inferenceJax3.py``, ``utils/config.py``, ``model/DOptimizerJax3.py``
   and their highway-env copy): ``authors-command`` (the mean speed and steering of the plan's first eight nodes,
   passed to the simulator unscaled: :class:`driveopt.drivers.commands.FirstNodesMean`), ``authors-start`` (every plan
-  starts at zero acceleration, lateral included), ``authors-25hz`` (their 25 Hz policy over a 100 Hz simulation),
+  starts at zero acceleration, lateral included), ``authors-ranking`` (their cost, its progress term gated by
+  exp(-2 residual): :class:`driveopt.ranking.P2AuthorsRanking`), ``authors-25hz`` (their 25 Hz policy over a 100 Hz simulation),
   ``authors-cars`` (their cars: 4.0 x 1.4 m, upstream's 5.0 x 2.0 m; every car, so also the traffic's gaps), and
-  ``authors`` (all of these, and their ego's kinematics: no slip angle, heading rate v tan(steering) / (L / 2)).
+  ``authors`` (all of these but the ranking, and their ego's kinematics: no slip angle, heading rate v tan(steering) / (L / 2)).
 
 Each episode is the bench episode of that seed and number (the same traffic for every variant, ``JobKey.env_seed``;
 ``--pairs``: only those seed and episode pairs), one JSON line per episode appended to ``--out`` as it ends: a rerun
@@ -47,7 +48,7 @@ from driveopt.experiments.rollout import Rollout
 from driveopt.experiments.store import JobKey
 from driveopt.faithful import SUFFIX
 from driveopt.fallback import Fallback
-from driveopt.ranking import FeasibilityFirst
+from driveopt.ranking import FeasibilityFirst, P2AuthorsRanking
 from driveopt.registry import get_planner
 from driveopt.sim import get_scenario
 
@@ -75,6 +76,7 @@ VARIANTS = {
     "contact-guard": Variant(loop={"contact_guard": True}),
     "authors-command": Variant(loop={"command": P2_AUTHORS_COMMAND}),
     "authors-start": Variant(loop={"measured_start": False}, maths={"qp": {"initial_lateral_acceleration": True}}),
+    "authors-ranking": Variant(method={"ranking": P2AuthorsRanking()}),
     "authors-25hz": Variant(scenario=AUTHORS_TIMING),
     "authors-cars": Variant(cars=True),
     "authors": Variant(loop={"command": P2_AUTHORS_COMMAND, "measured_start": False},

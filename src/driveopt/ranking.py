@@ -141,3 +141,38 @@ class P1AuthorsRanking(CostPlusResidual):
         return (self.speed_weight * norm(traj.vx - problem.v_des)
                 + P1_STEERING_WEIGHT * (norm(steering) + norm(jnp.diff(steering, axis=-1)))
                 + norm(jnp.maximum(jnp.abs(traj.heading) - P1_FREE_HEADING, 0.0)))
+
+
+P2_WHEEL_BASE = 2.875  # [m] P2's authors' steering angle: arctan(wheel base x curvature) (DOptimizerJax.py wheel_base)
+P2_STEERING_WEIGHT = 0.01  # [-] their weight of the steering norms and of the heading term
+
+
+@dataclass(frozen=True)
+class P2AuthorsRanking(CostPlusResidual):
+    """P2's ranking with its authors' cost (``compute_cost`` of VQOptMain's ``model/DOptimizerJax.py``): the score
+    ``r + exp(-gate r) c`` with ``c = progress_weight ||x - v_des T|| + 0.01 (||steering|| + ||steering differences||
+    + ||max(0, |heading| - 10°)||)``, norms over the plan's nodes, x the position along the road at each node, T the
+    horizon (a progress term: the further a plan gets, the lower), steering ``arctan(2.875 m x curvature)``.
+
+    The gate ``exp(-2 r)`` fades the cost of a row as its residual grows, so an all-infeasible batch picks the row
+    nearest the constraints rather than the one that gets furthest; the authors gate the progress term only, this
+    gates the whole cost (the steering and heading terms weigh 0.01 and change no pick measurably)."""
+
+    progress_weight: float = 1e-3  # [1/m] the authors' weight of ||x - v_des T||
+    gate: float = 2.0  # [-] the cost is weighed by exp(-gate x residual) (0: ungated, as their DOptimizerJax3.py)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_number("ranking.progress_weight", self.progress_weight, 0.0, MAX_WEIGHT)
+        check_number("ranking.gate", self.gate, 0.0, MAX_WEIGHT)
+
+    def driving_cost(self, traj, problem, terms, weights) -> jnp.ndarray:
+        norm = functools.partial(jnp.linalg.norm, axis=-1)
+        steering = jnp.arctan(P2_WHEEL_BASE * traj.curvature)
+        progress = norm(traj.x - problem.v_des * traj.t[..., -1:])
+        return (self.progress_weight * progress
+                + P2_STEERING_WEIGHT * (norm(steering) + norm(jnp.diff(steering, axis=-1))
+                                        + norm(jnp.maximum(jnp.abs(traj.heading) - P1_FREE_HEADING, 0.0))))
+
+    def score(self, cost: jnp.ndarray, residual: jnp.ndarray) -> jnp.ndarray:
+        return self.cost_weight * jnp.exp(-self.gate * residual) * cost + residual

@@ -28,7 +28,7 @@ from driveopt.priors.p1_authors import (
 )
 from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
-from driveopt.ranking import CostPlusResidual, FeasibilityFirst, P1AuthorsRanking
+from driveopt.ranking import CostPlusResidual, FeasibilityFirst, P1AuthorsRanking, P2AuthorsRanking
 from driveopt.row_sharing import EveryRow
 from driveopt.registry import REALTIME_SAMPLES, get_optimiser, get_planner, list_planners, planner_rows
 from driveopt.scene import load_scene
@@ -358,6 +358,32 @@ def test_p1_authors_ranking_is_their_cost_plus_the_residual():
     lane_change, straight = np.abs(heading).max(axis=1)
     assert lane_change > np.radians(10.0) and straight < 1e-3 and float(ranking.score(cost, 0.0)[0]) > 0.1
     assert float(ranking.score(jnp.asarray(cost), jnp.asarray(0.5))[1]) == pytest.approx(cost[1] + 0.5, rel=1e-6)
+
+
+def test_p2_authors_ranking_is_their_gated_cost_plus_the_residual():
+    """P2's authors' cost (DOptimizerJax.py compute_cost) against a direct computation on two trajectories; the gate
+    exp(-2 r) lets an all-infeasible pair be picked by residual, where the ungated cost picks the one that gets further."""
+    model = make_model()
+    problem = build_problem(load_scene("dense-snapshot"))
+    b_x, b_y = boundary_values(problem.init_x, problem.init_y, QPConfig())
+    setpoints = jnp.asarray([[20.0] * 4 + [0.0] * 4, [5.0] * 4 + [4.0] * 4])
+    traj = evaluate(model, solve_setpoint_qp(model, setpoints, b_x, b_y))
+    ranking = P2AuthorsRanking()
+    cost = np.asarray(ranking.driving_cost(traj, problem, None, None))
+    x, vx, vy, ax, ay = (np.asarray(a, np.float64) for a in (traj.x, traj.vx, traj.vy, traj.ax, traj.ay))
+    steering = np.arctan(2.875 * (vx * ay - vy * ax) / np.maximum(np.hypot(vx, vy), 1e-3) ** 3)
+    heading = np.arctan2(vy, vx)
+    horizon = np.asarray(traj.t, np.float64)[..., -1:]
+    expected = (1e-3 * np.linalg.norm(x - float(problem.v_des) * horizon, axis=1)
+                + 0.01 * (np.linalg.norm(steering, axis=1) + np.linalg.norm(np.diff(steering, axis=1), axis=1)
+                          + np.linalg.norm(np.maximum(np.abs(heading) - np.radians(10.0), 0.0), axis=1)))
+    np.testing.assert_allclose(cost, expected, rtol=1e-4, atol=1e-5)
+    assert cost[0] < cost[1]  # the faster plan gets further
+    residual = jnp.asarray([2.0, 1.9])
+    assert np.argmin(np.asarray(ranking.score(jnp.asarray(cost), residual))) == 1
+    ungated = P2AuthorsRanking(gate=0.0, progress_weight=1.0)
+    assert np.argmin(np.asarray(ungated.score(jnp.asarray(cost) * 1e3, residual))) == 0
+    assert float(ranking.score(jnp.asarray(cost), jnp.asarray(0.0))[0]) == pytest.approx(cost[0], rel=1e-6)
 
 
 @pytest.mark.parametrize("name", P2_FAITHFUL)
