@@ -67,6 +67,8 @@ class QPConfig:
     initial_acceleration: bool = True  # impose x''(0), y''(0); False when acceleration is a control input that can jump
     initial_lateral_acceleration: bool = False  # with initial_acceleration, also impose y''(0) (P1: true); the steering can jump
     terminal_position: bool = False  # also impose x(T) = x_f, y(T) = y_f (the goal-sampling baseline ``batch``)
+    terminal_longitudinal: bool = True  # with terminal_position, impose x(T) = x_f too; False: only y(T) = y_f, the
+    # speed tracked as a set-point (the authors' Batch-MPC, ``batch-faithful``: expert_batch.py's A_eq_x has no x(T) row)
 
     def __post_init__(self) -> None:
         check_types(self, "qp")
@@ -74,6 +76,8 @@ class QPConfig:
             value = getattr(self, name)
             require(0 <= value <= MAX_WEIGHT, f"qp.{name} must be in [0, {MAX_WEIGHT:g}], got {value:g}")
         require(self.w_smooth > 0, "qp.w_smooth must be > 0 (it keeps the QP strictly convex)")
+        require(self.terminal_position or self.terminal_longitudinal,
+                "qp.terminal_longitudinal = false needs qp.terminal_position = true (it only leaves out x(T) = x_f)")
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "QPConfig":

@@ -3,7 +3,8 @@
 driveopt's own planners (``bilevel``, ``grid``, ``vqvae-filter``, ...) carry its safety machinery; the faithful ones
 (``*-faithful``) leave all of it out and take every number from the paper, or where the paper is silent from its
 authors' public code: P1's ``MPC-Bi-Level`` (``main_bilevel.py``, ``main_baseline.py``, ``utils/env_config.py``,
-``expert_mpc/``) and P2's ``VQOptMain`` (``inferenceJax3.py``, ``utils/config.py``, ``model/DOptimizerJax.py``).
+``expert_mpc/``; its Batch-MPC expert, ``expert_mpc/expert_batch.py``, is published only in the same group's
+``DiffProj``) and P2's ``VQOptMain`` (``inferenceJax3.py``, ``utils/config.py``, ``model/DOptimizerJax.py``).
 
 Common to all of them (:func:`without_driveopt_machinery`: one ``dataclasses.replace`` of the spec's ``method``,
 ``loop`` and maths): the papers' method (:meth:`driveopt.method.Method.as_papers`: the paper's ranking, the residual
@@ -19,7 +20,9 @@ loops call the planner once per ``env.step`` for every method, at a 25 Hz policy
 15 s), so a plan lived 0.04-0.05 s. driveopt's scenarios step the policy at 10 Hz, so 0.1 s is the closest period.
 
 What is not carried (driveopt shares it between all planners): the authors' projection penalty weights (P1's
-baselines weigh the obstacle rows 100, its bi-level optimiser 1), acceleration bounds (driveopt caps every plan at
+baselines weigh the obstacle rows 100, its bi-level optimiser 1; ``projection.rho_obstacle`` could be set per planner,
+but on driveopt's projection 100 does not carry the experts' balance: docs/design.md, Batch-MPC), Batch-MPC's guessed
+projection starts (driveopt's projection starts from its target), acceleration bounds (driveopt caps every plan at
 what the simulated car can do), P2's three circles per car and its zero initial acceleration, the car's lateral
 acceleration imposed at a plan's start (:data:`FAITHFUL_MATHS`), and how a plan becomes a command. docs/design.md
 lists every choice.
@@ -32,7 +35,7 @@ import dataclasses
 from driveopt.config import PlannerConfig
 from driveopt.drivers.optimiser import ClosedLoop, OptimiserSpec
 from driveopt.priors.cvae import cvae_prior
-from driveopt.priors.p1_authors import FixedGaussian, LearnedStart, SpeedOffsetGrid, VanillaGuesses
+from driveopt.priors.p1_authors import BatchGoals, FixedGaussian, LearnedStart, SpeedOffsetGrid, VanillaGuesses
 from driveopt.qp import NUM_SEGMENTS
 from driveopt.ranking import CostPlusResidual, P1AuthorsRanking, Ranking
 
@@ -45,6 +48,7 @@ P1_RANKING_COST_WEIGHT = 1e-5  # [-] the -p1 baselines' weight of driveopt's cos
 # error) 1e-5 gives the driving cost the same small share, so the residual leads.
 P1_RANDOM_SPEED_WEIGHT = 1e-5  # [s/m] the authors' velocity_scaling: expert_random.py, expert_vanilla.py
 P1_GRID_SPEED_WEIGHT = 1e-2  # [s/m] expert_grid.py
+P1_BATCH_SPEED_WEIGHT = 1e-2  # [s/m] DiffProj's expert_mpc/expert_batch.py compute_cost (MPC-Bi-Level lacks the file)
 P1_BILEVEL_SPEED_WEIGHT = 1e-3  # [s/m] expert_bilevel.py
 SHRESTHA_COST_WEIGHT = 1e-3  # [-] [5]'s ranking: residual + 1e-3 x speed error (expert_cvae.py), on driveopt's cost
 P2_RANKING_COST_WEIGHT = 5e-3  # [-] P2's authors' code (DOptimizerJax.py compute_cost) ranks by residual + 1e-3 x
@@ -70,6 +74,11 @@ P1_CONSTRAINT_ELITES, P1_ELITES = 150, 50  # [-] P1 §V-A1; also expert_grid.py 
 P1_BILEVEL_ITERATIONS, P1_BILEVEL_PROJECTION = 5, 20  # [-] expert_bilevel.py maxiter_cem, maxiter
 P1_BASELINE_PROJECTION = 100  # [-] expert_grid.py, expert_random.py, expert_vanilla.py maxiter (one CEM iteration)
 P1_VANILLA_CONSTRAINT_ELITES = 300  # [-] expert_vanilla.py ellite_num_projection
+P1_BATCH_CONSTRAINT_ELITES = 100  # [-] DiffProj's expert_batch.py ellite_num_projection (its ellite_num, 50, is unused:
+# one CEM iteration, maxiter_cem = 1, picks the least cost among those)
+P1_BATCH_QP = {"terminal_position": True, "terminal_longitudinal": False, "w_lateral": 0.0}  # expert_batch.py's QP:
+# y(T) = y_f and y'(T) = 0 imposed, no x(T) row (A_eq_x: the initial state only), the goal speed tracked (rho_v = 1,
+# k_p_v = 20, smoothness 0.1: driveopt's w_speed, k_pv, w_smooth), no lateral tracking term in the y-axis cost
 P1_START_SPEED = 5.0  # [m/s] policy_bilevel.py: mean speed of the first call (a closed loop starts from the current one)
 P1_START_SPEED_VAR = (30.0,) * NUM_SEGMENTS  # [(m/s)^2] policy_bilevel.py diag_param
 P1_START_LATERAL_VAR = (30.0, 46.0, 46.0, 46.0)  # [m^2] policy_bilevel.py diag_param (the first offset's is 30)
@@ -127,7 +136,8 @@ def p1_planner(method: str, *, name: str, description: str) -> OptimiserSpec:
         "grid": (single, lambda *_: SpeedOffsetGrid(), False, P1_GRID_SPEED_WEIGHT),
         "vanilla": (single.replace(sampler={"num_constraint_elites": P1_VANILLA_CONSTRAINT_ELITES}),
                     lambda c, *_: VanillaGuesses(horizon=c.basis.horizon, v_max=c.projection.v_max), False, P1_RANDOM_SPEED_WEIGHT),
-        "batch": (single.replace(qp={"terminal_position": True}), lambda *_: SpeedOffsetGrid(), False, P1_GRID_SPEED_WEIGHT),
+        "batch": (single.replace(qp=P1_BATCH_QP, sampler={"num_constraint_elites": P1_BATCH_CONSTRAINT_ELITES}),
+                  lambda *_: BatchGoals(), False, P1_BATCH_SPEED_WEIGHT),
     }
     config, make_prior, warm_start, speed_weight = methods[method]
     spec = OptimiserSpec(method, description, config, make_prior, warm_start=warm_start, learned_prior=method == "cvae")

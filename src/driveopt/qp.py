@@ -62,6 +62,8 @@ def segment_matrix(num_nodes: int) -> np.ndarray:
 def equality_rows(basis: Basis, qp: QPConfig) -> tuple[np.ndarray, np.ndarray]:
     """Equality rows (A_x, A_y): initial x, x', x'' (and x(T)); initial y, y', y'', y'(T) (and y(T)).
 
+    x(T) and y(T) are rows when ``qp.terminal_position``; x(T) not when ``qp.terminal_longitudinal`` is False.
+
     The initial accelerations are left out when ``qp.initial_acceleration`` is False, the lateral one
     also when ``qp.initial_lateral_acceleration`` is False (:func:`imposed_accelerations`).
     """
@@ -69,7 +71,8 @@ def equality_rows(basis: Basis, qp: QPConfig) -> tuple[np.ndarray, np.ndarray]:
     rows_x = [basis.W[0], basis.Wd[0]] + ([basis.Wdd[0]] if impose_x else [])
     rows_y = [basis.W[0], basis.Wd[0]] + ([basis.Wdd[0]] if impose_y else []) + [basis.Wd[-1]]
     if qp.terminal_position:
-        rows_x.append(basis.W[-1])
+        if qp.terminal_longitudinal:
+            rows_x.append(basis.W[-1])
         rows_y.append(basis.W[-1])
     return np.stack(rows_x), np.stack(rows_y)
 
@@ -150,7 +153,8 @@ def boundary_values(
     init_x, init_y: (..., 3) position, velocity, acceleration at t = 0 (acceleration unused when
     ``qp.initial_acceleration`` is False).
 
-    goal: (..., 2) terminal (x_f, y_f) [m], required iff ``qp.terminal_position``.
+    goal: (..., 2) terminal (x_f, y_f) [m], required iff ``qp.terminal_position`` (x_f unused when
+    ``qp.terminal_longitudinal`` is False).
     """
     if qp.terminal_position != (goal is not None):
         raise ValueError("goal must be given exactly when qp.terminal_position is set")
@@ -164,7 +168,8 @@ def boundary_values(
     used_x, used_y = (3 if imposed else 2 for imposed in imposed_accelerations(qp))
     parts_x, parts_y = [init_x[..., :used_x]], [init_y[..., :used_y], zero]
     if goal is not None:
-        parts_x.append(goal[..., :1])
+        if qp.terminal_longitudinal:
+            parts_x.append(goal[..., :1])
         parts_y.append(goal[..., 1:2])
     return jnp.concatenate(parts_x, -1), jnp.concatenate(parts_y, -1)
 

@@ -294,8 +294,9 @@ PLANNER_ROWS: tuple[PlannerRow, ...] = (
     _row("vanilla-faithful", FAITHFUL, "MPC-Vanilla as P1's authors ran it: speed set-point v_des, 1000 lateral guesses "
          "(the least obstructed of 30000 smooth paths), one pass of 100 projection iterations, elites 300; "
          f"{_AUTHORS_P1}", _p1_faithful("vanilla")),
-    _row("batch-faithful", FAITHFUL, "Batch-MPC as P1's authors' MPC-Grid: goals (x_0 + v T, y_f) on grid-faithful's "
-         f"50 x 20 grid with terminal constraints, one pass of 100 projection iterations, elites 150; {_AUTHORS_P1}",
+    _row("batch-faithful", FAITHFUL, "Batch-MPC as its authors' expert_batch.py (published in DiffProj) ran it: 1000 "
+         "goals, 25 speeds on v_des +- 12 m/s tracked x 40 terminal lateral positions y(T) = y_f across the road (no "
+         f"x(T) constraint, no lateral tracking), one pass of 100 projection iterations, elites 100; {_AUTHORS_P1}",
          _p1_faithful("batch")),
     _row("vqvae-faithful", FAITHFUL, _p2_description("vqvae"), _p2_faithful("vqvae")),
     _row("vqvae-filter-faithful", FAITHFUL, _p2_description("vqvae-filter"), _p2_faithful("vqvae-filter")),

@@ -19,6 +19,7 @@ from driveopt.method import DRIVEOPT_METHOD, PAPERS_FALLBACK, Method
 from driveopt.planner import goal_from_setpoints, plan
 from driveopt.priors.grids import GoalGridPrior, GridPrior
 from driveopt.priors.p1_authors import (
+    BatchGoals,
     FixedGaussian,
     LearnedStart,
     SpeedOffsetGrid,
@@ -245,7 +246,7 @@ def test_faithful_planners_have_no_driveopt_machinery_and_replan_every_period(na
     ("random", 1, 100, 150, 1e-5),
     ("grid", 1, 100, 150, 1e-2),
     ("vanilla", 1, 100, 300, 1e-5),
-    ("batch", 1, 100, 150, 1e-2),
+    ("batch", 1, 100, 100, 1e-2),  # DiffProj's expert_batch.py (ellite_num_projection 100)
 ])
 def test_p1_faithful_budgets_are_the_authors(name, iterations, projection, elites, weight):
     s = get_optimiser(f"{name}-faithful")
@@ -263,7 +264,7 @@ def test_the_faithful_grid_is_the_authors_50_speeds_by_20_offsets():
     problem = build_problem(load_scene("dense-snapshot"))
     spec = get_optimiser("grid-faithful")
     prior = spec.prior(4)
-    assert isinstance(prior, SpeedOffsetGrid) and spec.prior(4) == get_optimiser("batch-faithful").prior(4)
+    assert isinstance(prior, SpeedOffsetGrid)
     p = np.asarray(prior.propose(problem, jax.random.PRNGKey(0), 1000).samples)
     assert p.shape == (1000, 8) and len({tuple(row) for row in p.round(4)}) == 1000
     np.testing.assert_array_equal(p[:, :4], p[:, :1].repeat(4, axis=1))  # every pair held over the horizon
@@ -277,6 +278,69 @@ def test_the_faithful_grid_is_the_authors_50_speeds_by_20_offsets():
     np.testing.assert_array_equal(p, q)  # a fixed grid
     fewer = np.asarray(prior.propose(problem, jax.random.PRNGKey(0), 100).samples)
     assert len(np.unique(fewer[:, 4].round(4))) == 20  # a smaller batch keeps evenly spread rows, every offset
+
+
+def test_the_faithful_batch_goals_are_the_authors_25_speeds_by_40_terminal_positions():
+    """DiffProj's expert_mpc/expert_batch.py (compute_projection): a product of 25 speeds on v_des +- 12 m/s and 40
+    terminal lateral positions on [y_lb, y_ub], terminal positions outermost, the same for every key."""
+    problem = build_problem(load_scene("dense-snapshot"))
+    prior = get_optimiser("batch-faithful").prior(4)
+    assert isinstance(prior, BatchGoals) and (prior.num_speeds, prior.num_terminal_offsets, prior.speed_spread) == (25, 40, 12.0)
+    proposal = prior.propose(problem, jax.random.PRNGKey(0), 1000)
+    p = np.asarray(proposal.samples, np.float64)
+    assert p.shape == (1000, 8) and len({tuple(row) for row in p.round(4)}) == 1000
+    np.testing.assert_array_equal(p[:, :4], p[:, :1].repeat(4, axis=1))  # the goal's speed in every quarter
+    np.testing.assert_array_equal(p[:, 4:], p[:, 4:5].repeat(4, axis=1))  # its terminal lateral position likewise
+    v_des, y_lb, y_ub = float(problem.v_des), float(problem.y_lb), float(problem.y_ub)
+    assert v_des >= 12.0  # no speed raised to 0: the support is the authors'
+    speeds = v_des + np.linspace(-12.0, 12.0, 25)
+    offsets = np.linspace(y_lb, y_ub, 40)
+    np.testing.assert_allclose(p[:, 0], np.tile(speeds, 40), atol=1e-4)  # speeds innermost, as their meshgrid
+    np.testing.assert_allclose(p[:, 4], np.repeat(offsets, 25), atol=1e-4)
+    # a uniform product: means at the centres, variances (range^2 (n + 1) / (12 (n - 1))), no correlation
+    mean, cov = np.asarray(proposal.mean, np.float64), np.asarray(proposal.cov, np.float64)
+    np.testing.assert_allclose(mean, [v_des] * 4 + [(y_lb + y_ub) / 2] * 4, atol=1e-4)
+    speed_var, offset_var = 24.0**2 * 26 / (12 * 24), (y_ub - y_lb) ** 2 * 41 / (12 * 39)
+    assert speed_var == pytest.approx(52.0)
+    jitter = np.eye(8) * 1e-3
+    expected = np.block([[np.full((4, 4), speed_var), np.zeros((4, 4))], [np.zeros((4, 4)), np.full((4, 4), offset_var)]])
+    np.testing.assert_allclose(cov, expected + jitter, rtol=1e-4, atol=1e-3)
+    # deterministic: the same goals for every key and every call
+    for key in (jax.random.PRNGKey(0), jax.random.PRNGKey(7)):
+        np.testing.assert_array_equal(np.asarray(prior.propose(problem, key, 1000).samples), np.asarray(proposal.samples))
+    fewer = np.asarray(prior.propose(problem, jax.random.PRNGKey(0), 100).samples)
+    assert len(np.unique(fewer[:, 4].round(4))) == 40  # a smaller batch keeps evenly spread goals, every position
+
+
+def test_the_faithful_batch_qp_imposes_the_terminal_lateral_position_only():
+    """expert_batch.py's QP: y(T) = y_f and y'(T) = 0 imposed, no x(T) row; x tracks the goal's speed, y has no
+    tracking term. The set-point QP of batch-faithful's configuration does the same."""
+    spec = get_optimiser("batch-faithful")
+    qp = spec.config.qp
+    assert qp.terminal_position and not qp.terminal_longitudinal and qp.w_lateral == 0.0
+    assert (qp.w_speed, qp.k_pv, qp.w_smooth) == (1.0, 20.0, 0.1)  # expert_batch.py rho_v, k_p_v, weight_smoothness
+    problem = build_problem(load_scene("static-blockage"), spec.config.basis)
+    p = spec.prior(4).propose(problem, jax.random.PRNGKey(0), 50).samples
+    goal = goal_from_setpoints(p, problem.init_x, spec.config.basis.horizon)
+    model = make_model(spec.config.basis, qp)
+    free_end = dataclasses.replace(qp, terminal_position=False, terminal_longitudinal=True)
+    assert model.A_x.shape[0] == make_model(spec.config.basis, free_end).A_x.shape[0]  # no x(T) row
+    b_x, b_y = boundary_values(problem.init_x, problem.init_y, qp, goal)
+    traj = evaluate(model, solve_setpoint_qp(model, p, b_x, b_y))
+    np.testing.assert_allclose(np.asarray(traj.y)[:, -1], np.asarray(goal[:, 1]), atol=1e-3)
+    np.testing.assert_allclose(np.asarray(traj.vy)[:, -1], 0.0, atol=1e-3)
+    # the speed is tracked, not the distance imposed: near the goal's speed by mid-horizon
+    mid = np.asarray(traj.vx)[:, 50]
+    np.testing.assert_allclose(mid, np.asarray(p[:, 0]), atol=0.5)
+
+
+def test_the_faithful_batch_plans_one_problem():
+    spec = get_optimiser("batch-faithful").with_samples(60).with_overrides(projection={"max_iterations": 5})
+    problem = build_problem(load_scene("dense-snapshot"), spec.config.basis)
+    result = plan(problem, spec.config, key=jax.random.PRNGKey(0), prior=spec.prior(), method=spec.method)
+    assert result.status != PlanStatus.NUMERICAL_ERROR
+    for arr in (*result.trajectory, result.coeffs, result.setpoints):
+        assert np.all(np.isfinite(arr))
 
 
 def test_spread_indices_cover_the_table_or_cycle_it():

@@ -307,8 +307,8 @@ FAITHFUL_BILEVEL_NOTE = ("P1's MPC-Bi-Level as its authors' main_bilevel.py runs
 FAITHFUL_MPC_NOTES = {  # P1 §V-A3's baselines as the authors' expert_mpc/ runs them; all: P1's ranking, a plan every 0.1 s
     "random": "1000 samples from N((v_des, y0), diag(16, 46)), 100 projection iterations, P1's ranking, a plan every 0.1 s",
     "grid": "the authors' 50 speeds x 20 offsets, 100 projection iterations, P1's ranking, a plan every 0.1 s",
-    "batch": ("goals on the authors' 50 x 20 grid (their Batch-MPC file is not public), 100 projection iterations, "
-              "P1's ranking, a plan every 0.1 s"),
+    "batch": ("the authors' expert_batch.py (published in DiffProj): 25 tracked speeds x 40 terminal lateral "
+              "positions as goals, 100 projection iterations, elites 100, P1's ranking, a plan every 0.1 s"),
     "vanilla": ("v_des only, the 1000 least obstructed of 30000 guesses, 100 projection iterations, P1's ranking, a "
                 "plan every 0.1 s"),
 }

@@ -9,8 +9,9 @@ demand (they need Flax). :mod:`driveopt.experiments.prior_metrics` measures any 
 """
 
 from driveopt.priors.grids import GoalGridPrior, GridPrior, VanillaPrior
-from driveopt.priors.p1_authors import FixedGaussian, SpeedOffsetGrid, VanillaGuesses
+from driveopt.priors.p1_authors import BatchGoals, FixedGaussian, SpeedOffsetGrid, VanillaGuesses
 from driveopt.sampler import GaussianPrior, Prior, Proposal, clip_setpoints, coherent_behaviours, default_mean, moments
 
 __all__ = ["Prior", "Proposal", "clip_setpoints", "default_mean", "moments", "GaussianPrior", "coherent_behaviours",
-           "GoalGridPrior", "GridPrior", "VanillaPrior", "FixedGaussian", "SpeedOffsetGrid", "VanillaGuesses"]
+           "GoalGridPrior", "GridPrior", "VanillaPrior", "FixedGaussian", "SpeedOffsetGrid", "VanillaGuesses",
+           "BatchGoals"]

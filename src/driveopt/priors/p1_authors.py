@@ -2,8 +2,11 @@
 ``expert_mpc/``), for the faithful planners of :mod:`driveopt.faithful`.
 
 - :class:`SpeedOffsetGrid`: MPC-Grid (``expert_grid.py``): 50 speeds on v_des +- 16 m/s x 20 lateral offsets
-  across the road, each pair held over the whole horizon (1000 rows). With ``QPConfig(terminal_position=True)``
-  the same rows are Batch-MPC's goals (x_f = x_0 + v T, y_f).
+  across the road, each pair held over the whole horizon (1000 rows).
+- :class:`BatchGoals`: Batch-MPC. Its expert is not in ``MPC-Bi-Level`` (``policy_batch.py`` imports
+  ``expert_mpc/expert_batch.py``); the same group's ``DiffProj`` publishes it (``compute_projection``): 25 desired
+  speeds on v_des +- 12 m/s x 40 terminal lateral positions on [y_lb, y_ub] (1000 goals), each speed tracked over the
+  whole horizon, each y_f imposed at its end (with ``QPConfig(terminal_position=True, terminal_longitudinal=False)``).
 - :class:`FixedGaussian`: one Gaussian over the eight set-points with a fixed covariance. MPC-Random
   (``policy_random.py``): mean v_des, variance 16 (m/s)^2 per speed, 46 m^2 per lateral offset, the same every call.
   MPC-Bi-Level (``policy_bilevel.py``): variances (30, 30, 30, 30) and (30, 46, 46, 46) around the mean its previous
@@ -63,6 +66,35 @@ class SpeedOffsetGrid:
         v_rows = jnp.repeat(v_grid.reshape(-1, 1), NUM_SEGMENTS, axis=1)
         y_rows = jnp.repeat(y_grid.reshape(-1, 1), NUM_SEGMENTS, axis=1)
         return jnp.concatenate([v_rows, y_rows], axis=1)
+
+    def propose(self, problem, key, num, warm_mean=None) -> Proposal:
+        rows = self.rows(problem)
+        samples = rows[spread_indices(rows.shape[0], num)]
+        return Proposal(samples, *moments(samples, COVARIANCE_JITTER))
+
+
+@pytree_dataclass
+class BatchGoals:
+    """Batch-MPC's goals (``DiffProj`` ``expert_mpc/expert_batch.py``, ``compute_projection``): ``num_speeds``
+    desired speeds [m/s] on [v_des - speed_spread, v_des + speed_spread] x ``num_terminal_offsets`` terminal lateral
+    positions y_f [m] on [y_lb, y_ub], a full product (25 x 40 = the expert's 1000 rows, terminal positions
+    outermost as its ``meshgrid``). A goal becomes set-points: its speed in every quarter, y_f in every quarter; the
+    planner imposes y(T) = y_f and tracks the speed (``QPConfig(terminal_position=True, terminal_longitudinal=False)``:
+    the expert has no x(T) row) and leaves y untracked before T (``qp.w_lateral = 0``: the expert's y-axis QP has no
+    tracking term), so only the last lateral set-point matters. Speeds below 0 are raised to 0 (the expert's never
+    are: it plans with v_des = 20 m/s); none is capped at v_max (the projection bounds the speed, as the expert's).
+
+    The expert also initialises its projection from 1000 guessed paths (``compute_traj_guess``, as MPC-Vanilla's:
+    :class:`VanillaGuesses`), paired with the goals by row; driveopt's projection starts from its target, so the
+    guesses are not carried."""
+
+    num_speeds: int = static(25)  # [-] expert_batch.py: linspace(v_des - v_pert, v_des + v_pert, 25)
+    num_terminal_offsets: int = static(40)  # [-] expert_batch.py: linspace(y_lane_lb, y_lane_ub, 40)
+    speed_spread: float = static(12.0)  # [m/s] expert_batch.py v_pert
+
+    def rows(self, problem: PlanningProblem) -> jnp.ndarray:
+        """(num_speeds * num_terminal_offsets, 8) set-points (v x 4 [m/s], y_f x 4 [m]), terminal positions outermost."""
+        return SpeedOffsetGrid(self.num_speeds, self.num_terminal_offsets, self.speed_spread).rows(problem)
 
     def propose(self, problem, key, num, warm_mean=None) -> Proposal:
         rows = self.rows(problem)
