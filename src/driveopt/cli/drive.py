@@ -28,7 +28,7 @@ def register(sub) -> None:
     p.add_argument("--filter-weights", help="learned safety-filter checkpoint for any optimiser (vqvae-filter: default the shipped one)")
     p.add_argument("--seed", type=seed, default=42, help="traffic and sampling seed")
     p.add_argument("--duration", type=duration, help="episode length [s] (default: the scenario's)")
-    p.add_argument("--samples", type=positive_int, help="samples per sampler iteration")
+    p.add_argument("--samples", type=positive_int, help="samples per sampler iteration (default: the planner's)")
     p.add_argument("--replan-every", type=positive_int, help="policy periods each plan is executed open-loop (P1: 5; default 1)")
     p.add_argument("--latency", type=latency, metavar="sync|measured|MS",
                    help="sync (default): the simulator waits for every plan; measured: the car keeps executing the "
