@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
             result = step.decision.result
             if writer is not None:  # the state the plan was made from, before the simulator steps
                 planned = step.decision if result is not None or planned is None else planned  # open-loop: the last plan
-                writer.append(render_decision(step.env, planned, planner=spec.name, v_des=scenario.v_des,
+                writer.append(render_decision(step.env, planned, planner=spec.name, v_des=scenario.v_des, v_des_source="scenario",
                                               config=getattr(rollout.driver, "config", None)))
             episode = step.episode
             if not episode.speeds:  # the first step came after compilation: time the rest from here
