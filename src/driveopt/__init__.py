@@ -4,15 +4,15 @@
     scene = load_scene("static-blockage")
     result = plan(build_problem(scene), PlannerConfig(), key=jax.random.PRNGKey(0), x_offset=scene.ego.x)
 
-``import driveopt`` registers the gymnasium ids ``driveopt/highway-v0``, ``driveopt/two-way-v0``, ``driveopt/merge-v0``
-and ``driveopt/driving-v0`` without importing gymnasium (:mod:`driveopt.gym_envs`).
+``import driveopt`` registers the gymnasium ids ``driveopt/highway-v0``, ``driveopt/two-way-v0``, ``driveopt/merge-v0``,
+``driveopt/driving-v0`` and ``driveopt/controlled-v0`` without importing gymnasium (:mod:`driveopt.gym_envs`).
 
 Where things live: the inputs (``config``, ``scene``, ``prediction``, ``problem``), the numerics (``basis``, ``qp``,
 ``projection``, ``costs``, ``sampler``), the planner's strategies (``ranking``, ``fallback``, ``row_sharing``, and
 ``method``: the three as one value), ``planner`` (``solve`` and ``plan``), the learned components (``learned/``,
 ``priors/``, ``safety/``; one row each in ``learned_kinds``), ``sim/`` (highway-env), ``drivers/`` and ``registry`` (who
 drives), ``training/``, ``experiments/``, ``controller`` (:class:`Controller`: a planner driving the user's own
-highway-env env), ``viz/`` and ``cli/``. The layer order, each part importing only parts of earlier layers, is written
+highway-env env; ``sb3``: it as a Stable-Baselines3 policy and gymnasium env), ``viz/`` and ``cli/``. The layer order, each part importing only parts of earlier layers, is written
 once, in :data:`driveopt.layers.LAYERS`.
 """
 
@@ -37,6 +37,7 @@ _EXPORTS = {
     "EgoState": "driveopt.scene", "Neighbour": "driveopt.scene", "ProblemError": "driveopt.scene", "Road": "driveopt.scene",
     "Scene": "driveopt.scene", "load_scene": "driveopt.scene",
     "Controller": "driveopt.controller", "RenderPlans": "driveopt.controller", "gym_make": "driveopt.sim.rewards",
+    "ControllerEnv": "driveopt.sb3", "ControllerPolicy": "driveopt.sb3", "NULL_POLICY": "driveopt.sb3",
 }
 __all__ = list(_EXPORTS)
 

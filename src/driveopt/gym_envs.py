@@ -3,6 +3,7 @@
     import gymnasium, driveopt
     env = gymnasium.make("driveopt/highway-v0", config={"action": {"type": "ContinuousAction"}})
     env = gymnasium.make("driveopt/driving-v0", scenario="four-lane-d1.0")   # the RL baselines' task
+    env = gymnasium.make("driveopt/controlled-v0", env="highway-v0", planner="bilevel")   # a controller drives it
 
 Registering an env in gymnasium needs gymnasium (its registry), and importing gymnasium costs about
 0.3 s (numpy), more than the rest of ``import driveopt`` and ``driveopt --help``. So :func:`install`
@@ -16,10 +17,14 @@ module (highway-env; for the RL env also JAX), registering does not.
 - ``driveopt/highway-v0``, ``driveopt/two-way-v0``, ``driveopt/merge-v0``: the scenario adapters of
   :mod:`driveopt.sim.env`, one per road layout of :data:`ROAD_ENVS` (the one table of the layouts: the scenarios'
   ``road`` values, :data:`driveopt.sim.scenarios.ROADS`, and the ids :data:`ROAD_ENV_IDS` come from it); they
-  truncate themselves at their ``duration`` config [s] (no TimeLimit);
+  truncate themselves at their ``duration`` config [s] (no TimeLimit). Made by id they have RL spaces: upstream's
+  ``Kinematics`` observation (any ``observation`` config given) and ``ContinuousAction``; driveopt's own loop makes
+  them without an observation (:data:`driveopt.sim.env.UNOBSERVED`);
 - ``driveopt/driving-v0``: :class:`driveopt.rl.env.DrivingEnv`, one action per second, truncated after
   :data:`RL_EPISODE_STEPS` steps (the default scenario's 50 s; pass ``max_episode_steps`` to
-  ``gymnasium.make`` with a scenario of another duration).
+  ``gymnasium.make`` with a scenario of another duration); the env for training an agent on driveopt's scenarios;
+- ``driveopt/controlled-v0``: :class:`driveopt.sb3.ControllerEnv`, a highway-env env driven by a driveopt
+  controller (its action ignored: ``Discrete(1)``), for evaluating a planner in SB3's ``VecEnv`` s.
 """
 
 from __future__ import annotations
@@ -54,6 +59,7 @@ ROAD_ENV_IDS: dict[str, str] = {road: road_env_id(road) for road in ROAD_ENVS}
 SPECS: dict[str, EnvSpec] = {
     **{road_env_id(road): EnvSpec(f"driveopt.sim.env:{env}", None) for road, env in ROAD_ENVS.items()},
     "driveopt/driving-v0": EnvSpec("driveopt.rl.env:DrivingEnv", RL_EPISODE_STEPS),
+    "driveopt/controlled-v0": EnvSpec("driveopt.sb3:ControllerEnv", None),
 }
 
 

@@ -33,6 +33,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("experiments",),  # episodes, bench, collect, reproduction
     ("viz",),
     ("controller", "cli"),  # the user's own env; the command line
+    ("sb3",),  # the controller as a Stable-Baselines3 policy and as a gymnasium env
 )
 
 

@@ -69,9 +69,18 @@ from driveopt.xla import XLA_CPU_COMPILER_OPTIONS, float32_products, supported_c
 
 
 class PlanStatus(enum.IntEnum):
+    """How a planning call ended; an int inside the compiled call (``Solution.status``), printed by name
+    (``print(status)``, ``f"{status}"``: ``PlanStatus.SUCCESS``; ``int(status)`` and ``status.name`` as ever)."""
+
     SUCCESS = 0
     INFEASIBLE = 1
     NUMERICAL_ERROR = 2
+
+    def __str__(self) -> str:
+        return f"{type(self).__name__}.{self.name}"
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self), spec)
 
     @property
     def message(self) -> str:

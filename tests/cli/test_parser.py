@@ -89,3 +89,46 @@ def test_every_seed_option_refuses_a_seed_beyond_the_simulators_range_when_parse
             err = capsys.readouterr().err
             assert info.value.code == 2, (command, option, value)
             assert f"argument {option}: seed must be in [0, 4294967295]" in err and err.count("\n") == 1, (command, err)
+
+
+def _commands(parser: argparse.ArgumentParser, command: tuple[str, ...] = ()):
+    """(command words, parser) of ``parser`` and every subcommand's, nested ones included."""
+    yield command, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, subparser in action.choices.items():
+                yield from _commands(subparser, (*command, name))
+
+
+def test_every_options_default_is_shown_in_help(monkeypatch):
+    from driveopt.cli import build_parser
+
+    monkeypatch.setenv("COLUMNS", "2000")  # one line per option: no value broken at a hyphen
+
+    checked = 0
+    for command, parser in _commands(build_parser()):
+        text = " ".join(parser.format_help().split())  # the wrapped lines joined
+        for action in parser._actions:
+            if (not action.option_strings or action.required
+                    or isinstance(action, (argparse._HelpAction, argparse._VersionAction, argparse._SubParsersAction))):
+                continue
+            assert action.help, f"driveopt {' '.join(command)} {action.option_strings[-1]} has no help"
+            assert "default" in action.help.lower() or "(default: " in parser._get_formatter()._get_help_string(action), \
+                (command, action.option_strings)
+            if isinstance(action.default, (int, float, str)) and not isinstance(action.default, bool) \
+                    and "default" not in action.help.lower():
+                assert f"(default: {action.default})" in text, (command, action.option_strings)
+            checked += 1
+    assert checked > 100
+    drive = " ".join(dict(_commands(build_parser()))[("drive",)].format_help().split())
+    assert "--seed SEED traffic and sampling seed (default: 42)" in drive
+    assert "(default: none)" in drive  # --json: nothing written unless given
+
+
+def test_version_prints_the_package_version(capsys):
+    import driveopt
+    from driveopt.cli import build_parser
+
+    with pytest.raises(SystemExit) as info:
+        build_parser().parse_args(["--version"])
+    assert info.value.code == 0 and capsys.readouterr().out.strip() == f"driveopt {driveopt.__version__}"

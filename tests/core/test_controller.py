@@ -15,6 +15,7 @@ from driveopt.sim.road_frame import RoadFrameError
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 CONTINUOUS = {"action": {"type": "ContinuousAction"}}
+SHORT_EPISODE = {**CONTINUOUS, "duration": 3}  # [s] highway-v0 decides once a second: 3 steps
 
 
 def _quickstart() -> str:
@@ -30,6 +31,83 @@ def test_readme_quickstart_runs_verbatim_and_stays_on_the_road():
     assert not info["crashed"] and env.unwrapped.vehicle.on_road
     assert namespace["controller"].status is not None, "the bilevel planner planned"
     assert env.unwrapped.time >= 10.0 - 1e-9, "the episode ran to its end"
+
+
+def test_sb3_evaluate_policy_drives_the_controller_in_process():
+    """docs/rl-guide.md's in-process route (SB3's evaluate_policy wraps the env in a DummyVecEnv of that object).
+    The guide's first route: a policy bound to the env it reads, SB3 wrapping the env in a DummyVecEnv."""
+    gymnasium = pytest.importorskip("gymnasium")
+    pytest.importorskip("stable_baselines3")
+    from stable_baselines3.common.evaluation import evaluate_policy
+    from stable_baselines3.common.monitor import Monitor
+
+    env = Monitor(driveopt.gym_make("highway-v0", config=SHORT_EPISODE))
+    controller = driveopt.Controller("bilevel", samples=100, verbose=False)
+    policy = driveopt.ControllerPolicy(controller, env)
+    rewards, lengths = evaluate_policy(policy, env, n_eval_episodes=2, return_episode_rewards=True, warn=False)
+    assert lengths == [3, 3] and all(np.isfinite(rewards))
+    assert controller.status is not None, "it planned"
+    assert not controller.episode.matches(env), "the VecEnv reset the env after the last episode"
+    action, state = policy.predict(np.zeros(env.observation_space.shape, np.float32))
+    assert action.shape == (2,) and state is None, "one observation: one action"
+    assert controller.episode.matches(env), "predict noticed the new episode and reset the controller"
+    env.close()
+
+
+def test_frames_draw_the_plan_made_for_their_own_state(capsys, monkeypatch):
+    """RecordVideo renders after each env.step: RenderPlans plans for the state on screen, and act() at that state
+    returns that very decision, so the episode is the one driven without frames. The first reset says it compiles."""
+    import os
+
+    from driveopt import controller as controller_module
+
+    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    monkeypatch.setattr(controller_module, "_ANNOUNCED", set())  # as in a fresh process
+
+    def episode(render: bool, verbose: bool = False) -> tuple[list, list]:
+        env = driveopt.gym_make("highway-v0", config=SHORT_EPISODE, render_mode="rgb_array" if render else None)
+        env.reset(seed=1)
+        ctrl = driveopt.Controller("bilevel", samples=100, verbose=verbose)
+        wrapped = driveopt.RenderPlans(env, ctrl)
+        drawn = []
+        if render:
+            wrapped.render()  # the frame at reset: controller.reset not yet called for it, so no plan
+            assert ctrl.planned is None
+        ctrl.reset(env, seed=1)
+        actions, done = [], False
+        while not done:
+            if render and drawn:
+                assert ctrl.act(env) is not None and ctrl.last is drawn[-1], "act returned the frame's decision"
+                actions.append(ctrl.last.action)
+            else:
+                actions.append(ctrl.act(env))
+            _, _, terminated, truncated, _ = env.step(np.asarray(actions[-1], np.float32))
+            done = terminated or truncated
+            if render and not done:
+                wrapped.render()
+                drawn.append(ctrl.planned)
+                assert ctrl.planned.scene.ego.vx == pytest.approx(env.unwrapped.vehicle.speed * np.cos(
+                    env.unwrapped.vehicle.heading), abs=0.5), "the frame's plan starts from the state on screen"
+        env.close()
+        return actions, drawn
+
+    plain, _ = episode(render=False, verbose=True)
+    line = capsys.readouterr().err.strip().splitlines()
+    assert len(line) == 1 and re.fullmatch(r"driveopt: compiling bilevel \(100 samples\) for highway-v0 \.\.\. \d+\.\d s", line[0])
+    recorded, drawn = episode(render=True)
+    assert len(drawn) == len(plain) - 1 >= 2
+    np.testing.assert_allclose(np.asarray(recorded, float), np.asarray(plain, float), atol=1e-6)
+    assert capsys.readouterr().err == "", "verbose=False is silent"
+
+
+def test_plan_status_prints_by_name_and_stays_a_number_in_json():
+    import json
+
+    from driveopt.planner import PlanStatus
+
+    assert str(PlanStatus.SUCCESS) == f"{PlanStatus.INFEASIBLE:}".replace("INFEASIBLE", "SUCCESS") == "PlanStatus.SUCCESS"
+    assert f"{PlanStatus.NUMERICAL_ERROR:>28}" == "  PlanStatus.NUMERICAL_ERROR"
+    assert int(PlanStatus.INFEASIBLE) == 1 and json.dumps([PlanStatus.INFEASIBLE]) == "[1]"
 
 
 def drive(env_id: str, seconds: float, seed: int = 0, make_config: dict | None = None, make_kwargs: dict | None = None,

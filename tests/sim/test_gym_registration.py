@@ -83,8 +83,9 @@ def test_the_rl_env_is_registered_with_its_episode_length():
 def test_road_layouts_scenario_roads_and_env_ids_come_from_one_table():
     from driveopt.sim import env, scenarios
 
-    # The ids registered before the layouts were one table, exactly.
-    assert list(gym_envs.SPECS) == ["driveopt/highway-v0", "driveopt/two-way-v0", "driveopt/merge-v0", "driveopt/driving-v0"]
+    # The ids registered before the layouts were one table, exactly, and the controlled env after them.
+    assert list(gym_envs.SPECS) == ["driveopt/highway-v0", "driveopt/two-way-v0", "driveopt/merge-v0", "driveopt/driving-v0",
+                                    "driveopt/controlled-v0"]
     assert scenarios.ROADS == tuple(gym_envs.ROAD_ENVS) == ("highway", "two-way", "merge")
     assert env.ENV_IDS == gym_envs.ROAD_ENV_IDS == {road: f"driveopt/{road}-v0" for road in scenarios.ROADS}
     for road, env_class in gym_envs.ROAD_ENVS.items():

@@ -11,6 +11,7 @@ import pytest
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 import driveopt  # noqa: E402
+import driveopt.viz.video  # noqa: E402
 from driveopt.controller import ControllerError  # noqa: E402
 from driveopt.viz.overlay import Hud, RenderError, hud_of  # noqa: E402
 from driveopt.viz.video import CHOSEN_RGBA, FALLBACK_RGBA, HUD_BG_RGBA, world_to_pixel  # noqa: E402
@@ -70,14 +71,33 @@ def test_the_hud_shows_time_speeds_planner_status_and_planning_time(racetrack):
     assert np.any(box != plain[4:26, 4:150]), "the HUD region is drawn"
     assert (np.abs(box - HUD_BG_RGBA[:3]) < 60).all(axis=-1).mean() > 0.5, "on a light box"
     assert (box.sum(axis=-1) < 150).any(), "with dark text"
-    hud = hud_of(env, ctrl.planned, ctrl.name, ctrl.task.v_des)
+    hud = hud_of(env, ctrl.planned, ctrl.name, ctrl.task.v_des, "lane speed limit")
     assert hud.time == pytest.approx(10 / env.unwrapped.config["policy_frequency"]) and hud.speed == pytest.approx(env.unwrapped.vehicle.speed)
     assert hud.planner == "bilevel" and hud.status.startswith(ctrl.status.name)
     assert hud.plan_ms == pytest.approx(1e3 * ctrl.planned.plan_seconds)
     text = "\n".join(hud.lines())
-    for needle in (f"t {hud.time:5.1f} s", f"desired {ctrl.task.v_des:.1f}", "bilevel: ", " ms"):
+    assert hud.v_des <= ctrl.task.v_des and hud.v_des == pytest.approx(ctrl.planned.scene.v_des, abs=0.05)
+    source = "lane speed limit" if hud.v_des == ctrl.task.v_des else f"curve ahead (lane speed limit: {ctrl.task.v_des:.1f})"
+    for needle in (f"t {hud.time:5.1f} s", f"desired {hud.v_des:.1f} from {source}", "bilevel: ", " ms"):
         assert needle in text
     assert "plan -" in "\n".join(Hud(0.0, 0.0, None, "idm", "-", None).lines())
+
+
+def test_the_neighbours_predicted_boxes_are_drawn_faintly(racetrack):
+    from driveopt.viz.overlay import CAR_LENGTH, CAR_WIDTH, PREDICTION_TIMES, decision_overlay, predicted_boxes
+
+    env, ctrl = racetrack
+    boxes = predicted_boxes(ctrl.planned, ctrl.driver.config)
+    real = int(np.sum(np.asarray(ctrl.planned.problem.obstacle_mask) > 0))
+    assert real > 0 and boxes.shape == (real * len(PREDICTION_TIMES), 4, 2)
+    sides = np.hypot(*np.moveaxis(np.diff(boxes, axis=1, append=boxes[:, :1]), -1, 0))
+    np.testing.assert_allclose(np.sort(sides, axis=1), [[CAR_WIDTH, CAR_WIDTH, CAR_LENGTH, CAR_LENGTH]] * len(boxes), atol=1e-9)
+    plain = env.render()
+    keywords = decision_overlay(ctrl.planned, ctrl.driver.config)
+    with_boxes = driveopt.viz.video.draw_plan(plain, env, **keywords)
+    without = driveopt.viz.video.draw_plan(plain, env, **{**keywords, "predicted": None})
+    assert np.any(with_boxes != without), "the boxes change the frame"
+    assert np.abs(with_boxes.astype(int) - without).max() < 200, "faintly"
 
 
 def test_render_wrapper_and_errors(racetrack):

@@ -54,7 +54,10 @@ __all__ = ["UsageError", "build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from driveopt import __version__
+
     parser = OneLineArgumentParser(prog="driveopt", description="Bi-level motion planning for dense highway traffic.")
+    parser.add_argument("--version", action="version", version=f"driveopt {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for command in (plan, drive, bench, reproduce, summarise, collect, train, plot_prior, plot_curves, trace_episode,
                     closed_loop_ab, listing):

@@ -16,15 +16,17 @@ from driveopt.cli.parser import duration, latency
 
 def register(sub) -> None:
     p = sub.add_parser("bench", help="scenarios x planners x seeds x episodes; resumable; summary table and plots")
-    p.add_argument("--scenarios", nargs="+", default=["four-lane-d3.0", "two-lane-d2.5"])
-    p.add_argument("--planners", nargs="+", default=["bilevel", "vanilla", "grid", "random", "batch", "idm"])
+    p.add_argument("--scenarios", nargs="+", default=["four-lane-d3.0", "two-lane-d2.5"],
+                   help="scenario names (see `driveopt scenarios`)")
+    p.add_argument("--planners", nargs="+", default=["bilevel", "vanilla", "grid", "random", "batch", "idm"],
+                   help="planner names (see `driveopt planners`)")
     p.add_argument("--seeds", nargs="+", type=seed, default=[42],
                    help="traffic seeds (episode e of seed s drives traffic seed s x 100003 + e, which must fit in 32 bits)")
     p.add_argument("--episodes", type=positive_int, default=50, help="episodes per scenario, planner and seed")
     p.add_argument("--episode-list", nargs="+", type=int, metavar="E",
                    help="run only these episode indices (each below --episodes), e.g. an A/B on the episodes that collided")
     p.add_argument("--duration", type=duration, help="episode length [s] (default: the scenario's)")
-    p.add_argument("--samples", type=positive_int, help="override the optimisers' samples per iteration (not vanilla's single sample)")
+    p.add_argument("--samples", type=positive_int, help="override the optimisers' samples per iteration (not vanilla's single sample; default: each planner's)")
     p.add_argument("--weights", help="learned-prior checkpoint for the cvae planner, or policy file for dqn/ppo (default: shipped weights)")
     p.add_argument("--filter-weights", help="learned safety-filter checkpoint for every optimiser (recorded with --config)")
     p.add_argument("--config", help="planner config overrides applied to every optimiser, JSON (nested sections)")

@@ -16,7 +16,8 @@ from driveopt.cli.parser import duration
 
 def register(sub) -> None:
     p = sub.add_parser("collect", help="expert demonstrations (bi-level planner, large batch) into an HDF5 file; resumable")
-    p.add_argument("--scenarios", nargs="+", default=["four-lane-d3.0", "two-lane-d2.5"])
+    p.add_argument("--scenarios", nargs="+", default=["four-lane-d3.0", "two-lane-d2.5"],
+                   help="scenario names (see `driveopt scenarios`)")
     p.add_argument("--seed", type=seed, default=7,
                    help="traffic seed s (keep it apart from evaluation seeds; episode e drives traffic seed s x 100003 + e, "
                         "which must fit in 32 bits)")

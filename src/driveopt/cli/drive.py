@@ -28,7 +28,7 @@ def register(sub) -> None:
     p.add_argument("--filter-weights", help="learned safety-filter checkpoint for any optimiser (vqvae-filter: default the shipped one)")
     p.add_argument("--seed", type=seed, default=42, help="traffic and sampling seed")
     p.add_argument("--duration", type=duration, help="episode length [s] (default: the scenario's)")
-    p.add_argument("--samples", type=positive_int, help="samples per sampler iteration")
+    p.add_argument("--samples", type=positive_int, help="samples per sampler iteration (default: the planner's)")
     p.add_argument("--replan-every", type=positive_int, help="policy periods each plan is executed open-loop (P1: 5; default 1)")
     p.add_argument("--latency", type=latency, metavar="sync|measured|MS",
                    help="sync (default): the simulator waits for every plan; measured: the car keeps executing the "
@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
             result = step.decision.result
             if writer is not None:  # the state the plan was made from, before the simulator steps
                 planned = step.decision if result is not None or planned is None else planned  # open-loop: the last plan
-                writer.append(render_decision(step.env, planned, planner=spec.name, v_des=scenario.v_des,
+                writer.append(render_decision(step.env, planned, planner=spec.name, v_des=scenario.v_des, v_des_source="scenario",
                                               config=getattr(rollout.driver, "config", None)))
             episode = step.episode
             if not episode.speeds:  # the first step came after compilation: time the rest from here

@@ -77,9 +77,12 @@ def run(args: argparse.Namespace) -> int:
     problem = build_problem(scene, config.basis, args.max_obstacles, braking_time=spec.braking_time,
                             selection_time=spec.selection_time)
     key = jax.random.PRNGKey(args.seed)
+    # one line while the first call compiles (stdout: stderr holds only warnings and errors)
+    print(f"compiling {spec.name} ({config.sampler.num_samples} samples) and planning once ...", end=" ", flush=True)
     start = time.perf_counter()
     result = plan(problem, config, key=key, prior=prior, safety_filter=safety_filter, x_offset=scene.ego.x, method=spec.method)
     first = time.perf_counter() - start
+    print(f"{first:.1f} s", flush=True)
     solves = []
     for _ in range(args.repeats):
         start = time.perf_counter()

@@ -35,8 +35,8 @@ def register(sub) -> None:
     for kind in offline_kinds():
         p.add_argument(kind.weights_option, *kind.weights_aliases, dest=kind.weights_dest,
                        help=f"{kind.checkpoint} (default: the weights shipped for the road)")
-    p.add_argument("--samples", type=positive_int, default=200)
-    p.add_argument("--out", default="out/prior.png")
+    p.add_argument("--samples", type=positive_int, default=200, help="samples drawn from each prior")
+    p.add_argument("--out", default="out/prior.png", help="figure, PNG/PDF/SVG by extension")
     p.set_defaults(func=run)
 
 

@@ -20,7 +20,7 @@ def register_models(models) -> None:
     p.add_argument("--data", nargs="+", required=True, help="demonstration HDF5 files")
     p.add_argument("--out", required=True, help="output folder (rerun to resume): last.ckpt, cvae-multipliers.ckpt, history.json")
     p.add_argument("--planner", default="cvae-multipliers", help="optimiser whose QP and projection it trains through")
-    p.add_argument("--epochs", type=positive_int, default=60)
+    p.add_argument("--epochs", type=positive_int, default=60, help="passes over the training data")
     p.add_argument("--batch-size", type=positive_int, default=256, help="rows per step ([5]: 8000)")
     p.add_argument("--lr", type=float, default=2e-4, help="AdamW learning rate (x0.1 every 30 epochs; [5]: 2e-4)")
     p.add_argument("--beta", type=float, default=3.5, help="KL weight after annealing ([5]: 3.5)")

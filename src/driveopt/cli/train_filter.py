@@ -21,7 +21,7 @@ def register_models(models) -> None:
                    help="prior the trajectories are drawn from (default vqvae, as P2)")
     p.add_argument("--prior-weights", help="its checkpoint: pixelcnn.ckpt or cvae.ckpt (default: the weights shipped for the road)")
     p.add_argument("--planner", default="vqvae-filter", help="optimiser whose projection the filter sets up (default vqvae-filter)")
-    p.add_argument("--epochs", type=positive_int, default=30)
+    p.add_argument("--epochs", type=positive_int, default=30, help="passes over the training data")
     p.add_argument("--batch-size", type=positive_int, default=16, help="observations per step")
     p.add_argument("--samples", type=positive_int, default=64, help="trajectories per observation")
     p.add_argument("--unroll", type=positive_int, default=25,

@@ -15,7 +15,7 @@ from driveopt.cli.common import add_split_arguments, positive_int
 def _common(p: argparse.ArgumentParser, weights: str) -> None:
     p.add_argument("--data", nargs="+", required=True, help="demonstration HDF5 files with modes (schema version 2)")
     p.add_argument("--out", required=True, help=f"output folder (rerun to resume): last.ckpt, {weights}, history.json")
-    p.add_argument("--epochs", type=positive_int, default=60)
+    p.add_argument("--epochs", type=positive_int, default=60, help="passes over the training data")
     p.add_argument("--batch-size", type=positive_int, default=256, help="modes per step")
     p.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate (x0.1 every 20 epochs)")
     add_split_arguments(p)
@@ -34,7 +34,7 @@ def register_models(models) -> None:
     p = models.add_parser("pixelcnn", help="conditional PixelCNN over a trained VQ-VAE's codes (P2 §III-B): the planner's weights")
     _common(p, "pixelcnn.ckpt")
     p.add_argument("--vqvae", required=True, help="the VQ-VAE checkpoint (vqvae.ckpt of `driveopt train vqvae`)")
-    p.add_argument("--channels", type=positive_int, default=64)
+    p.add_argument("--channels", type=positive_int, default=64, help="feature channels of each PixelCNN layer")
     p.add_argument("--layers", type=int, default=5, help="mask-B layers after the mask-A one")
     p.add_argument("--kernel", type=positive_int, default=7, help="odd convolution width")
     p.set_defaults(func=run_pixelcnn)

@@ -15,8 +15,10 @@ The subclasses below only add what the scenarios need and upstream has no config
   so that same-lane bumper gaps are at least ``min_spawn_gap``: at density 3 upstream spawns
   overlapping cars (6-11 overlapping pairs of 50 on four lanes) and up to half of the
   neighbours crash into each other within 10 s;
-- a road that simulates the same, faster (:mod:`driveopt.sim.fast_road`), and no upstream observation
-  (:class:`Unobserved`: driveopt perceives from ``env.unwrapped``);
+- a road that simulates the same, faster (:mod:`driveopt.sim.fast_road`), and in driveopt's own loop no upstream
+  observation (``"observation": UNOBSERVED``, :class:`Unobserved`: driveopt perceives from ``env.unwrapped``);
+  made by id (``gymnasium.make("driveopt/highway-v0")``) they have real spaces for RL: upstream's ``Kinematics``
+  observation (or any observation config given) and ``ContinuousAction`` (Box(-1, 1, (2,)): acceleration, steering);
 - truncation after ``duration`` seconds on every road, counted in integer simulation steps
   (upstream accumulates ``1 / policy_frequency`` in a float; two-way-v0 and merge-v0 never truncate);
 - rewards that do not read DiscreteMetaAction-only state (upstream two-way-v0 reads
@@ -33,6 +35,7 @@ from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
+from highway_env.envs.common.action import action_factory
 from highway_env.envs.common.observation import ObservationType
 from highway_env.envs.highway_env import HighwayEnv
 from highway_env.envs.merge_env import MergeEnv
@@ -49,10 +52,15 @@ ENV_IDS = gym_envs.ROAD_ENV_IDS
 """gymnasium id of the adapter env of each road layout (:data:`driveopt.gym_envs.ROAD_ENVS` names the classes below)."""
 
 
+UNOBSERVED = {"type": "Unobserved"}
+"""The adapters' ``observation`` config for driveopt's own loop (:func:`env_config`): :class:`Unobserved`."""
+
+
 class Unobserved(ObservationType):
     """Upstream's observation slot, left empty: driveopt perceives from ``env.unwrapped`` (:mod:`driveopt.sim.perception`)
     and never reads what ``reset`` and ``step`` return, which upstream's cheapest observation (Kinematics, built
-    with pandas) made ~10% of a simulator step. ``reset``/``step`` return a constant (1,) array."""
+    with pandas) made ~10% of a simulator step. ``reset``/``step`` return a constant (1,) array. Only in driveopt's
+    own loop (``"observation": UNOBSERVED``): an RL agent needs a real observation."""
 
     def space(self) -> gym.spaces.Box:
         return gym.spaces.Box(0.0, 0.0, shape=(1,), dtype=np.float32)
@@ -65,15 +73,22 @@ class _ScenarioTraffic:
     """Mixin over an upstream env: speed limit, neighbour target speeds, ego speed, duration."""
 
     def define_spaces(self) -> None:
-        super().define_spaces()  # type: ignore[misc]
+        if self.config["observation"] != UNOBSERVED:  # type: ignore[attr-defined]
+            super().define_spaces()  # type: ignore[misc]
+            return
         self.observation_type = Unobserved(self)
+        self.action_type = action_factory(self, self.config["action"])  # type: ignore[attr-defined]
         self.observation_space = self.observation_type.space()
+        self.action_space = self.action_type.space()
 
     @classmethod
     def default_config(cls) -> dict:
         config = super().default_config()  # type: ignore[misc]
         config.update(
             {
+                # real spaces when made by id (RL, gymnasium's and SB3's checkers); driveopt's loop: UNOBSERVED
+                "observation": {"type": "Kinematics"},  # upstream two-way-v0's TimeToCollision reads discrete speeds
+                "action": {"type": "ContinuousAction"},  # the car driveopt's planners drive
                 "speed_limit": None,  # [m/s] written on every lane; None keeps upstream's limits
                 "target_speed_fraction": (0.7, 0.8),  # [-] neighbour target speed ~ U(lo, hi) * speed_limit
                 "ego_initial_speed": None,  # [m/s] None keeps upstream's
@@ -207,9 +222,8 @@ def env_config(scenario: Scenario) -> dict[str, Any]:
             "steering_range": scenario.steering_range,  # [rad]
             "clip": True,
         },
-        # driveopt builds its own observation from env.unwrapped; upstream's is replaced by Unobserved after
-        # upstream's factory has run on this (valid, cheap) setting.
-        "observation": {"type": "Kinematics", "vehicles_count": 2, "normalize": False, "clip": False},
+        # driveopt builds its own observation from env.unwrapped: none from upstream
+        "observation": UNOBSERVED,
         "simulation_frequency": scenario.simulation_frequency,  # [Hz]
         "policy_frequency": scenario.policy_frequency,  # [Hz]
         "duration": scenario.duration,  # [s]

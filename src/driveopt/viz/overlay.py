@@ -6,8 +6,9 @@
 viewer centres it at ``centering_position`` of the screen) and has the env's ``screen_width`` x
 ``screen_height`` [px] at ``scaling`` [px/m]. On it go the last sampler iteration's samples and elites
 and the plan the car follows, each turned from the road frame the plan was made in into world points
-(:func:`driveopt.viz.video.plan_overlay_arrays`: straight, circular and sine lanes), and a box in the
-top-left corner with the simulated time [s], the ego's speed and the desired speed [m/s], the planner,
+(:func:`driveopt.viz.video.plan_overlay_arrays`: straight, circular and sine lanes), the neighbours' predicted
+boxes at :data:`PREDICTION_TIMES` (faint outlines: where the planner expected them), and a box in the
+top-left corner with the simulated time [s], the ego's speed and the desired speed [m/s] with where it comes from, the planner,
 the planning status (``fallback`` when the car brakes on the fallback, ``guarded`` when the contact
 guard braked) and the planning call's wall time [ms]. :meth:`driveopt.Controller.render` is this for the
 controller's latest plan; ``driveopt drive --video`` writes these frames.
@@ -24,6 +25,8 @@ from driveopt.errors import DriveoptError
 from driveopt.viz.video import draw_plan, plan_overlay_arrays
 
 MAX_SAMPLES = 40  # [-] sampled plans drawn per frame (each is turned into world points: ~1 ms on a curved road)
+PREDICTION_TIMES = (1.0, 2.0, 3.0)  # [s] horizon times at which the neighbours' predicted boxes are drawn
+CAR_LENGTH, CAR_WIDTH = 5.0, 2.0  # [m] the drawn predicted boxes (highway-env's car)
 
 
 class RenderError(DriveoptError):
@@ -35,13 +38,16 @@ class Hud(NamedTuple):
 
     time: float  # [s] simulated since the env's reset
     speed: float  # [m/s] the ego's speed
-    v_des: float | None  # [m/s] desired speed (None: unknown)
+    v_des: float | None  # [m/s] desired speed the plan was made for (None: unknown)
     planner: str
     status: str  # the planning status's name, "fallback", "guarded", or "-" (no plan yet, or a driver that plans none)
     plan_ms: float | None  # [ms] wall time of the planning call (None: none)
+    v_des_source: str | None = None  # where the desired speed comes from ("lane limit", "curve ahead, ...", ...)
 
     def lines(self) -> list[str]:
         desired = "-" if self.v_des is None else f"{self.v_des:.1f}"
+        if self.v_des is not None and self.v_des_source:
+            desired += f" from {self.v_des_source}"
         plan = "-" if self.plan_ms is None else f"{self.plan_ms:.0f} ms"
         return [f"t {self.time:5.1f} s   v {self.speed:4.1f} m/s (desired {desired})",
                 f"{self.planner}: {self.status}   plan {plan}"]
@@ -70,12 +76,22 @@ def status_text(decision: Any) -> str:
     return f"{name}, fallback" if follows_fallback(decision) else name
 
 
-def hud_of(env: Any, decision: Any, planner: str, v_des: float | None) -> Hud:
-    """The HUD of ``env``'s current state and the ``decision`` (or None) that ``planner`` made."""
+CURVE_SLOWDOWN = 0.05  # [m/s] a planned desired speed this far below the task's was lowered for a curve ahead
+
+
+def hud_of(env: Any, decision: Any, planner: str, v_des: float | None, v_des_source: str | None = None) -> Hud:
+    """The HUD of ``env``'s current state and the ``decision`` (or None) that ``planner`` made; ``v_des`` [m/s] and
+    ``v_des_source`` (e.g. ``"lane limit"``): the task's desired speed and where it comes from. When the decision's
+    scene planned for less (a curve ahead, :func:`driveopt.sim.perception.curve_speed`), the HUD shows that speed
+    and says so."""
     sim = env.unwrapped
     time = sim.steps / sim.config["simulation_frequency"]
     plan_ms = 1e3 * decision.plan_seconds if decision is not None and decision.result is not None else None
-    return Hud(float(time), float(sim.vehicle.speed), v_des, planner, status_text(decision), plan_ms)
+    scene = getattr(decision, "scene", None)
+    if v_des is not None and scene is not None and float(scene.v_des) < v_des - CURVE_SLOWDOWN:
+        v_des_source = f"curve ahead ({v_des_source}: {v_des:.1f})" if v_des_source else "curve ahead"
+        v_des = float(scene.v_des)
+    return Hud(float(time), float(sim.vehicle.speed), v_des, planner, status_text(decision), plan_ms, v_des_source)
 
 
 def decision_overlay(decision: Any, config: PlannerConfig | None, max_samples: int = MAX_SAMPLES) -> dict[str, Any]:
@@ -92,18 +108,50 @@ def decision_overlay(decision: Any, config: PlannerConfig | None, max_samples: i
         chosen = np.stack([np.asarray(world.x), np.asarray(world.y)], axis=-1)
     elif samples is None:
         return {}
-    return {"samples": samples, "elites": elites, "chosen": chosen, "fallback": follows_fallback(decision)}
+    return {"samples": samples, "elites": elites, "chosen": chosen, "fallback": follows_fallback(decision),
+            "predicted": predicted_boxes(decision, config)}
+
+
+def predicted_boxes(decision: Any, config: PlannerConfig | None, times: tuple[float, ...] = PREDICTION_TIMES
+                    ) -> np.ndarray | None:
+    """(M, 4, 2) world corners [m] of the boxes (:data:`CAR_LENGTH` x :data:`CAR_WIDTH`) of every neighbour the
+    decision planned against, where its problem predicted it at each of ``times`` [s] (the nearest time node),
+    oriented along the predicted motion; None without a problem, a frame or a config (the node times come from its
+    basis)."""
+    problem, frame, result = getattr(decision, "problem", None), getattr(decision, "frame", None), decision.result
+    if problem is None or frame is None or config is None or result is None:
+        return None
+    x, y = np.asarray(problem.obstacle_x, float), np.asarray(problem.obstacle_y, float)
+    real = np.flatnonzero(np.asarray(problem.obstacle_mask) > 0)
+    nodes = x.shape[1]
+    if real.size == 0 or nodes < 2:
+        return np.zeros((0, 4, 2))
+    step = config.basis.horizon / (nodes - 1)  # [s] between time nodes
+    picked = sorted({min(int(round(t / step)), nodes - 2) for t in times})
+    rows, cols = np.repeat(real, len(picked)), np.tile(picked, real.size)
+    s, d = x[rows, cols] + float(result.x_offset), y[rows, cols]
+    ds, dd = x[rows, cols + 1] - x[rows, cols], y[rows, cols + 1] - y[rows, cols]
+    along = np.where(np.hypot(ds, dd) > 1e-6, np.arctan2(dd, ds), 0.0)  # [rad] to the reference line (0: standing)
+    cx, cy, reference = frame.to_world(s, d)[:3]
+    heading = np.asarray(reference) + along
+    half = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [CAR_LENGTH / 2.0, CAR_WIDTH / 2.0]  # (4, 2) car frame
+    cos, sin = np.cos(heading)[:, None], np.sin(heading)[:, None]
+    corners_x = np.asarray(cx)[:, None] + cos * half[:, 0] - sin * half[:, 1]
+    corners_y = np.asarray(cy)[:, None] + sin * half[:, 0] + cos * half[:, 1]
+    return np.stack([corners_x, corners_y], axis=-1)
 
 
 def render_decision(env: Any, decision: Any, *, planner: str, v_des: float | None, config: PlannerConfig | None = None,
-                    frame: np.ndarray | None = None, max_samples: int = MAX_SAMPLES) -> np.ndarray:
+                    frame: np.ndarray | None = None, max_samples: int = MAX_SAMPLES, v_des_source: str | None = None
+                    ) -> np.ndarray:
     """(H, W, 3) uint8: ``frame`` (default ``env.render()``) with ``decision``'s plans in world coordinates and the HUD.
 
     ``config``: the planner config the plan was made with (its basis turns the batch's coefficients into points;
-    None draws only the followed plan). RenderError when the env does not render RGB frames."""
+    None draws only the followed plan); ``v_des_source``: where ``v_des`` comes from, for the HUD. RenderError when
+    the env does not render RGB frames."""
     if frame is None:
         frame = rgb_frame(env)
-    hud = hud_of(env, decision, planner, v_des)
+    hud = hud_of(env, decision, planner, v_des, v_des_source)
     return draw_plan(frame, env, hud=hud.lines(), **decision_overlay(decision, config, max_samples))
 
 

@@ -41,7 +41,8 @@ SAMPLE_RGBA = (40, 90, 230, 110)
 ELITE_RGBA = (255, 150, 0, 170)
 CHOSEN_RGBA = (0, 200, 80, 255)
 FALLBACK_RGBA = (230, 40, 40, 255)
-SAMPLE_WIDTH, ELITE_WIDTH, CHOSEN_WIDTH = 1, 2, 4  # [px] stroke widths
+PREDICTED_RGBA = (120, 0, 160, 90)  # neighbours' predicted boxes: faint
+SAMPLE_WIDTH, ELITE_WIDTH, CHOSEN_WIDTH, PREDICTED_WIDTH = 1, 2, 4, 1  # [px] stroke widths
 LEGEND_BG_RGBA = (255, 255, 255, 190)
 HUD_BG_RGBA = (255, 255, 255, 200)
 WORLD_NODES = 25  # [-] nodes of each sampled and elite plan drawn in world coordinates (the chosen plan keeps all)
@@ -192,11 +193,13 @@ def draw_plan(
     label: str | None = None,
     legend: bool = True,
     hud: list[str] | None = None,
+    predicted: np.ndarray | None = None,
 ) -> np.ndarray:
     """A copy of ``frame`` (H, W, 3) uint8 with trajectories (each (K, 2) world xy [m]) drawn on it.
 
     With ``legend`` (and anything in view) a legend names the colours of the groups given; ``hud`` lines go in a box
-    in the top-left corner (instead of ``label``).
+    in the top-left corner (instead of ``label``); ``predicted``: (M, 4, 2) world corners [m] of boxes drawn as faint
+    outlines (the neighbours' predicted positions, :func:`driveopt.viz.overlay.predicted_boxes`).
     """
     frame = np.asarray(frame)
     if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
@@ -206,6 +209,11 @@ def draw_plan(
     draw = ImageDraw.Draw(overlay)
     drawn = False
     entries: list[tuple[str, tuple, int]] = []
+    boxes = () if predicted is None else predicted
+    for box in boxes:
+        drawn |= _polyline(draw, world_to_pixel(env, np.vstack([box, box[:1]])), PREDICTED_RGBA, PREDICTED_WIDTH, base.size)
+    if len(boxes):
+        entries.append(("predicted", PREDICTED_RGBA, 2))
     for name, group, rgba, width in (("sampled", samples, SAMPLE_RGBA, SAMPLE_WIDTH), ("elite", elites, ELITE_RGBA, ELITE_WIDTH)):
         trajs = () if group is None else group
         for traj in trajs:
