@@ -8,7 +8,8 @@ a split), so any road source can fill it in. :func:`driveopt.problem.build_probl
 - lateral: once the goal's start is within reach (:meth:`Goal.is_near`: ``lead_time`` at the current speed, at least
   ``lead_distance``), the ego centre's bounds ``y_lb, y_ub`` become the acceptable band nearest the ego (inset by
   ``inset``) within the road's bounds, so every sample and every projected plan heads into that band (unless a slow
-  neighbour in the band is still to be passed before the goal: :meth:`Goal.blocked`); a car outside
+  neighbour in the band is still to be passed before the goal: :meth:`Goal.blocked`), and the band is the one lane
+  that lane centring and the sampler's lane choices see (:meth:`Goal.lanes`); a car outside
   it is brought in by the projection's off-road recovery (``projection.recovery_time``). A band the road does not
   overlap leaves the road's bounds.
 - speed: ``v_des`` clipped into the speed window, then into the speeds that arrive in the goal's range within the time
@@ -129,6 +130,15 @@ class Goal:
         if band is None or not band[0] < band[1] or self.blocked(scene, band):
             return scene.lateral_bounds
         return band
+
+    def lanes(self, scene: Scene, bounds: tuple[float, float]) -> tuple[float, float, int]:
+        """(lane_center0 [m], lane_width [m], num_lanes) the planner's lane terms see: the road's lanes, or, once the
+        band is imposed (``bounds`` differ from the road's), the band as the one lane, so that lane centring and the
+        sampler's lane choices lead into it instead of to the nearest lane outside it."""
+        road = scene.road
+        if bounds == scene.lateral_bounds:
+            return road.first_lane_center, road.lane_width, road.num_lanes
+        return 0.5 * (bounds[0] + bounds[1]), max(bounds[1] - bounds[0], 0.5), 1
 
     def desired_speed(self, scene: Scene, time: float = 0.0) -> float:
         """[m/s] ``scene.v_des`` within the speed window, then within the speeds that reach the goal's x range inside

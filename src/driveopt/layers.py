@@ -32,6 +32,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("faithful", "training"),  # the papers' planners as their authors ran them; training
     ("registry",),  # planner names -> driver specs
     ("experiments",),  # episodes, bench, collect, reproduction
+    ("commonroad",),  # CommonRoad scenarios: road frame, evaluator, closed loop, FISS
     ("viz",),
     ("controller", "cli"),  # the user's own env; the command line
 )

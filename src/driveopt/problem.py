@@ -86,7 +86,7 @@ def build_problem(
     selection_time: [s] the ``max_obstacles`` planned against are those that come closest to the ego
     within this time (0: the nearest now, P1); see :func:`driveopt.prediction.relevant_neighbours`.
     goal: where the plan should lead (:class:`driveopt.goal.Goal`): its band narrows ``y_lb, y_ub`` once it is near,
-    its speed and time windows set ``v_des``; ``time`` [s] is the episode's clock, which the goal's time window reads.
+    the band is then the one lane of the lane terms; its speed and time windows set ``v_des``; ``time`` [s] is the episode's clock, which the goal's time window reads.
     None: the scene's bounds and ``v_des``, exactly.
     ConfigError for more than :data:`driveopt.config.MAX_OBSTACLES` unless ``DRIVEOPT_ALLOW_LARGE=1``.
     """
@@ -100,11 +100,13 @@ def build_problem(
     body = dataclasses.replace(ego, yaw=box_heading(ego))  # the same box, its heading within [-pi/2, pi/2]
     y_lb, y_ub = scene.lateral_bounds
     v_des = scene.v_des
+    lanes = (scene.road.first_lane_center, scene.road.lane_width, scene.road.num_lanes)
     if goal is not None:
         if not isinstance(goal, Goal):
             raise ProblemError(f"goal must be a driveopt.goal.Goal, got {type(goal).__name__}")
         y_lb, y_ub = goal.lateral_bounds(scene)
         v_des = goal.desired_speed(scene, time)
+        lanes = goal.lanes(scene, (y_lb, y_ub))
     K, N = basis.num_nodes, max_obstacles
     # Padding: far behind the ego, masked out; values stay moderate for float32.
     ox = np.full((N, K), -1000.0)
@@ -123,9 +125,9 @@ def build_problem(
         init_y=f32([ego.y, ego.vy, ego.ay]),
         y_lb=f32(y_lb),
         y_ub=f32(y_ub),
-        lane_center0=f32(scene.road.first_lane_center),
-        lane_width=f32(scene.road.lane_width),
-        num_lanes=f32(scene.road.num_lanes),
+        lane_center0=f32(lanes[0]),
+        lane_width=f32(lanes[1]),
+        num_lanes=f32(lanes[2]),
         road_curvature=f32(scene.road.curvature),
         v_des=f32(v_des),
         obstacle_x=f32(ox),
