@@ -17,7 +17,8 @@ Variants (each the ``*-faithful`` planner of ``driveopt.faithful``, or its scena
   passed to the simulator unscaled: :class:`driveopt.drivers.commands.FirstNodesMean`), ``authors-start`` (every plan
   starts at zero acceleration, lateral included), ``authors-ranking`` (their cost, its progress term gated by
   exp(-2 residual): :class:`driveopt.ranking.P2AuthorsRanking`), ``authors-25hz`` (their 25 Hz policy over a 100 Hz simulation),
-  ``authors-cars`` (their cars: 4.0 x 1.4 m, upstream's 5.0 x 2.0 m; every car, so also the traffic's gaps), and
+  ``authors-cars`` (their cars: 4.0 x 1.4 m, upstream's 5.0 x 2.0 m; every car, so also the traffic's gaps),
+  ``authors-spawn`` (their ego's start at 8 m/s and traffic spawned where upstream spawns it: other traffic), and
   ``authors`` (all of these but the ranking, and their ego's kinematics: no slip angle, heading rate v tan(steering) / (L / 2)).
 
 Each episode is the bench episode of that seed and number (the same traffic for every variant, ``JobKey.env_seed``;
@@ -54,6 +55,9 @@ from driveopt.sim import get_scenario
 
 AUTHORS_CAR = (4.0, 1.4)  # [m] length, width of every car in P2's authors' highway-env copy (vehicle/kinematics.py)
 AUTHORS_TIMING = {"policy_frequency": 25, "simulation_frequency": 100}  # [Hz] their utils/config.py
+AUTHORS_SPAWN = {"ego_speed": 8.0, "min_initial_gap": 0.0, "min_spawn_gap": 0.0}  # the same group's highway-env copy
+# (DiffProj highway_env/envs/highway_env.py): the ego spawns at 8 m/s and the traffic where upstream puts it (driveopt's
+# scenarios keep every car 10 m ahead of the ego and 5 m bumper gaps; 0 separates only cars that overlap)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +83,7 @@ VARIANTS = {
     "authors-ranking": Variant(method={"ranking": P2AuthorsRanking()}),
     "authors-25hz": Variant(scenario=AUTHORS_TIMING),
     "authors-cars": Variant(cars=True),
+    "authors-spawn": Variant(scenario=AUTHORS_SPAWN),
     "authors": Variant(loop={"command": P2_AUTHORS_COMMAND, "measured_start": False},
                        maths={"qp": {"initial_lateral_acceleration": True}}, scenario=AUTHORS_TIMING, cars=True,
                        ego_kinematics=True),
