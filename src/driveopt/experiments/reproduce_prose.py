@@ -99,9 +99,25 @@ def readme_sentence(reports: dict[str, dict[str, Any]]) -> str:
             f"{_question(reports['p2'])}.")
 
 
+def quick_runs(paper: str) -> str:
+    """What ``driveopt reproduce PAPER --quick`` runs: its episodes, bench folders and claims, from the protocols."""
+    from driveopt.experiments.protocols import figures_of
+    from driveopt.experiments.reproduce import bench_runs
+
+    figures = figures_of(paper, None, quick=True)
+    runs = bench_runs(figures, Path("."))
+    episodes = {(run.path, job) for run in runs for job in run.spec.jobs()}
+    durations = {run.spec.options.get("duration") for run in runs}
+    length = f" of {durations.pop():g} s" if len(durations) == 1 and None not in durations else ""
+    claims = sum(len(figure.claims) for figure in figures)
+    return f"{len(episodes)} episodes{length}, {len({run.path for run in runs})} bench folders, {claims} claims"
+
+
 BLOCKS: dict[str, Callable[[dict[str, dict[str, Any]]], str]] = {
     "p2-faithful-headline": p2_faithful_headline,
     "verdict-tallies": verdict_tallies,
+    "quick-p1": lambda reports: quick_runs("p1"),
+    "quick-p2": lambda reports: quick_runs("p2"),
 }
 
 
