@@ -23,9 +23,11 @@ What is not carried (driveopt shares it between all planners): the authors' proj
 baselines weigh the obstacle rows 100, its bi-level optimiser 1; ``projection.rho_obstacle`` could be set per planner,
 but on driveopt's projection 100 does not carry the experts' balance: docs/design.md, Batch-MPC), Batch-MPC's guessed
 projection starts (driveopt's projection starts from its target), acceleration bounds (driveopt caps every plan at
-what the simulated car can do), P2's three circles per car and its zero initial acceleration, the car's lateral
-acceleration imposed at a plan's start (:data:`FAITHFUL_MATHS`), and how a plan becomes a command. docs/design.md
-lists every choice.
+what the simulated car can do), P2's three circles per car, the car's lateral acceleration imposed at a plan's start
+(:data:`FAITHFUL_MATHS`; P2's pipelines impose zero, as their authors do: :data:`P2_MATHS`), how P1's and [5]'s plans
+become commands (P2's pipelines take their authors' command: :func:`p2_planner`), and the simulator: P2's authors ran
+a highway-env copy with 4.0 x 1.4 m cars, a slip-free ego at a 25 Hz policy (docs/findings/p2-faithful-collisions.md
+measures what each changes). docs/design.md lists every choice.
 """
 
 from __future__ import annotations
@@ -33,11 +35,12 @@ from __future__ import annotations
 import dataclasses
 
 from driveopt.config import PlannerConfig
+from driveopt.drivers.commands import P2_AUTHORS_COMMAND
 from driveopt.drivers.optimiser import ClosedLoop, OptimiserSpec
 from driveopt.priors.cvae import cvae_prior
 from driveopt.priors.p1_authors import BatchGoals, FixedGaussian, LearnedStart, SpeedOffsetGrid, VanillaGuesses
 from driveopt.qp import NUM_SEGMENTS
-from driveopt.ranking import CostPlusResidual, P1AuthorsRanking, Ranking
+from driveopt.ranking import CostPlusResidual, P1AuthorsRanking, P2AuthorsRanking, Ranking
 
 SUFFIX = "-faithful"
 AUTHORS_REPLAN_EVERY = 1  # [policy periods] a new plan every period, for the optimiser and its baselines alike
@@ -51,9 +54,6 @@ P1_GRID_SPEED_WEIGHT = 1e-2  # [s/m] expert_grid.py
 P1_BATCH_SPEED_WEIGHT = 1e-2  # [s/m] DiffProj's expert_mpc/expert_batch.py compute_cost (MPC-Bi-Level lacks the file)
 P1_BILEVEL_SPEED_WEIGHT = 1e-3  # [s/m] expert_bilevel.py
 SHRESTHA_COST_WEIGHT = 1e-3  # [-] [5]'s ranking: residual + 1e-3 x speed error (expert_cvae.py), on driveopt's cost
-P2_RANKING_COST_WEIGHT = 5e-3  # [-] P2's authors' code (DOptimizerJax.py compute_cost) ranks by residual + 1e-3 x
-# exp(-2 residual) x ||x - v_des T|| + 1e-2 x steering terms: between plans at 10 and at 20 m/s that term differs by
-# about 0.56, where driveopt's speed cost differs by 100 (the gate exp(-2 residual) is not carried)
 
 SHRESTHA_PROJECTION = 75  # [-] [5]'s planning projection iterations (main_diffproj.py --maxiter default; training unrolls 20)
 SHRESTHA_CONSTRAINT_ELITES, SHRESTHA_ELITES = 10, 5  # [-] expert_cvae.py ellite_num_projection, ellite_num
@@ -63,6 +63,8 @@ P1_MATHS = {"sampler": {"structured_fraction": 0.0}, "qp": {"initial_lateral_acc
 # P1's planner maths where driveopt's differs: independent set-points, both initial accelerations imposed, no
 # plan-consistency cost, course bound or per-sample turned box.
 FAITHFUL_MATHS = {**P1_MATHS, "qp": {"initial_lateral_acceleration": False}}
+P2_MATHS = {**P1_MATHS, "qp": {"initial_lateral_acceleration": True}}  # P2's pipelines: both initial accelerations
+# imposed, at zero (P2_LOOP), as their authors' DOptimizerJax.py does
 # The *-faithful planners' maths: P1's, except that a plan's lateral acceleration at its start is left free as in
 # driveopt's. Imposing the car's (the authors' code does, in a loop that replans every 0.04 s and tracks at 100 Hz)
 # made every plan of driveopt's 10 Hz loop start with the turn the car was in: the faithful MPC-Bi-Level turned further
@@ -145,10 +147,16 @@ def p1_planner(method: str, *, name: str, description: str) -> OptimiserSpec:
 
 
 def p2_planner(spec: OptimiserSpec, *, name: str, description: str) -> OptimiserSpec:
-    """P2's one-pass pipeline ``spec`` (vqvae, vqvae-filter, cvae-filter) as P2's authors ran it: the 150 lowest
-    residuals, the least cost + residual of those executed whatever its residual, no driveopt safety machinery,
-    a plan every 0.1 s."""
-    return faithful_version(spec, name=name, description=description, ranking=CostPlusResidual(P2_RANKING_COST_WEIGHT))
+    """P2's one-pass pipeline ``spec`` (vqvae, vqvae-filter, cvae-filter) as P2's authors ran it (VQOptMain's
+    ``model/DOptimizerJax.py`` ``inference``): the 150 lowest residuals, the least of their cost (a progress term gated
+    by exp(-2 residual), :class:`~driveopt.ranking.P2AuthorsRanking`) executed whatever its residual, every plan
+    starting at zero acceleration, the command the mean speed and steering of the plan's first eight nodes passed to
+    the simulator unscaled (:data:`~driveopt.drivers.commands.P2_AUTHORS_COMMAND`), no driveopt safety machinery, a
+    plan every period."""
+    papers = without_driveopt_machinery(spec, name=name, description=description, ranking=P2AuthorsRanking(),
+                                        replan_every=AUTHORS_REPLAN_EVERY, maths=P2_MATHS)
+    return dataclasses.replace(papers, loop=dataclasses.replace(papers.loop, command=P2_AUTHORS_COMMAND,
+                                                                measured_start=False))
 
 
 def shrestha_planner(spec: OptimiserSpec, *, name: str, description: str) -> OptimiserSpec:

@@ -240,9 +240,10 @@ _AUTHORS_P1 = "P1's ranking and its authors' cost, no driveopt safety machinery,
 
 
 def _p2_description(base: str) -> str:
-    return (f"{base} as P2's authors ran it (inferenceJax3.py): the same samples, prior and filter, the least cost + "
-            "residual of the 150 lowest residuals executed whatever its residual, no driveopt safety machinery, a plan "
-            "every 0.1 s")
+    return (f"{base} as P2's authors ran it (inferenceJax3.py, DOptimizerJax.py): the same samples, prior and filter, "
+            "the least of their gated progress cost + residual of the 150 lowest residuals executed whatever its "
+            "residual, plans from zero acceleration, their command (the first 8 nodes' mean speed and steering), no "
+            "driveopt safety machinery, a plan every 0.1 s")
 
 
 _RL = ("one of five behaviours every 1 s, tracked by upstream's set-point controller (shipped policy for the road's "

@@ -29,6 +29,7 @@ from driveopt.priors.p1_authors import (
 )
 from driveopt.problem import build_problem
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
+from driveopt.drivers.commands import P2_AUTHORS_COMMAND
 from driveopt.ranking import CostPlusResidual, FeasibilityFirst, P1AuthorsRanking, P2AuthorsRanking
 from driveopt.row_sharing import EveryRow
 from driveopt.registry import REALTIME_SAMPLES, get_optimiser, get_planner, list_planners, planner_rows
@@ -131,11 +132,14 @@ def test_a_p1_baseline_is_one_replace_of_driveopts(name):
 @pytest.mark.parametrize("name", ["vqvae", "vqvae-filter", "cvae-filter", "cvae-multipliers"])
 def test_a_faithful_pipeline_is_one_replace_of_driveopts(name):
     """P2's pipelines and [5]'s: the same spec with the papers' method (the row sharing kept), the papers' loop and
-    the faithful maths."""
+    the faithful maths; P2's with its authors' command, zero start acceleration and both accelerations imposed."""
     strong, spec = get_optimiser(name), get_optimiser(f"{name}-faithful")
+    p2 = name != "cvae-multipliers"
+    loop = dataclasses.replace(PAPERS_LOOP, command=P2_AUTHORS_COMMAND, measured_start=False) if p2 else PAPERS_LOOP
+    maths = faithful.P2_MATHS if p2 else faithful.FAITHFUL_MATHS
     assert spec == dataclasses.replace(strong, name=spec.name, description=spec.description,
-                                       config=strong.config.replace(**faithful.FAITHFUL_MATHS),
-                                       method=strong.method.as_papers(spec.method.ranking), loop=PAPERS_LOOP)
+                                       config=strong.config.replace(**maths),
+                                       method=strong.method.as_papers(spec.method.ranking), loop=loop)
 
 
 def test_grid_prior_fills_the_batch_and_changes_lane_from_its_quarter_on():
@@ -453,10 +457,11 @@ def test_p2_authors_ranking_is_their_gated_cost_plus_the_residual():
 @pytest.mark.parametrize("name", P2_FAITHFUL)
 def test_p2_faithful_pipelines_keep_samples_prior_and_filter_and_take_p2s_ranking(name):
     strong, spec = get_optimiser(name), get_optimiser(f"{name}-faithful")
-    assert spec.config == strong.config.replace(**faithful.FAITHFUL_MATHS)
+    assert spec.config == strong.config.replace(**faithful.P2_MATHS) and spec.config.qp.initial_lateral_acceleration
     assert spec.config.sampler.num_constraint_elites == 150 and spec.config.projection.max_iterations == 100
     assert spec.make_prior is strong.make_prior and spec.learned_filter == strong.learned_filter
-    assert spec.method.ranking == CostPlusResidual(faithful.P2_RANKING_COST_WEIGHT) and strong.method.ranking == FeasibilityFirst()
+    assert spec.method.ranking == P2AuthorsRanking() and strong.method.ranking == FeasibilityFirst()
+    assert spec.loop.command is P2_AUTHORS_COMMAND and not spec.loop.measured_start
 
 
 @pytest.mark.parametrize("name", ["grid-faithful", "vanilla-faithful", "bilevel-faithful"])
