@@ -21,7 +21,8 @@ Variants (each the ``*-faithful`` planner of ``driveopt.faithful``, or its scena
   ``authors-spawn`` (their ego's start at 8 m/s and traffic spawned where upstream spawns it: other traffic), and
   ``authors`` (all of these but the ranking, and their ego's kinematics: no slip angle, heading rate v tan(steering) / (L / 2)).
 
-Each episode is the bench episode of that seed and number (the same traffic for every variant, ``JobKey.env_seed``;
+Each record names its variant's definition (:func:`definition`): records of a planner defined otherwise (written
+before it changed) are left in the file but neither reused nor summarised. Each episode is the bench episode of that seed and number (the same traffic for every variant, ``JobKey.env_seed``;
 ``--pairs``: only those seed and episode pairs), one JSON line per episode appended to ``--out`` as it ends: a rerun
 skips the episodes the file holds (resumable), Ctrl-C and SIGTERM stop at once and keep the finished ones. At the
 end, per variant: collisions, off-road episodes and the mean speed of the collision-free ones, over the episodes
@@ -33,6 +34,7 @@ from __future__ import annotations
 import argparse
 import concurrent.futures
 import dataclasses
+import hashlib
 import json
 import multiprocessing
 import sys
@@ -138,6 +140,14 @@ class WithAuthorsCars:
         self.driver.reset(env, scenario, seed)
 
 
+def definition(planner: str, variant: str, samples: int) -> str:
+    """12 hex digits naming what ``variant`` of ``planner`` runs (its maths, method and loop, and the variant's scenario
+    and car changes): a record of another definition (the planner changed since) is neither reused nor summarised."""
+    spec, change = variant_spec(planner, variant, samples), VARIANTS[variant]
+    text = repr((spec.config, spec.method, spec.loop, sorted(change.scenario.items()), change.cars, change.ego_kinematics))
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
 def run_episode(scenario: str, planner: str, variant: str, samples: int, seed: int, episode: int,
                 duration: float | None = None) -> dict:
     change = VARIANTS[variant]
@@ -149,7 +159,8 @@ def run_episode(scenario: str, planner: str, variant: str, samples: int, seed: i
     for _ in rollout:
         pass
     done = rollout.episode
-    return {"scenario": scenario, "planner": planner, "variant": variant, "samples": samples, "seed": seed,
+    return {"scenario": scenario, "planner": planner, "variant": variant,
+            "definition": definition(planner, variant, samples), "samples": samples, "seed": seed,
             "episode": episode, "duration": duration, "collided": bool(done.collided), "off_road": bool(done.off_road),
             "end_s": round(float(done.sim_duration), 2), "mean_speed": round(float(done.mean_speed), 3)}
 
@@ -204,8 +215,10 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     records = [json.loads(line) for line in out.read_text().splitlines() if line.strip()] if out.exists() else []
+    current = {v: definition(args.planner, v, args.samples) for v in args.variants}
     records = [r for r in records if r["planner"] == args.planner and r["scenario"] == args.scenario
-               and r["samples"] == args.samples and r["duration"] == args.duration]
+               and r["samples"] == args.samples and r["duration"] == args.duration
+               and r.get("definition") == current.get(r["variant"])]
     done = {_key(r) for r in records}
     todo = [(v, s, e) for v in args.variants for s, e in pairs if (v, s, e) not in done]  # a variant's episodes together
     print(f"{len(todo)} episodes to run ({len(done)} in {out})", flush=True)

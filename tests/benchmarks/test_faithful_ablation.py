@@ -32,12 +32,16 @@ def test_each_variant_changes_only_its_piece():
     predicted = ablation.variant_spec("vqvae-faithful", "prediction", 100)
     assert predicted.loop.braking_prediction and predicted.loop.approach_selection and not faithful.loop.braking_prediction
 
-    commanded = ablation.variant_spec("vqvae-faithful", "authors-command", 100)
-    assert commanded.loop.command is P2_AUTHORS_COMMAND and faithful.loop.command is EXACT_TRACKING
-    assert commanded.config == faithful.config and commanded.loop.measured_start
-    started = ablation.variant_spec("vqvae-faithful", "authors-start", 100)
+    shrestha = ablation.variant_spec("cvae-multipliers-faithful", "faithful", 100)  # [5]'s: driveopt's command
+    commanded = ablation.variant_spec("cvae-multipliers-faithful", "authors-command", 100)
+    assert commanded.loop.command is P2_AUTHORS_COMMAND and shrestha.loop.command is EXACT_TRACKING
+    assert commanded.config == shrestha.config and commanded.loop.measured_start
+    started = ablation.variant_spec("cvae-multipliers-faithful", "authors-start", 100)
     assert not started.loop.measured_start and started.config.qp.initial_lateral_acceleration
-    assert not faithful.config.qp.initial_lateral_acceleration
+    assert not shrestha.config.qp.initial_lateral_acceleration
+    assert faithful.loop.command is P2_AUTHORS_COMMAND  # P2's pipelines carry their authors' command already
+    assert ablation.definition("vqvae-faithful", "faithful", 100) == ablation.definition("vqvae-faithful", "faithful", 100)
+    assert ablation.definition("vqvae-faithful", "faithful", 100) != ablation.definition("vqvae-faithful", "stop-net", 100)
     everything = ablation.VARIANTS["authors"]
     assert everything.cars and everything.ego_kinematics and everything.scenario == ablation.AUTHORS_TIMING
 
