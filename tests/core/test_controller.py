@@ -210,6 +210,14 @@ def test_roads_with_crossing_traffic_are_refused_at_reset(env_id, why):
     assert re.search(r"(lane|road) \('", str(error.value)), "the error names the lane or road"
 
 
+def test_parking_is_refused_at_reset_in_one_line():
+    env = driveopt.gym_make("parking-v0", config=CONTINUOUS)
+    env.reset(seed=0)
+    with pytest.raises(ControllerError, match="goal-conditioned") as error:
+        driveopt.Controller("bilevel", samples=100).reset(env, seed=0)
+    assert "\n" not in str(error.value)
+
+
 def test_roundabout_rewards_accept_array_actions():
     env = driveopt.gym_make("roundabout-v0", config=CONTINUOUS)
     env.reset(seed=0)

@@ -20,6 +20,10 @@ split and widening with the distance still to go, so the lane change is planned 
 the split the road keeps the lanes that go elsewhere (the goal, not the lane preview, leads out of them). A split
 the car can no longer make is given up: the scene is then read along the road straight on, without the route.
 
+A vehicle on a road the frame does not follow whose own lanes cross the route's (:mod:`driveopt.sim.crossing`)
+is predicted along them and mapped onto the frame node by node (a
+:class:`~driveopt.prediction.PathNeighbour`); every other vehicle as before.
+
 The ego's velocity in the scene points along its course (body heading + the slip angle of the
 steering applied now), as the simulator integrates it, so a plan starts with the lateral velocity
 the car has; the plans leave their lateral acceleration free (``qp.initial_lateral_acceleration``)
@@ -33,12 +37,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+import numpy as np
 from typing import Any, NamedTuple, Sequence
 
 from driveopt.goal import Goal
 from driveopt.observation import ObservationError
 from driveopt.scene import EgoState, Neighbour, ProblemError, Scene
 from driveopt.sim.control import EgoKinematics
+from driveopt.sim.crossing import crossing_neighbour, may_cross
 from driveopt.sim.road_frame import Motion, RoadFrame, ego_frame, vehicle_motion, wrap_angle
 from driveopt.sim.route_goal import RouteChange, find_split, missed, split_goal
 
@@ -55,6 +62,8 @@ class RoadPreview:
     curvature_distance: float = 10.0  # [m] ... or within this distance, whichever is further
     speed_distance: float = 300.0  # [m] curves within this distance lower the desired speed
     route_change: RouteChange = RouteChange()  # the pace of a route's lane change before a split
+    crossing_horizon: float = 15.0  # [s] crossing traffic is predicted along its lanes this far ahead
+    crossing_step: float = 0.5  # [s] ... at poses this far apart
 
 
 class Perception(NamedTuple):
@@ -104,7 +113,13 @@ def _read(env: Any, task: Any, preview: RoadPreview) -> tuple[Scene, Motion, Roa
         neighbours = []
         others = [v for v in sim.road.vehicles if v is not ego_vehicle]
         others += [o for o in sim.road.objects if getattr(o, "collidable", True)]
+        times = np.arange(0.0, preview.crossing_horizon + 1e-9, preview.crossing_step)
         for other in others:
+            if hasattr(other, "route") and may_cross(other, frame):  # another road's vehicle: along its own lanes
+                crossing = crossing_neighbour(other, frame, times, me.x)
+                if crossing is not None:
+                    neighbours.append(crossing)
+                    continue
             m = vehicle_motion(other, frame, near_s=me.x)
             if m is None:  # beyond the frame: the far side of the graph
                 continue
