@@ -168,6 +168,10 @@ class Controller:
         sim = getattr(env, "unwrapped", None)
         if getattr(sim, "road", None) is None or getattr(sim, "vehicle", None) is None:
             raise ControllerError("the env must be a highway-env env that has been reset (env.reset(seed=...)) first")
+        spaces = getattr(getattr(sim, "observation_space", None), "spaces", None)
+        if isinstance(spaces, Mapping) and "desired_goal" in spaces:
+            raise ControllerError(f"{type(sim).__name__} is goal-conditioned (a pose to reach, as parking-v0's spot): "
+                                  "driveopt plans along lanes in a frame along a route and has no lane to a parking pose")
         if self.route is not None:
             missing = [node for node in self.route if node not in sim.road.network.graph
                        and not any(node in tos for tos in sim.road.network.graph.values())]

@@ -12,6 +12,11 @@ a split), so any road source can fill it in. :func:`driveopt.problem.build_probl
   that lane centring and the sampler's lane choices see (:meth:`Goal.lanes`); a car outside
   it is brought in by the projection's off-road recovery (``projection.recovery_time``). A band the road does not
   overlap leaves the road's bounds.
+- widening (``widen`` > 0, a route's lanes at a split): before the goal's start each band reaches ``widen`` metres
+  further to each side per metre still to go, so that a band far ahead accepts every lane from which it can still be
+  reached by lane changes, and narrows to the band itself at the goal's start; the lane terms then see the road's
+  lanes inside the bounds from the next lane towards the band on, so that lane centring draws the car towards it
+  one lane at a time from the start while the bounds require it only as late as it can still be reached.
 - speed: ``v_des`` clipped into the speed window, then into the speeds that arrive in the goal's range within the time
   window (fast enough to reach its start before the window closes, slow enough not to pass its end before the window
   opens).
@@ -59,6 +64,7 @@ class Goal:
     lead_distance: float = 40.0  # [m] ... or this close, whichever is farther
     inset: float = 0.3  # [m] the bounds keep the ego centre this far inside the band (less when the band is narrower)
     block_speed: float = 2.0  # [m/s] a neighbour in the band this much slower than v_des, not yet passed, defers the band
+    widen: float = 0.0  # [m/m] before x's start each band widens on both sides by this per metre still to go (0: as given)
 
     def __post_init__(self) -> None:
         if isinstance(self.bands, (str, bytes)) or not isinstance(self.bands, Sequence):
@@ -67,7 +73,7 @@ class Goal:
         object.__setattr__(self, "x", _range("x", self.x))
         object.__setattr__(self, "speed", _range("speed", self.speed, 0.0))
         object.__setattr__(self, "time", _range("time", self.time))
-        for name in ("lead_time", "lead_distance", "inset", "block_speed"):
+        for name in ("lead_time", "lead_distance", "inset", "block_speed", "widen"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0.0 <= float(value) < 1e4:
                 raise ProblemError(f"goal.{name} must be a number in [0, 1e4), got {value!r}")
@@ -95,11 +101,13 @@ class Goal:
 
     def target_band(self, scene: Scene) -> tuple[float, float] | None:
         """[m] the acceptable band nearest the ego centre that overlaps the road's bounds, as (low, high) of the ego
-        centre within them and inset by up to ``inset``; None without bands or when no band overlaps the road."""
+        centre within them and inset by up to ``inset``; None without bands or when no band overlaps the road. With
+        ``widen``, each band first widened by ``widen`` times the distance [m] still to the goal's start."""
         y_lb, y_ub = scene.lateral_bounds
+        grow = self.widen * max(self.x[0] - scene.ego.x, 0.0) if self.widen > 0.0 and self.x is not None else 0.0
         best = None
         for low, high in self.bands:
-            low, high = max(low, y_lb), min(high, y_ub)
+            low, high = max(low - grow, y_lb), min(high + grow, y_ub)
             if low > high:
                 continue
             inset = min(self.inset, 0.25 * (high - low))
@@ -134,10 +142,24 @@ class Goal:
     def lanes(self, scene: Scene, bounds: tuple[float, float]) -> tuple[float, float, int]:
         """(lane_center0 [m], lane_width [m], num_lanes) the planner's lane terms see: the road's lanes, or, once the
         band is imposed (``bounds`` differ from the road's), the band as the one lane, so that lane centring and the
-        sampler's lane choices lead into it instead of to the nearest lane outside it."""
+        sampler's lane choices lead into it instead of to the nearest lane outside it. A widened goal (``widen``): the
+        road's lanes within the bounds from the next lane towards the nearest band on, and the band's own, so that lane
+        centring draws the car one lane towards the band whenever the traffic lets it (a soft pull: staying is feasible,
+        only dearer) while the bounds require the band only as late as it can still be reached."""
         road = scene.road
         if bounds == scene.lateral_bounds:
             return road.first_lane_center, road.lane_width, road.num_lanes
+        if self.widen > 0.0:
+            centres = [float(c) for c in road.lane_centers]
+            own = min(centres, key=lambda c: abs(c - scene.ego.y))  # [m] centre of the ego's lane
+            low, high = min(self.bands, key=lambda b: max(b[0] - scene.ego.y, scene.ego.y - b[1], 0.0))
+            target = min(max(own, low), high)  # [m] where the nearest band begins as seen from the ego's lane
+            step = math.copysign(road.lane_width, target - own) if target != own else 0.0
+            nearer = own + step  # [m] centre of the next lane towards the band (the ego's own inside the band)
+            inside = [k for k, c in enumerate(centres) if bounds[0] - 1e-6 <= c <= bounds[1] + 1e-6
+                      and (min(nearer, target) - 1e-6 <= c <= max(nearer, target) + 1e-6 or low <= c <= high)]
+            if inside:
+                return centres[inside[0]], road.lane_width, inside[-1] - inside[0] + 1
         return 0.5 * (bounds[0] + bounds[1]), max(bounds[1] - bounds[0], 0.5), 1
 
     def desired_speed(self, scene: Scene, time: float = 0.0) -> float:

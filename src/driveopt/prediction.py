@@ -6,16 +6,49 @@ that come closest to the ego within :data:`SELECTION_TIME` (the ego holding its 
 planned against, each inside a collision ellipse that circumscribes the Minkowski sum of the two
 vehicle boxes. Ranking by distance now instead (P1) drops a stopped car 45 m ahead of an ego at
 20 m/s whenever ten cars are nearer, in dense traffic often until braking no longer avoids it.
-Positions and times in the road frame: metres, seconds.
+A :class:`PathNeighbour` (crossing or merging traffic, predicted along its own lanes by the simulator side) carries
+its predicted poses instead: it is where its path says at each node, and its box is bounded with the headings it
+has along the path. Positions and times in the road frame: metres, seconds.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-from driveopt.scene import EgoState, EllipseMargin, Neighbour, Scene
+from driveopt.scene import EgoState, EllipseMargin, Neighbour, ProblemError, Scene
+
+
+@dataclass(frozen=True)
+class PathNeighbour(Neighbour):
+    """A neighbour with its predicted path in the road frame: poses (``x``, ``y`` [m], ``yaw`` [rad] relative to the
+    road) at times ``t`` [s] from now, increasing. Between the times it is interpolated, beyond them held. Its box for
+    the collision ellipse is the largest of the axis-aligned boxes around it at its headings along the path (a car
+    crossing the route at a right angle is as wide as it is long across the road while it crosses)."""
+
+    t: tuple[float, ...] = ()
+    path_x: tuple[float, ...] = ()
+    path_y: tuple[float, ...] = ()
+    path_yaw: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        arrays = [np.asarray(getattr(self, f), dtype=float) for f in ("t", "path_x", "path_y", "path_yaw")]
+        if not arrays[0].size or any(a.shape != arrays[0].shape for a in arrays) or arrays[0].ndim != 1:
+            raise ProblemError("a PathNeighbour's t, path_x, path_y and path_yaw must be equally long, non-empty sequences")
+        if not all(np.all(np.isfinite(a)) for a in arrays) or np.any(np.diff(arrays[0]) <= 0.0):
+            raise ProblemError("a PathNeighbour's path must be finite, its times increasing")
+        for f, a in zip(("t", "path_x", "path_y", "path_yaw"), arrays):
+            object.__setattr__(self, f, tuple(float(v) for v in a))
+
+    @property
+    def half_extents(self) -> tuple[float, float]:
+        """[m] the largest half-length and half-width of its axis-aligned boxes now and along the path."""
+        yaws = np.asarray((self.heading,) + self.path_yaw)
+        c, s = np.abs(np.cos(yaws)), np.abs(np.sin(yaws))
+        return float(np.max(0.5 * (self.length * c + self.width * s))), float(np.max(0.5 * (self.length * s + self.width * c)))
 
 
 def ellipse_semi_axes(ego: EgoState, other: Neighbour, margin: EllipseMargin) -> tuple[float, float]:
@@ -76,7 +109,10 @@ def predict_neighbour(
     of it would otherwise be predicted to keep going and the ego would react a second late.
     Acceleration is not extrapolated (a constant-velocity leader is the safer assumption).
     ``braking_time`` 0: constant velocity for every neighbour (P1).
+    A :class:`PathNeighbour` is where its path says (not kept on the road: crossing traffic is off it before and after).
     """
+    if isinstance(n, PathNeighbour):
+        return np.interp(t, n.t, n.path_x), np.interp(t, n.t, n.path_y)
     speed = math.hypot(n.vx, n.vy)
     decel = -min(n.accel, 0.0)
     if decel == 0.0 or speed < 1e-6 or braking_time <= 0.0:

@@ -172,6 +172,34 @@ def test_exit_route_is_followed_when_asked():
     assert ("2", "exit") in frame.roads and ("2", "3") not in frame.roads
 
 
+def test_idm_follows_a_route_with_highway_envs_route_following_or_refuses_it():
+    from driveopt.drivers.idm import IDMRouteError
+
+    env = driveopt.gym_make("exit-v0", config=CONTINUOUS)
+    env.reset(seed=0)
+    driveopt.Controller("idm", route=["0", "1", "2", "exit"]).reset(env, seed=0)
+    assert [index[:2] for index in env.unwrapped.vehicle.route] == [("0", "1"), ("1", "2"), ("2", "exit")]
+    env.reset(seed=0)
+    with pytest.raises(IDMRouteError, match="cannot follow it"):
+        driveopt.Controller("idm", route=["2", "exit"]).reset(env, seed=0)
+
+
+@pytest.mark.slow
+def test_exit_route_changes_lanes_before_the_split_and_takes_the_exit():
+    """exit-v0's exit leaves from the sixth lane change away: the route's lanes are a goal, reached before the split."""
+    env = driveopt.gym_make("exit-v0", config={**CONTINUOUS, "duration": 35})
+    env.reset(seed=0)
+    ctrl = driveopt.Controller("bilevel", samples=100, route=["0", "1", "2", "exit"])
+    ctrl.reset(env, seed=0)
+    roads, crashed, done = set(), False, False
+    while not done:
+        _, _, terminated, truncated, info = env.step(ctrl.act(env))
+        roads.add(env.unwrapped.vehicle.lane_index[:2])
+        crashed |= bool(info["crashed"])
+        done = terminated or truncated
+    assert not crashed and ("2", "exit") in roads
+
+
 @pytest.mark.parametrize("env_id, why", [("intersection-v0", "crosses the route's lanes|a junction"),
                                          ("roundabout-v0", "a junction")])
 def test_roads_with_crossing_traffic_are_refused_at_reset(env_id, why):
@@ -180,6 +208,14 @@ def test_roads_with_crossing_traffic_are_refused_at_reset(env_id, why):
     with pytest.raises(RoadFrameError, match=why) as error:
         driveopt.Controller("bilevel", samples=100).reset(env, seed=0)
     assert re.search(r"(lane|road) \('", str(error.value)), "the error names the lane or road"
+
+
+def test_parking_is_refused_at_reset_in_one_line():
+    env = driveopt.gym_make("parking-v0", config=CONTINUOUS)
+    env.reset(seed=0)
+    with pytest.raises(ControllerError, match="goal-conditioned") as error:
+        driveopt.Controller("bilevel", samples=100).reset(env, seed=0)
+    assert "\n" not in str(error.value)
 
 
 def test_roundabout_rewards_accept_array_actions():

@@ -98,3 +98,15 @@ def test_lanes_out_of_the_road_are_refused():
         Goal.in_lanes(ROAD, [3])
     with pytest.raises(ProblemError, match="must be a driveopt.goal.Goal"):
         build_problem(scene(), goal=(1, 2))
+
+
+def test_a_widened_band_reaches_further_the_further_the_goal_and_keeps_the_lanes_inside():
+    goal = Goal(bands=((6.0, 10.0),), x=(100.0, 110.0), widen=0.04, lead_distance=200.0)  # 4 m wider per side at 100 m
+    lo, hi = goal.lateral_bounds(scene(x=0.0))
+    assert lo == pytest.approx(2.3) and hi == pytest.approx(8.7)  # [2, 14] within the road, inset 0.3 m
+    assert goal.lanes(scene(x=0.0), (lo, hi)) == (4.0, 4.0, 2)  # from the next lane towards the band: 4 and 8 m
+    assert goal.lanes(scene(x=0.0, y=8.0), (lo, hi)) == (8.0, 4.0, 1)  # in the band: its own lane
+    assert goal.lateral_bounds(scene(x=100.0)) == pytest.approx((6.3, 8.7))  # at its start: the band itself
+    assert Goal(bands=((6.0, 10.0),), x=(100.0, 110.0)).lateral_bounds(scene(x=99.0)) == pytest.approx((6.3, 8.7))
+    with pytest.raises(ProblemError, match="widen"):
+        Goal(widen=-1.0)

@@ -305,7 +305,7 @@ class OptimiserDriver:
         self.warm = None
         self.previous = PreviousPlan.absent(self.config.basis.num_nodes) if self.carries_plan else None
         start = time.perf_counter()
-        problem = self._problem(first.scene)
+        problem = self._problem(first.scene, first.goal)
         plan(problem, self.config, key=jax.random.fold_in(self.key, 1), prior=self.prior, warm_start=self.warm,
              previous=self.previous, safety_filter=self.safety_filter, method=self.method)
         self.compile_seconds = time.perf_counter() - start
@@ -316,11 +316,12 @@ class OptimiserDriver:
         self.started_at = 0  # [-] the step the latest planning call started at
         self.expected = self.spec.latency.periods(0.0, self.period)  # [policy periods] a call's expected compute time
 
-    def _problem(self, scene: Any):
+    def _problem(self, scene: Any, goal: Any = None):
+        """The planning problem of ``scene``; ``goal``: the route's lanes at a split ahead (perception's), or None."""
         if not self.spec.loop.measured_start:
             scene = dataclasses.replace(scene, ego=dataclasses.replace(scene.ego, ax=0.0, ay=0.0))
         return build_problem(scene, self.config.basis, ignore_followers=True, braking_time=self.spec.braking_time,
-                             selection_time=self.spec.selection_time)
+                             selection_time=self.spec.selection_time, goal=goal)
 
     def _carried(self, result: PlanResult, gap: float):
         """(warm start, previous plan) handed to the next call, which starts ``gap`` [s] after ``result``'s."""
@@ -386,7 +387,7 @@ class OptimiserDriver:
         given) with the carried warm start and previous plan."""
         ahead = self._ahead() if command is not None else 0
         scene = self._predicted(perception, ahead, command) if ahead else perception.scene
-        problem = self._problem(scene)
+        problem = self._problem(scene, perception.goal)
         self.key, sub = jax.random.split(self.key)
         start = time.perf_counter()
         result = plan(problem, self.config, key=sub, prior=self.prior, warm_start=self.warm, previous=self.previous,

@@ -14,6 +14,16 @@ sees one constant curvature per call, so without that advice a car would meet th
 when the curve entered the preview, too fast. On a straight road the desired speed, the road and every
 state are the straight road's, exactly.
 
+A route (the task's, or the ego's own) that leaves a road by only some of its lanes is a
+:class:`~driveopt.goal.Goal` (:mod:`driveopt.sim.route_goal`): the lanes that continue the route, required by the
+split and widening with the distance still to go, so the lane change is planned while the split is ahead. Until
+the split the road keeps the lanes that go elsewhere (the goal, not the lane preview, leads out of them). A split
+the car can no longer make is given up: the scene is then read along the road straight on, without the route.
+
+A vehicle on a road the frame does not follow whose own lanes cross the route's (:mod:`driveopt.sim.crossing`)
+is predicted along them and mapped onto the frame node by node (a
+:class:`~driveopt.prediction.PathNeighbour`); every other vehicle as before.
+
 The ego's velocity in the scene points along its course (body heading + the slip angle of the
 steering applied now), as the simulator integrates it, so a plan starts with the lateral velocity
 the car has; the plans leave their lateral acceleration free (``qp.initial_lateral_acceleration``)
@@ -27,12 +37,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+import numpy as np
 from typing import Any, NamedTuple, Sequence
 
+from driveopt.goal import Goal
 from driveopt.observation import ObservationError
 from driveopt.scene import EgoState, Neighbour, ProblemError, Scene
 from driveopt.sim.control import EgoKinematics
+from driveopt.sim.crossing import crossing_neighbour, may_cross
 from driveopt.sim.road_frame import Motion, RoadFrame, ego_frame, vehicle_motion, wrap_angle
+from driveopt.sim.route_goal import RouteChange, find_split, missed, split_goal
 
 
 @dataclass(frozen=True)
@@ -46,6 +61,9 @@ class RoadPreview:
     curvature_time: float = 1.5  # [s] the curvature within this time ahead enters the centripetal bound
     curvature_distance: float = 10.0  # [m] ... or within this distance, whichever is further
     speed_distance: float = 300.0  # [m] curves within this distance lower the desired speed
+    route_change: RouteChange = RouteChange()  # the pace of a route's lane change before a split
+    crossing_horizon: float = 15.0  # [s] crossing traffic is predicted along its lanes this far ahead
+    crossing_step: float = 0.5  # [s] ... at poses this far apart
 
 
 class Perception(NamedTuple):
@@ -55,6 +73,7 @@ class Perception(NamedTuple):
     kinematics: EgoKinematics  # the ego's speed [m/s] and body heading relative to the road [rad] (contact guard)
     frame: RoadFrame | None = None  # the Frenet frame the scene is in
     tracking: EgoKinematics | None = None  # the ego's speed [m/s] and world body heading [rad] (tracking world plans)
+    goal: Goal | None = None  # the route's lanes at the split ahead (build_problem's goal=); None without one
 
 
 def curve_speed(frame: RoadFrame, s: float, v_des: float, preview: RoadPreview) -> float:
@@ -67,16 +86,26 @@ def curve_speed(frame: RoadFrame, s: float, v_des: float, preview: RoadPreview) 
     return speed
 
 
-def _read(env: Any, task: Any, preview: RoadPreview) -> tuple[Scene, Motion, RoadFrame]:
-    """(scene, the ego's motion, the frame) of the current simulator state; ``task``: its ``v_des`` [m/s], ``name``
-    and optional ``route`` (node names)."""
+def _read(env: Any, task: Any, preview: RoadPreview) -> tuple[Scene, Motion, RoadFrame, Goal | None]:
+    """(scene, the ego's motion, the frame, the route's goal or None) of the current simulator state; ``task``: its
+    ``v_des`` [m/s], ``name`` and optional ``route`` (node names)."""
     sim = env.unwrapped
     ego_vehicle = sim.vehicle
     if ego_vehicle is None or sim.road is None:
         raise ObservationError("the env has no road or ego vehicle: call env.reset(seed=...) first")
-    frame, me = ego_frame(env, getattr(task, "route", None))
+    route = getattr(task, "route", None)
+    frame, me = ego_frame(env, route)
     ahead = max(me.speed, 0.0)
-    road = frame.road(me.x, max(preview.lane_distance, ahead * preview.lane_time),
+    lane_preview = max(preview.lane_distance, ahead * preview.lane_time)
+    goal = None
+    if route or getattr(ego_vehicle, "route", None):
+        split = find_split(sim.road.network, frame, me.x)
+        if split is not None and missed(split, me.x, me.y, me.speed, preview.route_change):
+            frame, me = ego_frame(env, ())  # the split is out of reach: straight on, a lane that still leads somewhere
+        elif split is not None:
+            goal = split_goal(split, me.x, me.y, me.speed, preview.route_change)
+            lane_preview = min(lane_preview, max(goal.x[0] - me.x, 0.0))  # the goal leads out of the other lanes
+    road = frame.road(me.x, lane_preview,
                       max(preview.curvature_distance, ahead * preview.curvature_time), behind=0.5 * me.length)
     try:
         ego = EgoState(x=me.x, y=me.y, vx=me.vx, vy=me.vy, ax=me.ax, ay=me.ay, length=me.length, width=me.width,
@@ -84,7 +113,13 @@ def _read(env: Any, task: Any, preview: RoadPreview) -> tuple[Scene, Motion, Roa
         neighbours = []
         others = [v for v in sim.road.vehicles if v is not ego_vehicle]
         others += [o for o in sim.road.objects if getattr(o, "collidable", True)]
+        times = np.arange(0.0, preview.crossing_horizon + 1e-9, preview.crossing_step)
         for other in others:
+            if hasattr(other, "route") and may_cross(other, frame):  # another road's vehicle: along its own lanes
+                crossing = crossing_neighbour(other, frame, times, me.x)
+                if crossing is not None:
+                    neighbours.append(crossing)
+                    continue
             m = vehicle_motion(other, frame, near_s=me.x)
             if m is None:  # beyond the frame: the far side of the graph
                 continue
@@ -96,7 +131,7 @@ def _read(env: Any, task: Any, preview: RoadPreview) -> tuple[Scene, Motion, Roa
         scene = Scene(ego=ego, road=road, neighbours=tuple(neighbours), v_des=v_des, name=task.name)
     except ProblemError as exc:
         raise ObservationError(f"simulator state at t = {sim.steps / sim.config['simulation_frequency']:.2f} s: {exc}") from None
-    return scene, me, frame
+    return scene, me, frame, goal
 
 
 def scene_from_env(env: Any, task: Any, preview: RoadPreview = RoadPreview()) -> Scene:
@@ -107,9 +142,9 @@ def scene_from_env(env: Any, task: Any, preview: RoadPreview = RoadPreview()) ->
 def perceive(env: Any, task: Any, preview: RoadPreview = RoadPreview()) -> Perception:
     """The planning scene, its frame and the ego's kinematics, read once; ``task``: anything with ``v_des`` [m/s] and
     ``name`` (a :class:`~driveopt.sim.scenarios.Scenario`, a :class:`Task`), and optionally ``route``."""
-    scene, me, frame = _read(env, task, preview)
+    scene, me, frame, goal = _read(env, task, preview)
     world = EgoKinematics(speed=me.speed, heading=wrap_angle(float(env.unwrapped.vehicle.heading)))
-    return Perception(scene, EgoKinematics(speed=me.speed, heading=me.heading), frame, world)
+    return Perception(scene, EgoKinematics(speed=me.speed, heading=me.heading), frame, world, goal)
 
 
 @dataclass(frozen=True)

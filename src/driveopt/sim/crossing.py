@@ -1,0 +1,86 @@
+"""Crossing traffic in the road frame: a neighbour predicted along its own lanes, mapped onto the frame node by node.
+
+A highway-env vehicle that drives on a road the frame does not follow (an intersection's other arm, a roundabout's
+entry) may cross the route's lanes. Its future poses come from the simulator's own prediction along its route
+(``ControlledVehicle.predict_trajectory_constant_speed``: its speed held, along its lanes), or, for a vehicle
+without one, from its velocity held in world coordinates. Each pose is mapped into the frame
+(:meth:`driveopt.sim.road_frame.RoadFrame.locate`) with its heading relative to the route there; a pose the frame
+beside the frame keeps its coordinates along it (off the road), one beyond its ends is put far behind the ego. The vehicle becomes a
+:class:`~driveopt.prediction.PathNeighbour` when one of its poses lies on the route's lanes at more than
+:data:`~driveopt.sim.road_frame.CROSSING_ANGLE` to them: an obstacle at the nodes where it is on the route, and
+far from it elsewhere. Whether the ego waits for it or goes first is the optimiser's choice, like any other
+obstacle. Vehicles on the frame's own roads are left to the usual prediction (unchanged).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from driveopt.prediction import PathNeighbour
+from driveopt.sim.lane_graph import wrap_angle
+from driveopt.sim.road_frame import CROSSING_ANGLE, RoadFrame
+
+FAR_BEHIND = 1000.0  # [m] a pose beyond the frame's ends is put this far behind the ego
+MAX_OFFSET = 200.0  # [m] a pose beside the frame is kept within this lateral offset of it
+
+
+def _poses(vehicle: Any, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (K, 2) [m], headings (K,) [rad]) of ``vehicle`` at ``times`` [s] from now, world coordinates."""
+    if getattr(vehicle, "route", None) and hasattr(vehicle, "predict_trajectory_constant_speed"):
+        positions, headings = vehicle.predict_trajectory_constant_speed(times)
+        return np.asarray(positions, dtype=float).reshape(len(times), 2), np.asarray(headings, dtype=float)
+    heading, speed = float(vehicle.heading), float(vehicle.speed)
+    direction = np.array([math.cos(heading), math.sin(heading)])
+    return np.asarray(vehicle.position, dtype=float) + speed * np.asarray(times)[:, None] * direction, np.full(len(times), heading)
+
+
+def _frame_pose(frame: RoadFrame, position: np.ndarray, ego_x: float) -> tuple[float, float, Any, float, bool] | None:
+    """(s, d [m], piece, longitudinal [m], whether the frame places it) of a world position: where the frame places it
+    (:meth:`RoadFrame.locate`), else its coordinates along the piece whose range holds it, nearest laterally (d kept
+    within :data:`MAX_OFFSET`: beside the road, not on it), else None (beyond the frame's curved ends)."""
+    found = frame.locate(position, near_s=ego_x)
+    if found is not None:
+        s, d, piece, longitudinal, _ = found
+        return s, d, piece, longitudinal, True
+    best = None
+    for piece in frame.pieces:
+        longitudinal, lateral = piece.lane.local_coordinates(position)
+        if piece.covers(longitudinal) and (best is None or abs(lateral) < abs(best[1])):
+            best = (piece.s_start + float(longitudinal), float(lateral), piece, float(longitudinal))
+    if best is None:
+        return None
+    s, lateral, piece, longitudinal = best
+    return s, float(np.clip(piece.d_shift + lateral, -MAX_OFFSET, MAX_OFFSET)), piece, longitudinal, False
+
+
+def may_cross(vehicle: Any, frame: RoadFrame) -> bool:
+    """Whether ``vehicle`` drives (or is routed) on a road the frame does not follow: only those can cross it."""
+    roads = set(frame.roads)
+    lane = getattr(vehicle, "lane_index", None)
+    route = getattr(vehicle, "route", None) or []
+    return any(index is not None and (index[0], index[1]) not in roads for index in [lane, *route])
+
+
+def crossing_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x: float) -> PathNeighbour | None:
+    """``vehicle`` as a :class:`PathNeighbour` over ``times`` [s] (the planner's nodes) when its predicted path
+    crosses the route's lanes (see the module docstring), else None; ``ego_x`` [m]: the ego's arc length."""
+    times = np.asarray(times, dtype=float)
+    positions, headings = _poses(vehicle, times)
+    xs, ys, yaws = np.full(len(times), ego_x - FAR_BEHIND), np.zeros(len(times)), np.zeros(len(times))
+    crosses = False
+    for k, (position, heading) in enumerate(zip(positions, headings)):
+        found = _frame_pose(frame, position, ego_x)
+        if found is None:
+            continue
+        s, d, piece, longitudinal, on_frame = found
+        yaw = wrap_angle(float(heading) - float(piece.lane.heading_at(longitudinal)))
+        xs[k], ys[k], yaws[k] = s, d, yaw
+        on_lanes = on_frame and any(b.low < d < b.high and b.s_from <= s <= b.s_to for b in piece.bands)
+        crosses |= on_lanes and CROSSING_ANGLE < abs(yaw) < math.pi - CROSSING_ANGLE
+    if not crosses:
+        return None
+    return PathNeighbour(x=float(xs[0]), y=float(ys[0]), length=float(vehicle.LENGTH), width=float(vehicle.WIDTH),
+                         yaw=float(yaws[0]), t=tuple(times), path_x=tuple(xs), path_y=tuple(ys), path_yaw=tuple(yaws))

@@ -1,0 +1,65 @@
+"""Crossing traffic (driveopt.sim.crossing): a car crossing the route at a right angle, predicted along its own lane,
+is an obstacle at the nodes where it is on the route's lanes and not elsewhere."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from highway_env.road.lane import StraightLane
+from highway_env.road.road import Road, RoadNetwork
+from highway_env.vehicle.behavior import IDMVehicle
+
+from driveopt.config import BasisConfig
+from driveopt.prediction import PathNeighbour
+from driveopt.problem import build_problem
+from driveopt.scene import EgoState, Road as PlannerRoad, Scene
+from driveopt.sim.crossing import crossing_neighbour, may_cross
+from driveopt.sim.road_frame import build_frame
+
+
+def _route_frame():
+    network = RoadNetwork()
+    for k in range(2):  # two lanes along +x, centred at y = 0 and 4 m
+        network.add_lane("a", "b", StraightLane([0.0, 4.0 * k], [300.0, 4.0 * k], width=4.0))
+    return build_frame(network, ("a", "b"), ego_longitudinal=50.0)
+
+
+def _crossing_car(speed=10.0):
+    network = RoadNetwork()  # a lane along +y through x = 100 m: at right angles to the route
+    network.add_lane("c", "d", StraightLane([100.0, -60.0], [100.0, 60.0], width=4.0))
+    road = Road(network=network)
+    car = IDMVehicle(road, [100.0, -40.0], heading=np.pi / 2, speed=speed, target_lane_index=("c", "d", 0),
+                     route=[("c", "d", 0)])
+    car.target_speed = speed
+    return car
+
+
+def test_a_right_angle_crossing_is_an_obstacle_at_the_right_nodes_only():
+    frame, car = _route_frame(), _crossing_car()
+    assert may_cross(car, frame)
+    basis = BasisConfig()
+    t = np.linspace(0.0, basis.horizon, basis.num_nodes)
+    neighbour = crossing_neighbour(car, frame, np.arange(0.0, 15.01, 0.5), ego_x=50.0)
+    assert isinstance(neighbour, PathNeighbour)
+    scene = Scene(ego=EgoState(x=50.0, y=0.0, vx=10.0), road=PlannerRoad(num_lanes=2, lane_width=4.0),
+                  neighbours=(neighbour,), v_des=10.0)
+    problem = build_problem(scene, basis)
+    ox, oy, b = np.asarray(problem.obstacle_x[0]), np.asarray(problem.obstacle_y[0]), float(problem.obstacle_b[0])
+    assert float(problem.obstacle_mask[0]) == 1.0
+    on_road = (oy + b > -2.0) & (oy - b < 6.0)  # the ellipse reaches the route's lanes (y from -2 to 6 m)
+    crossing = (t > 3.9) & (t < 4.5)  # it is on the lanes from y = -2 to 6 m: 38 to 46 m at 10 m/s
+    assert np.all(on_road[crossing]) and np.allclose(ox[crossing], 50.0, atol=1e-3), "where it crosses, 50 m ahead"
+    assert not np.any(on_road[(t < 2.5) | (t > 6.0)]), "before and after, nowhere near the lanes"
+    assert b > 2.0 * 1.4, "its box across the road is its length: it drives across"
+
+
+def test_a_car_on_the_routes_own_road_is_left_to_the_usual_prediction():
+    frame = _route_frame()
+    network = frame.pieces[0].lane  # the route's lane; a car along it does not cross
+    road = Road(network=RoadNetwork())
+    road.network.add_lane("a", "b", network)
+    car = IDMVehicle(road, [80.0, 0.0], heading=0.0, speed=10.0, target_lane_index=("a", "b", 0), route=[("a", "b", 0)])
+    assert not may_cross(car, frame)
+    assert crossing_neighbour(car, frame, np.arange(0.0, 15.01, 0.5), ego_x=50.0) is None
+    with pytest.raises(Exception, match="equally long"):
+        PathNeighbour(x=0.0, y=0.0, t=(0.0, 1.0), path_x=(0.0,), path_y=(0.0, 0.0), path_yaw=(0.0, 0.0))

@@ -1,0 +1,65 @@
+"""A route's lanes at a split as a goal (driveopt.sim.route_goal): found from the lane graph, widening with the
+distance, given up when out of reach, and absent without a route."""
+
+from __future__ import annotations
+
+import pytest
+
+import driveopt
+from driveopt.sim.perception import Task, perceive
+from driveopt.sim.road_frame import ego_frame
+from driveopt.sim.route_goal import RouteChange, Split, find_split, missed, split_goal
+
+CONTINUOUS = {"action": {"type": "ContinuousAction"}}
+EXIT = ["0", "1", "2", "exit"]
+
+
+@pytest.fixture(scope="module")
+def exit_env():
+    env = driveopt.gym_make("exit-v0", config=CONTINUOUS)
+    env.reset(seed=0)
+    return env
+
+
+def test_exit_routes_split_is_the_exit_lane_at_the_end_of_road_1_2(exit_env):
+    frame, me = ego_frame(exit_env, EXIT)
+    split = find_split(exit_env.unwrapped.road.network, frame, me.x)
+    assert split == Split(("1", "2"), ("2", "exit"), 500.0, ((22.0, 26.0),), 4.0)
+    straight, _ = ego_frame(exit_env, ["0", "1", "2", "3"])
+    split = find_split(exit_env.unwrapped.road.network, straight, me.x)
+    assert split.following == ("2", "3") and split.bands == ((-2.0, 22.0),)  # every lane but the exit lane
+
+
+def test_the_goal_exists_only_with_a_route_and_narrows_the_far_lanes_first(exit_env):
+    assert perceive(exit_env, Task(v_des=25.0)).goal is None  # no route: the scene and problem as before
+    perception = perceive(exit_env, Task(v_des=25.0, route=EXIT))
+    goal = perception.goal
+    assert goal.bands == ((22.0, 26.0),) and goal.x[1] == 500.0
+    split = Split(("1", "2"), ("2", "exit"), 500.0, ((22.0, 26.0),), 4.0)
+    goal = split_goal(split, 175.0, 0.0, 25.0)  # at the latest one lane per 37.5 m, the band itself from 475 m
+    assert goal.x == (475.0, 500.0) and goal.widen == pytest.approx(4.0 / 37.5)
+    assert goal.speed == pytest.approx((0.0, 300.0 / (6 * 3.0)))  # 6 lanes to change in 300 m, 3 s each
+    assert split_goal(split, 175.0, 24.0, 25.0).speed is None  # in the lane: no speed advice
+
+
+def test_a_split_out_of_reach_is_missed_and_one_within_reach_is_not():
+    split = Split(("1", "2"), ("2", "exit"), 500.0, ((22.0, 26.0),), 4.0)
+    assert not missed(split, 300.0, 0.0, 25.0)  # 200 m for 22 m across
+    assert missed(split, 480.0, 0.0, 25.0)  # 20 m left for 22 m across
+    assert not missed(split, 495.0, 24.0, 25.0)  # in the lane
+    with pytest.raises(ValueError, match="lane_time"):
+        RouteChange(lane_time=0.0)
+
+
+def test_a_missed_split_reads_the_road_straight_on(exit_env):
+    sim = exit_env.unwrapped
+    saved = sim.vehicle.position.copy()
+    try:
+        sim.vehicle.position[:] = [490.0, 0.0]
+        sim.vehicle.lane_index = sim.road.network.get_closest_lane_index(sim.vehicle.position, sim.vehicle.heading)
+        perception = perceive(exit_env, Task(v_des=25.0, route=EXIT))
+        assert perception.goal is None and ("2", "3") in perception.frame.roads
+        assert perception.scene.road.num_lanes >= 6, "straight on: the lanes that continue past the split"
+    finally:
+        sim.vehicle.position[:] = saved
+        sim.vehicle.lane_index = sim.road.network.get_closest_lane_index(sim.vehicle.position, sim.vehicle.heading)
