@@ -266,12 +266,10 @@ def _run_locked(spec: BenchSpec, out: Path, workers: int, backend: str, episode_
 def _run_lockstep(todo: list[JobKey], options: dict[str, Any], finished: Any, slots: int, backend: str) -> None:
     """The jobs ``todo`` in lock-step, ``slots`` episodes per planning call: each arm whole in this process, or cut
     into cells of :data:`driveopt.experiments.lockstep.CELL_ROUNDS` x ``slots`` jobs, one Ray task each."""
-    import functools
-
     from driveopt.experiments.lockstep import cells, run_lockstep
 
     parts = cells(todo, slots) if backend == "ray" else cells(todo, slots, rounds=max(len(todo), 1))
-    execute_cells(parts, options, functools.partial(run_lockstep, slots=slots), finished, backend=backend)
+    execute_cells(parts, options, run_lockstep, finished, args=(slots,), backend=backend)
 
 
 def write_summaries(rows: list[dict[str, Any]], out: Path) -> None:

@@ -2,7 +2,7 @@
 step makes one planning call for all of them (:func:`driveopt.multi_plan.plan_many`), so that an accelerator or a
 big CPU gets a batch E times larger per call.
 
-    run_lockstep(jobs, options, append, slots=8)                 # in this process, records as episodes end
+    run_lockstep(jobs, options, append, 8)                       # in this process, records as episodes end
     cells(jobs, slots)                                           # the jobs cut into cells, one Ray task each
 
 Each slot holds one episode: its simulator, its driver (:class:`driveopt.drivers.optimiser.OptimiserDriver`) and its
@@ -96,8 +96,8 @@ class _Slot:
         self.env.close()
 
 
-def run_lockstep(jobs: Sequence[JobKey], options: dict[str, Any], finished: Callable[[dict[str, Any]], None] | None = None,
-                 *, slots: int) -> list[dict[str, Any]]:
+def run_lockstep(jobs: Sequence[JobKey], options: dict[str, Any], finished: Callable[[dict[str, Any]], None] | None,
+                 slots: int) -> list[dict[str, Any]]:
     """Run ``jobs`` (any arms; each arm's in turn) ``slots`` episodes at a time, in this process, and hand each record
     to ``finished`` as its episode ends (in completion order). Returns the records when ``finished`` is None (a Ray
     task's answer), else []. ``options``: the bench options (:func:`driveopt.experiments.bench.episode_record`)."""

@@ -43,7 +43,7 @@ from driveopt.errors import DriveoptError, UnknownNameError
 from driveopt.experiments.store import JobKey
 
 EpisodeFn = Callable[[JobKey, dict], dict]
-CellFn = Callable[..., list]  # (jobs, options, finished=None) -> records (driveopt.experiments.lockstep)
+CellFn = Callable[..., list]  # (jobs, options, finished or None, *args) -> records (driveopt.experiments.lockstep)
 BACKENDS = ("local", "ray")
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 ORPHAN_POLL_S = 0.5  # [s] how often a worker checks that its parent is alive
@@ -217,23 +217,23 @@ def _run_ray(todo: Sequence[JobKey], options: dict, episode_fn: EpisodeFn, finis
 
 
 def execute_cells(cells: Sequence[Sequence[JobKey]], options: dict, cell_fn: CellFn, finished: Callable[[dict], None],
-                  *, backend: str = "local", gpus: float | None = None) -> None:
-    """Run ``cell_fn(cell, options)`` (a module-level function returning the cell's records) for every cell of jobs
-    and hand each record to ``finished``: in this process one cell after another (``cell_fn`` then gets ``finished``
-    and hands each record over as its episode ends), or as Ray tasks, a cell's records handed over when it ends (a
-    stopped run keeps the records of the cells that ended). ``gpus``: the GPUs a Ray task asks for (None: 1 when the
-    cluster has any, so that each cell has a GPU to itself; else 0)."""
+                  *, args: tuple = (), backend: str = "local", gpus: float | None = None) -> None:
+    """Run ``cell_fn(cell, options, None, *args)`` (a module-level function returning the cell's records) for every
+    cell of jobs and hand each record to ``finished``: in this process one cell after another (``cell_fn`` then gets
+    ``finished`` in place of None and hands each record over as its episode ends), or as Ray tasks, a cell's records
+    handed over when it ends (a stopped run keeps the records of the cells that ended). ``gpus``: the GPUs a Ray task
+    asks for (None: 1 when the cluster has any, so that each cell has a GPU to itself; else 0)."""
     check_backend(backend)
     if backend != "ray":
         for cell in cells:
-            cell_fn(cell, options, finished)
+            cell_fn(cell, options, finished, *args)
         return
 
     def each(records: list[dict]) -> None:
         for record in records:
             finished(record)
 
-    _run_ray_tasks(cell_fn, [(cell, options) for cell in cells], each, gpus=gpus)
+    _run_ray_tasks(cell_fn, [(cell, options, None, *args) for cell in cells], each, gpus=gpus)
 
 
 def _run_ray_tasks(fn: Callable[..., Any], arguments: list[tuple], finished: Callable[[Any], None], *,
