@@ -26,6 +26,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("fallback",),
     ("method",),  # ranking, fallback and row sharing as one value
     ("planner",),  # solve() and plan()
+    ("multi_plan",),  # many problems in one compiled call (episodes in lock-step)
     ("learned", "data"),  # networks and checkpoints; demonstrations
     ("priors", "safety"),  # first-batch proposals; the learned safety filter
     ("drivers",),  # who acts in the closed loop

@@ -466,12 +466,36 @@ def plan(
     x_offset: [m] added to x of the returned trajectories (the ego's road-frame x): a finite real number within the
         scene's position range (``driveopt.scene.RANGES["x"]``), as the command line's problem files require.
     """
+    checked = check_call(problem, config, key, warm_start, previous, x_offset)
+    if prior is None:
+        prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
+    compiled_config, runtime = split_runtime(config)
+    solution = jax.device_get(exported_solve()(checked.problem, checked.key, prior=prior, warm_start=checked.warm_start,
+                                               previous=checked.previous, safety_filter=safety_filter,
+                                               config=compiled_config, method=method, runtime=runtime))
+    return solution_result(solution, config, method, checked)
+
+
+class CheckedCall(NamedTuple):
+    """The inputs of one planning call as :func:`plan` hands them to :func:`solve` (:func:`check_call`)."""
+
+    problem: PlanningProblem
+    key: jax.Array
+    warm_start: WarmStart  # numpy float32 mean and a 0-d bool flag
+    previous: PreviousPlan | None  # numpy float32 arrays and a 0-d bool flag, or None
+    placeholder: bool  # ``previous`` is the absent plan's placeholder: its row is removed from the snapshots
+    x_offset: float  # [m]
+
+
+def check_call(problem: PlanningProblem, config: PlannerConfig, key: jax.Array,
+               warm_start: np.ndarray | WarmStart | None = None, previous: PreviousPlan | None = None,
+               x_offset: float = 0.0) -> CheckedCall:
+    """The input of :func:`plan` checked and in the form :func:`solve` compiles once for (ProblemError, ConfigError:
+    see :func:`plan`)."""
     check_problem(problem, config.basis)
     check_planning_size(config, int(np.shape(problem.obstacle_x)[0]))  # before anything is compiled
     _check_key(key)
     x_offset = _checked_x_offset(x_offset)
-    if prior is None:
-        prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
     if not isinstance(warm_start, WarmStart):
         warm_start = WarmStart.absent() if warm_start is None else WarmStart(warm_start)
     mean = np.asarray(warm_start.mean, dtype=np.float32)
@@ -486,14 +510,15 @@ def plan(
         if shapes != ((SETPOINT_DIM,), (config.basis.num_nodes,)) or not all(np.all(np.isfinite(a)) for a in previous[:2]):
             raise ProblemError(f"previous plan must be finite with shapes (8,) and ({config.basis.num_nodes},), got {shapes}")
         placeholder = not present
-    compiled_config, runtime = split_runtime(config)
-    solution = jax.device_get(exported_solve()(problem, key, prior=prior, warm_start=warm_start, previous=previous,
-                                               safety_filter=safety_filter, config=compiled_config, method=method,
-                                               runtime=runtime))
-    if placeholder:  # the result as without a previous plan
+    return CheckedCall(problem, key, warm_start, previous, placeholder, x_offset)
+
+
+def solution_result(solution: Solution, config: PlannerConfig, method: Method, checked: CheckedCall) -> PlanResult:
+    """The :class:`PlanResult` of ``solution`` (numpy, one call's), made from the inputs ``checked``."""
+    if checked.placeholder:  # the result as without a previous plan
         row = config.sampler.num_samples
         solution = solution._replace(first=_without_row(solution.first, row), last=_without_row(solution.last, row))
-    return _to_result(solution, config, method.fallback, x_offset)
+    return _to_result(solution, config, method.fallback, checked.x_offset)
 
 
 def _shown(value: Any) -> str:

@@ -1,8 +1,9 @@
 """``driveopt bench``: scenarios x planners x seeds x episodes, resumable, with summary table and plots.
 
-Names, options and seeds are checked before the output folder is touched (``BenchSpec.check``); a folder another
-run is writing is refused at once. Ctrl-C stops at once with ``driveopt: interrupted: N episodes kept in OUT; ...``
-and status 130.
+With ``--lockstep E`` the episodes of each planner step E at a time, one planning call for all of them per policy step
+(:mod:`driveopt.experiments.lockstep`). Names, options and seeds are checked before the output folder is touched
+(``BenchSpec.check``); a folder another run is writing is refused at once. Ctrl-C stops at once with ``driveopt:
+interrupted: N episodes kept in OUT; ...`` and status 130.
 """
 
 from __future__ import annotations
@@ -37,6 +38,9 @@ def register(sub) -> None:
                         "to policy periods; MS: a fixed compute time [ms] instead (deterministic)")
     p.add_argument("--scenario-config", help="JSON file of scenario-field overrides applied to every scenario")
     p.add_argument("--workers", type=positive_int, help="parallel episodes (default: the CPUs it may use, its affinity)")
+    p.add_argument("--lockstep", type=positive_int, metavar="E",
+                   help="step E episodes of each planner together, one planning call for all per policy step (one "
+                        "process, or cells of jobs as Ray tasks; optimisers with synchronous latency only)")
     p.add_argument("--backend", choices=["local", "ray"], default="local",
                    help="local processes, or Ray (RAY_ADDRESS names the cluster; needs driveopt[ray])")
     p.add_argument("--out", default="out/bench", help="output directory (rerun to resume)")
@@ -58,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     spec = BenchSpec(tuple(args.scenarios), tuple(args.planners), tuple(args.seeds), args.episodes, options,
                      tuple(args.episode_list or ()))
     try:
-        rows = run_bench(spec, args.out, workers=args.workers, backend=args.backend)
+        rows = run_bench(spec, args.out, workers=args.workers, backend=args.backend, lockstep=args.lockstep)
     except KeyboardInterrupt:
         kept = len(load_records(Path(args.out) / "episodes.jsonl"))
         raise KeyboardInterrupt(f"{kept} episodes kept in {args.out}; rerun the same command to resume") from None

@@ -52,6 +52,7 @@ from driveopt.drivers.latency import Latency, Synchronous, parse_latency
 from driveopt.fallback import Fallback
 from driveopt.files import pytree_digest
 from driveopt.method import DRIVEOPT_METHOD, Method
+from driveopt.multi_plan import Call
 from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, plan, previous_plan
 from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
@@ -254,6 +255,15 @@ class OptimiserSpec(DriverSpec):
         return self if latency is None else dataclasses.replace(self, latency=parse_latency(latency))
 
 
+class Shared(NamedTuple):
+    """What planning calls of several episodes must share to be solved together (:func:`driveopt.multi_plan.plan_many`)."""
+
+    config: PlannerConfig  # adapted to the car (adapt_to_vehicle)
+    prior: Any
+    safety_filter: Any
+    method: Method
+
+
 class _Call(NamedTuple):
     """One planning call: its result, what it planned from, and when it takes effect."""
 
@@ -281,8 +291,10 @@ class OptimiserDriver:
         self.name = spec.name
         self.compile_seconds = 0.0
 
-    def reset(self, env: Any, scenario: Any, seed: int) -> None:
-        """Adapt the configuration to the env's car and road, load the prior, and compile (timed as ``compile_seconds``).
+    def reset(self, env: Any, scenario: Any, seed: int, *, warm_up: bool = True) -> None:
+        """Adapt the configuration to the env's car and road, load the prior, and compile (timed as ``compile_seconds``;
+        ``warm_up`` False: no warm-up call, ``compile_seconds`` 0, for a caller that plans through
+        :func:`driveopt.multi_plan.plan_many` and compiles that; the episode is the same either way).
 
         The car's acceleration and steering ranges, its length, the simulation and policy frequencies and the road
         are read from ``env``; ``scenario`` (a :class:`~driveopt.sim.scenarios.Scenario` or a
@@ -304,17 +316,26 @@ class OptimiserDriver:
         # loop (the result is discarded).
         self.warm = None
         self.previous = PreviousPlan.absent(self.config.basis.num_nodes) if self.carries_plan else None
-        start = time.perf_counter()
-        problem = self._problem(first.scene, first.goal)
-        plan(problem, self.config, key=jax.random.fold_in(self.key, 1), prior=self.prior, warm_start=self.warm,
-             previous=self.previous, safety_filter=self.safety_filter, method=self.method)
-        self.compile_seconds = time.perf_counter() - start
+        self._first_scene, self._first_goal = first.scene, first.goal
+        self.compile_seconds = 0.0
+        if warm_up:
+            start = time.perf_counter()
+            call = self.warm_up_call()
+            plan(call.problem, self.config, key=call.key, prior=self.prior, warm_start=call.warm_start,
+                 previous=call.previous, safety_filter=self.safety_filter, method=self.method)
+            self.compile_seconds = time.perf_counter() - start
         self.executing: _Call | None = None  # the plan in effect
         self.executed_periods = 0  # [policy periods] into the plan in effect at the current step
         self.pending: _Call | None = None  # a plan computed but not yet in effect (real-time latency)
         self.steps = 0  # [-] policy steps acted this episode
         self.started_at = 0  # [-] the step the latest planning call started at
         self.expected = self.spec.latency.periods(0.0, self.period)  # [policy periods] a call's expected compute time
+
+    def warm_up_call(self) -> Call:
+        """The call that :meth:`reset` compiles with (the episode's first scene, a key the episode never draws): its
+        result is discarded, and it leaves the driver as it was."""
+        return Call(self._problem(self._first_scene, self._first_goal), jax.random.fold_in(self.key, 1), self.warm,
+                    self.previous)
 
     def _problem(self, scene: Any, goal: Any = None):
         """The planning problem of ``scene``; ``goal``: the route's lanes at a split ahead (perception's), or None."""
@@ -338,20 +359,49 @@ class OptimiserDriver:
         return result.trajectory if self._executes_chosen(result) else result.safe_trajectory
 
     def act(self, env: Any) -> Decision:
-        delivered = self._deliver()
-        perception = None
-        command = None
-        if self._starts_call():
-            perception = perceive(env, self.scenario, self.preview)
-            if self._ahead():  # the plan in effect carries the car until the new one takes effect: command it first
-                command, guarded = self._step_command(env, perception)
-            call = self._plan(perception, command)
+        call = self.prepare(env)
+        if call is None:
+            return self.finish(env)
+        start = time.perf_counter()
+        result = plan(call.problem, self.config, key=call.key, prior=self.prior, warm_start=call.warm_start,
+                      previous=call.previous, safety_filter=self.safety_filter, x_offset=call.x_offset, method=self.method)
+        return self.finish(env, result, time.perf_counter() - start)
+
+    def prepare(self, env: Any) -> Call | None:
+        """The first half of :meth:`act`: the planning call this step starts (the arguments of ``plan`` that differ
+        between episodes; the shared ones are :meth:`shared`), or None when none starts. Then :meth:`finish` with
+        its result, so that several episodes' calls can be solved together (:func:`driveopt.multi_plan.plan_many`)."""
+        self._delivered = self._deliver()
+        self._perception = self._command_now = None
+        self._guarded = False
+        if not self._starts_call():
+            if self.spec.loop.contact_guard:
+                self._perception = perceive(env, self.scenario, self.preview)
+            return None
+        perception = self._perception = perceive(env, self.scenario, self.preview)
+        if self._ahead():  # the plan in effect carries the car until the new one takes effect: command it first
+            self._command_now, self._guarded = self._step_command(env, perception)
+        ahead = self._ahead() if self._command_now is not None else 0
+        scene = self._predicted(perception, ahead, self._command_now) if ahead else perception.scene
+        problem = self._problem(scene, perception.goal)
+        self.key, sub = jax.random.split(self.key)
+        self._request = (scene, problem, ahead)
+        return Call(problem, sub, self.warm, self.previous, scene.ego.x)
+
+    def shared(self) -> Shared:
+        """What this driver's planning calls share with other episodes' (configuration, prior, filter, method)."""
+        return Shared(self.config, self.prior, self.safety_filter, self.method)
+
+    def finish(self, env: Any, result: PlanResult | None = None, seconds: float = 0.0) -> Decision:
+        """The second half of :meth:`act`: the step's decision, given the ``result`` of the call :meth:`prepare`
+        started (None when it started none) and its wall time ``seconds`` [s]."""
+        delivered, perception, command, guarded = self._delivered, self._perception, self._command_now, self._guarded
+        if result is not None:
+            call = self._called(result, seconds)
             if call.periods == 0:
                 delivered = self._take_effect(call)
             else:
                 self.pending = call
-        elif self.spec.loop.contact_guard:
-            perception = perceive(env, self.scenario, self.preview)
         executing, elapsed = self.executing, self.executed_periods * self.period
         if command is None:
             command, guarded = self._step_command(env, perception)
@@ -382,22 +432,14 @@ class OptimiserDriver:
         return self._command(self.executing.result, self.executing.world, self.executed_periods * self.period, tracking,
                              env, perception)
 
-    def _plan(self, perception: Perception, command: Command | None = None) -> _Call:
-        """Plan from ``perception`` (the state now, or predicted :meth:`_ahead` when ``command``, this step's, is
-        given) with the carried warm start and previous plan."""
-        ahead = self._ahead() if command is not None else 0
-        scene = self._predicted(perception, ahead, command) if ahead else perception.scene
-        problem = self._problem(scene, perception.goal)
-        self.key, sub = jax.random.split(self.key)
-        start = time.perf_counter()
-        result = plan(problem, self.config, key=sub, prior=self.prior, warm_start=self.warm, previous=self.previous,
-                      safety_filter=self.safety_filter, x_offset=scene.ego.x, method=self.method)
-        seconds = time.perf_counter() - start
+    def _called(self, result: PlanResult, seconds: float) -> _Call:
+        """The call :meth:`prepare` started, finished with ``result`` after ``seconds`` [s] of wall time."""
+        scene, problem, ahead = self._request
         index = 0 if self.executing is None else self.executing.index + 1
         periods = 0 if self.executing is None else self.spec.latency.periods(seconds, self.period)
         self.started_at = self.steps
-        world = to_world(self.followed(result), perception.frame)  # in world coordinates, for tracking
-        return _Call(index, result, world, scene, problem, perception.frame, seconds, periods, ahead)
+        world = to_world(self.followed(result), self._perception.frame)  # in world coordinates, for tracking
+        return _Call(index, result, world, scene, problem, self._perception.frame, seconds, periods, ahead)
 
     def _predicted(self, perception: Perception, ahead: int, command: Command) -> Any:
         """The scene of ``perception`` (the road frame now) ``ahead`` policy periods later, as a plan started now meets

@@ -33,7 +33,7 @@ from driveopt.drivers.base import DriverSpec, check_weights_file
 from driveopt.drivers.latency import parse_latency
 from driveopt.errors import DriveoptError
 from driveopt.experiments.rollout import run_episode
-from driveopt.experiments.runner import EpisodeFn, check_backend, cpu_model, execute, usable_cpus
+from driveopt.experiments.runner import EpisodeFn, check_backend, cpu_model, execute, execute_cells, usable_cpus
 from driveopt.experiments.store import (
     RECORDS_FILE,
     SPEC_FILE,
@@ -77,10 +77,14 @@ def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
     spec = planner_spec(job.planner, options)
     scenario = resolve_scenario(job.scenario, overrides=options.get("scenario"))
     record = run_episode(scenario, spec, job.env_seed, duration=options.get("duration")).record()
-    # where it planned, on how many CPUs (the worker's share, see driveopt.experiments.runner) of which model: its
-    # plan_ms are theirs; and which driveopt sources and jax and numpy versions ran it, so that records of other code
-    # are told apart
-    return {**record, "device": jax.default_backend(), "cpus": len(usable_cpus()), "cpu_model": cpu_model(),
+    return {**record, **provenance()}
+
+
+def provenance() -> dict[str, Any]:
+    """Where an episode planned, on how many CPUs (the worker's share, see driveopt.experiments.runner) of which model:
+    its plan_ms are theirs; and which driveopt sources and jax and numpy versions ran it, so that records of other code
+    are told apart."""
+    return {"device": jax.default_backend(), "cpus": len(usable_cpus()), "cpu_model": cpu_model(),
             "code": source_digest()[:CODE_DIGITS], "jax": jax.__version__, "numpy": np.__version__}
 
 
@@ -191,22 +195,43 @@ def run_bench(
     backend: str = "local",
     episode_fn: EpisodeFn = episode_record,
     progress: bool = True,
+    lockstep: int | None = None,
 ) -> list[dict[str, Any]]:
     """Run the missing jobs of ``spec``, then write summary.csv, summary.md, summary.json and summary.png.
 
     workers: parallel episodes (default: the CPUs this process may use); 1 runs in this process. backend: 'local' or 'ray'.
+    lockstep: episodes of one arm stepped together, one planning call for all per policy step
+    (:mod:`driveopt.experiments.lockstep`): in this process (``workers`` 1), or as Ray tasks of cells of jobs; only
+    for optimiser planners with synchronous latency and the default ``episode_fn``. None: one episode at a time.
     Returns the summary rows over every record of the folder (this spec's, old and new, then those of other runs that
     share the folder). OutputInUseError (driveopt.files) at once when another run holds the folder.
     """
     spec.check()
     check_backend(backend)
+    if lockstep is not None:
+        check_lockstep_run(spec, lockstep, workers, episode_fn)
+        workers = 1
     out = make_output_folder(out_dir, StoreError, "episodes.jsonl, spec.json and the summaries")
     with lock_output_folder(out):
-        return _run_locked(spec, out, workers or len(usable_cpus()), backend, episode_fn, progress)
+        return _run_locked(spec, out, workers or len(usable_cpus()), backend, episode_fn, progress, lockstep)
+
+
+def check_lockstep_run(spec: BenchSpec, lockstep: int, workers: int | None, episode_fn: EpisodeFn) -> None:
+    """BenchOptionError or LockstepError unless ``spec`` can run ``lockstep`` episodes per planning call: every planner
+    an optimiser with synchronous latency, one worker, the simulated episodes (not a custom ``episode_fn``)."""
+    from driveopt.experiments.lockstep import check_lockstep
+
+    if workers is not None and workers != 1:
+        raise BenchOptionError(f"--lockstep runs its episodes in one process, not {workers} workers: leave --workers "
+                               "out (or give 1), or spread cells over a cluster with --backend ray")
+    if episode_fn is not episode_record:
+        raise BenchOptionError("lock-step runs the simulated episodes only, not a custom episode function")
+    for name in spec.planners:
+        check_lockstep(planner_spec(name, spec.options), lockstep)
 
 
 def _run_locked(spec: BenchSpec, out: Path, workers: int, backend: str, episode_fn: EpisodeFn,
-                progress: bool) -> list[dict[str, Any]]:
+                progress: bool, lockstep: int | None = None) -> list[dict[str, Any]]:
     """:func:`run_bench` in the folder ``out``, which this process holds."""
     store = out / RECORDS_FILE
     recorded, done = load_folder(out)
@@ -222,7 +247,10 @@ def _run_locked(spec: BenchSpec, out: Path, workers: int, backend: str, episode_
         bar.set_postfix_str(f"{record['scenario']}/{record['planner']} crashed={record['collided']}")
 
     try:
-        execute(todo, spec.options, episode_fn, finished, workers=workers, backend=backend)
+        if lockstep is None:
+            execute(todo, spec.options, episode_fn, finished, workers=workers, backend=backend)
+        else:
+            _run_lockstep(todo, spec.options, finished, lockstep, backend)
     finally:
         bar.close()
 
@@ -233,6 +261,15 @@ def _run_locked(spec: BenchSpec, out: Path, workers: int, backend: str, episode_
     rows = summarise(records)
     write_summaries(rows, out)
     return rows
+
+
+def _run_lockstep(todo: list[JobKey], options: dict[str, Any], finished: Any, slots: int, backend: str) -> None:
+    """The jobs ``todo`` in lock-step, ``slots`` episodes per planning call: each arm whole in this process, or cut
+    into cells of :data:`driveopt.experiments.lockstep.CELL_ROUNDS` x ``slots`` jobs, one Ray task each."""
+    from driveopt.experiments.lockstep import cells, run_lockstep
+
+    parts = cells(todo, slots) if backend == "ray" else cells(todo, slots, rounds=max(len(todo), 1))
+    execute_cells(parts, options, run_lockstep, finished, args=(slots,), backend=backend)
 
 
 def write_summaries(rows: list[dict[str, Any]], out: Path) -> None:

@@ -127,24 +127,9 @@ class Rollout:
                     if not episode.off_road:
                         raise
                     return  # the car left the road and then the reach of the planner's road frame: it ends off-road
-                if decision.result is not None:
-                    episode.plan_ms.append(1e3 * decision.plan_seconds)
-                    episode.plan_seconds += decision.plan_seconds
-                    episode.statuses[decision.result.status.name] += 1
-                if decision.latency_periods is not None:
-                    episode.plan_periods.append(decision.latency_periods)
-                episode.guarded += decision.guarded
+                note_decision(episode, decision)
                 yield Step(env, decision, episode)
-                start = time.perf_counter()
-                outcome = step_env(env, decision.action)
-                episode.sim_seconds += time.perf_counter() - start
-                ego = env.unwrapped.vehicle
-                episode.speeds.append(float(ego.speed))
-                episode.lateral.append(float(ego.position[1]))
-                episode.sim_duration = outcome.time
-                episode.collided |= outcome.crashed
-                episode.off_road |= outcome.off_road
-                if outcome.done or outcome.crashed:
+                if advance(env, episode, decision.action):
                     return
         finally:
             env.close()
@@ -154,6 +139,32 @@ class Rollout:
         for _ in self:
             pass
         return self.episode
+
+
+def note_decision(episode: Episode, decision: Decision) -> None:
+    """Record in ``episode`` what the step's ``decision`` says: its plan's time and status, its latency, its guard."""
+    if decision.result is not None:
+        episode.plan_ms.append(1e3 * decision.plan_seconds)
+        episode.plan_seconds += decision.plan_seconds
+        episode.statuses[decision.result.status.name] += 1
+    if decision.latency_periods is not None:
+        episode.plan_periods.append(decision.latency_periods)
+    episode.guarded += decision.guarded
+
+
+def advance(env: Any, episode: Episode, action: np.ndarray) -> bool:
+    """Step the simulator with ``action`` and record the outcome in ``episode``; whether the episode has ended (its
+    duration reached, or a collision)."""
+    start = time.perf_counter()
+    outcome = step_env(env, action)
+    episode.sim_seconds += time.perf_counter() - start
+    ego = env.unwrapped.vehicle
+    episode.speeds.append(float(ego.speed))
+    episode.lateral.append(float(ego.position[1]))
+    episode.sim_duration = outcome.time
+    episode.collided |= outcome.crashed
+    episode.off_road |= outcome.off_road
+    return bool(outcome.done or outcome.crashed)
 
 
 def run_episode(scenario: Scenario | str, planner: DriverSpec | str, seed: int, *, duration: float | None = None,

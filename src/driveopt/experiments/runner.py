@@ -19,6 +19,9 @@ is killed with everything it runs, within a second. When this process is killed 
 Ray's own fate sharing ends the instance's GCS, raylet and workers with it, and a small reaper process started
 with the instance kills the rest within a second (the raylet's two agents, which would linger for a minute).
 Install Ray with ``pip install 'driveopt[ray]'``.
+
+:func:`execute_cells` runs cells of jobs instead (``driveopt bench --lockstep``, :mod:`driveopt.experiments.lockstep`):
+in this process one after another, or one Ray task per cell, a GPU each where the cluster has any.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from driveopt.errors import DriveoptError, UnknownNameError
 from driveopt.experiments.store import JobKey
 
 EpisodeFn = Callable[[JobKey, dict], dict]
+CellFn = Callable[..., list]  # (jobs, options, finished or None, *args) -> records (driveopt.experiments.lockstep)
 BACKENDS = ("local", "ray")
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 ORPHAN_POLL_S = 0.5  # [s] how often a worker checks that its parent is alive
@@ -209,12 +213,41 @@ def _import_ray() -> Any:
 
 
 def _run_ray(todo: Sequence[JobKey], options: dict, episode_fn: EpisodeFn, finished: Callable[[dict], None]) -> None:
+    _run_ray_tasks(call, [(episode_fn, job, options) for job in todo], finished)
+
+
+def execute_cells(cells: Sequence[Sequence[JobKey]], options: dict, cell_fn: CellFn, finished: Callable[[dict], None],
+                  *, args: tuple = (), backend: str = "local", gpus: float | None = None) -> None:
+    """Run ``cell_fn(cell, options, None, *args)`` (a module-level function returning the cell's records) for every
+    cell of jobs and hand each record to ``finished``: in this process one cell after another (``cell_fn`` then gets
+    ``finished`` in place of None and hands each record over as its episode ends), or as Ray tasks, a cell's records
+    handed over when it ends (a stopped run keeps the records of the cells that ended). ``gpus``: the GPUs a Ray task
+    asks for (None: 1 when the cluster has any, so that each cell has a GPU to itself; else 0)."""
+    check_backend(backend)
+    if backend != "ray":
+        for cell in cells:
+            cell_fn(cell, options, finished, *args)
+        return
+
+    def each(records: list[dict]) -> None:
+        for record in records:
+            finished(record)
+
+    _run_ray_tasks(cell_fn, [(cell, options, None, *args) for cell in cells], each, gpus=gpus)
+
+
+def _run_ray_tasks(fn: Callable[..., Any], arguments: list[tuple], finished: Callable[[Any], None], *,
+                   gpus: float | None = 0) -> None:
+    """``fn(*args)`` as one Ray task per item of ``arguments``; each answer handed to ``finished`` as it comes.
+    ``gpus``: per task (None: 1 when the cluster has any GPU, else 0)."""
     global _local_ray
     ray = _import_ray()
     if not ray.is_initialized():
         _local_ray = _start_ray(ray)
-    remote = ray.remote(call)
-    refs = [remote.remote(episode_fn, job, options) for job in todo]
+    if gpus is None:
+        gpus = 1 if ray.cluster_resources().get("GPU", 0) >= 1 else 0
+    remote = ray.remote(num_gpus=gpus)(fn) if gpus else ray.remote(fn)
+    refs = [remote.remote(*args) for args in arguments]
     try:
         while refs:  # in short waits: Ray notices a signal in a blocking wait only about once a second
             done, refs = ray.wait(refs, num_returns=1, timeout=RAY_POLL_S)

@@ -102,6 +102,7 @@ _OPTIONAL: tuple[tuple[str, str, Callable[[Any], bool]], ...] = (
     ("cpu_model", "a string", lambda v: isinstance(v, str)),  # the processor model it planned on
     ("jax", "a string", lambda v: isinstance(v, str)),  # the jax version that ran it
     ("numpy", "a string", lambda v: isinstance(v, str)),  # the numpy version
+    ("lockstep", "an integer >= 1", lambda v: _is_int(v) and v >= 1),  # episodes per planning call (lock-step runs)
 )
 
 

@@ -70,7 +70,8 @@ def summarise(records: Iterable[dict[str, Any]], reference: str = REFERENCE) -> 
         low, high = wilson_interval(crashed, n)
         free = [r["mean_speed"] for r in rs if not r["collided"]]
         faster, compared = _faster(rs, by_episode) if by_episode and planner != reference else (0, 0)
-        timed = [r for r in rs if r.get("device", TIMING_DEVICE) == TIMING_DEVICE]
+        # planning times of CPU episodes planned one at a time (a lock-step record's are shared calls' times)
+        timed = [r for r in rs if r.get("device", TIMING_DEVICE) == TIMING_DEVICE and r.get("lockstep", 1) == 1]
         plan_ms = np.concatenate([np.asarray(r.get("plan_ms", []), float) for r in timed]) if timed else np.zeros(0)
         rows.append({
             "scenario": scenario,

@@ -166,9 +166,9 @@ class ClaimResult:
 
 def same_processor(x: dict[str, Any], y: dict[str, Any]) -> bool:
     """Whether two records' plan times are comparable: both name one processor model, and the same device where
-    either names one."""
+    either names one, and both planned alone or in lock-step calls of one size (``lockstep``)."""
     return (x.get("cpu_model") is not None and x.get("cpu_model") == y.get("cpu_model")
-            and x.get("device") == y.get("device"))
+            and x.get("device") == y.get("device") and x.get("lockstep") == y.get("lockstep"))
 
 
 def processor_of(record: dict[str, Any]) -> str:
