@@ -24,16 +24,15 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-import jax
-import numpy as np
 from tqdm import tqdm
 
 from driveopt.checks import check_count, check_number
 from driveopt.drivers.base import DriverSpec, check_weights_file
 from driveopt.drivers.latency import parse_latency
 from driveopt.errors import DriveoptError
+from driveopt.experiments.arms import planner_spec, provenance
 from driveopt.experiments.rollout import run_episode
-from driveopt.experiments.runner import EpisodeFn, check_backend, cpu_model, execute, execute_cells, usable_cpus
+from driveopt.experiments.runner import EpisodeFn, check_backend, execute, execute_cells, usable_cpus
 from driveopt.experiments.store import (
     RECORDS_FILE,
     SPEC_FILE,
@@ -51,9 +50,7 @@ from driveopt.experiments.store import (
 )
 from driveopt.experiments.summary import markdown_table, plot_summary, summarise, write_csv
 from driveopt.files import atomic_write, json_text, lock_output_folder, make_output_folder, write_json
-from driveopt.registry import get_planner
 from driveopt.sim.scenarios import resolve_scenario
-from driveopt.solve_export import source_digest
 
 
 class BenchOptionError(DriveoptError):
@@ -61,7 +58,6 @@ class BenchOptionError(DriveoptError):
     ConfigErrors (driveopt.config), weights paths that are not files WeightsErrors (driveopt.drivers.base)."""
 
 
-CODE_DIGITS = 16  # hex digits of the source digest a record keeps
 
 
 def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
@@ -78,22 +74,6 @@ def episode_record(job: JobKey, options: dict[str, Any]) -> dict[str, Any]:
     scenario = resolve_scenario(job.scenario, overrides=options.get("scenario"))
     record = run_episode(scenario, spec, job.env_seed, duration=options.get("duration")).record()
     return {**record, **provenance()}
-
-
-def provenance() -> dict[str, Any]:
-    """Where an episode planned, on how many CPUs (the worker's share, see driveopt.experiments.runner) of which model:
-    its plan_ms are theirs; and which driveopt sources and jax and numpy versions ran it, so that records of other code
-    are told apart."""
-    return {"device": jax.default_backend(), "cpus": len(usable_cpus()), "cpu_model": cpu_model(),
-            "code": source_digest()[:CODE_DIGITS], "jax": jax.__version__, "numpy": np.__version__}
-
-
-def planner_spec(name: str, options: dict[str, Any]) -> DriverSpec:
-    """The registered planner ``name`` with the bench options (samples, weights, config, replan_every, latency) applied."""
-    samples = options.get("samples")
-    spec = get_planner(name).with_samples(int(samples) if samples else None).with_weights(options.get("weights"))
-    spec = spec.with_overrides(**options.get("config", {})).with_replan_every(options.get("replan_every"))
-    return spec.with_latency(options.get("latency"))
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ import jax
 from driveopt.drivers.base import DriverSpec
 from driveopt.drivers.optimiser import OptimiserDriver, OptimiserSpec
 from driveopt.errors import DriveoptError
+from driveopt.experiments.arms import planner_spec, provenance
 from driveopt.experiments.rollout import Episode, advance, note_decision
 from driveopt.experiments.store import JobKey
 from driveopt.files import pytree_digest
@@ -101,8 +102,6 @@ def run_lockstep(jobs: Sequence[JobKey], options: dict[str, Any], finished: Call
     """Run ``jobs`` (any arms; each arm's in turn) ``slots`` episodes at a time, in this process, and hand each record
     to ``finished`` as its episode ends (in completion order). Returns the records when ``finished`` is None (a Ray
     task's answer), else []. ``options``: the bench options (:func:`driveopt.experiments.bench.episode_record`)."""
-    from driveopt.experiments.bench import planner_spec
-
     kept: list[dict[str, Any]] = []
     for arm in cells(jobs, slots, rounds=max(len(jobs), 1)):
         spec = planner_spec(arm[0].planner, options)
@@ -117,8 +116,6 @@ def run_lockstep(jobs: Sequence[JobKey], options: dict[str, Any], finished: Call
 
 def _record(job: JobKey, episode: Episode, slots: int) -> dict[str, Any]:
     """The bench record of ``job``'s ``episode``: the one-by-one loop's fields, and ``lockstep``."""
-    from driveopt.experiments.bench import provenance
-
     return {**episode.record(), **provenance(), "lockstep": slots, **job._asdict()}
 
 
