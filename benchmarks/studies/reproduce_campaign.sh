@@ -11,21 +11,24 @@
 # of `--plan` up to its next sequential look, plans again, and so on, so every claim stops at the look where its
 # O'Brien-Fleming boundary decides it. Resumable: the bench runs skip the episodes their folders hold, so rerunning
 # this script continues where it stopped (SIGTERM or Ctrl-C keep the finished episodes).
-# The steps, in order: P1 Fig. 7's dense roads with the faithful MPC-Bi-Level (`cvae-faithful`) against the authors'
-# MPC-Random, MPC-Grid and MPC-Vanilla (their faithful arms crash within seconds, so a pair is cheap), and driveopt's
-# rows of the same figure; P2 Fig. 9's rows with and without the filter and P2 Fig. 7's density 3, driveopt's
-# pipelines. Not yet: the faithful P2 pipelines and `batch-faithful`, whose set-up is still to follow the authors'
-# code (docs/findings/p2-faithful-collisions.md); their decisive runs start once it does, on one code version.
+# The steps, in order: P2 Fig. 7's headline (density 3) with P2's pipeline and [5]'s as their authors ran them, and
+# P2 Fig. 9's faithful rows (the no-filter arms cost seconds an episode); P1 Fig. 7's dense roads with the faithful
+# MPC-Bi-Level (`cvae-faithful`) against the authors' MPC-Random, MPC-Grid, MPC-Vanilla and Batch-MPC (their faithful
+# arms crash within seconds, so a pair is cheap), and driveopt's rows of the same figure; P2 Fig. 9's rows and P2
+# Fig. 7's density 3, driveopt's pipelines.
 # One code version for every session: the episodes run the sources of commit CODE (a git worktree beside the
 # checkout), whose digest every record names and each report states; the reports are written by this checkout. When
 # the planning code changes its numbers, set CODE to the new commit and remove the records of the planners it changes
 # (they run again); records of the others stay, and a report that mixes digests says so. Records before a22a706's ran
-# 3b2f12a and earlier (the reports name each digest); CODE plans every registered planner bit for bit as 3992e16
-# (benchmarks/results/closed-loop-ab/every-planner/), whose rounding differs from 3b2f12a's.
+# 3b2f12a and earlier (the reports name each digest); a22a706 plans every registered planner bit for bit as 3992e16
+# (benchmarks/results/closed-loop-ab/every-planner/), whose rounding differs from 3b2f12a's. defe7ca changed
+# `batch-faithful` (its authors' Batch-MPC expert) and P2's faithful pipelines (their authors' command, start and
+# ranking), whose earlier records were removed; the other planners it plans as a22a706 (`driveopt closed-loop-ab` on
+# cvae-faithful, cvae-multipliers-faithful, bilevel, vqvae-filter and grid: identical step by step).
 # The body is one function, read whole before it runs, so editing this file never changes a campaign in flight.
 set -euo pipefail
 
-CODE=a22a706
+CODE=defe7ca
 
 main() {
     repo=$(cd "$(dirname "$0")/../.." && pwd)
@@ -61,9 +64,11 @@ main() {
 
     if [ "$report_only" = 0 ]; then
         local p1_dense="four-lane-d3.0 two-lane-d2.5"
-        # P1 Fig. 7's dense roads: the faithful MPC-Bi-Level against the authors' MPC-Random, MPC-Grid and MPC-Vanilla,
-        # then driveopt's rows.
-        decide p1 --figures fig7 --scenarios $p1_dense --planners cvae-faithful random-faithful grid-faithful vanilla-faithful
+        # P2's headline and Fig. 9, the pipelines as their authors ran them.
+        decide p2 --figures fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter-faithful cvae-multipliers-faithful
+        decide p2 --figures fig9 --planners vqvae-filter-faithful cvae-multipliers-faithful cvae-filter-faithful
+        # P1 Fig. 7's dense roads: the faithful MPC-Bi-Level against the authors' MPC baselines, then driveopt's rows.
+        decide p1 --figures fig7 --scenarios $p1_dense --planners cvae-faithful random-faithful grid-faithful vanilla-faithful batch-faithful
         decide p1 --figures fig7 --scenarios $p1_dense --planners bilevel random grid batch vanilla
         # P2 Fig. 9 (with and without the filter) and Fig. 7 at density 3, driveopt's pipelines.
         decide p2 --figures fig9 --planners vqvae-filter cvae-multipliers cvae-filter
