@@ -51,6 +51,13 @@ main() {
             --workers "$workers" --out "$records/$paper" "$@"
     }
 
+    claim() {  # PAPER ID EPISODES: one claim's two arms, to EPISODES per seed (a claim no arm has run yet has no cost
+               # for --decide to order it by)
+        echo "== $1: $2 to $3 episodes per seed  ($(date -u +%H:%M))"
+        PYTHONPATH="$code_tree/src" python -m driveopt.cli reproduce "$1" --claim "$2" --episodes "$3" \
+            --workers "$workers" --out "$records/$1"
+    }
+
     report() {  # PAPER: the report of the full protocol over every recorded episode (by this checkout's code, whose
                 # protocols name the claims), and its copy in docs/
         local paper=$1
@@ -65,7 +72,7 @@ main() {
     if [ "$report_only" = 0 ]; then
         local p1_dense="four-lane-d3.0 two-lane-d2.5"
         # P2's headline and Fig. 9, the pipelines as their authors ran them.
-        decide p2 --figures fig7 --scenarios p2-four-lane-d3.0 --planners vqvae-filter-faithful cvae-multipliers-faithful
+        claim p2 fig7:p2-four-lane-d3.0:vqvae-filter-faithful-vs-cvae-multipliers-faithful:collisions 10
         decide p2 --figures fig9 --planners vqvae-filter-faithful cvae-multipliers-faithful cvae-filter-faithful
         # P1 Fig. 7's dense roads: the faithful MPC-Bi-Level against the authors' MPC baselines, then driveopt's rows.
         decide p1 --figures fig7 --scenarios $p1_dense --planners cvae-faithful random-faithful grid-faithful vanilla-faithful batch-faithful
