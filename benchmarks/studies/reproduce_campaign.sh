@@ -51,8 +51,8 @@ main() {
             --workers "$workers" --out "$records/$paper" "$@"
     }
 
-    claim() {  # PAPER ID EPISODES: one claim's two arms, to EPISODES per seed (a claim no arm has run yet has no cost
-               # for --decide to order it by)
+    claim() {  # PAPER ID EPISODES: one claim's two arms, to EPISODES per seed (past the looks --decide would stop at:
+               # P2's headline straight to its second look)
         echo "== $1: $2 to $3 episodes per seed  ($(date -u +%H:%M))"
         PYTHONPATH="$code_tree/src" python -m driveopt.cli reproduce "$1" --claim "$2" --episodes "$3" \
             --workers "$workers" --out "$records/$1"

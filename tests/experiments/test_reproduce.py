@@ -839,6 +839,30 @@ def test_decide_runs_the_cheapest_claims_to_their_next_look_while_the_hours_last
     assert max(e for _, _, e in ran) == headline.target_pairs - 1
 
 
+def test_decide_starts_a_claim_no_arm_has_run_at_its_first_look(tmp_path, cheap_bench, monkeypatch):
+    """A claim without a pair has no rates or cost to plan by: --plan targets the first look at an unknown cost, and
+    --decide runs it there once the costed claims are done (here: there are none)."""
+    from driveopt.experiments import reproduce as rp
+
+    figure = _headline_figure(40)
+    monkeypatch.setattr(rp, "figures_of", lambda paper, names=None, *, episodes=None, **kw:
+                        (figure.with_runs(None, episodes) if episodes else figure,))
+    (tmp_path / "runs").mkdir()
+    rows = rp.plan("p1", tmp_path)[0]
+    assert rows and all(row.pairs == 0 and row.target_pairs == figure.look_pairs[0] and math.isnan(row.cost)
+                        for row in rows)
+    ran = []
+
+    def episode(job, options):
+        ran.append((job.scenario, job.planner, job.episode))
+        return fake_episode(job, options)
+
+    ticks = iter([0.0, 0.0, 1e9])
+    ids = rp.decide("p1", tmp_path, hours=1.0, workers=1, episode_fn=episode, progress=False, clock=lambda: next(ticks))
+    assert ids == [rows[0].claim_id] and ran
+    assert max(e for _, _, e in ran) == math.ceil(figure.look_pairs[0] / len(figure.seeds)) - 1
+
+
 @pytest.mark.parametrize("extra", [["--claim", "figX:a"], ["--episodes", "5"], ["--plan"], ["--quick"]])
 def test_decide_chooses_claims_and_episodes_itself(tmp_path, extra):
     from driveopt.cli.reproduce import register

@@ -396,7 +396,8 @@ def plan(paper: str, out: str | Path, *, figures: list[str] | None = None, seeds
          episodes: int | None = None) -> tuple[list[PlanRow], int]:
     """The undecided claims of ``paper``'s figures on the records under ``out`` (nothing runs), cheapest decision
     first (a claim whose cost cannot be estimated last), and how many claims the figures have. An arm without a
-    record of the claim's scenario is costed by its records on the figure's other scenarios."""
+    record of the claim's scenario is costed by its records on the figure's other scenarios; a claim without a pair
+    targets the figure's first look (its cost unknown when neither arm has run anywhere)."""
     out = Path(out)
     chosen = figures_of(paper, figures, seeds=seeds, episodes=episodes)
     if not (out / RUNS).is_dir():
@@ -419,6 +420,8 @@ def plan(paper: str, out: str | Path, *, figures: list[str] | None = None, seeds
             seconds += each
         info = information(r)  # plan time: the pairs compared on one processor
         target = paper_pairs if math.isfinite(paper_pairs) else measured_pairs
+        if r.pairs == 0:  # nothing to estimate a rate or a cost from: the first look measures both
+            target = figure.look_pairs[0]
         if info >= figure.look_pairs[-1] or not math.isfinite(target):
             target, cost = math.inf, math.inf  # the protocol's pairs are spent, or the rates never decide it
         else:  # decisions fall at looks: the first look beyond the pairs held with the pairs needed
@@ -443,7 +446,8 @@ def decide(paper: str, out: str | Path, *, figures: list[str] | None = None, onl
            episode_fn: EpisodeFn = episode_record, progress: bool = True,
            clock: Callable[[], float] = time.monotonic) -> list[str]:
     """Buy decisions at least cost: while ``hours`` last, run the cheapest undecided claim of :func:`plan` (among
-    those whose arms lie in ``only``) up to its next look, and plan again, so each claim stops at the look where its
+    those whose arms lie in ``only``; claims no arm has run, whose cost is unknown, after the others) up to its next
+    look, and plan again, so each claim stops at the look where its
     sequential boundary decides it. A claim whose pairs a run did not raise (its arms' episodes are all recorded) is
     not chosen again. Ends with the report of the full protocols over everything recorded; returns the ids run, in
     order. A claim started before the deadline runs to its look."""
@@ -454,8 +458,8 @@ def decide(paper: str, out: str | Path, *, figures: list[str] | None = None, onl
     stuck: set[str] = set()
     while clock() < deadline:
         rows, _ = plan(paper, out, figures=figures)
-        candidates = [row for row in rows if math.isfinite(row.cost) and row.claim_id not in stuck
-                      and _in_slice(find_claim(chosen, row.claim_id)[1], only)]
+        candidates = [row for row in rows if (math.isfinite(row.cost) or (row.pairs == 0 and math.isfinite(row.target_pairs)))
+                      and row.claim_id not in stuck and _in_slice(find_claim(chosen, row.claim_id)[1], only)]
         if not candidates:
             break
         row = candidates[0]
