@@ -124,6 +124,10 @@ class ProjectionConfig:
     # sample, until its heading has fallen this much per metre the sample travels along the road (a plan that stands keeps
     # it), and at least over the plan's first seconds (problem.ellipse_growth; 0: only those); 0.179 is
     # highway-env's bicycle at full lock
+    anderson_window: int = 0  # [-] Anderson acceleration of the alternating minimisation (docs/results/speed.md): each step mixes
+    # the last this many iterates of a sample (3 to 5), kept only where it lowers that sample's fixed-point residual; 0: off
+    relaxation: float = 1.0  # [-] in (0, 2): each step moves the multipliers and pulls this multiple of the way to the
+    # next iterate (below 1 damped, above 1 over-relaxed); 1: off
 
     def __post_init__(self) -> None:
         check_types(self, "projection")
@@ -141,6 +145,8 @@ class ProjectionConfig:
         require(0 <= self.course_max < math.pi / 2, f"projection.course_max must be in [0, pi/2) rad, got {self.course_max:g}")
         require(0 <= self.course_min_speed <= MAX_SPEED,
                  f"projection.course_min_speed must be in [0, {MAX_SPEED:g}] m/s, got {self.course_min_speed:g}")
+        require(0 <= self.anderson_window <= 8, f"projection.anderson_window must be in [0, 8], got {self.anderson_window}")
+        require(0 < self.relaxation < 2, f"projection.relaxation must be in (0, 2), got {self.relaxation:g}")
         for name in ("gamma_obs", "gamma_lane"):
             value = getattr(self, name)
             require(0 < value <= 1, f"projection.{name} must be in (0, 1], got {value:g}")

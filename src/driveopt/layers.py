@@ -19,7 +19,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("config", "scene", "solve_export"),  # configuration; the world; exported planner graphs
     ("basis", "prediction", "config_reference", "goal"),  # Bernstein basis; neighbours' predicted motion;
     # docs/configuration.md; where a plan should lead
-    ("observation", "qp"),  # the learned components' features; the set-point QP
+    ("observation", "qp", "anderson"),  # the learned components' features; the set-point QP; fixed-point acceleration
     ("problem", "trajectory"),  # the planner's arrays; a trajectory read out of its coefficients
     ("projection", "costs", "sampler", "filtering", "sim"),  # the numerics; the SafetyFilter contract; highway-env
     ("ranking", "row_sharing", "rl"),  # the planner's strategies; P1's RL baselines

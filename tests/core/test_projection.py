@@ -393,3 +393,83 @@ def test_the_kkt_inverse_is_lapacks_for_one_matrix_and_the_vectorised_one_for_a_
     for gradient in (jax.vmap(jax.grad(loss(kkt_inverse)))(matrices),
                      jnp.stack([jax.grad(loss(kkt_inverse))(matrix) for matrix in matrices])):
         np.testing.assert_allclose(gradient, reference, rtol=1e-3, atol=1e-3 * float(jnp.abs(reference).max()))
+
+
+# Anderson acceleration and over-relaxation (projection.anderson_window, projection.relaxation; off by default).
+_ACCELERATION_PROBLEMS = ("dense-snapshot", "slow-leader-four-lane", "slow-leader-three-lane", "static-blockage")
+_PROJECT = jax.jit(lambda problem, target, b_x, b_y, cfg: project(MODEL, problem, target, b_x, b_y, cfg), static_argnums=4)
+_SAMPLES = 64
+
+
+def _random_batch(name: str, seed: int):
+    problem = build_problem(load_scene(name))
+    key = jax.random.PRNGKey(seed)
+    p = jnp.concatenate([16 + 4 * jax.random.normal(key, (_SAMPLES, 4)),
+                         6 + 4 * jax.random.normal(jax.random.fold_in(key, 1), (_SAMPLES, 4))], 1)
+    b_x, b_y = boundary_values(problem.init_x, problem.init_y, QPConfig())
+    return problem, solve_setpoint_qp(MODEL, p, b_x, b_y), b_x, b_y
+
+
+def test_acceleration_is_off_by_default_and_its_loop_without_a_window_is_the_plain_iteration():
+    """Off (the defaults) the plain loop runs (its results bit for bit as before the setting existed: checked when it
+    was added, on plans and projections of the built-in problems). The accelerated loop with no window and a relaxation
+    a hair below 1 does the plain iteration's arithmetic, scaled by 1 - 2^-20: its bookkeeping (which point is
+    evaluated, which coefficients and multipliers come back, the iteration count) is the plain loop's."""
+    assert ProjectionConfig().anderson_window == 0 and ProjectionConfig().relaxation == 1.0
+    problem, target, b_x, b_y = _random_batch("dense-snapshot", 0)
+    cfg = ProjectionConfig(max_iterations=20, tolerance=0.0)
+    plain = _PROJECT(problem, target, b_x, b_y, cfg)
+    loop = _PROJECT(problem, target, b_x, b_y, dataclasses.replace(cfg, relaxation=1.0 - 2.0 ** -20))
+    assert int(loop.iterations) == 20
+    np.testing.assert_allclose(loop.coeffs, plain.coeffs, rtol=1e-3, atol=1e-2)
+    np.testing.assert_allclose(loop.multipliers, plain.multipliers, rtol=1e-3, atol=1e-1)
+    np.testing.assert_allclose(loop.residuals.total, plain.residuals.total, rtol=1e-3, atol=1e-2)
+
+
+@pytest.mark.parametrize("name", _ACCELERATION_PROBLEMS)
+def test_anderson_leaves_residuals_no_worse_than_the_plain_iteration(name):
+    """After 20 iterations, for two batches of 64 random set-point trajectories per built-in problem: with a window of 4
+    the mean and median constraint residual are no worse than the plain loop's (by more than 2 % + 0.01) and the p90 by
+    no more than 10 % + 0.05 (measured on 12 batches of 100: mean and median lower on every one, by 10-98 %; p90 at
+    most 0.3 % higher); every coefficient is finite and the equality rows hold."""
+    cfg = ProjectionConfig(max_iterations=20, tolerance=0.0)
+    for seed in (0, 1):
+        problem, target, b_x, b_y = _random_batch(name, seed)
+        plain = np.asarray(_PROJECT(problem, target, b_x, b_y, cfg).residuals.total)
+        out = _PROJECT(problem, target, b_x, b_y, dataclasses.replace(cfg, anderson_window=4))
+        fast = np.asarray(out.residuals.total)
+        assert np.all(np.isfinite(np.asarray(out.coeffs))) and np.all(np.isfinite(fast))
+        assert int(out.iterations) == 20
+        check_boundary(problem, out.coeffs)
+        assert fast.mean() <= 1.02 * plain.mean() + 0.01
+        assert np.median(fast) <= 1.02 * np.median(plain) + 0.01
+        assert np.percentile(fast, 90) <= 1.1 * np.percentile(plain, 90) + 0.05
+
+
+def test_over_relaxation_stays_finite_and_anderson_stops_early_on_a_feasible_batch():
+    """Relaxation 1.5: finite, mean residual within 25 % of the plain loop's (measured: 17 % higher to 33 % lower on 12
+    batches). With a window, the early stop still ends a feasible batch's loop."""
+    problem, target, b_x, b_y = _random_batch("static-blockage", 2)
+    cfg = ProjectionConfig(max_iterations=20, tolerance=0.0)
+    plain = np.asarray(_PROJECT(problem, target, b_x, b_y, cfg).residuals.total)
+    out = _PROJECT(problem, target, b_x, b_y, dataclasses.replace(cfg, relaxation=1.5))
+    total = np.asarray(out.residuals.total)
+    assert np.all(np.isfinite(np.asarray(out.coeffs))) and np.all(np.isfinite(total))
+    assert total.mean() <= 1.25 * plain.mean()
+    problem, target, b_x, b_y = setup(empty_scene(), [[12.0] * 4 + [4.0] * 4] * _SAMPLES)
+    out = _PROJECT(problem, target, b_x, b_y, ProjectionConfig(max_iterations=20, tolerance=1e-3, anderson_window=4))
+    assert int(out.iterations) < 20 and int(out.status) == 0
+    np.testing.assert_allclose(out.coeffs, target, atol=1e-2)
+
+
+@pytest.mark.slow  # a minute of compiling on two loaded cores
+def test_unrolled_anderson_is_differentiable(dense_batch):
+    problem, target, b_x, b_y = dense_batch
+    cfg = ProjectionConfig(max_iterations=5, tolerance=0.0, anderson_window=3)
+
+    def loss(target):
+        out = project(MODEL, problem, target, b_x, b_y, cfg, unroll=True)
+        return jnp.sum(out.residuals.total) + jnp.sum((out.coeffs - target) ** 2)
+
+    grad = jax.grad(loss)(target[:16])
+    assert np.all(np.isfinite(np.asarray(grad))) and float(jnp.abs(grad).max()) > 0
