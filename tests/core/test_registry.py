@@ -233,7 +233,9 @@ def test_faithful_planners_have_no_driveopt_machinery_and_replan_every_period(na
     assert isinstance(spec.method.ranking, P1AuthorsRanking if name in P1_FAITHFUL else CostPlusResidual)
     assert spec.method.fallback == Fallback(straightens=False, evasion=False, in_batch=False) == PAPERS_FALLBACK
     assert spec.method.row_sharing == strong.method.row_sharing  # P2's pipelines keep projecting repeated rows once
-    assert spec.loop == PAPERS_LOOP
+    p2 = name in P2_FAITHFUL  # P2's pipelines: their authors' command and zero start (P2_MATHS imposes both axes)
+    assert spec.loop == (dataclasses.replace(PAPERS_LOOP, command=P2_AUTHORS_COMMAND, measured_start=False) if p2
+                         else PAPERS_LOOP)
     assert not spec.loop.contact_guard and spec.loop.executes_infeasible and not spec.loop.braking_prediction
     assert not spec.loop.approach_selection and spec.warm_start == (name in ("bilevel", "cvae"))  # MPC-Bi-Level carries its mean
     # the bi-level optimiser and every baseline plan with one period: the strengthened bilevel's
@@ -241,7 +243,7 @@ def test_faithful_planners_have_no_driveopt_machinery_and_replan_every_period(na
             == faithful.AUTHORS_REPLAN_EVERY == 1)
     c = spec.config
     assert (c.sampler.structured_fraction, c.cost.consistency, c.projection.course_max, c.projection.ego_turn_rate) == (0, 0, 0, 0)
-    assert not c.qp.initial_lateral_acceleration and spec.description  # the lateral start free (FAITHFUL_MATHS)
+    assert c.qp.initial_lateral_acceleration == p2 and spec.description  # P1's lateral start free (FAITHFUL_MATHS)
 
 
 @pytest.mark.parametrize("name, iterations, projection, elites, weight", [
