@@ -777,8 +777,9 @@ def test_the_reproduction_prose_quotes_the_committed_reports():
     doc = (root / "docs/reproduction/README.md").read_text()
     assert set(m["name"] for m in prose.MARK.finditer(doc)) == set(prose.BLOCKS)
     assert prose.render(doc, reports) == doc
-    faithful, pairs = prose._collided(reports["p2"], prose.FAITHFUL_PIPELINES)
-    assert f"{faithful[0]}, {faithful[1]} and {faithful[2]} of {pairs} headline episodes" in doc
+    faithful = prose._collided(reports["p2"], prose.FAITHFUL_PIPELINES)
+    n, pairs = faithful[prose.FAITHFUL_PIPELINES[0]]
+    assert f"`{prose.FAITHFUL_PIPELINES[0]}` {n} of {pairs}" in doc
 
 
 def test_the_readme_s_reproduction_sentence_quotes_the_committed_reports():

@@ -34,21 +34,19 @@ def _claims(report: dict[str, Any]) -> list[dict[str, Any]]:
     return [c for f in report["figures"] for c in f["claims"]]
 
 
-def _collided(report: dict[str, Any], planners: tuple[str, ...]) -> tuple[list[int], int]:
-    """Each planner's collisions on P2 Fig. 7's headline road, from its rows against the first one, and the pairs."""
+def _collided(report: dict[str, Any], planners: tuple[str, ...]) -> dict[str, tuple[int, int]]:
+    """{planner: (collisions, pairs)} on P2 Fig. 7's headline road, from the rows of ``planners[0]`` against the others;
+    a planner whose row has no pair is left out."""
     rows = [c for c in _claims(report) if c["figure"] == "fig7" and c["scenario"] == HEADLINE
             and c["metric"] == "collisions" and c["arm"]["planner"] == planners[0]]
-    counts = {planners[0]: None}
-    pairs = 0
+    counts: dict[str, tuple[int, int]] = {}
     for c in rows:
-        if c["baseline"]["planner"] in planners:
-            counts[planners[0]] = c["arm"]["collisions"]
-            counts[c["baseline"]["planner"]] = c["baseline"]["collisions"]
-            pairs = c["pairs"]
-    missing = [p for p in planners if counts.get(p) is None]
-    if missing:
-        raise ValueError(f"P2's report has no {HEADLINE} collision row of {', '.join(missing)}")
-    return [counts[p] for p in planners], pairs
+        if c["baseline"]["planner"] in planners and c["pairs"]:
+            counts[planners[0]] = (c["arm"]["collisions"], c["pairs"])
+            counts[c["baseline"]["planner"]] = (c["baseline"]["collisions"], c["pairs"])
+    if planners[0] not in counts:
+        raise ValueError(f"P2's report has no {HEADLINE} collision row of {planners[0]} with a pair")
+    return counts
 
 
 def _and(values: list[Any]) -> str:
@@ -57,10 +55,14 @@ def _and(values: list[Any]) -> str:
 
 def p2_faithful_headline(reports: dict[str, dict[str, Any]]) -> str:
     """How often P2's pipelines as their authors ran them, and driveopt's, collide on P2 Fig. 7's headline road."""
-    faithful, pairs = _collided(reports["p2"], FAITHFUL_PIPELINES)
-    ours, _ = _collided(reports["p2"], DRIVEOPT_PIPELINES)
-    return (f"{_and(faithful)} of {pairs} headline episodes against P2's few percent; driveopt's pipelines "
-            f"{_and(ours)}")
+    faithful = _collided(reports["p2"], FAITHFUL_PIPELINES)
+    ours = _collided(reports["p2"], DRIVEOPT_PIPELINES)
+    shown = [f"`{planner}` {n} of {pairs}" for planner, (n, pairs) in faithful.items()]
+    missing = [f"`{planner}`" for planner in FAITHFUL_PIPELINES if planner not in faithful]
+    text = f"{_and(shown)} headline episodes against P2's few percent"
+    if missing:
+        text += f" ({_and(missing)} not yet run on this code)"
+    return text + f"; driveopt's pipelines {_and([f'{n} of {pairs}' for n, pairs in ours.values()])}"
 
 
 def _tally(report: dict[str, Any]) -> str:
