@@ -32,7 +32,7 @@ from driveopt.drivers.latency import parse_latency
 from driveopt.errors import DriveoptError
 from driveopt.experiments.arms import planner_spec, provenance
 from driveopt.experiments.rollout import run_episode
-from driveopt.experiments.runner import EpisodeFn, check_backend, execute, execute_cells, usable_cpus
+from driveopt.experiments.runner import EpisodeFn, check_backend, compile_notice, execute, execute_cells, usable_cpus
 from driveopt.experiments.store import (
     RECORDS_FILE,
     SPEC_FILE,
@@ -223,6 +223,7 @@ def _run_locked(spec: BenchSpec, out: Path, workers: int, backend: str, episode_
 
     def finished(record: dict) -> None:
         append_record(store, {**record, "settings": settings[(record["scenario"], record["planner"])]})
+        compile_notice(bar, record["planner"], record.get("compile_seconds", 0.0))
         bar.update(1)
         bar.set_postfix_str(f"{record['scenario']}/{record['planner']} crashed={record['collided']}")
 

@@ -33,7 +33,7 @@ from driveopt.data.demonstrations import (
 from driveopt.data.modes import select_modes
 from driveopt.drivers.optimiser import OptimiserSpec
 from driveopt.experiments.rollout import Rollout
-from driveopt.experiments.runner import execute
+from driveopt.experiments.runner import compile_notice, execute
 from driveopt.experiments.store import JobKey, seed_range_problem
 from driveopt.files import lock_output_file
 from driveopt.observation import OBSERVATION_DIM
@@ -76,7 +76,8 @@ def demonstration_episode(job: JobKey, options: dict[str, Any]) -> dict[str, Any
     arrays = {name: np.asarray(values, dtype=dtypes.get(name, np.float32)) for name, values in rows.items()}
     entry = {"scenario": job.scenario, "seed": job.seed, "episode": job.episode, "env_seed": job.env_seed,
              "collided": bool(episode.collided), "duration": float(episode.sim_duration)}
-    return {"entry": entry, "rows": arrays, "plan_seconds": episode.plan_seconds, "sim_seconds": episode.sim_seconds}
+    return {"entry": entry, "rows": arrays, "plan_seconds": episode.plan_seconds, "sim_seconds": episode.sim_seconds,
+            "compile_seconds": episode.compile_seconds}
 
 
 def check_options(scenarios: Sequence[str], *, seed: int, episodes: int, samples: int, iterations: int,
@@ -168,6 +169,7 @@ def _collect_into(writer: DemonstrationWriter, jobs: list[JobKey], options: dict
         summary["collided"] += int(record["entry"]["collided"])
         summary["plan_seconds"] += record["plan_seconds"]
         summary["sim_seconds"] += record["sim_seconds"]
+        compile_notice(bar, "the expert planner", record.get("compile_seconds", 0.0))
         bar.update(1)
         bar.set_postfix_str(f"{record['entry']['scenario']} rows={summary['rows']} crashed={summary['collided']}")
 

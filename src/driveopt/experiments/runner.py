@@ -351,3 +351,15 @@ def _sigterm_kept():
     finally:
         if handler is not None:  # None: set outside Python, nothing to give back
             signal.signal(signal.SIGTERM, handler)
+
+
+COMPILE_NOTICE_SECONDS = 1.0  # [s] an episode whose planner compiled for longer than this says so (a cached one loads faster)
+
+
+def compile_notice(bar, planner: str, seconds: float) -> None:
+    """One line above the progress ``bar`` (on its stream; none when the bar is off) when an episode's ``planner`` compiled
+    for ``seconds`` [s] (a worker's first episode of a planner, unless the compilation cache held it): the time the bar
+    stood still."""
+    if seconds > COMPILE_NOTICE_SECONDS and not getattr(bar, "disable", False):
+        bar.write(f"driveopt: {planner} compiled in {seconds:.1f} s (once per worker and planner; the compilation "
+                  "cache keeps it for later runs)", file=sys.stderr)
