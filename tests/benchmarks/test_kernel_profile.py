@@ -32,6 +32,7 @@ def test_kernels_are_timed_per_call_and_grouped_by_runs():
     assert grouped[0] == {"runs_per_call": 1.0, "kernels": 1, "ms_per_call": pytest.approx(0.04)}
 
 
+@pytest.mark.slow
 def test_a_planner_profile_shows_its_projection_loop(tmp_path, monkeypatch):
     monkeypatch.setattr(planner, "XLA_CPU_COMPILER_OPTIONS", dict(planner.XLA_CPU_COMPILER_OPTIONS))  # main() adds to it
     cache = jax.config.jax_enable_compilation_cache  # main() turns the persistent cache off

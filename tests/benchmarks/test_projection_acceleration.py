@@ -10,6 +10,7 @@ import pytest
 from benchmarks.perf import projection_acceleration
 
 
+@pytest.mark.slow
 def test_a_small_run_records_both_sides(tmp_path):
     out = tmp_path / "acceleration.json"
     assert projection_acceleration.main(["--samples", "8", "--iterations", "1", "--reference", "2", "--calls", "1",

@@ -426,7 +426,8 @@ def test_acceleration_is_off_by_default_and_its_loop_without_a_window_is_the_pla
     np.testing.assert_allclose(loop.residuals.total, plain.residuals.total, rtol=1e-3, atol=1e-2)
 
 
-@pytest.mark.parametrize("name", _ACCELERATION_PROBLEMS)
+@pytest.mark.parametrize("name", [_ACCELERATION_PROBLEMS[0]] + [pytest.param(name, marks=pytest.mark.slow)
+                                                                 for name in _ACCELERATION_PROBLEMS[1:]])
 def test_anderson_leaves_residuals_no_worse_than_the_plain_iteration(name):
     """After 20 iterations, for two batches of 64 random set-point trajectories per built-in problem: with a window of 4
     the mean and median constraint residual are no worse than the plain loop's (by more than 2 % + 0.01) and the p90 by
@@ -446,6 +447,7 @@ def test_anderson_leaves_residuals_no_worse_than_the_plain_iteration(name):
         assert np.percentile(fast, 90) <= 1.1 * np.percentile(plain, 90) + 0.05
 
 
+@pytest.mark.slow
 def test_over_relaxation_stays_finite_and_anderson_stops_early_on_a_feasible_batch():
     """Relaxation 1.5: finite, mean residual within 25 % of the plain loop's (measured: 17 % higher to 33 % lower on 12
     batches). With a window, the early stop still ends a feasible batch's loop."""
