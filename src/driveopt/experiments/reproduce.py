@@ -229,7 +229,8 @@ def run_figures(paper: str, figures: tuple[FigureProtocol, ...], out: str | Path
         for line in merge_figure_folders(out):
             print(f"driveopt reproduce: {line}", flush=True)
         if progress and runs:
-            print(f"driveopt reproduce: {episodes_to_run(runs)} episodes to run in {len(runs)} bench runs", flush=True)
+            print(f"driveopt reproduce: {episodes_to_run(runs)} episodes to run in {len(runs)} bench runs "
+                  f"({len({run.path for run in runs})} bench folders)", flush=True)
         for i, run in enumerate(runs, start=1):
             if progress:
                 spec = run.spec
@@ -259,12 +260,13 @@ def claim_protocol(figures: tuple[FigureProtocol, ...], claim_id: str) -> Figure
 
 
 def episodes_to_run(runs: list[BenchRun]) -> int:
-    """How many of the episodes ``runs`` ask for their folders do not hold yet."""
-    missing = 0
+    """How many distinct episodes ``runs`` ask for that their folders do not hold yet (runs sharing a folder share its
+    episodes: one that two runs ask for runs once)."""
+    missing: set[tuple[Path, Any]] = set()
     for run in runs:
         recorded = {key_of(r) for r in load_folder(run.path)[1]} if run.path.is_dir() else set()
-        missing += sum(job not in recorded for job in run.spec.jobs())
-    return missing
+        missing.update((run.path, job) for job in run.spec.jobs() if job not in recorded)
+    return len(missing)
 
 
 def records_by_arm(path: Path) -> dict[tuple[str, str], dict[tuple[int, int], dict[str, Any]]]:
