@@ -7,6 +7,7 @@ import errno
 import json
 import math
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -135,10 +136,12 @@ def test_drive_json_on_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, caps
     assert list(tmp_path.iterdir()) == []
 
 
-def test_drive_video_on_a_full_disk_is_an_error_not_wrote(tmp_path, capsys):
+def test_drive_video_on_a_full_disk_is_an_error_not_wrote(tmp_path, capsys, monkeypatch):
     """The MP4 was cut at 4 KB by a full disk and drive still printed "wrote": the file size limit of this process,
-    which ffmpeg inherits, stands for the disk (writes past it fail as they would on a full one)."""
+    which ffmpeg inherits, stands for the disk (writes past it fail as they would on a full one). Modules first
+    imported under the limit write no bytecode (it would be cut too, and break later imports)."""
     resource = pytest.importorskip("resource")
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
     video = tmp_path / "drive.mp4"
     soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
     resource.setrlimit(resource.RLIMIT_FSIZE, (4096, hard))

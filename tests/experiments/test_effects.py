@@ -80,3 +80,15 @@ def test_direction_only_claims():
     assert e.judge_direction(12, 1, 0.0034, 0.05).verdict == e.REPRODUCED_IN_DIRECTION
     assert e.judge_direction(1, 12, 0.0034, 0.05).verdict == e.CONTRADICTED
     assert e.judge_direction(5, 3, 0.73, 0.05).verdict == e.INCONCLUSIVE
+
+
+def test_a_direction_the_protocol_cannot_show_at_the_measured_rates_is_not_decidable():
+    # 31 vs 30 discordant-style counts: far more pairs than a 100-pair protocol runs
+    futile = e.judge_direction(5, 4, 1.0, 0.05, needed=4572, max_pairs=100, pairs=40)
+    assert futile.verdict == e.NOT_DECIDABLE and "4572 pairs" in futile.detail and "runs 100" in futile.detail
+    assert e.judge_direction(3, 3, 1.0, 0.05, needed=math.inf, max_pairs=100, pairs=40).verdict == e.NOT_DECIDABLE
+    # within reach of the protocol, or too few pairs to judge futility: inconclusive
+    assert e.judge_direction(5, 1, 0.22, 0.05, needed=60, max_pairs=100, pairs=40).verdict == e.INCONCLUSIVE
+    assert e.judge_direction(5, 4, 1.0, 0.05, needed=4572, max_pairs=100, pairs=10).verdict == e.INCONCLUSIVE
+    # a significant direction is decided whatever the estimate
+    assert e.judge_direction(12, 1, 0.0034, 0.05, needed=4572, max_pairs=100, pairs=40).verdict == e.REPRODUCED_IN_DIRECTION

@@ -20,7 +20,9 @@ Verdicts on a collision claim, from the paired episodes (``only_arm``/``only_bas
 * a level: each arm with a stated level is judged alone by its Wilson interval (at ``alpha``): **reproduced** when
   the interval holds the level and is no wider than :func:`level_tolerance` above it, **higher** / **lower than the
   paper's** when it lies wholly above / below, else **inconclusive** with the episodes still needed.
-* a direction: the paired test alone: **reproduced in direction**, **contradicted**, or **inconclusive**.
+* a direction: the paired test alone: **reproduced in direction**, **contradicted**; not significant after at least
+  :data:`FUTILITY_PAIRS` pairs, **not decidable here** when at the measured rates 80 % power needs more pairs than the
+  protocol runs (a futility rule: it ends no error-rate guarantee, it only stops buying pairs), else **inconclusive**.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ NOT_DECIDABLE, INCONCLUSIVE, NOT_RUN = "not decidable here", "inconclusive", "no
 REPRODUCED_IN_DIRECTION = "reproduced in direction"
 POWER = 0.8  # [-] the power a decision at the paper's size is planned for
 MAX_EPISODES_NEEDED = 100_000  # [-] beyond this the episodes a level needs are reported as unbounded
+FUTILITY_PAIRS = 20  # [-] pairs from which a direction the protocol cannot show at the measured rates is not decidable
 
 
 @dataclass(frozen=True)
@@ -160,9 +163,18 @@ def judge_level(events: int, episodes: int, level: tuple[float, float], alpha: f
                      f"the measured rate {events / episodes:.1%} is near the tolerance {tolerance:.0%}")
 
 
-def judge_direction(better: int, worse: int, p: float, alpha: float) -> Judgement:
+def judge_direction(better: int, worse: int, p: float, alpha: float, needed: float = math.nan, max_pairs: int = 0,
+                    pairs: int = 0) -> Judgement:
     """A direction-only claim expected in the arm's favour: the paired test at ``alpha`` (better/worse: the pairs for
-    and against the arm)."""
-    if p >= alpha or better == worse:
-        return Judgement(INCONCLUSIVE)
-    return Judgement(REPRODUCED_IN_DIRECTION if better > worse else CONTRADICTED)
+    and against the arm). Undecided with at least :data:`FUTILITY_PAIRS` ``pairs``, it is **not decidable here** when
+    the total pairs ``needed`` for :data:`POWER` at the measured rates exceed the ``max_pairs`` the protocol runs (the
+    effect, if there is one, is too small for the protocol to show)."""
+    if p < alpha and better != worse:
+        return Judgement(REPRODUCED_IN_DIRECTION if better > worse else CONTRADICTED)
+    if max_pairs and pairs >= FUTILITY_PAIRS and not needed <= max_pairs:
+        return Judgement(NOT_DECIDABLE, needed=needed, detail=(
+            f"at the measured rates a direction needs {needed:.0f} pairs for {POWER:.0%} power, the protocol runs "
+            f"{max_pairs}" if math.isfinite(needed) else
+            f"at the measured rates ({better} pairs for, {worse} against after {pairs}) no number of pairs shows "
+            f"the paper's direction"))
+    return Judgement(INCONCLUSIVE, needed=needed)

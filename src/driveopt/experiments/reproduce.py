@@ -52,6 +52,7 @@ from driveopt.experiments.store import (
     load_folder,
     merged_spec,
 )
+from driveopt.experiments.effects import NOT_DECIDABLE
 from driveopt.experiments.error_control import obrien_fleming_levels
 from driveopt.experiments.verdicts import (
     ALPHA,
@@ -424,10 +425,10 @@ def plan(paper: str, out: str | Path, *, figures: list[str] | None = None, seeds
         target = paper_pairs if math.isfinite(paper_pairs) else measured_pairs
         if r.pairs == 0:  # nothing to estimate a rate or a cost from: the first look measures both
             target = figure.look_pairs[0]
-        if info >= figure.look_pairs[-1] or not math.isfinite(target):
+        if info >= figure.look_pairs[-1] or not math.isfinite(target) or r.verdict == NOT_DECIDABLE:
             target, cost = math.inf, math.inf  # the protocol's pairs are spent, or the rates never decide it
-        else:  # decisions fall at looks: the first look beyond the pairs held with the pairs needed
-            target = next((n for n in figure.look_pairs if n >= max(target, info + 1)), target)
+        else:  # decisions fall at looks: the first look beyond the pairs held with the pairs needed (at most the last)
+            target = next(n for n in figure.look_pairs if n >= min(max(target, info + 1), figure.look_pairs[-1]))
             cost = seconds * (target - info)
         rows.append(PlanRow(r.claim_id, r.verdict + (" (interim)" if r.interim else ""), info, r.full_pairs,
                             paper_pairs, measured_pairs, seconds, target, cost))

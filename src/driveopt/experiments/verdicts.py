@@ -416,8 +416,10 @@ def judge_at(r: ClaimResult, level: float) -> Judgement:
         better, worse, p = oriented_counts(r)
         if r.expect == WORSE:
             better, worse = worse, better
-        judged = effects.judge_direction(better, worse, p, level)
-        return replace(judged, detail=f"{better} pairs for the paper's direction, {worse} against, p {p:.3g}")
+        judged = effects.judge_direction(better, worse, p, level, pairs_to_decide(r, level)[1], r.full_pairs,
+                                         information(r))
+        counts = f"{better} pairs for the paper's direction, {worse} against, p {p:.3g}"
+        return replace(judged, detail=f"{counts}; {judged.detail}" if judged.detail else counts)
     if r.metric == COLLISIONS:
         low, high = _risk_interval(r, level)
         shares = (r.only_arm_collided / r.pairs, r.only_baseline_collided / r.pairs)
