@@ -24,11 +24,14 @@
 # (benchmarks/results/closed-loop-ab/every-planner/), whose rounding differs from 3b2f12a's. defe7ca changed
 # `batch-faithful` (its authors' Batch-MPC expert) and P2's faithful pipelines (their authors' command, start and
 # ranking), whose earlier records were removed; the other planners it plans as a22a706 (`driveopt closed-loop-ab` on
-# cvae-faithful, cvae-multipliers-faithful, bilevel, vqvae-filter and grid: identical step by step).
+# cvae-faithful, cvae-multipliers-faithful, bilevel, vqvae-filter and grid: identical step by step). 40ddb4f plans every
+# planner as defe7ca (`driveopt closed-loop-ab` on those five, vqvae-filter-faithful and batch-faithful: identical,
+# benchmarks/results/closed-loop-ab/campaign-code/) and decides claims as the reports do (a direction the protocol cannot
+# show at the measured rates is not decidable; no claim is run past its last look).
 # The body is one function, read whole before it runs, so editing this file never changes a campaign in flight.
 set -euo pipefail
 
-CODE=defe7ca
+CODE=40ddb4f
 
 main() {
     repo=$(cd "$(dirname "$0")/../.." && pwd)
@@ -73,9 +76,18 @@ main() {
         local p1_dense="four-lane-d3.0 two-lane-d2.5"
         # P2's headline and Fig. 9, the pipelines as their authors ran them.
         claim p2 fig7:p2-four-lane-d3.0:vqvae-filter-faithful-vs-cvae-multipliers-faithful:collisions 10
-        decide p2 --figures fig9 --planners vqvae-filter-faithful cvae-multipliers-faithful cvae-filter-faithful
-        # P1 Fig. 7's dense roads: the faithful MPC-Bi-Level against the authors' MPC baselines, then driveopt's rows.
+        # P1 Fig. 7's dense roads: the faithful MPC-Bi-Level against the authors' MPC baselines (the rows short of
+        # their first look first), then driveopt's rows.
+        claim p1 fig7:four-lane-d3.0:cvae-faithful-vs-grid-faithful:collisions 5
+        claim p1 fig7:four-lane-d3.0:cvae-faithful-vs-batch-faithful:collisions 5
+        claim p1 fig7:two-lane-d2.5:cvae-faithful-vs-batch-faithful:collisions 5
         decide p1 --figures fig7 --scenarios $p1_dense --planners cvae-faithful random-faithful grid-faithful vanilla-faithful batch-faithful
+        # P2 Fig. 9's faithful rows: without the filter at density 3 and the primary claim to their first looks,
+        # then the cheapest decisions.
+        claim p2 fig9:p2-four-lane-d3.0:vqvae-filter-faithful@n1000-vs-vqvae-filter-faithful@n1000-maxiterations0:collisions 5
+        claim p2 fig9:p2-four-lane-d3.0:cvae-filter-faithful@n1000-vs-cvae-filter-faithful@n1000-maxiterations0:collisions 5
+        claim p2 fig9:p2-four-lane-d1.5:vqvae-filter-faithful-vs-cvae-multipliers-faithful:collisions 5
+        decide p2 --figures fig9 --planners vqvae-filter-faithful cvae-multipliers-faithful cvae-filter-faithful
         decide p1 --figures fig7 --scenarios $p1_dense --planners bilevel random grid batch vanilla
         # P2 Fig. 9 (with and without the filter) and Fig. 7 at density 3, driveopt's pipelines.
         decide p2 --figures fig9 --planners vqvae-filter cvae-multipliers cvae-filter
