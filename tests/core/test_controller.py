@@ -100,6 +100,44 @@ def test_frames_draw_the_plan_made_for_their_own_state(capsys, monkeypatch):
     assert capsys.readouterr().err == "", "verbose=False is silent"
 
 
+def test_record_video_records_each_frame_with_the_plan_from_the_car(tmp_path, monkeypatch):
+    """The recording route the controller's docs give, verbatim: RecordVideo(RenderPlans(env, controller)) writes one
+    MP4 with a frame per step (and the reset's), each frame drawing the plan made from the state on screen."""
+    import os
+
+    pytest.importorskip("moviepy")
+    import imageio.v2 as imageio
+    from gymnasium.wrappers import RecordVideo
+
+    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    env = driveopt.gym_make("highway-v0", config=SHORT_EPISODE, render_mode="rgb_array")
+    controller = driveopt.Controller("bilevel", samples=100, verbose=False)
+    starts = []
+    render = controller.render
+
+    def spy(env_):
+        frame = render(env_)
+        if controller.planned is not None:
+            vehicle = env_.unwrapped.vehicle
+            starts.append((controller.planned.scene.ego.vx, vehicle.speed * np.cos(vehicle.heading)))
+        return frame
+
+    monkeypatch.setattr(controller, "render", spy)
+    recorded = RecordVideo(driveopt.RenderPlans(env, controller), str(tmp_path), disable_logger=True)
+    recorded.reset(seed=1)
+    controller.reset(env, seed=1)
+    steps, done = 0, False
+    while not done:
+        _, _, terminated, truncated, _ = recorded.step(controller.act(env))
+        steps, done = steps + 1, terminated or truncated
+    recorded.close()
+    (video,) = tmp_path.glob("*.mp4")
+    assert imageio.get_reader(video).count_frames() == steps + 1
+    assert len(starts) >= steps - 1 >= 2, "the frames after the reset's drew a plan"
+    for planned_vx, car_vx in starts:
+        assert planned_vx == pytest.approx(car_vx, abs=0.5), "the frame's plan starts from the car on screen"
+
+
 def test_plan_status_prints_by_name_and_stays_a_number_in_json():
     import json
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from driveopt.experiments.runner import compile_notice
+from driveopt.experiments.runner import compile_ahead, compile_notice
 
 
 class Bar:
@@ -22,3 +22,12 @@ def test_a_compilation_is_one_line_and_a_cached_load_is_silent():
     quiet = Bar(disable=True)
     compile_notice(quiet, "bilevel", 12.34)
     assert quiet.lines == []
+
+
+def test_the_episodes_that_compile_are_announced_before_they_start():
+    bar = Bar()
+    compile_ahead(bar, ["bilevel", "grid"])
+    compile_ahead(bar, [])  # nothing to run: nothing to say
+    compile_ahead(Bar(disable=True), ["bilevel"])
+    assert bar.lines == ["driveopt: each worker's first episode of bilevel, grid compiles it unless the compilation "
+                         "cache holds it (tens of seconds; the bar waits meanwhile) ..."]

@@ -32,7 +32,15 @@ from driveopt.drivers.latency import parse_latency
 from driveopt.errors import DriveoptError
 from driveopt.experiments.arms import planner_spec, provenance
 from driveopt.experiments.rollout import run_episode
-from driveopt.experiments.runner import EpisodeFn, check_backend, compile_notice, execute, execute_cells, usable_cpus
+from driveopt.experiments.runner import (
+    EpisodeFn,
+    check_backend,
+    compile_ahead,
+    compile_notice,
+    execute,
+    execute_cells,
+    usable_cpus,
+)
 from driveopt.experiments.store import (
     RECORDS_FILE,
     SPEC_FILE,
@@ -227,6 +235,7 @@ def _run_locked(spec: BenchSpec, out: Path, workers: int, backend: str, episode_
         bar.update(1)
         bar.set_postfix_str(f"{record['scenario']}/{record['planner']} crashed={record['collided']}")
 
+    compile_ahead(bar, sorted({job.planner for job in todo}))
     try:
         if lockstep is None:
             execute(todo, spec.options, episode_fn, finished, workers=workers, backend=backend)

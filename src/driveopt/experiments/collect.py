@@ -33,7 +33,7 @@ from driveopt.data.demonstrations import (
 from driveopt.data.modes import select_modes
 from driveopt.drivers.optimiser import OptimiserSpec
 from driveopt.experiments.rollout import Rollout
-from driveopt.experiments.runner import compile_notice, execute
+from driveopt.experiments.runner import compile_ahead, compile_notice, execute
 from driveopt.experiments.store import JobKey, seed_range_problem
 from driveopt.files import lock_output_file
 from driveopt.observation import OBSERVATION_DIM
@@ -173,6 +173,7 @@ def _collect_into(writer: DemonstrationWriter, jobs: list[JobKey], options: dict
         bar.update(1)
         bar.set_postfix_str(f"{record['entry']['scenario']} rows={summary['rows']} crashed={summary['collided']}")
 
+    compile_ahead(bar, ["the expert planner"] if todo else [])
     try:
         execute(todo, options, demonstration_episode, finished, workers=workers)
     finally:

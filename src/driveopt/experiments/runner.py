@@ -356,6 +356,15 @@ def _sigterm_kept():
 COMPILE_NOTICE_SECONDS = 1.0  # [s] an episode whose planner compiled for longer than this says so (a cached one loads faster)
 
 
+def compile_ahead(bar, planners: list[str]) -> None:
+    """One line above the progress ``bar`` before the episodes start (none when the bar is off or nothing runs): each
+    worker's first episode of each of ``planners`` compiles it, unless the compilation cache holds it, and the bar
+    stands still meanwhile."""
+    if planners and not getattr(bar, "disable", False):
+        bar.write(f"driveopt: each worker's first episode of {', '.join(planners)} compiles it unless the compilation "
+                  "cache holds it (tens of seconds; the bar waits meanwhile) ...", file=sys.stderr)
+
+
 def compile_notice(bar, planner: str, seconds: float) -> None:
     """One line above the progress ``bar`` (on its stream; none when the bar is off) when an episode's ``planner`` compiled
     for ``seconds`` [s] (a worker's first episode of a planner, unless the compilation cache held it): the time the bar
