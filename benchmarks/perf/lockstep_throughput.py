@@ -8,13 +8,19 @@ run (one episode per slot or worker, 0.3 s each) that fills the compilation cach
 ``--episodes`` episodes of ``--duration`` simulated seconds. Per setting: the timed run's wall time, episodes per hour
 (3600 x episodes / wall time, start-up and the cached compilation included), the mean and median planning-call time
 from the records (a lock-step call plans for all its episodes) and the collisions, with the load average before and
-after. The file is rewritten after every setting (strict JSON). On a busy machine the figures are noisy: the load
-average is recorded so that a reader can tell.
+after. The file is rewritten after every setting (strict JSON), and a rerun with the same parameters keeps the settings
+it holds and runs the others (resume). On a busy machine the figures are noisy: the load average is recorded so that
+a reader can tell.
+
+Agreement: each setting keeps its episodes' outcomes (collided, steps, statuses, mean speed); every lock-step setting
+is compared with the first one-by-one setting on the same episodes (``agreement``: episodes compared, how many have
+the same collision, steps and status counts, and the largest mean-speed difference [m/s]).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import subprocess
@@ -53,10 +59,23 @@ def run_setting(args: argparse.Namespace, setting: dict, folder: Path) -> dict:
     wall = time.perf_counter() - start
     records = load_records(folder / "timed" / "episodes.jsonl")
     plan_ms = np.asarray([ms for r in records for ms in r["plan_ms"]] or [np.nan])
+    outcomes = {f"{r['seed']}/{r['episode']}": {"collided": bool(r["collided"]), "steps": int(r["steps"]),
+                                                "statuses": r["statuses"], "mean_speed": float(r["mean_speed"])}
+                for r in records}
     return {**setting, "episodes": len(records), "wall_s": wall, "episodes_per_hour": 3600.0 * len(records) / wall,
             "steps": int(sum(r["steps"] for r in records)), "plan_ms_mean": float(np.mean(plan_ms)),
             "plan_ms_median": float(np.median(plan_ms)), "collisions": int(sum(r["collided"] for r in records)),
-            "load_before": load_before, "load_after": list(os.getloadavg())}
+            "load_before": load_before, "load_after": list(os.getloadavg()), "outcomes": outcomes}
+
+
+def agreement(run: dict, reference: dict) -> dict:
+    """How ``run``'s episodes agree with ``reference``'s on the episodes both ran."""
+    shared = sorted(set(run["outcomes"]) & set(reference["outcomes"]))
+    pairs = [(run["outcomes"][k], reference["outcomes"][k]) for k in shared]
+    same = {field: sum(a[field] == b[field] for a, b in pairs) for field in ("collided", "steps", "statuses")}
+    gaps = [abs(a["mean_speed"] - b["mean_speed"]) for a, b in pairs]
+    return {"episodes": len(pairs), **{f"same_{field}": n for field, n in same.items()},
+            "max_mean_speed_difference": max(gaps) if gaps else None}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -75,14 +94,26 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("slot and worker counts, episodes and samples must be >= 1 and the duration > 0")
     path = Path(args.json)
     path.parent.mkdir(parents=True, exist_ok=True)
-    report = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
-              "scenario": args.scenario, "planner": args.planner, "samples": args.samples, "duration_s": args.duration,
-              "episodes": args.episodes, "results": []}
+    parameters = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+                  "scenario": args.scenario, "planner": args.planner, "samples": args.samples,
+                  "duration_s": args.duration, "episodes": args.episodes, "seed": args.seed}
+    report = {**parameters, "results": []}
+    if path.exists():
+        held = json.loads(path.read_text())
+        if {k: held.get(k) for k in parameters} != parameters:
+            parser.error(f"{path} holds a run with other parameters; give another --json")
+        report = held
     settings = [{"workers": w} for w in args.workers] + [{"lockstep": e} for e in args.lockstep]
     for setting in settings:
+        if any(all(r.get(k) == v for k, v in setting.items()) for r in report["results"]):
+            continue  # measured by an earlier run of this file
         with tempfile.TemporaryDirectory(prefix="lockstep-throughput-") as folder:
             result = run_setting(args, setting, Path(folder))
         report["results"].append(result)
+        reference = next((r for r in report["results"] if "workers" in r), None)
+        for r in report["results"]:
+            if "lockstep" in r and reference is not None:
+                r["agreement"] = agreement(r, reference)
         write_json(path, report)  # strict JSON, whole or not at all
         print(f"{setting}: {result['episodes_per_hour']:.0f} episodes/h ({result['wall_s']:.1f} s, plan "
               f"{result['plan_ms_median']:.0f} ms median)", flush=True)
