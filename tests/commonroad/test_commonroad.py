@@ -102,6 +102,10 @@ def test_the_world_reads_lanes_goal_and_obstacles(tmp_path):
     assert world.goal.widen == pytest.approx(LANE / 20.0, rel=0.03)
     far = world.goal.target_band(world.scene(0, ego, 10.0)[0])  # 80 m before the goal: the whole road
     assert far[0] < -0.5 * LANE
+    from driveopt.commonroad.cover import cover_pieces
+    from driveopt.commonroad.drive import row_count
+
+    assert row_count(world, 100) == cover_pieces()  # one car, in its segments
     (neighbour, track), = world.neighbours(10)
     assert neighbour.vx == pytest.approx(2.0) and track.future(10, np.array([1.0]), world.dt)[0][0] == pytest.approx(
         neighbour.x + 2.0)

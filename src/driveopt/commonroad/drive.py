@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from driveopt.commonroad.cover import box_cover
+from driveopt.commonroad.cover import box_cover, cover_pieces
 from driveopt.commonroad.evaluate import EgoPose, Evaluator
 from driveopt.commonroad.world import CommonRoadWorld, Track
 from driveopt.prediction import relevant_neighbours
@@ -28,6 +28,7 @@ from driveopt.scene import EgoState, Neighbour, Scene
 EXECUTIONS = ("perfect",)
 MAX_STEPS = 600  # [-] time steps of a run at most
 TAIL_STEPS = 50  # [-] steps after the last recorded obstacle state when the goal has no time window
+MAX_ROWS = 10  # [-] obstacle rows a plan is compiled for at most (build_problem's default)
 
 
 def max_steps(world: CommonRoadWorld) -> int:
@@ -38,6 +39,14 @@ def max_steps(world: CommonRoadWorld) -> int:
         return max(1, min(MAX_STEPS, end - world.start_step + 1))
     last = max([int(t.steps[-1]) for t in world.tracks if not t.static] or [world.start_step])
     return max(1, min(MAX_STEPS, last - world.start_step + TAIL_STEPS))
+
+
+def row_count(world: CommonRoadWorld, steps: int) -> int:
+    """[-] obstacle rows for a run of ``steps`` time steps: the most obstacles present at one step, each in its
+    :func:`~driveopt.commonroad.cover.cover_pieces` segments, at most :data:`MAX_ROWS`, at least 1. The projection's
+    work grows with the rows, padding or not (about 10 % from 4 to 10 rows)."""
+    most = max(sum(track.index(world.start_step + i) is not None for track in world.tracks) for i in range(steps + 1))
+    return max(1, min(MAX_ROWS, most * cover_pieces()))
 
 
 def obstacle_rows(problem: Any, scene: Scene, present: list[tuple[Neighbour, Track]], step: int, times: np.ndarray,
@@ -146,10 +155,12 @@ def drive(world: CommonRoadWorld, planner: str = "bilevel", samples: int | None 
     plan_ms, statuses = [], {}
     status, event_step = "timeout", None
     compiled = False
-    for i in range(max_steps(world)):
+    steps = max_steps(world)
+    rows = row_count(world, steps)
+    for i in range(steps):
         step = world.start_step + i
         scene, present = world.scene(step, ego, cruise)
-        problem = build_problem(scene, config.basis, braking_time=spec.braking_time, selection_time=spec.selection_time,
+        problem = build_problem(scene, config.basis, rows, braking_time=spec.braking_time, selection_time=spec.selection_time,
                                 goal=world.goal, time=i * world.dt)
         problem = obstacle_rows(problem, scene, present, step, times, world.dt, spec.selection_time, spec.braking_time)
         key, sub = jax.random.split(key)
