@@ -14,7 +14,7 @@ from driveopt.commonroad.drive import obstacle_rows, previous_within_bounds
 from driveopt.commonroad.world import ELLIPSE_MARGIN, Track
 from driveopt.config import BasisConfig
 from driveopt.planner import PreviousPlan
-from driveopt.prediction import ellipse_semi_axes
+from driveopt.prediction import ellipse_semi_axes, turned_box_growth
 from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, Road, Scene
 
@@ -37,6 +37,18 @@ def test_the_cover_contains_the_box_and_is_narrower_than_the_single_ellipse(half
     # no farther along the road than the single ellipse, and the ellipses meet at the box's edge, not beyond it
     assert centres[-1] + a <= math.sqrt(2.0) * half_long + 1e-9 and centres[0] - a >= -math.sqrt(2.0) * half_long - 1e-9
     assert not _inside(np.array([[0.0, 1.001 * b]]), centres, a, b).any()
+
+
+@pytest.mark.parametrize("other", [(6.0, 3.5), (4.8, 2.0), (4.5, 1.8), (12.0, 2.5)])  # [m] obstacles' length x width
+def test_the_cover_grown_by_the_egos_turned_box_contains_the_grown_box(other):
+    for heading in np.linspace(0.0, 0.5, 11):
+        grow_a, grow_b = turned_box_growth(heading, EGO.length, EGO.width)  # added to every semi-axis by the planner
+        extra_long, extra_lat = (grow_a, grow_b) / np.sqrt(2.0)  # [m] how much the turned box exceeds the box
+        half_long, half_lat = 0.5 * (EGO.length + other[0]), 0.5 * (EGO.width + other[1])
+        centres, a, b = box_cover(half_long, half_lat)
+        box = np.stack(np.meshgrid(np.linspace(-1.0, 1.0, 201) * (half_long + extra_long),
+                                   np.linspace(-1.0, 1.0, 41) * (half_lat + extra_lat)), -1).reshape(-1, 2)
+        assert _inside(box, centres, a + grow_a, b + grow_b).all(), heading
 
 
 def test_the_fewest_pieces_that_reach_no_farther_than_the_single_ellipse():

@@ -7,6 +7,13 @@ length ``h = A / pieces``) gets the ellipse through its corners with lateral sem
 longitudinal semi-axis is then ``h / sqrt(1 - 1 / stretch^2)``. Each ellipse contains its segment, so their union
 contains the box, ``stretch - 1`` of its half-width wider instead of ``sqrt(2) - 1``. :func:`cover_pieces` picks the
 fewest segments whose ellipses reach no farther along the road than the single ellipse does.
+
+The planner adds the ego's turned-box growth (``PlanningProblem.ellipse_growth``: sqrt(2) times how much the box
+around the turned ego exceeds its box along the road) to every ellipse's semi-axes, segments too. That covers the
+grown box at the joints of the segments (the growth there is at most the single ellipse's ratio), and at the box's
+ends while the growth along the road stays small against the growth across, as it does for a car turned by a few
+tenths of a radian (``tests/commonroad/test_cover.py`` checks cars and ZAM_Over's obstacle up to 0.5 rad; not a
+proof for every box and heading).
 """
 
 from __future__ import annotations

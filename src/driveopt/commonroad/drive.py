@@ -50,9 +50,9 @@ def row_count(world: CommonRoadWorld, steps: int) -> int:
 
 
 def obstacle_rows(problem: Any, scene: Scene, present: list[tuple[Neighbour, Track]], step: int, times: np.ndarray,
-                  dt: float, selection_time: float, braking_time: float, cover: bool = True) -> Any:
-    """``problem`` with each planned-against obstacle's predicted centres replaced by its recording, and (``cover``)
-    each one's collision ellipse replaced, while padding rows are left, by the tighter cover of
+                  dt: float, selection_time: float, braking_time: float) -> Any:
+    """``problem`` with each planned-against obstacle's predicted centres replaced by its recording, and each one's
+    collision ellipse replaced, while padding rows are left, by the tighter cover of
     :func:`~driveopt.commonroad.cover.box_cover` (one row per segment, most relevant obstacle first).
 
     The rows are matched to the obstacles by :func:`~driveopt.prediction.relevant_neighbours` with ``build_problem``'s
@@ -72,8 +72,6 @@ def obstacle_rows(problem: Any, scene: Scene, present: list[tuple[Neighbour, Tra
     for row, n in enumerate(chosen):
         s, d = tracks[id(n)].future(step, times, dt)
         ox[row], oy[row] = s - ego.x, d
-        if not cover:
-            continue
         other_long, other_lat = n.half_extents
         centres, a, b = box_cover(0.5 * ego.length + other_long, 0.5 * ego.width + other_lat)
         if free + len(centres) - 1 > rows:
