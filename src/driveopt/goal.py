@@ -18,8 +18,9 @@ a split), so any road source can fill it in. :func:`driveopt.problem.build_probl
   lanes inside the bounds from the next lane towards the band on, so that lane centring draws the car towards it
   one lane at a time from the start while the bounds require it only as late as it can still be reached.
 - speed: ``v_des`` clipped into the speed window, then into the speeds that arrive in the goal's range within the time
-  window (fast enough to reach its start before the window closes, slow enough not to pass its end before the window
-  opens).
+  window (fast enough to reach its start before the window closes, from the car's speed now: a car slower than the
+  average speed that needs aims at the end speed of a steady acceleration that averages it; slow enough not to pass
+  its end before the window opens).
 
 No goal (``goal=None``) leaves ``build_problem`` exactly as without this module.
 """
@@ -164,7 +165,9 @@ class Goal:
 
     def desired_speed(self, scene: Scene, time: float = 0.0) -> float:
         """[m/s] ``scene.v_des`` within the speed window, then within the speeds that reach the goal's x range inside
-        its time window from x at ``time`` [s] (the timing wins where the two disagree)."""
+        its time window from x at ``time`` [s] (the timing wins where the two disagree): at least the average speed
+        that reaches its start in time, or, for an ego slower than that average now, ``2 * average - speed``, the end
+        speed of a steady acceleration from its speed that covers the distance in time."""
         v = scene.v_des
         if self.speed is not None:
             v = min(max(v, self.speed[0]), self.speed[1])
@@ -172,7 +175,11 @@ class Goal:
             start, end = self.x[0] - scene.ego.x, self.x[1] - scene.ego.x  # [m] to the range's start and end
             opens, closes = self.time[0] - time, self.time[1] - time  # [s] until the window opens and closes
             if closes > 0.0 and start > 0.0:
-                v = max(v, start / closes)  # reach the start before the window closes
+                # reach the start before the window closes: at the average speed that needs, or, from a slower car, at
+                # the end speed of a steady acceleration from its speed that covers the distance in time (the car
+                # must go faster than the average later for the time it spends slower now)
+                average, speed = start / closes, max(scene.ego.vx, 0.0)
+                v = max(v, average if speed >= average else 2.0 * average - speed)
             if end > 0.0 and opens > 0.0:
                 v = min(v, end / opens)  # not past the end before the window opens
         return float(min(max(v, 0.0), 100.0))

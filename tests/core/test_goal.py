@@ -72,8 +72,11 @@ def test_a_slow_car_in_the_band_defers_it_until_passed():
 
 def test_speed_window_and_time_window_set_v_des():
     assert Goal(speed=(5.0, 8.0)).desired_speed(scene()) == 8.0
-    # 100 m to the start, window closes in 5 s: at least 20 m/s
-    assert Goal(x=(100.0, 120.0), time=(0.0, 5.0)).desired_speed(scene()) == pytest.approx(20.0)
+    # 100 m to the start, window closes in 5 s: an average of 20 m/s; from 10 m/s, the end speed of a steady
+    # acceleration that averages it (10 -> 30 m/s); a car already at 20 m/s or faster holds the average
+    assert Goal(x=(100.0, 120.0), time=(0.0, 5.0)).desired_speed(scene()) == pytest.approx(30.0)
+    assert Goal(x=(100.0, 120.0), time=(0.0, 5.0)).desired_speed(scene(vx=20.0)) == pytest.approx(20.0)
+    assert Goal(x=(100.0, 120.0), time=(0.0, 5.0)).desired_speed(scene(vx=25.0)) == pytest.approx(20.0)
     # the end 40 m away, the window opens in 10 s: at most 4 m/s
     assert Goal(x=(30.0, 40.0), time=(10.0, 20.0)).desired_speed(scene()) == pytest.approx(4.0)
     assert Goal(x=(30.0, 40.0), time=(10.0, 20.0)).desired_speed(scene(), time=8.0) == pytest.approx(15.0)

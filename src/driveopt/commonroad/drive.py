@@ -3,8 +3,10 @@
 Execution model ``perfect`` (FISS's benchmark's): at every time step the planner plans from the ego's state, and the
 ego is where the followed plan (the plan when SUCCESS, else its fallback stop) is one time step later, read off the
 plan's positions, velocities and accelerations (cubic interpolation between its nodes). Obstacles are predicted by
-their recording (ground truth, :class:`~driveopt.commonroad.world.Track`), followers included. The goal
-(:class:`~driveopt.goal.Goal`) sets the lateral bounds and the desired speed; every verdict is the
+their recording (ground truth, :class:`~driveopt.commonroad.world.Track`), followers included, each inside the
+segment ellipses of :mod:`~driveopt.commonroad.cover` while rows are free (:func:`obstacle_rows`). The goal
+(:class:`~driveopt.goal.Goal`) sets the lateral bounds and the desired speed, and the previous plan's lateral
+set-points are held inside the bounds (:func:`previous_within_bounds`); every verdict is the
 :class:`~driveopt.commonroad.evaluate.Evaluator`'s.
 """
 
@@ -16,13 +18,17 @@ from typing import Any
 
 import numpy as np
 
+from driveopt.commonroad.cover import box_cover, cover_pieces
 from driveopt.commonroad.evaluate import EgoPose, Evaluator
 from driveopt.commonroad.world import CommonRoadWorld, Track
-from driveopt.scene import EgoState, Neighbour
+from driveopt.prediction import relevant_neighbours
+from driveopt.qp import NUM_SEGMENTS
+from driveopt.scene import EgoState, Neighbour, Scene
 
 EXECUTIONS = ("perfect",)
 MAX_STEPS = 600  # [-] time steps of a run at most
 TAIL_STEPS = 50  # [-] steps after the last recorded obstacle state when the goal has no time window
+MAX_ROWS = 10  # [-] obstacle rows a plan is compiled for at most (build_problem's default)
 
 
 def max_steps(world: CommonRoadWorld) -> int:
@@ -35,17 +41,62 @@ def max_steps(world: CommonRoadWorld) -> int:
     return max(1, min(MAX_STEPS, last - world.start_step + TAIL_STEPS))
 
 
-def _recorded_futures(problem: Any, present: list[tuple[Neighbour, Track]], ego_x: float, step: int, times: np.ndarray,
-                      dt: float) -> Any:
-    """``problem`` with each planned-against obstacle's predicted centres replaced by its recording."""
+def row_count(world: CommonRoadWorld, steps: int) -> int:
+    """[-] obstacle rows for a run of ``steps`` time steps: the most obstacles present at one step, each in its
+    :func:`~driveopt.commonroad.cover.cover_pieces` segments, at most :data:`MAX_ROWS`, at least 1. The projection's
+    work grows with the rows, padding or not (about 10 % from 4 to 10 rows)."""
+    most = max(sum(track.index(world.start_step + i) is not None for track in world.tracks) for i in range(steps + 1))
+    return max(1, min(MAX_ROWS, most * cover_pieces()))
+
+
+def obstacle_rows(problem: Any, scene: Scene, present: list[tuple[Neighbour, Track]], step: int, times: np.ndarray,
+                  dt: float, selection_time: float, braking_time: float) -> Any:
+    """``problem`` with each planned-against obstacle's predicted centres replaced by its recording, and each one's
+    collision ellipse replaced, while padding rows are left, by the tighter cover of
+    :func:`~driveopt.commonroad.cover.box_cover` (one row per segment, most relevant obstacle first).
+
+    The rows are matched to the obstacles by :func:`~driveopt.prediction.relevant_neighbours` with ``build_problem``'s
+    arguments (``selection_time``, ``braking_time`` [s]): its rows in its order (matched by position, a car merging
+    from off the road, whose predicted lateral position ``build_problem`` clips onto the road, was taken for another
+    car and planned against twice, itself not at all)."""
+    ego = scene.ego
+    rows = int(np.shape(problem.obstacle_x)[0])
+    chosen = relevant_neighbours(scene, rows, False, selection_time, braking_time)
+    tracks = {id(n): track for n, track in present}
     ox, oy = np.array(problem.obstacle_x, dtype=np.float64), np.array(problem.obstacle_y, dtype=np.float64)
-    mask = np.asarray(problem.obstacle_mask)
-    for row in np.flatnonzero(mask > 0.5):
-        distances = [abs(n.x - (ox[row, 0] + ego_x)) + abs(n.y - oy[row, 0]) for n, _ in present]
-        track = present[int(np.argmin(distances))][1]
-        s, d = track.future(step, times, dt)
-        ox[row], oy[row] = s - ego_x, d
-    return problem._replace(obstacle_x=np.asarray(ox, np.float32), obstacle_y=np.asarray(oy, np.float32))
+    oa, ob = np.array(problem.obstacle_a, dtype=np.float64), np.array(problem.obstacle_b, dtype=np.float64)
+    mask = np.array(problem.obstacle_mask, dtype=np.float64)
+    if int(np.sum(mask > 0.5)) != len(chosen):
+        raise RuntimeError(f"{len(chosen)} obstacles chosen but {int(np.sum(mask > 0.5))} rows planned against")
+    free = len(chosen)  # the first padding row
+    for row, n in enumerate(chosen):
+        s, d = tracks[id(n)].future(step, times, dt)
+        ox[row], oy[row] = s - ego.x, d
+        other_long, other_lat = n.half_extents
+        centres, a, b = box_cover(0.5 * ego.length + other_long, 0.5 * ego.width + other_lat)
+        if free + len(centres) - 1 > rows:
+            continue  # no room: the single ellipse stays
+        margin, centre_x, centre_y = scene.ellipse_margin, ox[row].copy(), oy[row].copy()
+        for target, offset in zip([row] + list(range(free, free + len(centres) - 1)), centres):
+            ox[target], oy[target] = centre_x + offset, centre_y
+            oa[target], ob[target], mask[target] = a + margin.longitudinal, b + margin.lateral, 1.0
+        free += len(centres) - 1
+    f32 = lambda v: np.asarray(v, np.float32)  # noqa: E731
+    return problem._replace(obstacle_x=f32(ox), obstacle_y=f32(oy), obstacle_a=f32(oa), obstacle_b=f32(ob),
+                            obstacle_mask=f32(mask))
+
+
+def previous_within_bounds(previous: Any, problem: Any) -> Any:
+    """``previous`` (a :class:`~driveopt.planner.PreviousPlan`) with its lateral set-points [m] clipped into
+    ``problem``'s lateral bounds, as the sampler clips its own.
+
+    The previous plan's set-points are re-solved as a candidate at every replan. Set-points from before a goal's band
+    was imposed lie outside it; the projection's off-road recovery lets that plan enter the band only by
+    ``recovery_time`` (3 s), so it stayed feasible and, cheapest against itself (``consistency``), was chosen at every
+    replan: each replan put the return off by another step, and the car never reached the band."""
+    setpoints = np.array(previous.setpoints, dtype=np.float32)
+    setpoints[NUM_SEGMENTS:] = np.clip(setpoints[NUM_SEGMENTS:], float(problem.y_lb), float(problem.y_ub))
+    return previous._replace(setpoints=setpoints)
 
 
 def _after(traj: Any, dt: float) -> tuple[float, float, float, float, float, float]:
@@ -102,13 +153,17 @@ def drive(world: CommonRoadWorld, planner: str = "bilevel", samples: int | None 
     plan_ms, statuses = [], {}
     status, event_step = "timeout", None
     compiled = False
-    for i in range(max_steps(world)):
+    steps = max_steps(world)
+    rows = row_count(world, steps)
+    for i in range(steps):
         step = world.start_step + i
         scene, present = world.scene(step, ego, cruise)
-        problem = build_problem(scene, config.basis, braking_time=spec.braking_time, selection_time=spec.selection_time,
+        problem = build_problem(scene, config.basis, rows, braking_time=spec.braking_time, selection_time=spec.selection_time,
                                 goal=world.goal, time=i * world.dt)
-        problem = _recorded_futures(problem, present, ego.x, step, times, world.dt)
+        problem = obstacle_rows(problem, scene, present, step, times, world.dt, spec.selection_time, spec.braking_time)
         key, sub = jax.random.split(key)
+        if previous is not None:
+            previous = previous_within_bounds(previous, problem)
         if not compiled:  # the first call compiles: untimed, its result discarded
             plan(problem, config, key=sub, prior=prior, warm_start=warm, previous=previous, safety_filter=safety_filter,
                  method=spec.method, x_offset=ego.x)

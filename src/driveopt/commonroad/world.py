@@ -9,6 +9,10 @@ problem's goal as a :class:`~driveopt.goal.Goal`.
   stays drivable over the preview, split into lanes of the scenario's typical lanelet width.
 - Obstacles: each dynamic obstacle's recorded state at the time step (static ones always), turned into the frame; their
   future over the planning horizon is the recording (ground-truth prediction), continued at constant velocity after it.
+- Goal: the goal region's lateral extent as a band, its longitudinal extent as the x range, its speed and time windows;
+  the band widens before the goal's start by a lane per :data:`LANE_TIME` of travel (``Goal.widen``), so that it is
+  required only as late as lane changes can still reach it: a band imposed in full from 60 m before the goal, while
+  the car passed a slow car in the lane on the other side of it, asked for two lanes at once beside that car (no plan).
 
 :class:`UnsupportedScenario` (one line) for what the frame cannot represent: several or no planning problems, no
 route, an ego that starts off the lanelets, a reference path that bends more sharply than :data:`MAX_CURVATURE`, or an
@@ -31,9 +35,12 @@ from driveopt.scene import EgoState, EllipseMargin, Neighbour, Road, Scene
 
 MAX_CURVATURE = 0.1  # [1/m] sharpest bend of the reference path the straight-road planner is given (radius 10 m)
 VEHICLE = "VW_VANAGON"  # CommonRoad's vehicle parameters for the ego (FISS's benchmark uses the same)
-# [m] clearance added to the collision ellipses: none across the road, whose ellipse around a box already clears its
-# corners by sqrt(2) (the default 0.3 m closes ZAM_Over's 3.3 m lane beside a 3.5 m wide obstacle)
+# [m] clearance added to the collision ellipses: none across the road, whose ellipses around a box already clear it by
+# 0.2 (driveopt.commonroad.cover's segments) or sqrt(2) - 1 (the single ellipse) of its half-width
 ELLIPSE_MARGIN = EllipseMargin(longitudinal=0.5, lateral=0.0)
+# the goal's band widens by a lane per LANE_TIME of travel at the goal's speed (at least MIN_LANE_DISTANCE) before its
+# start (Goal.widen), so a band far ahead accepts every lane it can still be reached from, and is required only then
+LANE_TIME, MIN_LANE_DISTANCE = 1.5, 20.0  # [s], [m]
 PREVIEW_TIME, PREVIEW_MIN, PREVIEW_STEP = 3.0, 15.0, 5.0  # [s], [m], [m] of the lane preview
 
 
@@ -185,8 +192,11 @@ class CommonRoadWorld:
         if goal_state.has_value("time_step"):
             first, last = window("time_step")
             time = ((first - self.start_step) * self.dt, (last - self.start_step) * self.dt)
-        return Goal(bands=tuple(bands), x=x_range, speed=None if speed is None else tuple(map(float, speed)),
-                    time=time)
+        speed = None if speed is None else tuple(map(float, speed))
+        pace = 0.5 * (speed[0] + min(speed[1], 40.0)) if speed is not None else float(
+            getattr(self.problem.initial_state, "velocity", 0.0) or 0.0)
+        lane_distance = max(LANE_TIME * pace, MIN_LANE_DISTANCE)  # [m] of travel per lane the band widens by
+        return Goal(bands=tuple(bands), x=x_range, speed=speed, time=time, widen=self.lane_width / lane_distance)
 
     # --- per step --------------------------------------------------------------------------------------------------
     def initial_ego(self) -> EgoState:
