@@ -4,6 +4,7 @@ in another lane is reached; a scenario the frame cannot represent is refused in 
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -115,3 +116,30 @@ def test_a_folder_without_scenarios_is_one_line_and_status_2(tmp_path, capsys):
     assert main(["commonroad", "--scenarios", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("driveopt: error:") and "no CommonRoad .xml" in err and "\n" not in err
+
+
+def test_the_tracked_car_starts_as_the_planning_problem_and_follows_a_straight_plan(tmp_path):
+    """The tracked car at the initial state is the world's initial ego in the frame (straight road, no slip); the
+    model is CommonRoad's VW_VANAGON; a constant-speed plan along its lane moves it 1 m per step at 10 m/s."""
+    from commonroad_dc.feasibility.vehicle_dynamics import VehicleParameterMapping
+
+    from driveopt.commonroad.execution import car_pose, frame_state, initial_car, step, vehicle_model
+    from driveopt.commonroad.world import VEHICLE, CommonRoadWorld
+
+    write_scenario(tmp_path / "s.xml")
+    world = CommonRoadWorld(tmp_path / "s.xml")
+    params = VehicleParameterMapping[VEHICLE].value
+    model = vehicle_model(params, world.dt)
+    assert model.length == pytest.approx(params.a + params.b) and model.acceleration_range[1] == params.longitudinal.a_max
+    car = initial_car(world.problem.initial_state)
+    ego, expected = frame_state(car, world.frame, model, world.length, world.width), world.initial_ego()
+    for field in ("x", "y", "vx", "vy", "ax", "ay", "yaw"):
+        assert getattr(ego, field) == pytest.approx(getattr(expected, field), abs=1e-9), field
+    t = np.linspace(0.0, 15.0, 101)
+    for k in range(20):
+        plan = SimpleNamespace(t=t, x=ego.x + 10.0 * t, y=np.zeros_like(t), vx=np.full_like(t, 10.0),
+                               vy=np.zeros_like(t), ax=np.zeros_like(t), ay=np.zeros_like(t))
+        car = step(car, plan, world.frame, model)
+        ego = frame_state(car, world.frame, model, world.length, world.width)
+    pose = car_pose(20, car)
+    assert (pose.x, pose.y, pose.yaw, pose.speed) == pytest.approx((40.0, 0.0, 0.0, 10.0), abs=1e-6)

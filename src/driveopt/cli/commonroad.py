@@ -8,6 +8,7 @@ import argparse
 from pathlib import Path
 
 from driveopt.cli.common import positive_int
+from driveopt.commonroad import EXECUTIONS
 
 
 def register(sub) -> None:
@@ -16,19 +17,22 @@ def register(sub) -> None:
     p.add_argument("--planners", nargs="+", default=["bilevel"],
                    help="registered optimisers (bilevel, ...) and FISS's fiss_plus, fiss, fop_plus, fop")
     p.add_argument("--samples", type=positive_int, help="override the optimisers' samples per iteration")
-    p.add_argument("--execution", choices=["perfect"], default="perfect",
-                   help="perfect: the ego is where its plan is one time step later (FISS's benchmark's model)")
+    p.add_argument("--execution", choices=EXECUTIONS, default="perfect",
+                   help="how the ego moves between time steps: perfect: where its plan is one time step later (FISS's "
+                   "benchmark's model); tracked: driveopt's kinematic bicycle following the plan with driveopt's "
+                   "tracker (driveopt's planners only); one OUT folder holds one model")
     p.add_argument("--out", default="out/commonroad", help="output folder (rerun to resume)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from driveopt.commonroad import require
+    from driveopt.commonroad.bench import RUNS_FILE, check_execution, load_runs, run as run_folder, scenario_files
     from driveopt.commonroad.fiss import PLANNERS as FISS
     from driveopt.errors import DriveoptError
 
+    check_execution(args.execution, tuple(args.planners), load_runs(Path(args.out) / RUNS_FILE), args.out)
     require(fiss=any(p in FISS for p in args.planners))
-    from driveopt.commonroad.bench import RUNS_FILE, load_runs, run as run_folder, scenario_files
     from driveopt.registry import get_planner
 
     scenario_files(args.scenarios)

@@ -12,6 +12,9 @@ from __future__ import annotations
 from driveopt.errors import DriveoptError
 
 EXTRA = "pip install 'driveopt[commonroad]'"
+# how the ego moves between time steps: ``perfect`` (where the followed plan is one step later, FISS's benchmark's) or
+# ``tracked`` (driveopt's bicycle following the plan with its tracker, driveopt's planners only)
+EXECUTIONS = ("perfect", "tracked")
 
 
 class MissingExtra(DriveoptError):

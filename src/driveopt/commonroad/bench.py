@@ -5,6 +5,10 @@ last line cut short by a crash is dropped), ``trajectories/SCENARIO__PLANNER.jso
 yaw [rad], speed [m/s]) and ``summary.md``. A record holds: scenario, planner, execution, status (success, collision,
 collision_while_stopped, off_road, timeout, refused), goal_reached, collision, collision_while_stopped, off_road,
 arrival_step, steps, plan_ms_median, plan_ms_p95 [ms] and plan_status_counts; a refused scenario holds its reason.
+
+One folder holds one execution model (:data:`~driveopt.commonroad.EXECUTIONS`): a run with another model than its
+records' is refused in one line (:func:`check_execution`), as is ``tracked`` for FISS's planners, which FISS's own
+closed loop moves perfectly along their plans (their plans are not handed back step by step to be tracked).
 """
 
 from __future__ import annotations
@@ -55,6 +59,25 @@ def _append(path: Path, record: dict[str, Any]) -> None:
         os.fsync(f.fileno())
 
 
+def check_execution(execution: str, planners: tuple[str, ...], records: list[dict[str, Any]], out: str | Path) -> None:
+    """DriveoptError (one line) for an unknown ``execution``, ``tracked`` asked of a FISS planner, or ``out``'s
+    ``records`` made with another execution model (a record without one was made with ``perfect``, the only one then)."""
+    from driveopt.commonroad import EXECUTIONS
+    from driveopt.commonroad.fiss import PLANNERS as FISS
+
+    if execution not in EXECUTIONS:
+        raise DriveoptError(f"--execution {execution!r}: not one of {', '.join(EXECUTIONS)}")
+    fiss = [p for p in planners if p in FISS]
+    if execution != "perfect" and fiss:
+        raise DriveoptError(f"--execution {execution}: {', '.join(fiss)} run in FISS's own closed loop, which moves the "
+                            "ego perfectly along each plan; only driveopt's planners can be tracked (use --execution "
+                            "perfect for FISS)")
+    found = sorted({r.get("execution", "perfect") for r in records} - {execution})
+    if found:
+        raise DriveoptError(f"{out} holds runs with --execution {', '.join(found)}; one folder holds one execution model: "
+                            f"give --execution {found[0]} to resume it, or another --out for {execution}")
+
+
 def run(folder: str | Path, planners: tuple[str, ...], out: str | Path, samples: int | None = None,
         execution: str = "perfect", log: Callable[[str], None] = print) -> list[dict[str, Any]]:
     """Run what ``runs.jsonl`` lacks; return every record, in scenario and planner order."""
@@ -64,9 +87,11 @@ def run(folder: str | Path, planners: tuple[str, ...], out: str | Path, samples:
 
     files = scenario_files(folder)
     out = Path(out)
-    (out / "trajectories").mkdir(parents=True, exist_ok=True)
     path = out / RUNS_FILE
-    done = {(r["scenario"], r["planner"]) for r in load_runs(path)}
+    held = load_runs(path)
+    check_execution(execution, planners, held, out)
+    done = {(r["scenario"], r["planner"]) for r in held}
+    (out / "trajectories").mkdir(parents=True, exist_ok=True)
     for file in files:
         todo = [p for p in planners if (file.stem, p) not in done]
         if not todo:
@@ -96,23 +121,24 @@ def run(folder: str | Path, planners: tuple[str, ...], out: str | Path, samples:
 
 
 def summary_table(records: list[dict[str, Any]]) -> str:
-    """Markdown: one row per planner (successes, collisions, of them while stopped, off road, timeouts, refused, median
-    and p95 plan time over the runs' medians and p95s), then one row per run."""
-    planners = list(dict.fromkeys(r["planner"] for r in records))
-    lines = ["| planner | runs | success | collision (while stopped) | off road | timeout | refused | plan ms median | plan ms p95 |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for planner in planners:
-        rows = [r for r in records if r["planner"] == planner]
+    """Markdown: one row per planner and execution model (successes, collisions, of them while stopped, off road,
+    timeouts, refused, median and p95 plan time over the runs' medians and p95s), then one row per run."""
+    planners = list(dict.fromkeys((r["planner"], r.get("execution", "perfect")) for r in records))
+    lines = ["| planner | execution | runs | success | collision (while stopped) | off road | timeout | refused | "
+             "plan ms median | plan ms p95 |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for planner, execution in planners:
+        rows = [r for r in records if r["planner"] == planner and r.get("execution", "perfect") == execution]
         count = lambda status: sum(r["status"] == status for r in rows)  # noqa: E731
         medians = sorted(r["plan_ms_median"] for r in rows if r.get("plan_ms_median") is not None)
         p95 = sorted(r["plan_ms_p95"] for r in rows if r.get("plan_ms_p95") is not None)
         mid = lambda v: f"{v[len(v) // 2]:.1f}" if v else "-"  # noqa: E731
-        lines.append(f"| {planner} | {len(rows)} | {count('success')} | "
+        lines.append(f"| {planner} | {execution} | {len(rows)} | {count('success')} | "
                      f"{count('collision') + count('collision_while_stopped')} ({count('collision_while_stopped')}) | "
                      f"{count('off_road')} | {count('timeout')} | {count('refused')} | {mid(medians)} | {mid(p95)} |")
-    lines += ["", "| scenario | planner | status | arrival step | plan ms median | plan ms p95 |", "|---|---|---|---|---|---|"]
+    lines += ["", "| scenario | planner | execution | status | arrival step | plan ms median | plan ms p95 |",
+              "|---|---|---|---|---|---|---|"]
     for r in records:
         fmt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
-        lines.append(f"| {r['scenario']} | {r['planner']} | {r['status']} | {r.get('arrival_step') or '-'} | "
+        lines.append(f"| {r['scenario']} | {r['planner']} | {r.get('execution', 'perfect')} | {r['status']} | {r.get('arrival_step') or '-'} | "
                      f"{fmt(r.get('plan_ms_median'))} | {fmt(r.get('plan_ms_p95'))} |")
     return "\n".join(lines) + "\n"

@@ -1,8 +1,10 @@
 """driveopt's planners driving a CommonRoad scenario, step by step at the scenario's time step.
 
-Execution model ``perfect`` (FISS's benchmark's): at every time step the planner plans from the ego's state, and the
-ego is where the followed plan (the plan when SUCCESS, else its fallback stop) is one time step later, read off the
-plan's positions, velocities and accelerations (cubic interpolation between its nodes). Obstacles are predicted by
+At every time step the planner plans from the ego's state; the execution model moves the ego to its next state:
+``perfect`` (FISS's benchmark's): the ego is where the followed plan (the plan when SUCCESS, else its fallback stop) is
+one time step later, read off the plan's positions, velocities and accelerations (cubic interpolation between its
+nodes); ``tracked``: driveopt's kinematic bicycle follows the followed plan with driveopt's tracker over the step
+(:mod:`~driveopt.commonroad.execution`). Obstacles are predicted by
 their recording (ground truth, :class:`~driveopt.commonroad.world.Track`), followers included, each inside the
 segment ellipses of :mod:`~driveopt.commonroad.cover` while rows are free (:func:`obstacle_rows`). The goal
 (:class:`~driveopt.goal.Goal`) sets the lateral bounds and the desired speed, and the previous plan's lateral
@@ -18,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from driveopt.commonroad import EXECUTIONS
+from driveopt.commonroad import execution as tracked
 from driveopt.commonroad.cover import box_cover, cover_pieces
 from driveopt.commonroad.evaluate import EgoPose, Evaluator
 from driveopt.commonroad.world import CommonRoadWorld, Track
@@ -25,7 +29,6 @@ from driveopt.prediction import relevant_neighbours
 from driveopt.qp import NUM_SEGMENTS
 from driveopt.scene import EgoState, Neighbour, Scene
 
-EXECUTIONS = ("perfect",)
 MAX_STEPS = 600  # [-] time steps of a run at most
 TAIL_STEPS = 50  # [-] steps after the last recorded obstacle state when the goal has no time window
 MAX_ROWS = 10  # [-] obstacle rows a plan is compiled for at most (build_problem's default)
@@ -142,6 +145,15 @@ def drive(world: CommonRoadWorld, planner: str = "bilevel", samples: int | None 
     times = np.linspace(0.0, config.basis.horizon, config.basis.num_nodes)
     evaluator = Evaluator(world.scenario, world.problem, world.length, world.width)
     ego = world.initial_ego()
+    car = model = None
+    if execution == "tracked":
+        from commonroad_dc.feasibility.vehicle_dynamics import VehicleParameterMapping
+
+        from driveopt.commonroad.world import VEHICLE
+
+        model = tracked.vehicle_model(VehicleParameterMapping[VEHICLE].value, world.dt)
+        car = tracked.initial_car(world.problem.initial_state)
+        ego = tracked.frame_state(car, world.frame, model, world.length, world.width)
     cruise = world.cruise_speed()
     first, _ = world.scene(world.start_step, ego, cruise)
     prior, safety_filter = spec.prior(first.road.num_lanes), spec.safety_filter(first.road.num_lanes)
@@ -149,7 +161,7 @@ def drive(world: CommonRoadWorld, planner: str = "bilevel", samples: int | None 
     warm = None
     carries = config.cost.consistency > 0
     previous = PreviousPlan.absent(config.basis.num_nodes) if carries else None
-    poses = [pose(world, world.start_step, ego)]
+    poses = [pose(world, world.start_step, ego) if car is None else tracked.car_pose(world.start_step, car)]
     plan_ms, statuses = [], {}
     status, event_step = "timeout", None
     compiled = False
@@ -174,13 +186,19 @@ def drive(world: CommonRoadWorld, planner: str = "bilevel", samples: int | None 
         plan_ms.append(1000.0 * (time.perf_counter() - start))
         statuses[result.status.name] = statuses.get(result.status.name, 0) + 1
         followed = result.safe_trajectory
-        x, vx, ax, y, vy, ay = _after(followed, world.dt)
-        if result.status != PlanStatus.SUCCESS:
-            vx = max(vx, 0.0)
-        ego = EgoState(x=x, y=y, vx=vx, vy=vy, ax=ax, ay=ay, length=world.length, width=world.width)
+        if car is None:  # perfect
+            x, vx, ax, y, vy, ay = _after(followed, world.dt)
+            if result.status != PlanStatus.SUCCESS:
+                vx = max(vx, 0.0)
+            ego = EgoState(x=x, y=y, vx=vx, vy=vy, ax=ax, ay=ay, length=world.length, width=world.width)
+            poses.append(pose(world, step + 1, ego))
+        else:  # tracked
+            brake = None if result.status == PlanStatus.SUCCESS else float(result.fallback_deceleration)
+            car = tracked.step(car, followed, world.frame, model, brake)
+            ego = tracked.frame_state(car, world.frame, model, world.length, world.width)
+            poses.append(tracked.car_pose(step + 1, car))
         warm = result.mean if spec.warm_start else None
         previous = previous_plan(result, world.dt) if carries else None
-        poses.append(pose(world, step + 1, ego))
         found = evaluator.event(poses[-1])
         if found is not None:
             status, event_step = ("success" if found == "goal" else found), step + 1

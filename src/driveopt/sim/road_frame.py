@@ -465,18 +465,26 @@ def vehicle_motion(obj: Any, frame: RoadFrame, near_s: float | None = None) -> M
         a_n = speed * speed * math.sin(beta) / (0.5 * length)
     else:
         beta, a_t, a_n = 0.0, 0.0, 0.0
+    kappa = lane_curvature(piece.lane, longitudinal)
+    s_dot, d_dot, s_ddot, d_ddot, course = frame_rates(heading, speed, beta, a_t, a_n, kappa, lateral)
+    return Motion(x=x, y=y, vx=s_dot, vy=d_dot, ax=s_ddot, ay=d_ddot, speed=speed, heading=heading, course=course,
+                  length=length, width=width)
+
+
+def frame_rates(heading: float, speed: float, beta: float, a_t: float, a_n: float, kappa: float,
+                lateral: float) -> tuple[float, float, float, float, float]:
+    """(s' [m/s], d' [m/s], s'' [m/s^2], d'' [m/s^2], course [rad]) of a bicycle's centre moving at ``speed`` [m/s]
+    along ``heading + beta`` [rad] (body heading relative to the reference line, slip angle), accelerating ``a_t``
+    along its course and ``a_n`` across it [m/s^2], ``lateral`` [m] beside a reference line of curvature ``kappa``
+    [1/m] (the change of curvature along the line neglected); no highway-env object needed."""
     course = wrap_angle(heading + beta)
     c, s = math.cos(course), math.sin(course)
-    kappa = lane_curvature(piece.lane, longitudinal)
     scale = 1.0 - kappa * lateral  # s' = v_t / (1 - kappa d)
     v_t, v_n = speed * c, speed * s  # velocity along and across the reference line
     a_along, a_across = a_t * c - a_n * s, a_t * s + a_n * c
     s_dot = v_t / scale
     turn_rate = kappa * s_dot  # [rad/s] rate of the reference line's heading at the vehicle
-    return Motion(
-        x=x, y=y, vx=s_dot, vy=v_n, ax=(a_along + turn_rate * v_n + kappa * v_n * s_dot) / scale,
-        ay=a_across - turn_rate * v_t, speed=speed, heading=heading, course=course, length=length, width=width,
-    )
+    return s_dot, v_n, (a_along + turn_rate * v_n + kappa * v_n * s_dot) / scale, a_across - turn_rate * v_t, course
 
 
 def ego_frame(env: Any, route: Sequence[Any] | None = None) -> tuple[RoadFrame, Motion]:
