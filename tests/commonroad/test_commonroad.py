@@ -139,7 +139,8 @@ def test_the_tracked_car_starts_as_the_planning_problem_and_follows_a_straight_p
     for k in range(20):
         plan = SimpleNamespace(t=t, x=ego.x + 10.0 * t, y=np.zeros_like(t), vx=np.full_like(t, 10.0),
                                vy=np.zeros_like(t), ax=np.zeros_like(t), ay=np.zeros_like(t))
-        car = step(car, plan, world.frame, model)
+        car, deviation = step(car, plan, world.frame, model)
+        assert deviation < 1e-6  # [m] from the plan at the step's end
         ego = frame_state(car, world.frame, model, world.length, world.width)
     pose = car_pose(20, car)
     assert (pose.x, pose.y, pose.yaw, pose.speed) == pytest.approx((40.0, 0.0, 0.0, 10.0), abs=1e-6)

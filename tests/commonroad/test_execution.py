@@ -32,17 +32,17 @@ def _plan(s, d, start: float):
     return SimpleNamespace(t=NODES, x=x, y=y, vx=vx, vy=vy, ax=ax, ay=ay)
 
 
-def _drive(frame: PathFrame, s, d, steps: int, speed: float) -> list[tuple[float, float, float, float]]:
-    """(time [s], car's station and offset [m], speed [m/s]) over ``steps`` time steps tracking the reference motion,
+def _drive(frame: PathFrame, s, d, steps: int, speed: float) -> list[tuple[float, ...]]:
+    """(time [s], car's station and offset [m], speed [m/s], distance [m] from the step's plan at its end) over ``steps`` time steps tracking the reference motion,
     the car starting on it at ``speed`` along the frame."""
     (s0, _, _), (d0, _, _) = s(np.array(0.0)), d(np.array(0.0))
     xy = frame.to_world(np.array(s0), np.array(d0))
     car = Car(float(xy[0]), float(xy[1]), float(frame.heading(np.array(s0))), speed, 0.0, 0.0)
     out = []
     for k in range(steps):
-        car = step(car, _plan(s, d, 0.1 * k), frame, MODEL)
+        car, deviation = step(car, _plan(s, d, 0.1 * k), frame, MODEL)
         ego = frame_state(car, frame, MODEL, LENGTH, WIDTH)
-        out.append((0.1 * (k + 1), ego.x, ego.y, car.speed))
+        out.append((0.1 * (k + 1), ego.x, ego.y, car.speed, deviation))
     return out
 
 
@@ -60,8 +60,8 @@ def test_a_constant_speed_straight_plan_is_followed_within_a_millimetre():
     frame = PathFrame(np.array([[0.0, 0.0], [600.0, 0.0]]))
     s = lambda t: (10.0 + 15.0 * t, np.full_like(t, 15.0), np.zeros_like(t))  # noqa: E731
     d = lambda t: (np.full_like(t, 1.75), np.zeros_like(t), np.zeros_like(t))  # noqa: E731
-    for time, station, offset, speed in _drive(frame, s, d, 50, 15.0):
-        assert abs(station - (10.0 + 15.0 * time)) < 1e-3 and abs(offset - 1.75) < 1e-3
+    for time, station, offset, speed, deviation in _drive(frame, s, d, 50, 15.0):
+        assert abs(station - (10.0 + 15.0 * time)) < 1e-3 and abs(offset - 1.75) < 1e-3 and deviation < 1e-3
         assert speed == pytest.approx(15.0, abs=1e-6)
 
 
@@ -71,8 +71,8 @@ def test_a_straight_plan_on_a_turned_road_is_followed_too():
     frame = PathFrame(np.array([[0.0, 0.0], [600.0 * math.cos(angle), 600.0 * math.sin(angle)]]))
     s = lambda t: (10.0 + 15.0 * t, np.full_like(t, 15.0), np.zeros_like(t))  # noqa: E731
     d = lambda t: (np.full_like(t, -1.75), np.zeros_like(t), np.zeros_like(t))  # noqa: E731
-    for time, station, offset, speed in _drive(frame, s, d, 50, 15.0):
-        assert abs(station - (10.0 + 15.0 * time)) < 1e-3 and abs(offset + 1.75) < 1e-3
+    for time, station, offset, speed, deviation in _drive(frame, s, d, 50, 15.0):
+        assert abs(station - (10.0 + 15.0 * time)) < 1e-3 and abs(offset + 1.75) < 1e-3 and deviation < 1e-3
         assert speed == pytest.approx(15.0, abs=1e-6)
 
 
@@ -90,9 +90,11 @@ def test_a_lane_change_while_accelerating_is_followed_within_5_cm():
         return (3.5 * (10 * u**3 - 15 * u**4 + 6 * u**5), inside * 3.5 * (30 * u**2 - 60 * u**3 + 30 * u**4) / 4.0,
                 inside * 3.5 * (60 * u - 180 * u**2 + 120 * u**3) / 16.0)
 
-    for time, station, offset, speed in _drive(frame, s, d, 60, 10.0):
+    for time, station, offset, speed, deviation in _drive(frame, s, d, 60, 10.0):
         (s_ref, v_s, _), (d_ref, v_d, _) = s(np.array(time)), d(np.array(time))
         assert abs(station - s_ref) < 0.05 and abs(offset - d_ref) < 0.05, (time, station - s_ref, offset - d_ref)
+        # the plan read between its nodes (cubic Hermite) is the reference motion to 0.1 mm
+        assert deviation == pytest.approx(math.hypot(station - s_ref, offset - d_ref), abs=1e-4)
         assert speed == pytest.approx(math.hypot(v_s, v_d), abs=0.01)
 
 

@@ -4,7 +4,9 @@ OUT holds ``runs.jsonl`` (one line per finished run, flushed and fsynced as it e
 last line cut short by a crash is dropped), ``trajectories/SCENARIO__PLANNER.json`` (the executed poses: step, x, y,
 yaw [rad], speed [m/s]) and ``summary.md``. A record holds: scenario, planner, execution, status (success, collision,
 collision_while_stopped, off_road, timeout, refused), goal_reached, collision, collision_while_stopped, off_road,
-arrival_step, steps, plan_ms_median, plan_ms_p95 [ms] and plan_status_counts; a refused scenario holds its reason.
+arrival_step, steps, plan_ms_median, plan_ms_p95 [ms] and plan_status_counts; a ``tracked`` run also holds
+tracking_m_median and tracking_m_max [m] (how far the car ended each step from where the followed plan was then); a
+refused scenario holds its reason.
 
 One folder holds one execution model (:data:`~driveopt.commonroad.EXECUTIONS`): a run with another model than its
 records' is refused in one line (:func:`check_execution`), as is ``tracked`` for FISS's planners, which FISS's own

@@ -162,7 +162,7 @@ def drive(world: CommonRoadWorld, planner: str = "bilevel", samples: int | None 
     carries = config.cost.consistency > 0
     previous = PreviousPlan.absent(config.basis.num_nodes) if carries else None
     poses = [pose(world, world.start_step, ego) if car is None else tracked.car_pose(world.start_step, car)]
-    plan_ms, statuses = [], {}
+    plan_ms, statuses, deviations = [], {}, []
     status, event_step = "timeout", None
     compiled = False
     steps = max_steps(world)
@@ -194,7 +194,8 @@ def drive(world: CommonRoadWorld, planner: str = "bilevel", samples: int | None 
             poses.append(pose(world, step + 1, ego))
         else:  # tracked
             brake = None if result.status == PlanStatus.SUCCESS else float(result.fallback_deceleration)
-            car = tracked.step(car, followed, world.frame, model, brake)
+            car, deviation = tracked.step(car, followed, world.frame, model, brake)
+            deviations.append(deviation)
             ego = tracked.frame_state(car, world.frame, model, world.length, world.width)
             poses.append(tracked.car_pose(step + 1, car))
         warm = result.mean if spec.warm_start else None
@@ -203,7 +204,11 @@ def drive(world: CommonRoadWorld, planner: str = "bilevel", samples: int | None 
         if found is not None:
             status, event_step = ("success" if found == "goal" else found), step + 1
             break
-    return _record(world, planner, execution, status, event_step, poses, plan_ms, statuses), poses
+    record = _record(world, planner, execution, status, event_step, poses, plan_ms, statuses)
+    if deviations:  # tracked: how far the car ended each step from where the followed plan was then
+        record["tracking_m_median"] = float(np.median(deviations))
+        record["tracking_m_max"] = float(np.max(deviations))
+    return record, poses
 
 
 def _record(world: CommonRoadWorld, planner: str, execution: str, status: str, event_step: int | None,

@@ -26,7 +26,8 @@ import numpy as np
 from driveopt.commonroad.evaluate import EgoPose
 from driveopt.commonroad.path import PathFrame
 from driveopt.scene import EgoState
-from driveopt.sim.control import BicycleModel, Command, EgoKinematics, brake_at_least, predict, steering_for_slip, track
+from driveopt.sim.control import (BicycleModel, Command, EgoKinematics, brake_at_least, predict, sample_trajectory,
+                                  steering_for_slip, track)
 from driveopt.sim.lane_graph import wrap_angle
 from driveopt.sim.road_frame import frame_rates, slip_angle
 from driveopt.sim.world_plan import WorldTrajectory, to_world
@@ -106,10 +107,14 @@ def follow(car: Car, plan: WorldTrajectory, model: BicycleModel, brake: float | 
                command.acceleration, command.steering), command
 
 
-def step(car: Car, trajectory: Any, frame: PathFrame, model: BicycleModel, brake: float | None = None) -> Car:
-    """The car one time step after following ``trajectory`` (road frame: t, x = s, y = d, vx, vy, ax, ay) in
-    ``frame`` (see :func:`follow`)."""
-    return follow(car, to_world(trajectory, WorldAxes(frame)), model, brake)[0]
+def step(car: Car, trajectory: Any, frame: PathFrame, model: BicycleModel,
+         brake: float | None = None) -> tuple[Car, float]:
+    """(the car one time step after following ``trajectory`` (road frame: t, x = s, y = d, vx, vy, ax, ay) in
+    ``frame`` (see :func:`follow`), its distance [m] from where the trajectory is at the step's end)."""
+    plan = to_world(trajectory, WorldAxes(frame))
+    after = follow(car, plan, model, brake)[0]
+    there = sample_trajectory(plan, np.array([model.action_period]))
+    return after, math.hypot(after.x - float(there.x[0]), after.y - float(there.y[0]))
 
 
 def car_pose(step_index: int, car: Car) -> EgoPose:
