@@ -1,5 +1,7 @@
 """driveopt commonroad on scenarios built here with commonroad-io: a straight three-lane road with a slow car and a goal
-in another lane is reached; a scenario the frame cannot represent is refused in one line."""
+in another lane is reached; an on-ramp (a curved ramp lanelet whose successor is an acceleration lane beside a two-lane
+main road, the acceleration lane ending 60 m on) with a car on the main road is merged from, behind the car, to a goal on
+the main road, without collision or leaving the road; a scenario the frame cannot represent is refused in one line."""
 
 from __future__ import annotations
 
@@ -61,6 +63,62 @@ def write_scenario(path, obstacle_shape=None, start=(20.0, 0.0)) -> None:
     CommonRoadFileWriter(scenario, problems, "test", "", "", set()).write_to_file(str(path), OverwriteExistingFile.ALWAYS)
 
 
+RAMP_JOIN, RAMP_END, RAMP_DROP = 50.0, 110.0, 12.0  # [m] the ramp joins at x 50, its acceleration lane ends at 110
+
+
+def _strip(x: np.ndarray, y: np.ndarray, heading: np.ndarray, lanelet_id: int, **links) -> Lanelet:
+    """A lanelet of width LANE along the centre line (x, y) with the given headings [rad]."""
+    centre = np.stack([x, y], 1)
+    normal = 0.5 * LANE * np.stack([-np.sin(heading), np.cos(heading)], 1)
+    return Lanelet(centre + normal, centre, centre - normal, lanelet_id, **links)
+
+
+def _ramp_y(x):  # [m] the ramp's centre: from RAMP_DROP right of the acceleration lane onto it, a half cosine
+    return -LANE - RAMP_DROP * 0.5 * (1.0 + np.cos(np.pi * x / RAMP_JOIN))
+
+
+def _ramp_heading(x):  # [rad]
+    return np.arctan(0.5 * RAMP_DROP * np.pi / RAMP_JOIN * np.sin(np.pi * x / RAMP_JOIN))
+
+
+def write_ramp_scenario(path, car_x: float = 10.0) -> None:
+    """An on-ramp as CommonRoad models one: the ramp lanelet 400 (x 0-50, curving from y -15.5 to -3.5 m, curvature at
+    most 0.024 1/m) has the acceleration lane 401 (x 50-110, y -3.5 m) as its successor, which is adjacent (same
+    direction) to the main road's right lane 301; the main road has two lanes (y 0 and 3.5 m, lanelets 300-302 and
+    310-312, split at x 50 and 110, to x 200). The ego at 12 m/s on the ramp at x 5; a car at 12 m/s on the main road's
+    right lane at ``car_x``; the goal: that lane at x 115-145 (past the acceleration lane's end) within 12 s."""
+    scenario = Scenario(0.1, ScenarioID(country_id="ZAM", map_name="TestRamp", map_id=1))
+    network = LaneletNetwork()
+    x = np.linspace(0.0, RAMP_JOIN, 26)
+    network.add_lanelet(_strip(x, _ramp_y(x), _ramp_heading(x), 400, successor=[401]))
+    x = np.linspace(RAMP_JOIN, RAMP_END, 13)
+    network.add_lanelet(_strip(x, np.full_like(x, -LANE), np.zeros_like(x), 401, predecessor=[400], adjacent_left=301,
+                               adjacent_left_same_direction=True))
+    for k, (start, end) in enumerate(((0.0, RAMP_JOIN), (RAMP_JOIN, RAMP_END), (RAMP_END, LENGTH))):
+        x = np.linspace(start, end, int(round((end - start) / 5.0)) + 1)
+        for lane, right, left in ((300, 401 if k == 1 else None, 310), (310, 300, None)):
+            network.add_lanelet(_strip(
+                x, np.full_like(x, LANE if lane == 310 else 0.0), np.zeros_like(x), lane + k,
+                predecessor=[lane + k - 1] if k else None, successor=[lane + k + 1] if k < 2 else None,
+                adjacent_left=left and left + k, adjacent_left_same_direction=left and True,
+                adjacent_right=right if lane == 300 else right + k, adjacent_right_same_direction=right and True))
+    scenario.add_objects(network)
+    shape = Rectangle(4.5, 1.8)
+    states = [CustomState(time_step=k, position=np.array([car_x + 1.2 * k, 0.0]), orientation=0.0, velocity=12.0)
+              for k in range(1, 151)]
+    scenario.add_objects(DynamicObstacle(
+        scenario.generate_object_id(), ObstacleType.CAR, shape,
+        InitialState(time_step=0, position=np.array([car_x, 0.0]), orientation=0.0, velocity=12.0, acceleration=0.0,
+                     yaw_rate=0.0, slip_angle=0.0),
+        TrajectoryPrediction(Trajectory(1, states), shape)))
+    goal = GoalRegion([CustomState(time_step=Interval(0, 120), position=Rectangle(30.0, LANE, np.array([130.0, 0.0])))])
+    initial = InitialState(time_step=0, position=np.array([5.0, float(_ramp_y(5.0))]),
+                           orientation=float(_ramp_heading(5.0)), velocity=12.0, acceleration=0.0, yaw_rate=0.0,
+                           slip_angle=0.0)
+    problems = PlanningProblemSet([PlanningProblem(1, initial, goal)])
+    CommonRoadFileWriter(scenario, problems, "test", "", "", set()).write_to_file(str(path), OverwriteExistingFile.ALWAYS)
+
+
 @pytest.mark.slow  # about 25 s on 2 cores, most of it compiling the planner
 def test_the_command_reaches_a_goal_in_another_lane_past_a_slow_car(tmp_path, capsys):
     folder = tmp_path / "scenarios"
@@ -75,6 +133,45 @@ def test_the_command_reaches_a_goal_in_another_lane_past_a_slow_car(tmp_path, ca
     # a rerun resumes: nothing left to run, the record kept
     assert main(["commonroad", "--scenarios", str(folder), "--planners", "bilevel", "--out", str(tmp_path / "out")]) == 0
     assert len((tmp_path / "out" / "runs.jsonl").read_text().splitlines()) == 1
+
+
+@pytest.mark.slow  # about 25 s on 2 cores, most of it compiling the planner (10 s with JAX's compilation cache warm)
+def test_the_command_merges_from_an_on_ramp_behind_a_car_to_a_goal_on_the_main_road(tmp_path):
+    folder = tmp_path / "scenarios"
+    folder.mkdir()
+    write_ramp_scenario(folder / "on_ramp.xml")
+    assert main(["commonroad", "--scenarios", str(folder), "--planners", "bilevel", "--samples", "60",
+                 "--out", str(tmp_path / "out")]) == 0
+    records = [json.loads(line) for line in (tmp_path / "out" / "runs.jsonl").read_text().splitlines()]
+    assert len(records) == 1 and records[0]["status"] == "success", records
+    assert records[0]["goal_reached"] and records[0]["arrival_step"] is not None
+    assert not records[0]["collision"] and not records[0]["collision_while_stopped"] and not records[0]["off_road"]
+    poses = json.loads((tmp_path / "out" / "trajectories" / "on_ramp__bilevel.json").read_text())
+    # it ends in the main road's right lane (centre y 0), having stayed behind the car (x 10 m + 1.2 m per step) past the
+    # join, where the car is beside the acceleration lane
+    x, y = poses[-1][1], poses[-1][2]
+    assert x > 115.0 and abs(y) < 0.5
+    assert all(x_ < 10.0 + 1.2 * step for step, x_, *_ in poses if x_ > RAMP_JOIN)
+
+
+def test_the_world_reads_an_on_ramp_as_its_route_from_the_ramp_onto_the_main_road(tmp_path):
+    """The reference path runs along the ramp and its acceleration lane; the road is the ramp alone on the ramp,
+    the acceleration lane and both main lanes beside it, and the main lanes alone once the preview reaches the
+    acceleration lane's end; the goal is the main road's right lane, a lane left of the reference."""
+    from driveopt.commonroad.world import CommonRoadWorld
+
+    write_ramp_scenario(tmp_path / "ramp.xml")
+    world = CommonRoadWorld(tmp_path / "ramp.xml")
+    assert world.route[:2] == [400, 401] and 301 in world.route
+    ego = world.initial_ego()
+    assert ego.x == pytest.approx(5.0, abs=0.1) and ego.y == pytest.approx(0.0, abs=0.05)
+    on_ramp, beside, ending = world.road(ego.x, 0.0, 12.0), world.road(60.0, 0.0, 12.0), world.road(90.0, 3.5, 12.0)
+    assert on_ramp.num_lanes == 1 and on_ramp.first_lane_center == pytest.approx(0.0, abs=0.05)
+    assert beside.num_lanes == 3 and beside.first_lane_center == pytest.approx(0.0, abs=0.1)
+    assert ending.num_lanes == 2 and ending.first_lane_center == pytest.approx(LANE, abs=0.1)
+    assert world.goal.bands[0] == pytest.approx((0.5 * LANE, 1.5 * LANE), abs=0.05)
+    (neighbour, _), = world.neighbours(50)  # the car on the main road's right lane at x 70, past the join: a lane left
+    assert neighbour.y == pytest.approx(LANE, abs=0.05) and neighbour.vx == pytest.approx(12.0)
 
 
 def test_an_unsupported_scenario_is_refused_in_one_line(tmp_path):
