@@ -9,8 +9,10 @@ with seed ``seed + episode`` and drives it through :class:`driveopt.Controller` 
 vehicle takes the ego's place) at the ego lane's speed limit as desired speed, for ``--duration`` seconds or until the
 env ends the episode. An env whose road the controller refuses (``RoadFrameError`` at reset) is recorded as refused
 with the message. Every episode is one line of ``OUT/episodes.jsonl`` (a rerun skips those done: resumable);
-``OUT/summary.json`` gives, per env and planner, the episodes, collisions, off-road episodes, refusals and the mean
-speed over the episodes without collision.
+``OUT/summary.json`` gives, per env and planner (every one recorded with these settings, not only this run's), the
+episodes, collisions, off-road episodes, refusals, arrivals and the mean speed over the episodes without collision.
+An episode *arrived* when the env says so (intersection-v0's ``has_arrived``) or, on a route (the controller's:
+the task's, e.g. roundabout-v0's exit), when the ego ends on the route's last road; null without a destination.
 """
 
 from __future__ import annotations
@@ -70,7 +72,8 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
             off_road |= not sim.vehicle.on_road
             if terminated or truncated or collided:
                 break
-        return {**record, "collided": collided, "off_road": off_road, "mean_speed": float(np.mean(speeds)),
+        return {**record, "collided": collided, "off_road": off_road, "arrived": arrived(sim, controller.task.route),
+                "mean_speed": float(np.mean(speeds)),
                 "time": float(sim.time), "steps": len(speeds), "statuses": dict(statuses),
                 "plan_ms_median": float(np.median(plan_ms)) if plan_ms else None,
                 "compile_seconds": controller.compile_seconds, "wall_seconds": time.perf_counter() - start}
@@ -78,11 +81,20 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
         env.close()
 
 
+def arrived(sim, route) -> bool | None:
+    """Whether the ego reached the env's destination (see the module docstring); None without one."""
+    if hasattr(sim, "has_arrived"):
+        return bool(sim.has_arrived(sim.vehicle))
+    if route:
+        return tuple(sim.vehicle.lane_index[:2]) == tuple(route[-2:])
+    return None
+
+
 def summarise(records: list[dict]) -> dict:
     summary: dict = {}
     for r in records:
         row = summary.setdefault(r["env"], {}).setdefault(r["planner"], {
-            "episodes": 0, "collisions": 0, "off_road_episodes": 0, "refused": 0, "speeds": []})
+            "episodes": 0, "collisions": 0, "off_road_episodes": 0, "refused": 0, "arrived": None, "speeds": []})
         row["episodes"] += 1
         if "refused" in r:
             row["refused"] += 1
@@ -90,6 +102,8 @@ def summarise(records: list[dict]) -> dict:
             continue
         row["collisions"] += r["collided"]
         row["off_road_episodes"] += r["off_road"]
+        if r.get("arrived") is not None:
+            row["arrived"] = (row["arrived"] or 0) + bool(r["arrived"])
         if not r["collided"]:
             row["speeds"].append(r["mean_speed"])
     for rows in summary.values():
@@ -136,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"{env_id} {planner} seed {seed}: " + ("refused" if "refused" in record else
                           f"collided {record['collided']}, off-road {record['off_road']}, {record['mean_speed']:.1f} m/s"),
                           flush=True)
-    chosen = [r for r in records if r.get("settings") == settings and r["env"] in args.envs and r["planner"] in args.planners]
+    chosen = [r for r in records if r.get("settings") == settings]
     summary = {"command": "python benchmarks/studies/upstream_roads.py " + " ".join(argv if argv is not None else os.sys.argv[1:]),
                "settings": settings, "results": summarise(chosen)}
     write_json(args.out / "summary.json", summary)

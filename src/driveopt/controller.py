@@ -39,6 +39,7 @@ from driveopt.config import PlannerConfig
 from driveopt.drivers.base import Decision, DriverSpec, check_given_weights
 from driveopt.errors import DriveoptError
 from driveopt.registry import get_planner
+from driveopt.sim.lane_graph import env_destination_route
 from driveopt.sim.perception import Task
 
 
@@ -108,7 +109,8 @@ class Controller:
     iteration (default: the planner's own; ``bilevel``: 150, real time on two CPU cores); ``config``: a
     :class:`~driveopt.config.PlannerConfig`, or overrides as nested sections (``{"cost": {"consistency": 1.0}}``);
     ``v_des`` [m/s]: desired speed (default: the speed limit of the ego's lane at ``reset``); ``route``: node names of the env's lane graph to follow (e.g. ``["0", "1", "2", "exit"]`` takes
-    exit-v0's exit; default: the ego's own route, else straight on); ``weights``: a learned prior's checkpoint (a
+    exit-v0's exit; default: the ego's own route, else the destination the env routes its ego to
+    (intersection-v0's ``destination``, roundabout-v0's exit), else straight on); ``weights``: a learned prior's checkpoint (a
     path that is not a file, or weights for a planner without a learned prior, is a WeightsError here);
     ``latency``: ``"sync"`` (default: each ``act`` returns the command of the plan it just made), ``"measured"`` or a
     compute time [ms]: each plan takes effect that many policy periods (rounded up, at least one) after the ``act``
@@ -179,8 +181,9 @@ class Controller:
                 raise ControllerError(f"route nodes {missing} are not in the env's lane graph; its nodes: "
                                       f"{sorted(set(sim.road.network.graph) | {t for tos in sim.road.network.graph.values() for t in tos})}")
         v_des = self.v_des if self.v_des is not None else _env_speed_limit(env)
+        route = self.route if self.route is not None else env_destination_route(sim)
         self.task = Task(v_des=v_des, name=getattr(getattr(env, "spec", None), "id", None) or type(sim).__name__,
-                         route=self.route)
+                         route=route)
         self.driver = self.spec.driver()
         samples = getattr(getattr(getattr(self.spec, "config", None), "sampler", None), "num_samples", None)
         first = (self.name, samples) not in _ANNOUNCED  # the process's first reset of this planner and size compiles

@@ -13,6 +13,7 @@ has along the path. Positions and times in the road frame: metres, seconds.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -49,6 +50,38 @@ class PathNeighbour(Neighbour):
         yaws = np.asarray((self.heading,) + self.path_yaw)
         c, s = np.abs(np.cos(yaws)), np.abs(np.sin(yaws))
         return float(np.max(0.5 * (self.length * c + self.width * s))), float(np.max(0.5 * (self.length * s + self.width * c)))
+
+
+PHASE_TURN = math.radians(20.0)  # [rad] the most a PathNeighbour turns within one obstacle slot
+
+
+def path_phases(n: PathNeighbour, t: np.ndarray) -> list[tuple[PathNeighbour, np.ndarray]]:
+    """A :class:`PathNeighbour`'s path split where it turns: (the neighbour over one phase, the boolean mask of the
+    times ``t`` [s] in it), consecutive runs of ``t`` over which its heading stays within :data:`PHASE_TURN` of the
+    run's first. Each phase's box is bounded by its own headings only, so a car that crosses the route and then
+    drives beside it, oncoming, is as wide as it is long only while it crosses (one box for the whole path would
+    reach into the ego's lane beside it). One phase when it never turns that much."""
+    yaw = np.interp(t, n.t, np.unwrap(np.asarray(n.path_yaw)))
+    starts = [0]
+    for k in range(1, len(t)):
+        if abs(yaw[k] - yaw[starts[-1]]) > PHASE_TURN:
+            starts.append(k)
+    phases = []
+    for first, end in zip(starts, starts[1:] + [len(t)]):
+        mask = np.zeros(len(t), dtype=bool)
+        mask[first:end] = True
+        inside = [k for k, tk in enumerate(n.t) if t[first] <= tk <= t[end - 1]]
+        poses_t = tuple(t[first:end]) + tuple(n.t[k] for k in inside)
+        order = np.argsort(poses_t, kind="stable")
+        times = np.asarray(poses_t)[order]
+        keep = np.concatenate([[True], np.diff(times) > 0.0])
+        yaws = np.concatenate([yaw[first:end], [n.path_yaw[k] for k in inside]])[order][keep]
+        xs = np.interp(times[keep], n.t, n.path_x)
+        ys = np.interp(times[keep], n.t, n.path_y)
+        phase = dataclasses.replace(n, x=float(xs[0]), y=float(ys[0]), yaw=float(yaws[0]), t=tuple(times[keep]),
+                                    path_x=tuple(xs), path_y=tuple(ys), path_yaw=tuple(yaws))
+        phases.append((phase, mask))
+    return phases
 
 
 def ellipse_semi_axes(ego: EgoState, other: Neighbour, margin: EllipseMargin) -> tuple[float, float]:

@@ -22,8 +22,10 @@ from driveopt.observation import OBSERVATION_DIM, observation_vector
 from driveopt.prediction import (
     BRAKING_TIME,
     SELECTION_TIME,
+    PathNeighbour,
     ego_box_growth,
     ellipse_semi_axes,
+    path_phases,
     predict_neighbour,
     relevant_neighbours,
 )
@@ -114,9 +116,14 @@ def build_problem(
     oa = np.ones(N)
     ob = np.ones(N)
     mask = np.zeros(N)
-    for i, n in enumerate(relevant_neighbours(scene, N, ignore_followers, selection_time, braking_time)):
+    slots = []  # (neighbour, the nodes it is planned against there: None for all)
+    for n in relevant_neighbours(scene, N, ignore_followers, selection_time, braking_time):
+        slots += path_phases(n, t) if isinstance(n, PathNeighbour) else [(n, None)]
+    for i, (n, nodes) in enumerate(slots[:N]):
         px, py = predict_neighbour(n, t, scene.road.edges, braking_time)
         ox[i], oy[i] = px - ego.x, py
+        if nodes is not None:  # a phase of a turning path: elsewhere far behind, as padding
+            ox[i, ~nodes], oy[i, ~nodes] = -1000.0, 0.5 * (y_lb + y_ub)
         oa[i], ob[i] = ellipse_semi_axes(ego, n, scene.ellipse_margin)
         mask[i] = 1.0
     f32 = lambda v: jnp.asarray(v, dtype=jnp.float32)  # noqa: E731

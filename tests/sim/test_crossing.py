@@ -63,3 +63,58 @@ def test_a_car_on_the_routes_own_road_is_left_to_the_usual_prediction():
     assert crossing_neighbour(car, frame, np.arange(0.0, 15.01, 0.5), ego_x=50.0) is None
     with pytest.raises(Exception, match="equally long"):
         PathNeighbour(x=0.0, y=0.0, t=(0.0, 1.0), path_x=(0.0,), path_y=(0.0, 0.0), path_yaw=(0.0, 0.0))
+
+
+def test_a_path_that_crosses_and_then_runs_beside_the_route_is_bounded_phase_by_phase():
+    """A car crossing at a right angle and then oncoming in the lane beside the route: one box for the whole path
+    would be as wide as the car is long even while it drives beside the route, reaching into the ego's lane."""
+    from driveopt.prediction import path_phases
+
+    t = np.arange(0.0, 10.01, 0.5)
+    crossing = t < 3.0
+    xs = np.where(crossing, 60.0, 60.0 - 10.0 * (t - 3.0))
+    ys = np.where(crossing, 20.0 - 7.0 * t, -4.0)
+    yaws = np.where(crossing, -np.pi / 2, np.pi)
+    car = PathNeighbour(x=60.0, y=20.0, length=5.0, width=2.0, yaw=-np.pi / 2, t=tuple(t), path_x=tuple(xs),
+                        path_y=tuple(ys), path_yaw=tuple(yaws))
+    basis = BasisConfig()
+    nodes = np.linspace(0.0, basis.horizon, basis.num_nodes)
+    phases = path_phases(car, nodes)
+    masks = np.array([mask for _, mask in phases])
+    assert len(phases) >= 2 and np.all(masks.sum(axis=0) == 1), "every node in exactly one phase"
+    crossing_half, oncoming_half = phases[0][0].half_extents, phases[-1][0].half_extents
+    # across the road: about half its length while it crosses, about half its width once oncoming (each phase turns
+    # by at most 20 deg, so its box leans a little)
+    assert crossing_half[1] > 2.4 and oncoming_half[1] < 1.8
+    scene = Scene(ego=EgoState(x=0.0, y=0.0, vx=10.0), road=PlannerRoad(num_lanes=1, lane_width=4.0),
+                  neighbours=(car,), v_des=10.0)
+    problem = build_problem(scene, basis)
+    used = int(np.sum(np.asarray(problem.obstacle_mask)))
+    assert used == len(phases), "one obstacle slot per phase"
+    ox, oy = np.asarray(problem.obstacle_x[:used]), np.asarray(problem.obstacle_y[:used])
+    b = np.asarray(problem.obstacle_b[:used])
+    late = nodes > 5.0  # oncoming beside the route, 4 m from its centre line
+    active = ox[:, late] > -500.0
+    assert np.all(active.sum(axis=0) == 1), "one slot holds it at each node, the others are far behind"
+    slot = np.nonzero(active[:, 0])[0][0]
+    assert np.all(oy[slot, late] == -4.0) and b[slot] < 4.0, "4 m beside the ego's centre line, its ellipse clears it"
+    assert b[0] > 4.0, "while it crosses, its ellipse is as wide as the car is long (one box for all would be)"
+
+
+def test_routes_with_a_road_that_names_no_lane_are_predicted_in_the_lane_that_exists():
+    """Upstream's prediction picks the lane of a route road that names none by the lane count of the vehicle's own
+    road, and fails where a two-lane road leads to a one-lane one (roundabout-v0's exits)."""
+    from driveopt.sim.crossing import _along_route
+
+    network = RoadNetwork()
+    for k in range(2):
+        network.add_lane("a", "b", StraightLane([0.0, 4.0 * k], [50.0, 4.0 * k], width=4.0))
+    network.add_lane("b", "c", StraightLane([50.0, 4.0], [50.0, 80.0], width=4.0))  # one lane, turning left
+    road = Road(network=network)
+    car = IDMVehicle(road, [40.0, 4.0], heading=0.0, speed=10.0, target_lane_index=("a", "b", 1),
+                     route=[("a", "b", 1), ("b", "c", None)])
+    positions, headings = _along_route(car, np.array([0.0, 0.5, 2.0]))
+    np.testing.assert_allclose(positions[0], [40.0, 4.0], atol=1e-9)
+    np.testing.assert_allclose(positions[1], [45.0, 4.0], atol=1e-9)
+    np.testing.assert_allclose(positions[2], [50.0, 14.0], atol=1e-9)  # 10 m into the one-lane road
+    assert headings[2] == pytest.approx(np.pi / 2)

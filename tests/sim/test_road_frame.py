@@ -86,12 +86,34 @@ def test_lanes_that_are_not_parallel_are_named():
         build_frame(net, ("a", "b"))
 
 
-def test_a_crossing_road_is_named():
+def test_a_crossing_road_leaves_the_frame_along_the_route():
+    """Crossing lanes are represented (their traffic is predicted along them, driveopt.sim.crossing): the frame is the
+    route's, and a point of the crossing lane off the route's lanes is not on them."""
     net = RoadNetwork()
     net.add_lane("a", "b", StraightLane([0.0, 0.0], [100.0, 0.0]))
     net.add_lane("x", "y", StraightLane([50.0, -30.0], [50.0, 30.0]))
-    with pytest.raises(RoadFrameError, match=r"lane \('x', 'y', 0\) crosses the route's lanes at 90 deg"):
-        build_frame(net, ("a", "b"))
+    frame = build_frame(net, ("a", "b"))
+    assert frame.roads == (("a", "b"),)
+    s, d, *_ = frame.locate(np.array([50.0, 10.0]))
+    assert (s, d) == pytest.approx((50.0, 10.0))
+
+
+def test_the_frame_starts_on_the_routes_branch_where_a_junctions_branches_overlap():
+    """At a junction whose branches start together the simulator's closest lane can be another branch than the
+    route's: the frame starts from the route's branch the car is on."""
+    from types import SimpleNamespace
+
+    from driveopt.sim.road_frame import ego_frame
+
+    net = RoadNetwork()
+    net.add_lane("a", "b", StraightLane([0.0, 0.0], [100.0, 0.0], width=4.0))
+    net.add_lane("b", "c", StraightLane([100.0, 0.0], [130.0, 0.0], width=4.0))  # straight on
+    net.add_lane("b", "d", StraightLane([100.0, 0.0], [125.0, -15.0], width=4.0))  # the route's branch, 31 deg off
+    car = SimpleNamespace(lane_index=("b", "c", 0), position=np.array([102.0, -1.1]), heading=-0.5, speed=5.0,
+                          LENGTH=5.0, WIDTH=2.0, action={"acceleration": 0.0, "steering": 0.0}, route=None)
+    env = SimpleNamespace(unwrapped=SimpleNamespace(vehicle=car, road=SimpleNamespace(network=net)))
+    assert ego_frame(env, ["a", "b", "d"])[0].ego_road == ("b", "d")
+    assert ego_frame(env, ["a", "b", "c"])[0].ego_road == ("b", "c"), "on the route's own road: kept"
 
 
 def test_a_junction_at_the_end_of_the_route_is_named():

@@ -1,15 +1,19 @@
 """Crossing traffic in the road frame: a neighbour predicted along its own lanes, mapped onto the frame node by node.
 
 A highway-env vehicle that drives on a road the frame does not follow (an intersection's other arm, a roundabout's
-entry) may cross the route's lanes. Its future poses come from the simulator's own prediction along its route
-(``ControlledVehicle.predict_trajectory_constant_speed``: its speed held, along its lanes), or, for a vehicle
-without one, from its velocity held in world coordinates. Each pose is mapped into the frame
-(:meth:`driveopt.sim.road_frame.RoadFrame.locate`) with its heading relative to the route there; a pose the frame
-beside the frame keeps its coordinates along it (off the road), one beyond its ends is put far behind the ego. The vehicle becomes a
-:class:`~driveopt.prediction.PathNeighbour` when one of its poses lies on the route's lanes at more than
-:data:`~driveopt.sim.road_frame.CROSSING_ANGLE` to them: an obstacle at the nodes where it is on the route, and
-far from it elsewhere. Whether the ego waits for it or goes first is the optimiser's choice, like any other
-obstacle. Vehicles on the frame's own roads are left to the usual prediction (unchanged).
+entry) may cross the route's lanes. Its future poses follow its route's lanes at its speed held (as the simulator's
+``ControlledVehicle.predict_trajectory_constant_speed``, :func:`_along_route`), or, for a vehicle without a route,
+its velocity held in world coordinates. Each pose is mapped into the frame
+(:meth:`driveopt.sim.road_frame.RoadFrame.locate`) with its heading relative to the route there; a pose beside the
+frame keeps its coordinates along it (off the road), one beyond its ends is put far behind the ego. The vehicle
+becomes a :class:`~driveopt.prediction.PathNeighbour`: an obstacle at the nodes where its path is near the route and
+far from it elsewhere (:func:`driveopt.prediction.path_phases` bounds its box by its heading phase by phase). That
+covers a car crossing the route, one crossing a junction to join it (whose velocity, read in the frame at its
+heading now, says nothing of where it will drive) and one that never enters the route's lanes (an oncoming road
+beside the route: the usual prediction would keep it on the route's lanes). Whether the ego waits for it or goes
+first is the optimiser's choice, like any other obstacle. A car whose path enters the route's lanes without ever
+running at more than :data:`~driveopt.sim.road_frame.CROSSING_ANGLE` to them (an on-ramp's) and vehicles on the
+frame's own roads are left to the usual prediction.
 """
 
 from __future__ import annotations
@@ -27,11 +31,37 @@ FAR_BEHIND = 1000.0  # [m] a pose beyond the frame's ends is put this far behind
 MAX_OFFSET = 200.0  # [m] a pose beside the frame is kept within this lateral offset of it
 
 
+def _along_route(vehicle: Any, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (K, 2) [m], headings (K,) [rad]) of a routed vehicle at ``times`` [s] from now, its speed held along
+    its route's lanes (as upstream's ``predict_trajectory_constant_speed``, which picks a lane of a road of the route
+    that names none by the lane count of the vehicle's road, not of that road, and fails where a two-lane road leads
+    to a one-lane one, as at roundabout-v0's exits): a road of the route that names no lane is followed in the
+    vehicle's lane number, or the road's last lane when it has fewer."""
+    network = vehicle.road.network
+    route = list(vehicle.route or [vehicle.lane_index])
+    lane_number = vehicle.lane_index[2]
+
+    def lane_of(index: tuple) -> Any:
+        lanes = network.graph[index[0]][index[1]]
+        return lanes[index[2] if index[2] is not None else min(lane_number, len(lanes) - 1)]
+
+    start = float(vehicle.lane.local_coordinates(np.asarray(vehicle.position, dtype=float))[0])
+    positions, headings = [], []
+    for t in np.asarray(times, dtype=float):
+        longitudinal, k, lane = start + float(vehicle.speed) * t, 0, lane_of(route[0])
+        while k < len(route) - 1 and longitudinal > float(lane.length):
+            longitudinal -= float(lane.length)
+            k += 1
+            lane = lane_of(route[k])
+        positions.append(lane.position(longitudinal, 0.0))
+        headings.append(lane.heading_at(longitudinal))
+    return np.asarray(positions, dtype=float).reshape(len(headings), 2), np.asarray(headings, dtype=float)
+
+
 def _poses(vehicle: Any, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(positions (K, 2) [m], headings (K,) [rad]) of ``vehicle`` at ``times`` [s] from now, world coordinates."""
-    if getattr(vehicle, "route", None) and hasattr(vehicle, "predict_trajectory_constant_speed"):
-        positions, headings = vehicle.predict_trajectory_constant_speed(times)
-        return np.asarray(positions, dtype=float).reshape(len(times), 2), np.asarray(headings, dtype=float)
+    if getattr(vehicle, "route", None) and getattr(vehicle, "lane_index", None) is not None:
+        return _along_route(vehicle, times)
     heading, speed = float(vehicle.heading), float(vehicle.speed)
     direction = np.array([math.cos(heading), math.sin(heading)])
     return np.asarray(vehicle.position, dtype=float) + speed * np.asarray(times)[:, None] * direction, np.full(len(times), heading)
@@ -70,7 +100,7 @@ def crossing_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x:
     times = np.asarray(times, dtype=float)
     positions, headings = _poses(vehicle, times)
     xs, ys, yaws = np.full(len(times), ego_x - FAR_BEHIND), np.zeros(len(times)), np.zeros(len(times))
-    crosses = False
+    enters = turned = False
     for k, (position, heading) in enumerate(zip(positions, headings)):
         found = _frame_pose(frame, position, ego_x)
         if found is None:
@@ -78,9 +108,9 @@ def crossing_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x:
         s, d, piece, longitudinal, on_frame = found
         yaw = wrap_angle(float(heading) - float(piece.lane.heading_at(longitudinal)))
         xs[k], ys[k], yaws[k] = s, d, yaw
-        on_lanes = on_frame and any(b.low < d < b.high and b.s_from <= s <= b.s_to for b in piece.bands)
-        crosses |= on_lanes and CROSSING_ANGLE < abs(yaw) < math.pi - CROSSING_ANGLE
-    if not crosses:
+        enters |= on_frame and any(b.low < d < b.high and b.s_from <= s <= b.s_to for b in piece.bands)
+        turned |= on_frame and CROSSING_ANGLE < abs(yaw) < math.pi - CROSSING_ANGLE
+    if enters and not turned:  # joining at a shallow angle: the usual prediction
         return None
     return PathNeighbour(x=float(xs[0]), y=float(ys[0]), length=float(vehicle.LENGTH), width=float(vehicle.WIDTH),
                          yaw=float(yaws[0]), t=tuple(times), path_x=tuple(xs), path_y=tuple(ys), path_yaw=tuple(yaws))

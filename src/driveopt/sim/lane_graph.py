@@ -125,3 +125,24 @@ def route_roads(route: Sequence[Any] | None) -> tuple[Road, ...]:
     if all(isinstance(node, str) for node in route):
         return tuple(zip(route[:-1], route[1:]))
     return tuple((str(index[0]), str(index[1])) for index in route)
+
+
+# Where upstream envs send an ego that has no route of its own: with ContinuousAction the ego is a plain Vehicle,
+# whose missing ``plan_route_to`` the envs skip. intersection-v0 names the destination in its config; roundabout-v0
+# only in its code (the ego is routed to node "nxs", the ring's northern exit).
+_CODED_DESTINATIONS = {"RoundaboutEnv": "nxs"}
+
+
+def env_destination_route(sim: Any) -> tuple[str, ...] | None:
+    """The node names from the ego's road to the destination ``sim`` (an unwrapped highway-env env) routes its ego to
+    (its config's ``destination``, or the one upstream's code plans for it); None when the ego has a route of its
+    own, the env names no destination, or the lane graph has no way there."""
+    ego = sim.vehicle
+    if getattr(ego, "route", None):
+        return None
+    destination = (getattr(sim, "config", None) or {}).get("destination") or _CODED_DESTINATIONS.get(type(sim).__name__)
+    if destination is None:
+        return None
+    start, end = ego.lane_index[:2]
+    path = sim.road.network.shortest_path(end, destination)
+    return (start, *path) if path else None

@@ -78,11 +78,17 @@ class Perception(NamedTuple):
 
 def curve_speed(frame: RoadFrame, s: float, v_des: float, preview: RoadPreview) -> float:
     """[m/s] ``v_des``, lowered to the fastest speed from which the car slows to each curve's speed within
-    ``preview.speed_distance`` ahead of ``s`` [m] at ``preview.deceleration``."""
+    ``preview.speed_distance`` ahead of ``s`` [m] at ``preview.deceleration``, by the point where the curve enters
+    the centripetal bound (the planner bounds a whole plan with the sharpest curvature its preview holds, so the car
+    must be at the curve's speed when the curve comes within ``curvature_distance`` or ``curvature_time`` at that
+    speed, not only when it reaches the curve: otherwise the bound is violated from the plan's first node and the
+    call is infeasible)."""
     speed = v_des
     for distance, kappa in frame.curves_ahead(s, s + preview.speed_distance):
         if kappa > 0.0:
-            speed = min(speed, math.sqrt(preview.lateral_acceleration / kappa + 2.0 * preview.deceleration * max(distance, 0.0)))
+            v_curve = math.sqrt(preview.lateral_acceleration / kappa)
+            slowing = max(distance - max(preview.curvature_distance, preview.curvature_time * v_curve), 0.0)
+            speed = min(speed, math.sqrt(v_curve * v_curve + 2.0 * preview.deceleration * slowing))
     return speed
 
 

@@ -13,9 +13,9 @@ What the frame represents, checked whenever it is built (every perception):
 
 - each road's driving lanes are parallel (constant lateral offset: concentric arcs, parallel lines),
   equally wide and adjacent; otherwise :class:`RoadFrameError` names the lane;
-- no lane of another road crosses the route's lanes at more than :data:`CROSSING_ANGLE` (an
-  intersection's or a roundabout's crossing traffic has no place in a frame along the route); joining
-  lanes at a shallow angle (an on-ramp) and oncoming lanes (two-way) are represented;
+- lanes of other roads may cross the route's (an intersection's, a roundabout's): the frame follows the route
+  through them, and the traffic on them is predicted along its own lanes (:mod:`driveopt.sim.crossing`; a lane
+  meeting the route at more than :data:`CROSSING_ANGLE` crosses it);
 - the route does not end at a junction (a node whose roads do not continue the route's lanes, or only
   by a turn sharper than :data:`driveopt.sim.lane_graph.MAX_TURN`, as into a roundabout's ring);
 - the ego lies on the frame, within :data:`MAX_EGO_OFFSET` of its road's lanes.
@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import weakref
 from typing import Any, NamedTuple, Sequence
 
 import numpy as np
@@ -62,7 +61,6 @@ BEHIND = 150.0  # [m] route length the frame covers behind the ego
 LATERAL_REACH = 15.0  # [m] vehicles further than this beside the road's lanes are not placed on the frame
 CROSSING_ANGLE = math.radians(30.0)  # [rad] a lane meeting the route at a larger angle (and not oncoming) crosses it
 MAX_EGO_OFFSET = 8.0  # [m] the ego further than this beside its road's lanes is not on the frame
-_SAMPLE_STEP = 2.0  # [m] spacing of the points at which other lanes are checked for crossings
 _CURVATURE_STEP = 1.0  # [m] half-step of the numerical curvature of a sine lane, and spacing of its samples
 _MAX_PIECES = 256  # [-] roads followed at most in each direction
 
@@ -401,50 +399,7 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
     else:
         pieces[0].open_lo = pieces[0].straight
 
-    frame = RoadFrame(pieces, ego_road, tuple(roads), s0 + ego_longitudinal)
-    _check_crossings(network, frame)
-    return frame
-
-
-_CROSSINGS: "weakref.WeakKeyDictionary[Any, dict]" = weakref.WeakKeyDictionary()
-
-
-def _check_crossings(network: Any, frame: RoadFrame) -> None:
-    """RoadFrameError naming a lane of another road that crosses the frame's lanes (checked once per network and
-    set of roads)."""
-    key = frozenset(frame.roads)
-    cache = _CROSSINGS.setdefault(network, {})
-    if key not in cache:
-        cache[key] = _find_crossing(network, frame)
-    if cache[key] is not None:
-        raise RoadFrameError(cache[key])
-
-
-def _find_crossing(network: Any, frame: RoadFrame) -> str | None:
-    on_route = set(frame.roads)
-    nodes = {node for road in frame.roads for node in road}
-    for frm, tos in network.graph.items():
-        for to, lanes in tos.items():
-            if (frm, to) in on_route:
-                continue
-            for lane_id, lane in enumerate(lanes):
-                # a branch leaving the route at one of its nodes overlaps the route's lanes where it leaves them
-                leaving = 2.0 * float(lane.width_at(0.0)) if frm in nodes else 0.0
-                for longitudinal in np.arange(leaving, float(lane.length) + 1e-9, _SAMPLE_STEP):
-                    point = np.asarray(lane.position(float(longitudinal), 0.0), dtype=float)
-                    found = frame.locate(point)
-                    if found is None:
-                        continue
-                    s, d, piece, ref_long, _ = found
-                    if not any(b.low < d < b.high and b.s_from <= s <= b.s_to for b in piece.bands):
-                        continue
-                    angle = abs(wrap_angle(lane.heading_at(float(longitudinal)) - piece.lane.heading_at(ref_long)))
-                    if CROSSING_ANGLE < angle < math.pi - CROSSING_ANGLE:
-                        return (f"{_name((frm, to), lane_id)} crosses the route's lanes at {math.degrees(angle):.0f} deg "
-                                f"(s = {s:.1f} m on road {frame.ego_road!r}'s frame): crossing traffic (an intersection, a "
-                                "roundabout) cannot be represented in a Frenet frame along the route; driveopt drives "
-                                "roads whose lanes run beside the route (straight, curved, merging, oncoming)")
-    return None
+    return RoadFrame(pieces, ego_road, tuple(roads), s0 + ego_longitudinal)
 
 
 # ---------------------------------------------------------------------- vehicles in the frame
@@ -487,15 +442,44 @@ def frame_rates(heading: float, speed: float, beta: float, a_t: float, a_n: floa
     return s_dot, v_n, (a_along + turn_rate * v_n + kappa * v_n * s_dot) / scale, a_across - turn_rate * v_t, course
 
 
+def _on_lanes(network: Any, road: tuple[str, str], position: np.ndarray) -> bool:
+    """Whether ``position`` lies on one of ``road``'s driving lanes (within its length and half its width)."""
+    for _, lane in driving_lanes(network, road):
+        longitudinal, lateral = lane.local_coordinates(position)
+        if 0.0 <= longitudinal <= float(lane.length) and abs(lateral) <= 0.5 * float(lane.width_at(longitudinal)):
+            return True
+    return False
+
+
+def _ego_road(network: Any, ego: Any, planned: Sequence[tuple[str, str]]) -> tuple[str, str]:
+    """The road the frame starts from: the ego's lane's road (the simulator's closest lane), unless the ego is not on
+    that road's lanes, or that road is off the route, and it is on the lanes of a road of the route (from the same
+    node first: where a junction's branches start together, as an intersection's turns and straight on, the closest
+    lane may be another branch than the one the car follows), else of any road (upstream's closest lane can be a
+    sine lane far away, as roundabout-v0's entry when the car is on the far side of the ring)."""
+    road = (ego.lane_index[0], ego.lane_index[1])
+    position = np.asarray(ego.position, dtype=float)
+    on_road = _on_lanes(network, road, position)
+    if on_road and (not planned or road in planned):
+        return road
+    same_node = [branch for branch in planned if branch[0] == road[0]]
+    others = [branch for branch in planned if branch[0] != road[0]]
+    everywhere = [] if on_road else [(frm, to) for frm, tos in network.graph.items() for to in tos]
+    for candidate in same_node + others + everywhere:
+        if _on_lanes(network, candidate, position):
+            return candidate
+    return road
+
+
 def ego_frame(env: Any, route: Sequence[Any] | None = None) -> tuple[RoadFrame, Motion]:
     """(the frame along the ego's route, the ego's motion in it); RoadFrameError when the ego is not on it."""
     sim = env.unwrapped
     ego = sim.vehicle
     network = sim.road.network
     lane_index = ego.lane_index
-    road = (lane_index[0], lane_index[1])
     if route is None:
         route = getattr(ego, "route", None)
+    road = _ego_road(network, ego, route_roads(route))
     ref, _, _ = _road_lanes(network, road)
     longitudinal = float(ref.local_coordinates(np.asarray(ego.position, dtype=float))[0])
     frame = build_frame(network, road, route, ego_longitudinal=longitudinal)
