@@ -187,6 +187,12 @@ def test_directions_and_non_inferiority_through_evaluate():
     assert r.verdict == NO_WORSE_SHOWN and r.verdict_low > -0.8
     r = _judged(direction, *_collisions(30, set(), set(), lambda e: 6.0 + 0.01 * e), expect=NO_WORSE, metric=SPEED)
     assert r.verdict == CONTRADICTED and r.verdict_high < -0.8
+    # a baseline colliding in all but 2 of 40 pairs leaves no speeds to compare: not decidable here, not inconclusive
+    r = _judged(direction, *_collisions(40, set(), set(range(38)), close), expect=NO_WORSE, metric=SPEED)
+    assert r.verdict == effects.NOT_DECIDABLE and "the protocol runs 100" in r.detail
+    # ... while 19 such pairs are too few to say so
+    r = _judged(direction, *_collisions(19, set(), set(range(17)), close), expect=NO_WORSE, metric=SPEED)
+    assert r.verdict == INCONCLUSIVE
 
 
 def test_a_claim_passing_at_alpha_but_not_at_its_look_is_interim_inconclusive():

@@ -26,7 +26,8 @@ Pairs are episodes both arms ran (same scenario, seed and episode: the same traf
   metric's paired test (McNemar, sign tests);
 * NO_WORSE without a stated size (non-inferiority, margin δ): the (1 - L) interval of the paired difference, oriented
   so that positive is better, against -δ: lower bound above -δ **reproduced**, upper bound below -δ
-  **contradicted**, else inconclusive; none below :data:`MIN_PAIRS` pairs. Collisions: δ = :data:`COLLISION_MARGIN`
+  **contradicted**, else inconclusive (none below :data:`MIN_PAIRS` compared pairs), and **not decidable here** from
+  20 pairs on when the measured rates need more than the protocol's pairs (:func:`_futile`). Collisions: δ = :data:`COLLISION_MARGIN`
   and the conservative interval of :func:`~driveopt.experiments.paired_stats.paired_risk_difference_interval`; speed
   and plan time: δ = :data:`RELATIVE_MARGIN` x the baseline's mean over the pairs and the t interval.
 
@@ -425,13 +426,13 @@ def judge_at(r: ClaimResult, level: float) -> Judgement:
         shares = (r.only_arm_collided / r.pairs, r.only_baseline_collided / r.pairs)
         what = f"rate difference (baseline - arm) [{low:.2f}, {high:.2f}] against -{r.margin:.2f}"
         if r.pairs < MIN_PAIRS:
-            return Judgement(INCONCLUSIVE, (low, high), max(MIN_PAIRS, _pairs_for_risk(*shares, r.margin, level)),
-                             f"no interval verdict below {MIN_PAIRS} pairs")
+            return _futile(r, Judgement(INCONCLUSIVE, (low, high), max(MIN_PAIRS, _pairs_for_risk(*shares, r.margin, level)),
+                                        f"no interval verdict below {MIN_PAIRS} pairs"))
         if low > -r.margin:
             return Judgement(NO_WORSE_SHOWN, (low, high), detail=what)
         if high < -r.margin:
             return Judgement(CONTRADICTED, (low, high), detail=what)
-        return Judgement(INCONCLUSIVE, (low, high), _pairs_for_risk(*shares, r.margin, level), what)
+        return _futile(r, Judgement(INCONCLUSIVE, (low, high), _pairs_for_risk(*shares, r.margin, level), what))
     mean, sd, n = _oriented_difference(r)
     low, high = t_interval(mean, sd, n, 1.0 - level)
     unit = "m/s" if r.metric == SPEED else "ms"
@@ -439,13 +440,25 @@ def judge_at(r: ClaimResult, level: float) -> Judgement:
     needed = _pairs_for_t(mean, sd, r.margin, level) / share if share else math.inf
     what = f"difference (positive: arm better) [{low:.2f}, {high:.2f}] {unit} against -{r.margin:.2f}"
     if n < MIN_PAIRS:
-        return Judgement(INCONCLUSIVE, (low, high), max(needed, MIN_PAIRS / share if share else math.inf),
-                         f"{n} compared pairs: no interval verdict below {MIN_PAIRS}")
+        return _futile(r, Judgement(INCONCLUSIVE, (low, high), max(needed, MIN_PAIRS / share if share else math.inf),
+                                    f"{n} compared pairs: no interval verdict below {MIN_PAIRS}"))
     if low > -r.margin:
         return Judgement(NO_WORSE_SHOWN, (low, high), detail=what)
     if high < -r.margin:
         return Judgement(CONTRADICTED, (low, high), detail=what)
-    return Judgement(INCONCLUSIVE, (low, high), needed, what)
+    return _futile(r, Judgement(INCONCLUSIVE, (low, high), needed, what))
+
+
+def _futile(r: ClaimResult, j: Judgement) -> Judgement:
+    """An inconclusive non-inferiority judgement ``j`` as **not decidable here** once the claim has
+    :data:`~driveopt.experiments.effects.FUTILITY_PAIRS` pairs and the pairs its interval needs at the measured
+    rates exceed the protocol's (as for a direction, :func:`~driveopt.experiments.effects.judge_direction`): e.g. a
+    speed compared over collision-free pairs when one arm collides in nearly every pair."""
+    if information(r) < effects.FUTILITY_PAIRS or j.needed <= r.full_pairs:
+        return j
+    why = (f"at the measured rates the interval needs {j.needed:.0f} pairs, the protocol runs {r.full_pairs}"
+           if math.isfinite(j.needed) else f"at the measured rates no number of pairs decides it")
+    return Judgement(effects.NOT_DECIDABLE, j.interval, j.needed, f"{j.detail}; {why}" if j.detail else why)
 
 
 def decide_claim(r: ClaimResult, looks: tuple[int, ...] | None = None, holm_p: float | None = None) -> ClaimResult:
