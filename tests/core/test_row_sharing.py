@@ -92,6 +92,7 @@ def test_a_batch_of_distinct_rows_projects_as_the_whole_batch_with_any_chunk_siz
     np.testing.assert_allclose(shared.residuals.total, whole.residuals.total, atol=1e-5)
 
 
+@pytest.mark.slow  # suite time: run with -m slow
 def test_a_planner_sharing_rows_picks_what_one_projecting_every_row_picks():
     problem = build_problem(load_scene("dense-snapshot"), CONFIG.basis)
     distinct = np.asarray(sample_gaussian(jax.random.PRNGKey(4), default_mean(problem), jnp.eye(8) * 3.0, 6))

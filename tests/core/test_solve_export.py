@@ -59,6 +59,7 @@ def assert_same(a, b):
     jax.tree_util.tree_map(np.testing.assert_array_equal, a, b)
 
 
+@pytest.mark.slow  # suite time: run with -m slow
 def test_a_new_process_loads_the_graph_without_tracing_and_gets_the_same_results(inputs, folder):
     traces = []
     first = like_plan(traced_solve(traces))
