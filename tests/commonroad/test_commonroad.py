@@ -119,33 +119,35 @@ def write_ramp_scenario(path, car_x: float = 10.0) -> None:
     CommonRoadFileWriter(scenario, problems, "test", "", "", set()).write_to_file(str(path), OverwriteExistingFile.ALWAYS)
 
 
-@pytest.mark.slow  # about 25 s on 2 cores, most of it compiling the planner
-def test_the_command_reaches_a_goal_in_another_lane_past_a_slow_car(tmp_path, capsys):
+def _run_bilevel(tmp_path, write, name: str) -> dict:
+    """Write one scenario with ``write`` as ``name``.xml, run ``driveopt commonroad`` with bilevel (60 samples) on it
+    and return its one record."""
     folder = tmp_path / "scenarios"
     folder.mkdir()
-    write_scenario(folder / "three_lanes.xml")
+    write(folder / f"{name}.xml")
     assert main(["commonroad", "--scenarios", str(folder), "--planners", "bilevel", "--samples", "60",
                  "--out", str(tmp_path / "out")]) == 0
     records = [json.loads(line) for line in (tmp_path / "out" / "runs.jsonl").read_text().splitlines()]
     assert len(records) == 1 and records[0]["status"] == "success", records
-    assert records[0]["arrival_step"] is not None and not records[0]["collision"]
+    return records[0]
+
+
+@pytest.mark.slow  # about 25 s on 2 cores, most of it compiling the planner
+def test_the_command_reaches_a_goal_in_another_lane_past_a_slow_car(tmp_path, capsys):
+    record = _run_bilevel(tmp_path, write_scenario, "three_lanes")
+    assert record["arrival_step"] is not None and not record["collision"]
     assert (tmp_path / "out" / "trajectories" / "three_lanes__bilevel.json").exists()
     # a rerun resumes: nothing left to run, the record kept
-    assert main(["commonroad", "--scenarios", str(folder), "--planners", "bilevel", "--out", str(tmp_path / "out")]) == 0
+    assert main(["commonroad", "--scenarios", str(tmp_path / "scenarios"), "--planners", "bilevel",
+                 "--out", str(tmp_path / "out")]) == 0
     assert len((tmp_path / "out" / "runs.jsonl").read_text().splitlines()) == 1
 
 
 @pytest.mark.slow  # about 25 s on 2 cores, most of it compiling the planner (10 s with JAX's compilation cache warm)
 def test_the_command_merges_from_an_on_ramp_behind_a_car_to_a_goal_on_the_main_road(tmp_path):
-    folder = tmp_path / "scenarios"
-    folder.mkdir()
-    write_ramp_scenario(folder / "on_ramp.xml")
-    assert main(["commonroad", "--scenarios", str(folder), "--planners", "bilevel", "--samples", "60",
-                 "--out", str(tmp_path / "out")]) == 0
-    records = [json.loads(line) for line in (tmp_path / "out" / "runs.jsonl").read_text().splitlines()]
-    assert len(records) == 1 and records[0]["status"] == "success", records
-    assert records[0]["goal_reached"] and records[0]["arrival_step"] is not None
-    assert not records[0]["collision"] and not records[0]["collision_while_stopped"] and not records[0]["off_road"]
+    record = _run_bilevel(tmp_path, write_ramp_scenario, "on_ramp")
+    assert record["goal_reached"] and record["arrival_step"] is not None
+    assert not record["collision"] and not record["collision_while_stopped"] and not record["off_road"]
     poses = json.loads((tmp_path / "out" / "trajectories" / "on_ramp__bilevel.json").read_text())
     # it ends in the main road's right lane (centre y 0), having stayed behind the car (x 10 m + 1.2 m per step) past the
     # join, where the car is beside the acceleration lane

@@ -95,8 +95,8 @@ def may_cross(vehicle: Any, frame: RoadFrame) -> bool:
 
 
 def crossing_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x: float) -> PathNeighbour | None:
-    """``vehicle`` as a :class:`PathNeighbour` over ``times`` [s] (the planner's nodes) when its predicted path
-    crosses the route's lanes (see the module docstring), else None; ``ego_x`` [m]: the ego's arc length."""
+    """``vehicle`` as a :class:`PathNeighbour` over ``times`` [s] (the planner's nodes), or None when its path joins
+    the route's lanes at a shallow angle (see the module docstring); ``ego_x`` [m]: the ego's arc length."""
     times = np.asarray(times, dtype=float)
     positions, headings = _poses(vehicle, times)
     xs, ys, yaws = np.full(len(times), ego_x - FAR_BEHIND), np.zeros(len(times)), np.zeros(len(times))
