@@ -28,10 +28,12 @@
 # planner as defe7ca (`driveopt closed-loop-ab` on those five, vqvae-filter-faithful and batch-faithful: identical,
 # benchmarks/results/closed-loop-ab/campaign-code/) and decides claims as the reports do (a direction the protocol cannot
 # show at the measured rates is not decidable; no claim is run past its last look).
+# b45dbdc plans every planner as 40ddb4f (the same seven: identical; its changes are to crossing traffic, junction frames
+# and curve speed, which the papers' straight roads never reach).
 # The body is one function, read whole before it runs, so editing this file never changes a campaign in flight.
 set -euo pipefail
 
-CODE=40ddb4f
+CODE=b45dbdc
 
 main() {
     repo=$(cd "$(dirname "$0")/../.." && pwd)
