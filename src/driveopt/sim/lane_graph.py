@@ -24,6 +24,8 @@ import numpy as np
 Road = tuple[str, str]  # (from node, to node)
 
 JOIN_DISTANCE = 1.0  # [m] a lane continues another when it starts within this of the other's end
+BRANCH_DISTANCE = 8.0  # [m] a road whose lanes start offset from a road's ends (a roundabout's exit beside the ring,
+# a few metres past its end) branches from it when it starts within this of one of them
 MAX_TURN = math.radians(60.0)  # [rad] largest change of heading from one road to the next one it continues
 U_TURN = math.radians(150.0)  # [rad] a road joined at a larger change of heading runs the other way (an oncoming lane)
 
@@ -88,6 +90,17 @@ def _continues(network: Any, current: Road, following: Road) -> float | None:
     ``current``'s ends), or None when it does not continue it (no joined lanes, a U-turn or a sharp turn)."""
     turn = _turn(network, current, following)
     return turn if turn is not None and turn <= MAX_TURN else None
+
+
+def continues_past_end(network: Any, road: Road) -> bool:
+    """Whether another road continues ``road``'s lanes at its end (a ring's segment past an exit: yes; an entry: no)."""
+    return any(_continues(network, road, (road[1], to)) is not None for to in network.graph.get(road[1], {}))
+
+
+def continued_before_start(network: Any, road: Road) -> bool:
+    """Whether another road leads into ``road``'s lanes at its start (a ring's segment after an entry: yes)."""
+    return any(_continues(network, (frm, road[0]), road) is not None for frm, tos in network.graph.items()
+               if road[0] in tos)
 
 
 def _all_forbidden(network: Any, road: Road) -> bool:

@@ -43,6 +43,10 @@ import numpy as np
 from driveopt.errors import DriveoptError
 from driveopt.scene import Road
 from driveopt.sim.lane_graph import (
+    BRANCH_DISTANCE,
+    JOIN_DISTANCE,
+    continued_before_start,
+    continues_past_end,
     driving_lanes,
     junctions,
     lane_end,
@@ -361,9 +365,20 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
             last.hi += float(nxt.length)
             last.bands.append(_bands_of(network, last, following, s_from, last.s_start + last.hi))
         else:
-            _, lateral = last.lane.local_coordinates(joint)
-            piece = Piece(nxt, last.s_start + last.hi, last.d_shift + float(lateral), 0.0, float(nxt.length), [])
-            piece.bands.append(_bands_of(network, piece, following, piece.s_start, piece.s_start + piece.hi))
+            longitudinal, lateral = last.lane.local_coordinates(joint)
+            length = float(nxt.length)
+            offset = float(longitudinal) - last.hi > JOIN_DISTANCE  # the road starts past this one's end, beside it
+            if offset and continues_past_end(network, road):  # a ring's exit: the ring's lanes reach its start
+                last.hi = float(longitudinal)
+                last.bands[-1] = last.bands[-1]._replace(s_to=last.s_start + last.hi)
+                piece = Piece(nxt, last.s_start + last.hi, last.d_shift + float(lateral), 0.0, length, [])
+            elif offset and continued_before_start(network, following):  # a ring's entry: the ring reaches back to it
+                back, across = nxt.local_coordinates(np.asarray(last.lane.position(last.hi, 0.0), dtype=float))
+                piece = Piece(nxt, last.s_start + last.hi - float(back), last.d_shift - float(across), float(back),
+                              length, [])
+            else:
+                piece = Piece(nxt, last.s_start + last.hi, last.d_shift + float(lateral), 0.0, length, [])
+            piece.bands.append(_bands_of(network, piece, following, piece.s_start + piece.lo, piece.s_start + piece.hi))
             pieces.append(piece)
         left -= float(nxt.length)
         road = following
@@ -388,10 +403,20 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
             head.lo -= float(prev.length)
             head.bands.insert(0, _bands_of(network, head, preceding, head.s_start + head.lo, s_to))
         else:
-            _, lateral = head.lane.local_coordinates(joint)
-            s_start = head.s_start + head.lo - float(prev.length)
-            piece = Piece(prev, s_start, head.d_shift + float(lateral), 0.0, float(prev.length), [])
-            piece.bands.append(_bands_of(network, piece, preceding, s_start, s_start + piece.hi))
+            longitudinal, lateral = head.lane.local_coordinates(joint)
+            length = float(prev.length)
+            offset = head.lo - float(longitudinal) > JOIN_DISTANCE  # the road ends short of this one's start, beside it
+            if offset and continued_before_start(network, road):  # a ring seen from its entry: the ring reaches back
+                head.lo = float(longitudinal)
+                head.bands[0] = head.bands[0]._replace(s_from=head.s_start + head.lo)
+                piece = Piece(prev, head.s_start + head.lo - length, head.d_shift + float(lateral), 0.0, length, [])
+            elif offset and continues_past_end(network, preceding):  # an exit's ring: its lanes reach the exit's start
+                ahead_, across = prev.local_coordinates(np.asarray(head.lane.position(head.lo, 0.0), dtype=float))
+                piece = Piece(prev, head.s_start + head.lo - float(ahead_), head.d_shift - float(across), 0.0,
+                              float(ahead_), [])
+            else:
+                piece = Piece(prev, head.s_start + head.lo - length, head.d_shift + float(lateral), 0.0, length, [])
+            piece.bands.append(_bands_of(network, piece, preceding, piece.s_start, piece.s_start + piece.hi))
             pieces.insert(0, piece)
         left -= float(prev.length)
         road = preceding
@@ -442,11 +467,12 @@ def frame_rates(heading: float, speed: float, beta: float, a_t: float, a_n: floa
     return s_dot, v_n, (a_along + turn_rate * v_n + kappa * v_n * s_dot) / scale, a_across - turn_rate * v_t, course
 
 
-def _on_lanes(network: Any, road: tuple[str, str], position: np.ndarray) -> bool:
-    """Whether ``position`` lies on one of ``road``'s driving lanes (within its length and half its width)."""
+def _on_lanes(network: Any, road: tuple[str, str], position: np.ndarray, before: float = 0.0) -> bool:
+    """Whether ``position`` lies on one of ``road``'s driving lanes (within its length, or up to ``before`` [m] short of
+    its start, and half its width)."""
     for _, lane in driving_lanes(network, road):
         longitudinal, lateral = lane.local_coordinates(position)
-        if 0.0 <= longitudinal <= float(lane.length) and abs(lateral) <= 0.5 * float(lane.width_at(longitudinal)):
+        if -before <= longitudinal <= float(lane.length) and abs(lateral) <= 0.5 * float(lane.width_at(longitudinal)):
             return True
     return False
 
@@ -454,9 +480,10 @@ def _on_lanes(network: Any, road: tuple[str, str], position: np.ndarray) -> bool
 def _ego_road(network: Any, ego: Any, planned: Sequence[tuple[str, str]]) -> tuple[str, str]:
     """The road the frame starts from: the ego's lane's road (the simulator's closest lane), unless the ego is not on
     that road's lanes, or that road is off the route, and it is on the lanes of a road of the route (from the same
-    node first: where a junction's branches start together, as an intersection's turns and straight on, the closest
-    lane may be another branch than the one the car follows), else of any road (upstream's closest lane can be a
-    sine lane far away, as roundabout-v0's entry when the car is on the far side of the ring)."""
+    node first, or short of its start by up to :data:`BRANCH_DISTANCE`: where a junction's branches start together,
+    as an intersection's turns and straight on, the closest lane may be another branch than the one the car follows,
+    and a roundabout's exit starts a few metres past the ring's lane the car leaves by), else of any road (upstream's
+    closest lane can be a sine lane far away, as roundabout-v0's entry when the car is on the far side of the ring)."""
     road = (ego.lane_index[0], ego.lane_index[1])
     position = np.asarray(ego.position, dtype=float)
     on_road = _on_lanes(network, road, position)
@@ -465,7 +492,10 @@ def _ego_road(network: Any, ego: Any, planned: Sequence[tuple[str, str]]) -> tup
     same_node = [branch for branch in planned if branch[0] == road[0]]
     others = [branch for branch in planned if branch[0] != road[0]]
     everywhere = [] if on_road else [(frm, to) for frm, tos in network.graph.items() for to in tos]
-    for candidate in same_node + others + everywhere:
+    for candidate in same_node:
+        if _on_lanes(network, candidate, position, before=BRANCH_DISTANCE):
+            return candidate
+    for candidate in others + everywhere:
         if _on_lanes(network, candidate, position):
             return candidate
     return road

@@ -2,9 +2,10 @@
 
 Where the route leaves a road by only some of its lanes (exit-v0's exit leaves road ``("1", "2")`` by its
 rightmost-added lane alone; going straight on, that lane ends), the lanes of that road whose end joins a lane of
-the route's next road (:data:`driveopt.sim.lane_graph.JOIN_DISTANCE`) are the ones the car must be in when it
-reaches the split. :func:`find_split` reads them from the lane graph, in the frame's coordinates, for the first
-such split ahead of the ego; :func:`split_goal` makes them a goal whose band widens with the distance still to
+the route's next road (:data:`driveopt.sim.lane_graph.JOIN_DISTANCE`; where the next road starts offset from all of
+them, as a roundabout's exit beside the ring, the nearest) are the ones the car must be in when it reaches the split.
+:func:`find_split` reads them from the lane graph, in the frame's coordinates, for the first such split ahead of the
+ego; :func:`split_goal` makes them a goal whose band widens with the distance still to
 go (:attr:`driveopt.goal.Goal.widen`): one lane's width per :attr:`RouteChange.lane_time` seconds of travel, so a
 band far ahead accepts every lane from which it can still be reached and the change is planned while the split is
 ahead, one lane at a time. The band is required in full from :attr:`RouteChange.settle_time` before the split;
@@ -25,7 +26,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from driveopt.goal import Goal
-from driveopt.sim.lane_graph import JOIN_DISTANCE, driving_lanes, lane_end, lane_start
+from driveopt.sim.lane_graph import BRANCH_DISTANCE, JOIN_DISTANCE, driving_lanes, lane_end, lane_start
 from driveopt.sim.road_frame import RoadFrame
 
 
@@ -64,6 +65,18 @@ def _joins(lane: Any, following_lanes: list[Any]) -> bool:
     return any(np.linalg.norm(lane_start(nxt) - end) <= JOIN_DISTANCE for nxt in following_lanes)
 
 
+def _continuing(lanes: list[Any], following_lanes: list[Any]) -> list[bool]:
+    """Which of a road's ``lanes`` continue into ``following_lanes``: those joining one (within
+    :data:`JOIN_DISTANCE`); where none does, the road's lane whose end lies nearest a following lane's start, if within
+    :data:`BRANCH_DISTANCE` (a roundabout's exit starts beside the ring's outer lane, a few metres past its end)."""
+    joined = [_joins(lane, following_lanes) for lane in lanes]
+    if any(joined):
+        return joined
+    gaps = [min(float(np.linalg.norm(lane_start(nxt) - lane_end(lane))) for nxt in following_lanes) for lane in lanes]
+    nearest = int(np.argmin(gaps))
+    return [k == nearest and gaps[k] <= BRANCH_DISTANCE for k in range(len(lanes))]
+
+
 def find_split(network: Any, frame: RoadFrame, s: float) -> Split | None:
     """The first split of the frame's roads ending ahead of arc length ``s`` [m] (the ego's): a road some, not all,
     of whose driving lanes join the next road the frame follows while another of its lanes joins another road; None
@@ -75,7 +88,7 @@ def find_split(network: Any, frame: RoadFrame, s: float) -> Split | None:
             continue
         lanes = driving_lanes(network, road)
         nxt = list(network.graph[following[0]][following[1]])
-        joined = [_joins(lane, nxt) for _, lane in lanes]
+        joined = _continuing([lane for _, lane in lanes], nxt)
         if all(joined) or not any(joined):
             continue
         others = [list(lanes_) for to, lanes_ in network.graph.get(road[1], {}).items() if (road[1], to) != following]
