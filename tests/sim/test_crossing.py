@@ -118,3 +118,28 @@ def test_routes_with_a_road_that_names_no_lane_are_predicted_in_the_lane_that_ex
     np.testing.assert_allclose(positions[1], [45.0, 4.0], atol=1e-9)
     np.testing.assert_allclose(positions[2], [50.0, 14.0], atol=1e-9)  # 10 m into the one-lane road
     assert headings[2] == pytest.approx(np.pi / 2)
+
+
+def test_a_routed_car_with_the_ego_on_its_lanes_ahead_is_predicted_to_stop_behind_it():
+    """highway-env's IDM stops for the car in front on its lane: a car already in a crossing's path is passed by
+    nothing, so the crossing car's prediction stops behind it (bumpers YIELD_GAP apart), where holding speed would run
+    through it; an ego beside the lanes or behind the car changes nothing."""
+    from driveopt.sim.crossing import YIELD_GAP, _along_route
+
+    network = RoadNetwork()
+    network.add_lane("a", "b", StraightLane([0.0, 0.0], [50.0, 0.0], width=4.0))
+    network.add_lane("b", "c", StraightLane([50.0, 0.0], [50.0, 80.0], width=4.0))
+    road = Road(network=network)
+    car = IDMVehicle(road, [40.0, 0.0], heading=0.0, speed=10.0, target_lane_index=("a", "b", 0),
+                     route=[("a", "b", 0), ("b", "c", None)])
+    times = np.arange(0.0, 5.01, 0.5)
+    free, _ = _along_route(car, times)
+    ego = IDMVehicle(road, [50.0, 20.0], heading=np.pi / 2, speed=0.0)  # 30 m along the car's path, on its next road
+    stopped, headings = _along_route(car, times, ego)
+    stop_y = 20.0 - 0.5 * (car.LENGTH + ego.LENGTH) - YIELD_GAP
+    np.testing.assert_allclose(stopped[times <= 1.0], free[times <= 1.0])  # it keeps its speed until the stop
+    np.testing.assert_allclose(stopped[-1], [50.0, stop_y], atol=1e-9)
+    assert np.all(stopped[:, 1] <= stop_y + 1e-9) and headings[-1] == pytest.approx(np.pi / 2)
+    for elsewhere in ([56.0, 20.0], [30.0, 0.0]):  # beside its lane; behind it
+        ego.position = np.array(elsewhere)
+        np.testing.assert_allclose(_along_route(car, times, ego)[0], free)

@@ -2,8 +2,9 @@
 
 A highway-env vehicle that drives on a road the frame does not follow (an intersection's other arm, a roundabout's
 entry) may cross the route's lanes. Its future poses follow its route's lanes at its speed held (as the simulator's
-``ControlledVehicle.predict_trajectory_constant_speed``, :func:`_along_route`), or, for a vehicle without a route,
-its velocity held in world coordinates. Each pose is mapped into the frame
+``ControlledVehicle.predict_trajectory_constant_speed``, :func:`_along_route`), stopping behind the ego where the ego
+stands on them (as upstream's IDM does for the car in front), or, for a vehicle without a route, its velocity held in
+world coordinates. Each pose is mapped into the frame
 (:meth:`driveopt.sim.road_frame.RoadFrame.locate`) with its heading relative to the route there; a pose beside the
 frame keeps its coordinates along it (off the road), one beyond its ends is put far behind the ego. The vehicle
 becomes a :class:`~driveopt.prediction.PathNeighbour`: an obstacle at the nodes where its path is near the route and
@@ -29,14 +30,17 @@ from driveopt.sim.road_frame import CROSSING_ANGLE, RoadFrame
 
 FAR_BEHIND = 1000.0  # [m] a pose beyond the frame's ends is put this far behind the ego
 MAX_OFFSET = 200.0  # [m] a pose beside the frame is kept within this lateral offset of it
+YIELD_GAP = 1.0  # [m] a routed vehicle with the ego on its lanes ahead is predicted to stop this far behind it (bumpers)
 
 
-def _along_route(vehicle: Any, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _along_route(vehicle: Any, times: np.ndarray, ego: Any = None) -> tuple[np.ndarray, np.ndarray]:
     """(positions (K, 2) [m], headings (K,) [rad]) of a routed vehicle at ``times`` [s] from now, its speed held along
     its route's lanes (as upstream's ``predict_trajectory_constant_speed``, which picks a lane of a road of the route
     that names none by the lane count of the vehicle's road, not of that road, and fails where a two-lane road leads
     to a one-lane one, as at roundabout-v0's exits): a road of the route that names no lane is followed in the
-    vehicle's lane number, or the road's last lane when it has fewer."""
+    vehicle's lane number, or the road's last lane when it has fewer. Where ``ego`` (a vehicle) stands on one of those
+    lanes ahead, the vehicle stops behind it (:data:`YIELD_GAP`), as highway-env's IDM stops for the car in front on
+    its lane: a car already in a crossing's path is passed by nothing, so holding or clearing it can be planned."""
     network = vehicle.road.network
     route = list(vehicle.route or [vehicle.lane_index])
     lane_number = vehicle.lane_index[2]
@@ -45,23 +49,45 @@ def _along_route(vehicle: Any, times: np.ndarray) -> tuple[np.ndarray, np.ndarra
         lanes = network.graph[index[0]][index[1]]
         return lanes[index[2] if index[2] is not None else min(lane_number, len(lanes) - 1)]
 
+    lanes = [lane_of(index) for index in route]
     start = float(vehicle.lane.local_coordinates(np.asarray(vehicle.position, dtype=float))[0])
+    reach = start + float(vehicle.speed) * float(np.max(times, initial=0.0))
+    stop = math.inf if ego is None else _ego_along(lanes, np.asarray(ego.position, dtype=float), start, reach)
+    stop -= 0.5 * (float(vehicle.LENGTH) + (float(ego.LENGTH) if ego is not None else 0.0)) + YIELD_GAP
     positions, headings = [], []
     for t in np.asarray(times, dtype=float):
-        longitudinal, k, lane = start + float(vehicle.speed) * t, 0, lane_of(route[0])
-        while k < len(route) - 1 and longitudinal > float(lane.length):
+        longitudinal, k, lane = min(start + float(vehicle.speed) * t, max(stop, start)), 0, lanes[0]
+        while k < len(lanes) - 1 and longitudinal > float(lane.length):
             longitudinal -= float(lane.length)
             k += 1
-            lane = lane_of(route[k])
+            lane = lanes[k]
         positions.append(lane.position(longitudinal, 0.0))
         headings.append(lane.heading_at(longitudinal))
     return np.asarray(positions, dtype=float).reshape(len(headings), 2), np.asarray(headings, dtype=float)
 
 
-def _poses(vehicle: Any, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(positions (K, 2) [m], headings (K,) [rad]) of ``vehicle`` at ``times`` [s] from now, world coordinates."""
+def _ego_along(lanes: list[Any], position: np.ndarray, start: float, reach: float) -> float:
+    """[m] the distance along ``lanes`` (measured as ``start``, from the first lane's start) at which ``position``
+    lies on one of them (within its half width and 1 m, as upstream's ``on_lane(margin=1)``), between ``start`` and
+    ``reach``; inf when it lies on none there."""
+    offset = 0.0
+    for lane in lanes:
+        longitudinal, lateral = lane.local_coordinates(position)
+        along = offset + float(longitudinal)
+        if (0.0 <= longitudinal <= float(lane.length) and abs(lateral) <= 0.5 * float(lane.width_at(longitudinal)) + 1.0
+                and start < along <= reach):
+            return along
+        offset += float(lane.length)
+        if offset > reach:
+            break
+    return math.inf
+
+
+def _poses(vehicle: Any, times: np.ndarray, ego: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (K, 2) [m], headings (K,) [rad]) of ``vehicle`` at ``times`` [s] from now, world coordinates
+    (routed: along its lanes, stopping behind ``ego`` on them, :func:`_along_route`)."""
     if getattr(vehicle, "route", None) and getattr(vehicle, "lane_index", None) is not None:
-        return _along_route(vehicle, times)
+        return _along_route(vehicle, times, ego)
     heading, speed = float(vehicle.heading), float(vehicle.speed)
     direction = np.array([math.cos(heading), math.sin(heading)])
     return np.asarray(vehicle.position, dtype=float) + speed * np.asarray(times)[:, None] * direction, np.full(len(times), heading)
@@ -94,11 +120,13 @@ def may_cross(vehicle: Any, frame: RoadFrame) -> bool:
     return any(index is not None and (index[0], index[1]) not in roads for index in [lane, *route])
 
 
-def crossing_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x: float) -> PathNeighbour | None:
+def crossing_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x: float,
+                       ego: Any = None) -> PathNeighbour | None:
     """``vehicle`` as a :class:`PathNeighbour` over ``times`` [s] (the planner's nodes), or None when its path joins
-    the route's lanes at a shallow angle (see the module docstring); ``ego_x`` [m]: the ego's arc length."""
+    the route's lanes at a shallow angle (see the module docstring); ``ego_x`` [m]: the ego's arc length; ``ego``:
+    the ego vehicle, which a routed vehicle stops behind where it stands on its lanes."""
     times = np.asarray(times, dtype=float)
-    positions, headings = _poses(vehicle, times)
+    positions, headings = _poses(vehicle, times, ego)
     xs, ys, yaws = np.full(len(times), ego_x - FAR_BEHIND), np.zeros(len(times)), np.zeros(len(times))
     enters = turned = False
     for k, (position, heading) in enumerate(zip(positions, headings)):

@@ -122,7 +122,7 @@ def _read(env: Any, task: Any, preview: RoadPreview) -> tuple[Scene, Motion, Roa
         times = np.arange(0.0, preview.crossing_horizon + 1e-9, preview.crossing_step)
         for other in others:
             if hasattr(other, "route") and may_cross(other, frame):  # another road's vehicle: along its own lanes
-                crossing = crossing_neighbour(other, frame, times, me.x)
+                crossing = crossing_neighbour(other, frame, times, me.x, ego_vehicle)
                 if crossing is not None:
                     neighbours.append(crossing)
                     continue
