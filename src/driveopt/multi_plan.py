@@ -13,7 +13,7 @@ pads neighbours to ``max_obstacles`` with a mask), and either all carry a previo
 or none does.
 
 A mapped call computes what the separate calls compute, but XLA may order the float32 sums of a batched program
-differently: results agree with ``plan``'s to float32 rounding, and the sampler can amplify a last-bit difference
+differently (one slot runs ``plan`` itself, bit for bit): results agree with ``plan``'s to float32 rounding, and the sampler can amplify a last-bit difference
 into another choice between near-equal candidates (tests/core/test_multi_plan.py states the tolerance).
 """
 
@@ -38,6 +38,7 @@ from driveopt.planner import (
     WarmStart,
     _jit_options,
     check_call,
+    plan,
     solution_result,
     solve,
 )
@@ -111,13 +112,18 @@ def plan_many(
 
     Each call is checked as :func:`driveopt.planner.plan` checks its input (ProblemError, ConfigError). ``slots``
     (default: ``len(calls)``): the batch size compiled for, at least ``len(calls)``; the unused slots run copies of the
-    first call and are dropped. ``prior``, ``safety_filter`` and ``method`` are shared, as in ``plan``.
+    first call and are dropped. ``prior``, ``safety_filter`` and ``method`` are shared, as in ``plan``. One slot is
+    ``plan`` itself (the same compiled program, so the same result bit for bit).
     """
     if not calls:
         raise ProblemError("plan_many needs at least one call")
     slots = len(calls) if slots is None else slots
     if isinstance(slots, bool) or not isinstance(slots, int) or slots < len(calls):
         raise ProblemError(f"slots must be an integer >= the {len(calls)} calls, got {slots!r}")
+    if slots == 1:
+        (call,) = calls
+        return [plan(call.problem, config, key=call.key, prior=prior, warm_start=call.warm_start, previous=call.previous,
+                     safety_filter=safety_filter, method=method, x_offset=call.x_offset)]
     checked = [check_call(c.problem, config, c.key, c.warm_start, c.previous, c.x_offset) for c in calls]
     if len({c.previous is None for c in checked}) > 1:
         raise ProblemError("either every call carries a previous plan (PreviousPlan.absent() for none yet) or none does")

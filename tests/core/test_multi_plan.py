@@ -51,6 +51,19 @@ def test_each_call_of_a_padded_batch_plans_what_plan_plans_alone(small_config):
         assert b.x_offset == a.x_offset and np.all(np.isfinite(b.fallback.x))
 
 
+@pytest.mark.slow  # compiles the planner with a previous plan: about 70 s on two busy cores
+def test_one_slot_is_plan_itself_bit_for_bit(small_config):
+    """A lock-step run of one episode at a time records what the one-by-one loop records."""
+    call = calls_of(small_config)[1]  # a warm start and a real previous plan
+    alone = plan(call.problem, small_config, key=call.key, warm_start=call.warm_start, previous=call.previous,
+                 x_offset=call.x_offset)
+    (together,) = plan_many([call], small_config, slots=1)
+    assert together.status == alone.status and together.costs == alone.costs
+    for a, b in zip(jax.tree_util.tree_leaves(alone.trajectory) + [alone.mean, alone.coeffs],
+                    jax.tree_util.tree_leaves(together.trajectory) + [together.mean, together.coeffs]):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_bad_batches_are_refused_in_one_line(small_config):
     problem = build_problem(load_scene("dense-snapshot"), small_config.basis)
     key = jax.random.PRNGKey(0)
