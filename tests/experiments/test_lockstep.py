@@ -35,7 +35,6 @@ def test_cells_keep_to_one_arm_and_to_slots_times_rounds_jobs():
     (("idm",), {}, None, "planner idm cannot run in lock-step"),
     (("bilevel", "idm"), {}, None, "planner idm cannot run in lock-step"),
     (("bilevel",), {"latency": "measured"}, None, "latency measured cannot run in lock-step"),
-    (("bilevel",), {}, 2, "--lockstep runs its episodes in one process, not 2 workers"),
 ])
 def test_lock_step_is_refused_where_it_is_not_valid_before_anything_is_written(tmp_path, planners, options, workers, match):
     spec = BenchSpec(("two-lane-d1.0",), planners, episodes=2, options=options)
@@ -105,6 +104,18 @@ def test_lock_step_episodes_match_the_one_by_one_loop_and_a_stopped_run_resumes(
         assert set(record) - set(other) == {"lockstep"} and set(other) <= set(record)
         assert (record["statuses"], record["collided"], record["steps"]) == (other["statuses"], other["collided"], other["steps"])
         assert record["mean_speed"] == pytest.approx(other["mean_speed"], abs=0.5)
+
+
+@pytest.mark.slow  # two worker processes compile the batched planner: about two minutes on two busy cores
+def test_local_workers_run_lock_step_cells_and_record_what_one_process_records(tmp_path):
+    bench = BenchSpec(("four-lane-d3.0",), ("bilevel",), (42,), 4, {**TINY, "duration": 1.0})
+    run_bench(bench, tmp_path / "one", lockstep=2, progress=False)
+    run_bench(bench, tmp_path / "two", workers=2, lockstep=2, progress=False)  # cells of CELL_ROUNDS x 2 jobs
+    one, two = ({r["episode"]: r for r in load_records(tmp_path / name / "episodes.jsonl")} for name in ("one", "two"))
+    assert sorted(two) == [0, 1, 2, 3] and {r["lockstep"] for r in two.values()} == {2}
+    for episode, record in two.items():
+        assert (record["statuses"], record["collided"], record["steps"]) == \
+            (one[episode]["statuses"], one[episode]["collided"], one[episode]["steps"])
 
 
 @pytest.mark.slow  # a local Ray instance and a compilation inside its worker

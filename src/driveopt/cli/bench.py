@@ -40,7 +40,8 @@ def register(sub) -> None:
     p.add_argument("--workers", type=positive_int, help="parallel episodes (default: the CPUs it may use, its affinity)")
     p.add_argument("--lockstep", type=positive_int, metavar="E",
                    help="step E episodes of each planner together, one planning call for all per policy step (one "
-                        "process, or cells of jobs as Ray tasks; optimisers with synchronous latency only)")
+                        "process, cells of jobs in --workers processes or as Ray tasks; optimisers with synchronous latency "
+                        "only)")
     p.add_argument("--backend", choices=["local", "ray"], default="local",
                    help="local processes, or Ray (RAY_ADDRESS names the cluster; needs driveopt[ray])")
     p.add_argument("--out", default="out/bench", help="output directory (rerun to resume)")

@@ -189,29 +189,27 @@ def run_bench(
 
     workers: parallel episodes (default: the CPUs this process may use); 1 runs in this process. backend: 'local' or 'ray'.
     lockstep: episodes of one arm stepped together, one planning call for all per policy step
-    (:mod:`driveopt.experiments.lockstep`): in this process (``workers`` 1), or as Ray tasks of cells of jobs; only
-    for optimiser planners with synchronous latency and the default ``episode_fn``. None: one episode at a time.
+    (:mod:`driveopt.experiments.lockstep`): in this process (``workers`` 1, the default with it), as cells of jobs in
+    ``workers`` local processes, or as Ray tasks of cells; only for optimiser planners with synchronous latency and
+    the default ``episode_fn``. None: one episode at a time.
     Returns the summary rows over every record of the folder (this spec's, old and new, then those of other runs that
     share the folder). OutputInUseError (driveopt.files) at once when another run holds the folder.
     """
     spec.check()
     check_backend(backend)
     if lockstep is not None:
-        check_lockstep_run(spec, lockstep, workers, episode_fn)
-        workers = 1
+        check_lockstep_run(spec, lockstep, episode_fn)
+        workers = workers or 1
     out = make_output_folder(out_dir, StoreError, "episodes.jsonl, spec.json and the summaries")
     with lock_output_folder(out):
         return _run_locked(spec, out, workers or len(usable_cpus()), backend, episode_fn, progress, lockstep)
 
 
-def check_lockstep_run(spec: BenchSpec, lockstep: int, workers: int | None, episode_fn: EpisodeFn) -> None:
+def check_lockstep_run(spec: BenchSpec, lockstep: int, episode_fn: EpisodeFn) -> None:
     """BenchOptionError or LockstepError unless ``spec`` can run ``lockstep`` episodes per planning call: every planner
-    an optimiser with synchronous latency, one worker, the simulated episodes (not a custom ``episode_fn``)."""
+    an optimiser with synchronous latency, the simulated episodes (not a custom ``episode_fn``)."""
     from driveopt.experiments.lockstep import check_lockstep
 
-    if workers is not None and workers != 1:
-        raise BenchOptionError(f"--lockstep runs its episodes in one process, not {workers} workers: leave --workers "
-                               "out (or give 1), or spread cells over a cluster with --backend ray")
     if episode_fn is not episode_record:
         raise BenchOptionError("lock-step runs the simulated episodes only, not a custom episode function")
     for name in spec.planners:
@@ -240,7 +238,7 @@ def _run_locked(spec: BenchSpec, out: Path, workers: int, backend: str, episode_
         if lockstep is None:
             execute(todo, spec.options, episode_fn, finished, workers=workers, backend=backend)
         else:
-            _run_lockstep(todo, spec.options, finished, lockstep, backend)
+            _run_lockstep(todo, spec.options, finished, lockstep, backend, workers)
     finally:
         bar.close()
 
@@ -253,13 +251,16 @@ def _run_locked(spec: BenchSpec, out: Path, workers: int, backend: str, episode_
     return rows
 
 
-def _run_lockstep(todo: list[JobKey], options: dict[str, Any], finished: Any, slots: int, backend: str) -> None:
+def _run_lockstep(todo: list[JobKey], options: dict[str, Any], finished: Any, slots: int, backend: str,
+                  workers: int) -> None:
     """The jobs ``todo`` in lock-step, ``slots`` episodes per planning call: each arm whole in this process, or cut
-    into cells of :data:`driveopt.experiments.lockstep.CELL_ROUNDS` x ``slots`` jobs, one Ray task each."""
+    into cells of :data:`driveopt.experiments.lockstep.CELL_ROUNDS` x ``slots`` jobs, one local worker process's or
+    Ray task's each."""
     from driveopt.experiments.lockstep import cells, run_lockstep
 
-    parts = cells(todo, slots) if backend == "ray" else cells(todo, slots, rounds=max(len(todo), 1))
-    execute_cells(parts, options, run_lockstep, finished, args=(slots,), backend=backend)
+    whole = backend != "ray" and workers == 1
+    parts = cells(todo, slots, rounds=max(len(todo), 1)) if whole else cells(todo, slots)
+    execute_cells(parts, options, run_lockstep, finished, args=(slots,), backend=backend, workers=workers)
 
 
 def write_summaries(rows: list[dict[str, Any]], out: Path) -> None:

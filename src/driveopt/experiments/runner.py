@@ -21,7 +21,8 @@ with the instance kills the rest within a second (the raylet's two agents, which
 Install Ray with ``pip install 'driveopt[ray]'``.
 
 :func:`execute_cells` runs cells of jobs instead (``driveopt bench --lockstep``, :mod:`driveopt.experiments.lockstep`):
-in this process one after another, or one Ray task per cell, a GPU each where the cluster has any.
+in this process one after another, in local worker processes, or one Ray task per cell, a GPU each where the cluster
+has any.
 """
 
 from __future__ import annotations
@@ -125,6 +126,13 @@ def cpu_shares(cpus: Sequence[int], workers: int) -> list[tuple[int, ...]]:
 
 def _run_pool(todo: Sequence[JobKey], options: dict, episode_fn: EpisodeFn, finished: Callable[[dict], None],
               workers: int) -> None:
+    _run_pool_tasks(call, [(episode_fn, job, options) for job in todo], finished, workers)
+
+
+def _run_pool_tasks(fn: Callable[..., Any], arguments: list[tuple], finished: Callable[[Any], None],
+                    workers: int) -> None:
+    """``fn(*args)`` for every item of ``arguments`` in ``workers`` local processes; each answer handed to
+    ``finished`` as it comes."""
     # With the spawn context, submit() starts the workers in this thread, which outlives them: the
     # parent-death signal (sent when the creating thread ends) cannot fire while the pool is in use.
     context = multiprocessing.get_context("spawn")
@@ -135,7 +143,7 @@ def _run_pool(todo: Sequence[JobKey], options: dict, episode_fn: EpisodeFn, fini
                                   initializer=_bind_to_parent, initargs=(os.getpid(), shares))
     try:
         with _ctrl_c_held_from_workers():
-            futures = [pool.submit(call, episode_fn, job, options) for job in todo]
+            futures = [pool.submit(fn, *args) for args in arguments]
         for future in cf.as_completed(futures):
             finished(future.result())
     except BaseException:
@@ -217,14 +225,16 @@ def _run_ray(todo: Sequence[JobKey], options: dict, episode_fn: EpisodeFn, finis
 
 
 def execute_cells(cells: Sequence[Sequence[JobKey]], options: dict, cell_fn: CellFn, finished: Callable[[dict], None],
-                  *, args: tuple = (), backend: str = "local", gpus: float | None = None) -> None:
+                  *, args: tuple = (), backend: str = "local", workers: int = 1, gpus: float | None = None) -> None:
     """Run ``cell_fn(cell, options, None, *args)`` (a module-level function returning the cell's records) for every
-    cell of jobs and hand each record to ``finished``: in this process one cell after another (``cell_fn`` then gets
-    ``finished`` in place of None and hands each record over as its episode ends), or as Ray tasks, a cell's records
-    handed over when it ends (a stopped run keeps the records of the cells that ended). ``gpus``: the GPUs a Ray task
-    asks for (None: 1 when the cluster has any, so that each cell has a GPU to itself; else 0)."""
+    cell of jobs and hand each record to ``finished``: in this process one cell after another (``workers`` 1:
+    ``cell_fn`` then gets ``finished`` in place of None and hands each record over as its episode ends), in
+    ``workers`` local processes (bound to their share of the CPUs, as :func:`execute`'s), or as Ray tasks; from a
+    process or a task, a cell's records are handed over when it ends (a stopped run keeps the records of the cells
+    that ended). ``gpus``: the GPUs a Ray task asks for (None: 1 when the cluster has any, so that each cell has a
+    GPU to itself; else 0)."""
     check_backend(backend)
-    if backend != "ray":
+    if backend != "ray" and workers == 1:
         for cell in cells:
             cell_fn(cell, options, finished, *args)
         return
@@ -233,7 +243,11 @@ def execute_cells(cells: Sequence[Sequence[JobKey]], options: dict, cell_fn: Cel
         for record in records:
             finished(record)
 
-    _run_ray_tasks(cell_fn, [(cell, options, None, *args) for cell in cells], each, gpus=gpus)
+    arguments = [(cell, options, None, *args) for cell in cells]
+    if backend == "ray":
+        _run_ray_tasks(cell_fn, arguments, each, gpus=gpus)
+    else:
+        _run_pool_tasks(cell_fn, arguments, each, workers)
 
 
 def _run_ray_tasks(fn: Callable[..., Any], arguments: list[tuple], finished: Callable[[Any], None], *,
