@@ -76,18 +76,20 @@ class Perception(NamedTuple):
     goal: Goal | None = None  # the route's lanes at the split ahead (build_problem's goal=); None without one
 
 
-def curve_speed(frame: RoadFrame, s: float, v_des: float, preview: RoadPreview) -> float:
+def curve_speed(frame: RoadFrame, s: float, v_des: float, preview: RoadPreview, period: float = 0.0) -> float:
     """[m/s] ``v_des``, lowered to the fastest speed from which the car slows to each curve's speed within
     ``preview.speed_distance`` ahead of ``s`` [m] at ``preview.deceleration``, by the point where the curve enters
     the centripetal bound (the planner bounds a whole plan with the sharpest curvature its preview holds, so the car
     must be at the curve's speed when the curve comes within ``curvature_distance`` or ``curvature_time`` at that
     speed, not only when it reaches the curve: otherwise the bound is violated from the plan's first node and the
-    call is infeasible)."""
+    call is infeasible), having first driven one ``period`` [s] at ``v_des`` (the next decision comes a policy
+    period later: at 1 Hz that is 10 m at 10 m/s)."""
     speed = v_des
     for distance, kappa in frame.curves_ahead(s, s + preview.speed_distance):
         if kappa > 0.0:
             v_curve = math.sqrt(preview.lateral_acceleration / kappa)
-            slowing = max(distance - max(preview.curvature_distance, preview.curvature_time * v_curve), 0.0)
+            slowing = max(distance - max(preview.curvature_distance, preview.curvature_time * v_curve)
+                          - v_des * period, 0.0)
             speed = min(speed, math.sqrt(v_curve * v_curve + 2.0 * preview.deceleration * slowing))
     return speed
 
@@ -133,7 +135,8 @@ def _read(env: Any, task: Any, preview: RoadPreview) -> tuple[Scene, Motion, Roa
             neighbours.append(
                 Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width, yaw=m.heading, accel=accel)
             )
-        v_des = curve_speed(frame, me.x, float(task.v_des), preview)
+        period = 1.0 / float(sim.config.get("policy_frequency", math.inf))
+        v_des = curve_speed(frame, me.x, float(task.v_des), preview, period)
         scene = Scene(ego=ego, road=road, neighbours=tuple(neighbours), v_des=v_des, name=task.name)
     except ProblemError as exc:
         raise ObservationError(f"simulator state at t = {sim.steps / sim.config['simulation_frequency']:.2f} s: {exc}") from None
