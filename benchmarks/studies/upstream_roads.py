@@ -18,7 +18,7 @@ the task's, e.g. roundabout-v0's and exit-v0's exit, u-turn-v0's road back), whe
 road (exit-v0: on the exit road; upstream's own success also counts the exit lane before it); null without a
 destination (highway-v0, the racetracks, lane-keeping-v0 ...). :data:`ENVS` holds every env of highway-env 1.12.1
 but its variants of the same roads (``-v1``: connected-lane neighbours; highway-fast, the multi-agent intersection,
-the parking variants) and its configurable ``merge-generic-v0`` and ``roundabout-generic-v0``.
+the parking variants); ``merge-generic-v0`` and ``roundabout-generic-v0`` at their default settings.
 """
 
 from __future__ import annotations
@@ -44,6 +44,8 @@ ENVS = {  # env id -> (gymnasium.make config besides ContinuousAction, make kwar
     "u-turn-v0": ({"observation": {"type": "Kinematics"}, "duration": 20}, {}),  # upstream's TTC grid reads MDPVehicle
     "racetrack-large-v0": ({}, {}),
     "lane-keeping-v0": ({"observation": {"type": "Kinematics"}}, {}),  # upstream's observation reads BicycleVehicle
+    "merge-generic-v0": ({}, {}),  # ends past its merge, as merge-v0
+    "roundabout-generic-v0": ({}, {}),  # upstream routes its ego to the exit "nxs", as roundabout-v0's
     "parking-v0": ({}, {}),  # refused at reset: a goal pose, no lane to follow
 }
 SETUP = {"exit-v0": "route to the exit"}
