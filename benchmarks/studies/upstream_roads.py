@@ -4,15 +4,21 @@
         [--envs highway-v0 racetrack-v0 ...] [--planners bilevel idm] [--seed 0] [--duration 20]
 
 Each episode makes the env with ``driveopt.gym_make`` (``gymnasium.make`` with rewards for array actions) and
-``ContinuousAction`` (default traffic; the settings of :data:`ENVS` make every env last the duration), resets it
-with seed ``seed + episode`` and drives it through :class:`driveopt.Controller` (``idm``: highway-env's IDM/MOBIL
-vehicle takes the ego's place) at the ego lane's speed limit as desired speed, for ``--duration`` seconds or until the
-env ends the episode. An env whose road the controller refuses (``RoadFrameError`` at reset) is recorded as refused
-with the message. Every episode is one line of ``OUT/episodes.jsonl`` (a rerun skips those done: resumable);
-``OUT/summary.json`` gives, per env and planner (every one recorded with these settings, not only this run's), the
-episodes, collisions, off-road episodes, refusals, arrivals and the mean speed over the episodes without collision.
+``ContinuousAction`` (default traffic; the settings of :data:`ENVS` make every env last the duration: an env config's
+``duration`` is ``--duration``; lane-keeping-v0 stops at gymnasium's 200 steps, 20 s), resets it with seed
+``seed + episode`` and drives it through :class:`driveopt.Controller` (``idm``: highway-env's IDM/MOBIL vehicle takes
+the ego's place) at the ego lane's speed limit as desired speed, for ``--duration`` seconds or until the env ends the
+episode. An env the controller refuses at reset (``RoadFrameError``: a road it cannot represent; ``ControllerError``:
+parking-v0's goal pose) is recorded as refused with the message. Every episode is one line of
+``OUT/episodes.jsonl`` (a rerun skips those done: resumable); ``OUT/summary.json`` gives, per env and planner (every
+one recorded with these settings, not only this run's), the episodes, collisions, off-road episodes, refusals,
+arrivals and the mean speed over the episodes without collision.
 An episode *arrived* when the env says so (intersection-v0's ``has_arrived``) or, on a route (the controller's:
-the task's, e.g. roundabout-v0's exit), when the ego ends on the route's last road; null without a destination.
+the task's, e.g. roundabout-v0's and exit-v0's exit, u-turn-v0's road back), when the ego ends on the route's last
+road (exit-v0: on the exit road; upstream's own success also counts the exit lane before it); null without a
+destination (highway-v0, the racetracks, lane-keeping-v0 ...). :data:`ENVS` holds every env of highway-env 1.12.1
+but its variants of the same roads (``-v1``: connected-lane neighbours; highway-fast, the multi-agent intersection,
+the parking variants); ``merge-generic-v0`` and ``roundabout-generic-v0`` at their default settings.
 """
 
 from __future__ import annotations
@@ -35,23 +41,34 @@ ENVS = {  # env id -> (gymnasium.make config besides ContinuousAction, make kwar
     "two-way-v0": ({"observation": {"type": "Kinematics"}}, {"max_episode_steps": 20}),
     "roundabout-v0": ({}, {}),
     "intersection-v0": ({}, {}),
+    "u-turn-v0": ({"observation": {"type": "Kinematics"}, "duration": 20}, {}),  # upstream's TTC grid reads MDPVehicle
+    "racetrack-large-v0": ({}, {}),
+    "lane-keeping-v0": ({"observation": {"type": "Kinematics"}}, {}),  # upstream's observation reads BicycleVehicle
+    "merge-generic-v0": ({}, {}),  # ends past its merge, as merge-v0
+    "roundabout-generic-v0": ({}, {}),  # upstream routes its ego to the exit "nxs", as roundabout-v0's
+    "parking-v0": ({}, {}),  # refused at reset: a goal pose, no lane to follow
 }
+SETUP = {"exit-v0": "route to the exit"}
+"""Envs whose episodes changed since the records began (exit-v0 drove straight on before): a record counts only with
+its env's setup, older ones are driven again."""
 
 
 def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: float) -> dict:
     """One episode's record."""
     import driveopt
+    from driveopt.controller import ControllerError
     from driveopt.sim.road_frame import RoadFrameError
 
     config, kwargs = ENVS[env_id]
+    config = {**config, "duration": duration} if "duration" in config else config
     env = driveopt.gym_make(env_id, config={"action": {"type": "ContinuousAction"}, **config}, **kwargs)
-    record = {"env": env_id, "planner": planner, "seed": seed}
+    record = {"env": env_id, "planner": planner, "seed": seed, **({"setup": SETUP[env_id]} if env_id in SETUP else {})}
     try:
         env.reset(seed=seed)
         controller = driveopt.Controller(planner, samples=samples if planner != "idm" else None)
         try:
             controller.reset(env, seed=seed)
-        except RoadFrameError as exc:
+        except (RoadFrameError, ControllerError) as exc:
             return {**record, "refused": str(exc)}
         sim = env.unwrapped
         steps = round(duration * sim.config["policy_frequency"])
@@ -62,23 +79,28 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
             try:
                 action = controller.act(env)
             except RoadFrameError as exc:
-                return {**record, "refused": str(exc), "time": float(sim.time)}
+                return {**record, "refused": str(exc), "time": clock(sim)}
             if controller.status is not None:
                 statuses[controller.status.name] += 1
                 plan_ms.append(1e3 * controller.last.plan_seconds)
-            _, _, terminated, truncated, info = env.step(action)
+            _, _, terminated, truncated, _ = env.step(action)
             speeds.append(float(sim.vehicle.speed))
-            collided |= bool(info["crashed"])
+            collided |= bool(sim.vehicle.crashed)  # lane-keeping-v0 gives no info
             off_road |= not sim.vehicle.on_road
             if terminated or truncated or collided:
                 break
         return {**record, "collided": collided, "off_road": off_road, "arrived": arrived(sim, controller.task.route),
                 "mean_speed": float(np.mean(speeds)),
-                "time": float(sim.time), "steps": len(speeds), "statuses": dict(statuses),
+                "time": clock(sim), "steps": len(speeds), "statuses": dict(statuses),
                 "plan_ms_median": float(np.median(plan_ms)) if plan_ms else None,
                 "compile_seconds": controller.compile_seconds, "wall_seconds": time.perf_counter() - start}
     finally:
         env.close()
+
+
+def clock(sim) -> float:
+    """[s] simulated time of the episode (lane-keeping-v0's ``step`` leaves upstream's ``time`` at 0)."""
+    return sim.steps / sim.config["simulation_frequency"]
 
 
 def arrived(sim, route) -> bool | None:
@@ -135,6 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     path = args.out / "episodes.jsonl"
     settings = {"samples": args.samples, "duration": args.duration}
     records = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+    records = [r for r in records if r.get("setup") == SETUP.get(r["env"])]  # this setup's (the file keeps all)
     done = {(r["env"], r["planner"], r["seed"]) for r in records if r.get("settings") == settings}
     with path.open("a") as out:
         for env_id in args.envs:

@@ -21,7 +21,8 @@ lanes that are not parallel) raises :class:`~driveopt.sim.road_frame.RoadFrameEr
 where the route reaches it. ``render(env)`` draws the latest plan in world coordinates (any road) and a heads-up
 display on the env's frame (:mod:`driveopt.viz.overlay`); :class:`RenderPlans` wraps an env so that its own
 ``render()`` does (gymnasium's ``RecordVideo`` records that). Upstream merge-v0, roundabout-v0 and two-way-v0 raise on array actions in their
-rewards, already in ``gymnasium.make``: make them with :func:`driveopt.gym_make` (:mod:`driveopt.sim.rewards`).
+rewards, already in ``gymnasium.make``, and lane-keeping-v0 in its ``step``: make them with :func:`driveopt.gym_make`
+(:mod:`driveopt.sim.rewards`).
 """
 
 from __future__ import annotations
@@ -108,10 +109,11 @@ class Controller:
     ``planner``: a registered name or a :class:`~driveopt.drivers.base.DriverSpec`; ``samples``: samples per sampler
     iteration (default: the planner's own; ``bilevel``: 150, real time on two CPU cores); ``config``: a
     :class:`~driveopt.config.PlannerConfig`, or overrides as nested sections (``{"cost": {"consistency": 1.0}}``);
-    ``v_des`` [m/s]: desired speed (default: the speed limit of the ego's lane at ``reset``); ``route``: node names of the env's lane graph to follow (e.g. ``["0", "1", "2", "exit"]`` takes
-    exit-v0's exit; default: the ego's own route, else the destination the env routes its ego to
-    (intersection-v0's ``destination``, roundabout-v0's exit), else straight on); ``weights``: a learned prior's checkpoint (a
-    path that is not a file, or weights for a planner without a learned prior, is a WeightsError here);
+    ``v_des`` [m/s]: desired speed (default: the speed limit of the ego's lane at ``reset``); ``route``: node names of
+    the env's lane graph to follow (e.g. ``["0", "1", "2", "3"]`` drives exit-v0 straight on; default: the ego's own
+    route, else the destination the env routes its ego to (intersection-v0's ``destination``, roundabout-v0's and
+    exit-v0's exit, u-turn-v0's road back), else straight on); ``weights``: a learned prior's checkpoint (a path that
+    is not a file, or weights for a planner without a learned prior, is a WeightsError here);
     ``latency``: ``"sync"`` (default: each ``act`` returns the command of the plan it just made), ``"measured"`` or a
     compute time [ms]: each plan takes effect that many policy periods (rounded up, at least one) after the ``act``
     that started it, and the car keeps tracking the previous plan meanwhile (:mod:`driveopt.drivers.latency`);

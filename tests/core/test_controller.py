@@ -163,13 +163,13 @@ def drive(env_id: str, seconds: float, seed: int = 0, make_config: dict | None =
         action = ctrl.act(env)
         statuses.append(ctrl.status)
         curvatures.append(abs(ctrl.last.scene.road.curvature))
-        _, _, terminated, truncated, info = env.step(action)
+        _, _, terminated, truncated, _ = env.step(action)
         off_road += not sim.vehicle.on_road
-        crashed |= bool(info["crashed"])
+        crashed |= bool(sim.vehicle.crashed)  # lane-keeping-v0 gives no info
         speeds.append(float(sim.vehicle.speed))
         if terminated or truncated:
             break
-    return {"time": float(sim.time), "off_road": off_road, "crashed": crashed, "statuses": statuses,
+    return {"time": sim.steps / sim.config["simulation_frequency"], "off_road": off_road, "crashed": crashed, "statuses": statuses,
             "mean_speed": float(np.mean(speeds)), "curvatures": curvatures, "env": env, "controller": ctrl}
 
 
@@ -188,6 +188,9 @@ UPSTREAM_ROADS = {  # env id -> (gymnasium.make config, make kwargs, controller 
     "exit-v0": ({"duration": 20}, {}, {}),
     "merge-v0": ({}, {}, {"v_des": 15.0}),  # upstream ends the episode past x = 370 m: 20 s at 15 m/s
     "two-way-v0": ({"observation": {"type": "Kinematics"}}, {"max_episode_steps": 20}, {}),
+    "u-turn-v0": ({"observation": {"type": "Kinematics"}, "duration": 20}, {}, {}),
+    "racetrack-large-v0": ({}, {}, {}),
+    "lane-keeping-v0": ({"observation": {"type": "Kinematics"}}, {}, {}),
 }
 
 

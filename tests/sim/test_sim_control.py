@@ -167,6 +167,19 @@ def test_steady_turn_converges_to_the_continuous_inverse():
     assert np.hypot(position[0] - planned.x, position[1] - planned.y) < 0.02
 
 
+def test_one_step_per_action_hands_the_next_plan_the_planned_course():
+    """One simulation step per action (lane-keeping-v0's 10 Hz simulation and policy): the course after the step (the
+    heading turned, the slip held), which the next plan starts from, is the planned course at the period's end."""
+    model = BicycleModel(simulation_dt=0.1, steps_per_action=1)
+    trajectory = _arc(12.0, 0.02)
+    state = EgoKinematics(12.0, 0.0)
+    for k in range(30):
+        command = track(trajectory, 0.1 * k, state, model)
+        _, state = predict(state, command.acceleration, command.steering, model)
+        planned = sample_trajectory(trajectory, 0.1 * (k + 1))
+        assert state.heading + slip_angle(command.steering) == pytest.approx(math.atan2(planned.vy, planned.vx), abs=1e-9)
+
+
 def test_infeasible_braking_is_clipped_and_flagged():
     model = BicycleModel()
     command = track(_arc(5.0, 0.0), 0.0, EgoKinematics(15.0, 0.0), model)  # 15 -> 5 m/s within 0.1 s

@@ -17,7 +17,14 @@ and ``ContinuousAction`` maps ``action`` in [-1, 1]^2 linearly onto ``accelerati
   ``a = (v_plan(t + n h) - v) / (n h)``;
 - ``beta`` makes the speed-weighted mean course over the period's steps equal the planned
   course ``atan2(vy, vx)`` at each step's midpoint, with the body heading advancing as upstream
-  integrates it (one monotone scalar equation, solved by bisection); ``delta = arctan(2 tan(beta))``.
+  integrates it (one monotone scalar equation, solved by bisection); ``delta = arctan(2 tan(beta))``;
+- with one simulation step per action (lane-keeping-v0: 10 Hz simulation and policy), ``beta`` makes
+  the course after the step, ``psi + v sin(beta) / (L/2) h + beta`` (the heading turned, ``beta``
+  held), equal the planned course at the period's end: the next plan starts from that course
+  (:mod:`driveopt.sim.perception` reads the course of the steering applied), and matching the step's
+  own course instead hands every replan the step's turn of the heading on top, a course error that
+  grows from plan to plan (the car weaves across its lane). The step's own course lags the plan
+  by that turn.
 
 This is the exact discrete inverse, not a feedback law: it uses the current speed and body
 heading but never the position error. Commands beyond the action ranges are clipped and
@@ -84,6 +91,9 @@ class BicycleModel:
         if type(action_type).__name__ != "ContinuousAction" or not (action_type.longitudinal and action_type.lateral):
             raise ControlError(
                 f"the env must use ContinuousAction with longitudinal and lateral control, got {type(action_type).__name__}"
+                + (" with steering only (lane-keeping-v0's and the racetracks' own action): make the env with "
+                   "config={'action': {'type': 'ContinuousAction'}}"
+                   if type(action_type).__name__ == "ContinuousAction" else "")
             )
         if getattr(action_type, "dynamical", False):
             raise ControlError("ContinuousAction(dynamical=True) uses BicycleVehicle, not the kinematic model inverted here")
@@ -218,7 +228,7 @@ def track(trajectory: Trajectory, elapsed: float, state: EgoKinematics, model: B
     a_lo, a_hi = model.acceleration_range
     acceleration = min(max(a_exact, a_lo), a_hi)
 
-    course = np.arctan2(plan.vy[:-1], plan.vx[:-1])  # planned course over each step [rad]
+    course = np.arctan2(plan.vy, plan.vx)  # planned course over each step and at the period's end [rad]
     course = state.heading + (course - state.heading + math.pi) % (2.0 * math.pi) - math.pi  # no wrap-around jumps
     v = state.speed + acceleration * h * np.arange(n)  # speed at the start of each step [m/s]
     travelled = np.concatenate([[0.0], np.cumsum(v)[:-1]]) * h  # [m] path length before each step
@@ -226,9 +236,12 @@ def track(trajectory: Trajectory, elapsed: float, state: EgoKinematics, model: B
     gain = 1.0 / (0.5 * model.length)
 
     def mismatch(beta: float) -> float:
-        """Speed-weighted mean (model course - planned course); increasing in beta for v >= 0."""
+        """Speed-weighted mean (model course - planned course) over the steps, or with one step (model course after
+        it - planned course at its end); increasing in beta for v >= 0."""
+        if n == 1:
+            return float(state.heading + gain * math.sin(beta) * state.speed * h + beta - course[-1])
         psi = state.heading + gain * math.sin(beta) * travelled
-        return float(np.sum(weights * (psi + beta - course)))
+        return float(np.sum(weights * (psi + beta - course[:-1])))
 
     lo, hi = model.slip_range
     steer_saturated = mismatch(lo) > 0.0 or mismatch(hi) < 0.0

@@ -7,7 +7,8 @@ follows one chain of roads:
 - the roads of an explicit route (a list of node names, e.g. ``["0", "1", "2", "exit"]`` to take
   exit-v0's exit), or of the ego's own ``route`` (highway-env's ``ControlledVehicle``) when it has one;
 - otherwise, at each node, the road that continues the current one (a lane of it starts where a lane
-  of the current road ends, at most :data:`MAX_TURN` away from its heading), non-forbidden roads first,
+  of the current road ends, or passes through that end: a road joined part-way along, as lane-keeping-v0's;
+  at most :data:`MAX_TURN` away from its heading), non-forbidden roads first,
   then the smallest change of heading (keeping straight on at a fork).
 
 A road's driving lanes are its non-forbidden lanes (all its lanes when every one is forbidden, as on an
@@ -56,17 +57,30 @@ def driving_lanes(network: Any, road: Road) -> list[tuple[int, Any]]:
     return sorted(allowed, key=lambda item: first.local_coordinates(lane_start(item[1]))[1])
 
 
+def road_joins(network: Any, current: Road, following: Road) -> list[tuple[Any, Any, float]]:
+    """[(lane of ``current``, lane of ``following`` that continues it, where along that lane [m])]: the lanes of
+    ``following`` that start within :data:`JOIN_DISTANCE` of where a lane of ``current`` ends (at 0.0); only when none
+    does, the lanes that such an end lies on part-way along, within :data:`JOIN_DISTANCE` of their centre line (a road
+    joined part-way along, as lane-keeping-v0's approach road joins its sine road 135 m along it)."""
+    pairs = [(lane, nxt) for lane in network.graph[current[0]][current[1]]
+             for nxt in network.graph[following[0]][following[1]]]
+    starts = [(lane, nxt, 0.0) for lane, nxt in pairs if np.linalg.norm(lane_start(nxt) - lane_end(lane)) <= JOIN_DISTANCE]
+    if starts:
+        return starts
+    part_way = []
+    for lane, nxt in pairs:
+        longitudinal, lateral = nxt.local_coordinates(lane_end(lane))
+        if 0.0 < longitudinal < float(nxt.length) and abs(lateral) <= JOIN_DISTANCE:
+            part_way.append((lane, nxt, float(longitudinal)))
+    return part_way
+
+
 def _turn(network: Any, current: Road, following: Road) -> float | None:
-    """[rad] smallest |change of heading| from a lane of ``current`` into a lane of ``following`` that starts where it
-    ends; None when no lane of ``following`` starts at the end of one of ``current``."""
-    best = None
-    for lane in network.graph[current[0]][current[1]]:
-        end, heading = lane_end(lane), lane.heading_at(lane.length)
-        for nxt in network.graph[following[0]][following[1]]:
-            if np.linalg.norm(lane_start(nxt) - end) <= JOIN_DISTANCE:
-                turn = abs(wrap_angle(nxt.heading_at(0.0) - heading))
-                best = turn if best is None else min(best, turn)
-    return best
+    """[rad] smallest |change of heading| from a lane of ``current`` into a lane of ``following`` that continues it
+    (:func:`road_joins`); None when no lane of ``following`` continues one of ``current``."""
+    turns = [abs(wrap_angle(nxt.heading_at(at) - lane.heading_at(lane.length)))
+             for lane, nxt, at in road_joins(network, current, following)]
+    return min(turns) if turns else None
 
 
 def junctions(network: Any, road: Road) -> list[tuple[Road, float | None]]:
@@ -141,9 +155,10 @@ def route_roads(route: Sequence[Any] | None) -> tuple[Road, ...]:
 
 
 # Where upstream envs send an ego that has no route of its own: with ContinuousAction the ego is a plain Vehicle,
-# whose missing ``plan_route_to`` the envs skip. intersection-v0 names the destination in its config; roundabout-v0
-# only in its code (the ego is routed to node "nxs", the ring's northern exit).
-_CODED_DESTINATIONS = {"RoundaboutEnv": "nxs"}
+# whose missing ``plan_route_to`` the envs skip. intersection-v0 names the destination in its config; the others
+# only in their code: roundabout-v0 routes the ego to node "nxs" (the ring's northern exit), u-turn-v0 to "d" (the
+# road back after the U-turn), and exit-v0 counts success on its exit (node "exit").
+_CODED_DESTINATIONS = {"RoundaboutEnv": "nxs", "UTurnEnv": "d", "ExitEnv": "exit"}
 
 
 def env_destination_route(sim: Any) -> tuple[str, ...] | None:
@@ -153,7 +168,8 @@ def env_destination_route(sim: Any) -> tuple[str, ...] | None:
     ego = sim.vehicle
     if getattr(ego, "route", None):
         return None
-    destination = (getattr(sim, "config", None) or {}).get("destination") or _CODED_DESTINATIONS.get(type(sim).__name__)
+    coded = next((_CODED_DESTINATIONS[c.__name__] for c in type(sim).__mro__ if c.__name__ in _CODED_DESTINATIONS), None)
+    destination = (getattr(sim, "config", None) or {}).get("destination") or coded
     if destination is None:
         return None
     start, end = ego.lane_index[:2]

@@ -5,11 +5,15 @@ Some of highway-env's rewards read state that only its discrete meta-actions cre
 
 - merge-v0 and roundabout-v0 test ``action in [0, 2]`` (a lane-change action), which raises for an array;
 - two-way-v0 reads ``vehicle.speed_index`` and ``vehicle.target_lane_index``, which only upstream's
-  ``MDPVehicle`` has.
+  ``MDPVehicle`` has;
+- lane-keeping-v0's ``step`` records the ego's dynamical state (``BicycleVehicle.state``, for its interval
+  plots), which the kinematic ``Vehicle`` of ``ContinuousAction`` without ``dynamical`` does not have (nor does its
+  observation's ``state``: make it with ``"observation": {"type": "Kinematics"}``).
 
 :func:`gym_make` is ``gymnasium.make`` for such an env id with the env class replaced by a subclass whose reward
 terms read the continuous car (no lane-change action, the speed reward from the speed, the lane reward from the
-lane the car is on); upstream's classes are untouched, and every other env id is made as it is::
+lane the car is on; lane-keeping-v0 records no dynamical state for a kinematic car); upstream's classes are
+untouched, and every other env id is made as it is::
 
     env = driveopt.gym_make("merge-v0", config={"action": {"type": "ContinuousAction"}})
 """
@@ -23,6 +27,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from highway_env import utils
+from highway_env.envs.lane_keeping_env import LaneKeepingEnv
 from highway_env.envs.merge_env import MergeEnv
 from highway_env.envs.roundabout_env import RoundaboutEnv
 from highway_env.envs.two_way_env import TwoWayEnv
@@ -48,16 +53,27 @@ class ArrayActionRewards:
         return super()._rewards(None if isinstance(action, np.ndarray) else action)  # type: ignore[misc]
 
 
-AFFECTED = (MergeEnv, RoundaboutEnv, TwoWayEnv)
-"""Upstream env classes whose rewards raise on array actions."""
+class KinematicEgoRecord:
+    """Mixin over upstream's LaneKeepingEnv (first in the bases): its ``step`` records the ego's state only for a
+    dynamical ego (``BicycleVehicle``), the one with a state to record."""
+
+    def store_data(self) -> None:
+        if hasattr(self.vehicle, "state"):  # type: ignore[attr-defined]
+            super().store_data()  # type: ignore[misc]
+
+
+AFFECTED = (MergeEnv, RoundaboutEnv, TwoWayEnv, LaneKeepingEnv)
+"""Upstream env classes whose rewards (lane-keeping-v0: whose ``step``) raise on array actions of a kinematic car."""
 
 
 @lru_cache(maxsize=None)
 def with_array_action_rewards(cls: type) -> type:
-    """``cls`` itself, or for a subclass of :data:`AFFECTED` a subclass of it with :class:`ArrayActionRewards`."""
-    if not issubclass(cls, AFFECTED) or issubclass(cls, ArrayActionRewards):
+    """``cls`` itself, or for a subclass of :data:`AFFECTED` a subclass of it with :class:`ArrayActionRewards` (with
+    :class:`KinematicEgoRecord` for lane-keeping-v0)."""
+    if not issubclass(cls, AFFECTED) or issubclass(cls, (ArrayActionRewards, KinematicEgoRecord)):
         return cls
-    return type(cls.__name__, (ArrayActionRewards, cls), {"__module__": __name__})
+    mixin = KinematicEgoRecord if issubclass(cls, LaneKeepingEnv) else ArrayActionRewards
+    return type(cls.__name__, (mixin, cls), {"__module__": __name__})
 
 
 def gym_make(env_id: str, **kwargs: Any) -> gym.Env:

@@ -53,6 +53,7 @@ from driveopt.sim.lane_graph import (
     lane_start,
     next_road,
     previous_road,
+    road_joins,
     route_roads,
     wrap_angle,
 )
@@ -158,9 +159,12 @@ class Piece:
     bands: list[Band]
     open_lo: bool = False  # a straight first piece extends backwards without end
     open_hi: bool = False  # a straight last piece extends forwards without end
+    lo_margin: float = 0.0  # [m] it also covers this far before lo: the outside of the corner where the route enters
+    # its road part-way along (lane-keeping-v0's sine road), which the piece before does not reach
 
     def covers(self, longitudinal: float, margin: float = 0.0) -> bool:
-        return ((self.open_lo or longitudinal >= self.lo - margin) and (self.open_hi or longitudinal <= self.hi + margin))
+        return ((self.open_lo or longitudinal >= self.lo - margin - self.lo_margin)
+                and (self.open_hi or longitudinal <= self.hi + margin))
 
     @property
     def straight(self) -> bool:
@@ -212,8 +216,9 @@ class RoadFrame:
     def locate(self, position: np.ndarray, near_s: float | None = None) -> tuple[float, float, Piece, float, float] | None:
         """(s, d, piece, longitudinal, lateral) of a world position [m], or None where the frame does not reach it.
 
-        Among the pieces whose range holds it, the one it is laterally nearest to the lanes of (ties, as on a loop
-        that the frame passes twice: the one nearest ``near_s``)."""
+        Among the pieces whose range holds it, the one it is laterally nearest to the lanes of (ties: one whose range
+        holds it without its ``lo_margin`` first, then, as on a loop that the frame passes twice, the one nearest
+        ``near_s``)."""
         position = np.asarray(position, dtype=float)
         best, best_key = None, None
         for piece in self.pieces:
@@ -224,7 +229,8 @@ class RoadFrame:
             outside = max(min(b.low for b in piece.bands) - d, d - max(b.high for b in piece.bands), 0.0)
             if outside > LATERAL_REACH:
                 continue
-            key = (round(outside, 6), abs(s - near_s) if near_s is not None else 0.0)
+            corner = not piece.open_lo and longitudinal < piece.lo - 0.5  # only in a part-way join's lo_margin
+            key = (round(outside, 6), corner, abs(s - near_s) if near_s is not None else 0.0)
             if best_key is None or key < best_key:
                 best, best_key = (s, d, piece, float(longitudinal), float(lateral)), key
         return best
@@ -328,6 +334,20 @@ def _origin(lane: Any) -> tuple[float, float]:
     return float(start[0] * c + start[1] * s), float(-start[0] * s + start[1] * c)
 
 
+def _entry(network: Any, road: tuple[str, str], ref: Any, following: tuple[str, str], nxt: Any) -> float:
+    """[m] along ``following``'s reference lane ``nxt`` where the route from ``road`` (reference lane ``ref``) joins it:
+    0.0 where it starts there, more on a road joined part-way along (:func:`~driveopt.sim.lane_graph.road_joins`)."""
+    return next((at for lane, joined, at in road_joins(network, road, following) if lane is ref and joined is nxt), 0.0)
+
+
+def _corner(before: Any, after: Any, entry: float, band: Band) -> float:
+    """[m] how far before ``entry`` [m] a piece along lane ``after`` reaches to cover the outside of the corner where
+    lane ``before`` ends on it part-way along: the road's width and :data:`MAX_EGO_OFFSET` beside it, times the tangent
+    of the change of heading there."""
+    turn = abs(wrap_angle(after.heading_at(entry) - before.heading_at(before.length)))
+    return (band.num_lanes * band.lane_width + MAX_EGO_OFFSET) * math.tan(turn)
+
+
 def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | None = None, *,
                 ahead: float = AHEAD, behind: float = BEHIND, ego_longitudinal: float = 0.0) -> RoadFrame:
     """The frame along the route through ``ego_road`` (see the module docstring); ``ego_longitudinal`` [m]: the ego's
@@ -339,8 +359,8 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
     first.bands.append(_bands_of(network, first, ego_road, s0, s0 + float(ref.length)))
     pieces, roads = [first], [ego_road]
 
-    # Forwards.
-    road, left = ego_road, ahead - (float(ref.length) - ego_longitudinal)
+    # Forwards. A road the route enters part-way along (lane-keeping-v0's sine road) starts on the frame there.
+    road, road_ref, left = ego_road, ref, ahead - (float(ref.length) - ego_longitudinal)
     for _ in range(_MAX_PIECES):
         following = next_road(network, road, planned)
         last = pieces[-1]
@@ -359,15 +379,16 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
         if left <= 0.0:
             break
         nxt, _, _ = _road_lanes(network, following)
-        joint = lane_start(nxt)
-        if _collinear(last, nxt, joint):
+        entry = _entry(network, road, road_ref, following, nxt)  # [m] along nxt where the route joins it
+        joint = np.asarray(nxt.position(entry, 0.0), dtype=float)
+        if not entry and _collinear(last, nxt, joint):
             s_from = last.s_start + last.hi
             last.hi += float(nxt.length)
             last.bands.append(_bands_of(network, last, following, s_from, last.s_start + last.hi))
         else:
             longitudinal, lateral = last.lane.local_coordinates(joint)
             length = float(nxt.length)
-            offset = float(longitudinal) - last.hi > JOIN_DISTANCE  # the road starts past this one's end, beside it
+            offset = not entry and float(longitudinal) - last.hi > JOIN_DISTANCE  # it starts past this end, beside it
             if offset and continues_past_end(network, road):  # a ring's exit: the ring's lanes reach its start
                 last.hi = float(longitudinal)
                 last.bands[-1] = last.bands[-1]._replace(s_to=last.s_start + last.hi)
@@ -377,17 +398,19 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
                 piece = Piece(nxt, last.s_start + last.hi - float(back), last.d_shift - float(across), float(back),
                               length, [])
             else:
-                piece = Piece(nxt, last.s_start + last.hi, last.d_shift + float(lateral), 0.0, length, [])
+                piece = Piece(nxt, last.s_start + last.hi - entry, last.d_shift + float(lateral), entry, length, [])
             piece.bands.append(_bands_of(network, piece, following, piece.s_start + piece.lo, piece.s_start + piece.hi))
+            if entry:
+                piece.lo_margin = _corner(road_ref, nxt, entry, piece.bands[0])
             pieces.append(piece)
-        left -= float(nxt.length)
-        road = following
+        left -= float(nxt.length) - entry
+        road, road_ref = following, nxt
         roads.append(road)
     else:
         pieces[-1].open_hi = pieces[-1].straight
 
     # Backwards.
-    road, left = ego_road, behind - ego_longitudinal
+    road, road_ref, left = ego_road, ref, behind - ego_longitudinal
     for _ in range(_MAX_PIECES):
         preceding = previous_road(network, road, planned)
         head = pieces[0]
@@ -398,7 +421,12 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
             break
         prev, _, _ = _road_lanes(network, preceding)
         joint = lane_end(prev)
-        if _collinear(head, prev, joint):
+        entry = _entry(network, preceding, prev, road, road_ref)
+        if entry:  # the route enters ``road`` part-way along: the frame starts on it there
+            head.lo = float(head.lane.local_coordinates(joint)[0])
+            head.bands[0] = head.bands[0]._replace(s_from=head.s_start + head.lo)
+            head.lo_margin = _corner(prev, road_ref, entry, head.bands[0])
+        if not entry and _collinear(head, prev, joint):
             s_to = head.s_start + head.lo
             head.lo -= float(prev.length)
             head.bands.insert(0, _bands_of(network, head, preceding, head.s_start + head.lo, s_to))
@@ -419,7 +447,7 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
             piece.bands.append(_bands_of(network, piece, preceding, piece.s_start, piece.s_start + piece.hi))
             pieces.insert(0, piece)
         left -= float(prev.length)
-        road = preceding
+        road, road_ref = preceding, prev
         roads.insert(0, road)
     else:
         pieces[0].open_lo = pieces[0].straight
