@@ -34,12 +34,14 @@ def _drive(env_id: str, steps: int, config: dict) -> tuple[driveopt.Controller, 
     return ctrl, crashed, float(np.mean(speeds))
 
 
+@pytest.mark.slow  # compiles the planner for another road: about 25 s on two busy cores
 def test_u_turn_is_driven_along_the_route_back_that_upstream_plans_for_its_ego():
     ctrl, crashed, _ = _drive("u-turn-v0", 4, KINEMATICS)  # 1 Hz: 4 s along the straight towards the U-turn
     assert ctrl.task.route == ("a", "b", "c", "d") and not crashed
     assert {("b", "c"), ("c", "d")} <= set(ctrl.last.frame.roads), "the frame follows the half circle and the road back"
 
 
+@pytest.mark.slow  # compiles the planner for another road: about 25 s on two busy cores
 def test_racetrack_large_is_driven():
     ctrl, crashed, _ = _drive("racetrack-large-v0", 10, {})  # 5 Hz: 2 s
     assert not crashed and ctrl.task.route is None
