@@ -12,7 +12,8 @@ episode. An env the controller refuses at reset (``RoadFrameError``: a road it c
 parking-v0's goal pose) is recorded as refused with the message. Every episode is one line of
 ``OUT/episodes.jsonl`` (a rerun skips those done: resumable); ``OUT/summary.json`` gives, per env and planner (every
 one recorded with these settings, not only this run's), the episodes, collisions, off-road episodes, refusals,
-arrivals and the mean speed over the episodes without collision.
+arrivals, the mean speed over the episodes without collision and the median over episodes of each episode's median
+planning time (wall clock of the machine the episodes ran on: see its load).
 An episode *arrived* when the env says so (intersection-v0's ``has_arrived``) or, on a route (the controller's:
 the task's, e.g. roundabout-v0's and exit-v0's exit, u-turn-v0's road back), when the ego ends on the route's last
 road (exit-v0: on the exit road; upstream's own success also counts the exit lane before it); null without a
@@ -116,7 +117,8 @@ def summarise(records: list[dict]) -> dict:
     summary: dict = {}
     for r in records:
         row = summary.setdefault(r["env"], {}).setdefault(r["planner"], {
-            "episodes": 0, "collisions": 0, "off_road_episodes": 0, "refused": 0, "arrived": None, "speeds": []})
+            "episodes": 0, "collisions": 0, "off_road_episodes": 0, "refused": 0, "arrived": None, "speeds": [],
+            "plan_ms": []})
         row["episodes"] += 1
         if "refused" in r:
             row["refused"] += 1
@@ -128,10 +130,13 @@ def summarise(records: list[dict]) -> dict:
             row["arrived"] = (row["arrived"] or 0) + bool(r["arrived"])
         if not r["collided"]:
             row["speeds"].append(r["mean_speed"])
+        if r.get("plan_ms_median") is not None:
+            row["plan_ms"].append(r["plan_ms_median"])
     for rows in summary.values():
         for row in rows.values():
-            speeds = row.pop("speeds")
+            speeds, plan_ms = row.pop("speeds"), row.pop("plan_ms")
             row["mean_speed"] = float(np.mean(speeds)) if speeds else None
+            row["plan_ms_median"] = float(np.median(plan_ms)) if plan_ms else None
     return summary
 
 
