@@ -1,13 +1,15 @@
 """The projection's velocity and acceleration rows at the nodes (the default) against at the Bernstein control points
-(``projection.derivative_bounds = "control_points"``, ``projection.derivative_pieces`` each of ``--pieces``):
-constraint residuals, the bounds between the nodes, time per call, and whether the planner picks the same behaviour.
+(``projection.derivative_bounds = "control_points"``, ``projection.derivative_pieces`` each of ``--pieces``), and
+every obstacle's rows against the nearest ``--nearest`` ones' (``projection.nearest_obstacles``; with ``--combine``
+also both at once): constraint residuals, the bounds between the nodes, time per call, and whether the planner picks
+the same behaviour.
 
-    python benchmarks/perf/derivative_bounds.py --json out/derivative-bounds.json [--pieces 1 2 4 8] [--samples 250]
-        [--keys 10] [--iterations 5 10 20] [--calls 15]
+    python benchmarks/perf/derivative_bounds.py --json out/derivative-bounds.json [--pieces 1 2 4 8] [--nearest 3 4]
+        [--combine] [--samples 250] [--keys 10] [--iterations 5 10 20] [--calls 15]
 
 For each built-in problem: the batch of ``projection_acceleration.py`` (random set-points, seed 0, ``--samples`` rows)
-projected with the default planner's projection (early stop off), at the nodes and at the control points of each
-``--pieces``. Recorded per side and iteration count:
+projected with the default planner's projection (early stop off) plainly and on each side. Recorded per side and
+iteration count:
 median and p90 over the batch of the constraint residual (``Residuals.total``, measured at the nodes both ways) and of
 each family; the largest speed [m/s] and acceleration [m/s^2] of the projected batch on a fine grid (1000 times),
 against ``v_max`` and ``a_max``; the share of rows whose control points (on the side's pieces; the plain side's on
@@ -81,6 +83,9 @@ def main(argv=None) -> int:
     parser.add_argument("--json", type=Path, required=True, help="results file (written after every problem)")
     parser.add_argument("--pieces", type=positive_int, nargs="+", default=[1, 2, 4, 8],
                         help="projection.derivative_pieces of the control-point sides")
+    parser.add_argument("--nearest", type=positive_int, nargs="*", default=[],
+                        help="projection.nearest_obstacles of the nearest-obstacle sides")
+    parser.add_argument("--combine", action="store_true", help="also every --pieces with every --nearest")
     parser.add_argument("--samples", type=positive_int, default=250, help="batch size and the planner's samples")
     parser.add_argument("--iterations", type=positive_int, nargs="+", default=[5, 10, 20], help="projection iterations")
     parser.add_argument("--calls", type=positive_int, default=15, help="timed projection calls per side")
@@ -95,8 +100,11 @@ def main(argv=None) -> int:
     options = supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else {}
     compiled = {}
 
-    settings = {"nodes": {}, **{f"control_points/{p}": {"derivative_bounds": "control_points", "derivative_pieces": p}
-                                for p in args.pieces}}
+    points = {f"control_points/{p}": {"derivative_bounds": "control_points", "derivative_pieces": p} for p in args.pieces}
+    nearest = {f"nearest/{k}": {"nearest_obstacles": k} for k in args.nearest}
+    settings = {"nodes": {}, **points, **nearest}
+    if args.combine:
+        settings.update({f"{a}+{b}": {**points[a], **nearest[b]} for a in points for b in nearest})
     SIDES = tuple(settings)
 
     def run(where, iterations, data):

@@ -136,6 +136,9 @@ class ProjectionConfig:
     # there too, as approximations). Residuals are measured at the nodes either way
     derivative_pieces: int = 4  # [-] in [1, 16], with "control_points": the pieces, each with basis.order control points
     # (the shared ones once); more pieces bring the points closer to the curve, so the bounds are less conservative
+    nearest_obstacles: int = 0  # [-] 0: every obstacle has rows at every node (the default); k > 0: at each node of a
+    # sample only the k obstacles nearest it (by ellipse ratio) on the sample's target trajectory, chosen once per
+    # projection (docs/results/speed.md): k rows per node instead of one per obstacle. Residuals count every obstacle
 
     def __post_init__(self) -> None:
         check_types(self, "projection")
@@ -143,6 +146,10 @@ class ProjectionConfig:
                 f"{', '.join(map(repr, DERIVATIVE_BOUNDS))}, got {self.derivative_bounds!r}")
         require(1 <= self.derivative_pieces <= 16,
                 f"projection.derivative_pieces must be in [1, 16], got {self.derivative_pieces}")
+        require(0 <= self.nearest_obstacles <= 1000,
+                f"projection.nearest_obstacles must be in [0, 1000], got {self.nearest_obstacles}")
+        require(self.nearest_obstacles == 0 or not self.barrier,
+                "projection.nearest_obstacles > 0 needs projection.barrier = false (the barrier follows every obstacle)")
         require(0 <= self.max_iterations <= 10_000, f"projection.max_iterations must be in [0, 10000], got {self.max_iterations}")
         require(self.tolerance >= 0, "projection.tolerance must be >= 0")
         for name in ("rho_obstacle", "rho_velocity", "rho_acceleration", "rho_lane"):

@@ -18,7 +18,8 @@ acceleration [m/s^2], lane [m], each an L2 norm over the nodes, leaving out the 
 that A_eq fixes (node 0 is the current state: no plan can change it). The velocity and acceleration rows act at the
 nodes, or (``cfg.derivative_bounds``) at the Bernstein control points of the velocity and acceleration on a few pieces
 of the horizon: fewer rows, so less arithmetic per iteration, and a speed or acceleration bound met at them holds at
-every time (convex hull; conservative). The residuals are measured at the nodes either way.
+every time (convex hull; conservative). With ``cfg.nearest_obstacles`` a sample has, at each node, only the rows of the
+obstacles nearest its target there. The residuals are measured at the nodes, against every obstacle, either way.
 
 Two loop modes share one step function: ``unroll=False`` stops early
 (``lax.while_loop``) for planning; ``unroll=True`` runs exactly
@@ -100,6 +101,20 @@ class _SampleY(NamedTuple):
     penalty_weights: jnp.ndarray  # (2, B, 1)
 
 
+class _Nearest(NamedTuple):
+    """The obstacle slots a sample's rows use at each node when only the nearest k obstacles have rows
+    (``cfg.nearest_obstacles``, :func:`_nearest_obstacles`): the fields of :class:`~driveopt.problem.PlanningProblem`
+    and :class:`_Operators` that the obstacle rows read, each (k, B, K), slot j holding the j-th nearest obstacle."""
+
+    obstacle_x: jnp.ndarray  # [m]
+    obstacle_y: jnp.ndarray  # [m]
+    obstacle_a: jnp.ndarray  # [m]
+    obstacle_b: jnp.ndarray  # [m]
+    obstacle_mask: jnp.ndarray  # 1 for a real obstacle, 0 for padding
+    inverse_axes: jnp.ndarray  # (2, k, B, K) [1/m]
+    obstacle_floor: jnp.ndarray  # [-]
+
+
 class _Operators(NamedTuple):
     """Per-call constants of the alternating minimisation; axis 0 of stacked arrays is (x, y). The velocity and
     acceleration rows are P each: the K nodes, or the control points (``cfg.derivative_bounds``, :func:`_derivative_operators`)."""
@@ -118,6 +133,7 @@ class _Operators(NamedTuple):
     obstacle_floor: jnp.ndarray  # (N, K) lowest ellipse ratio allowed per obstacle and node (:func:`obstacle_floor`)
     inverse_axes: jnp.ndarray  # (2, N, K) [1/m] 1 / the ellipses' longitudinal and lateral semi-axes per node
     per_sample: _SampleY | None  # the y axis's per-sample changes when gamma_lane is per sample, else None
+    nearest: _Nearest | None = None  # the obstacles with rows per sample and node when not all of them have rows
 
     @property
     def derivative_rows(self) -> int:
@@ -325,6 +341,8 @@ def _derivative_operators(model: TrajectoryModel, problem: PlanningProblem, cfg:
 def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig, gamma_lane) -> _Operators:
     """gamma_lane: a number, or (B, 1) one per sample (barrier mode only; see the module docstring and :class:`_SampleY`)."""
     n_active = jnp.sum(problem.obstacle_mask)
+    if 0 < cfg.nearest_obstacles < problem.obstacle_x.shape[0]:  # k rows per node (fewer where fewer obstacles are real)
+        n_active = jnp.minimum(n_active, cfg.nearest_obstacles)
     W = jnp.asarray(model.W)
     rows = _derivative_operators(model, problem, cfg, cfg.derivative_bounds)
     per_sample = cfg.barrier and jnp.ndim(gamma_lane) == 2
@@ -374,10 +392,33 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
 
 
 def _at_nodes(ops: _Operators, model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> _Operators:
-    """``ops`` with its velocity and acceleration rows at the nodes, to measure residuals where the plain rows act."""
-    if cfg.derivative_bounds == "nodes":
+    """``ops`` with its velocity and acceleration rows at the nodes and every obstacle's rows, to measure residuals where
+    the plain rows act."""
+    if cfg.derivative_bounds == "nodes" and ops.nearest is None:
         return ops
-    return ops._replace(**_derivative_operators(model, problem, cfg, "nodes"))
+    rows = _derivative_operators(model, problem, cfg, "nodes") if cfg.derivative_bounds != "nodes" else {}
+    return ops._replace(nearest=None, **rows)
+
+
+def _nearest_obstacles(model: TrajectoryModel, problem: PlanningProblem, target: jnp.ndarray, k: int,
+                       floor: jnp.ndarray) -> _Nearest:
+    """The k obstacles nearest each sample's target trajectory (2, B, n) at each node, by ellipse ratio (real
+    obstacles before padding), with their lowest allowed ratios ``floor`` (N, K), chosen once per projection: the rows
+    stay the same during the call, so its KKT matrix (k obstacle rows per node) and its fixed-point map do not change."""
+    W = jnp.asarray(model.W)
+    x, y = target[0] @ W.T, target[1] @ W.T  # (B, K) [m]
+    a, b = ellipse_axes(problem)  # (N, K)
+    N, K = a.shape
+    ratio = ((x - problem.obstacle_x[:, None]) / a[:, None]) ** 2 + ((y - problem.obstacle_y[:, None]) / b[:, None]) ** 2
+    ratio = jnp.where(problem.obstacle_mask[:, None, None] > 0, ratio, jnp.inf)  # (N, B, K)
+    slots = jnp.moveaxis(jax.lax.top_k(-jnp.moveaxis(ratio, 0, -1), k)[1], -1, 0)  # (k, B, K) obstacle indices
+
+    def gather(values):  # (N,) or (N, K) -> (k, B, K)
+        return jnp.broadcast_to(values[:, None] if values.ndim == 1 else values, (N, K))[slots, jnp.arange(K)]
+
+    return _Nearest(*(gather(v) for v in (problem.obstacle_x, problem.obstacle_y, problem.obstacle_a, problem.obstacle_b,
+                                          problem.obstacle_mask)),
+                    1.0 / jnp.stack([gather(a), gather(b)]), gather(floor))
 
 
 def _safe_sqrt(x):
@@ -451,10 +492,13 @@ def _analysis_step(
     # Obstacles: x - x_o = a d cos(alpha), y - y_o = b d sin(alpha), d >= lower bound. For the pulls, a static loop
     # over obstacles of (B, K) slices fuses far better on CPU than (B, N, K) arrays reduced over N; the barrier's
     # ratios, a state, are one (N, B, K) array, computed in one loop instead of one per obstacle and a stacking copy.
+    # With ``cfg.nearest_obstacles`` the rows are those of each sample's nearest obstacles per node (slots of (B, K)
+    # arrays in place of the problem's (K,) rows; the same arithmetic).
+    obstacles = problem if ops.nearest is None else ops.nearest
     h_ox = jnp.zeros_like(x)
     h_oy = jnp.zeros_like(y)
     obstacle_sq = jnp.zeros_like(x)
-    inv_a, inv_b = ops.inverse_axes
+    inv_a, inv_b = obstacles.inverse_axes if ops.nearest is not None else ops.inverse_axes
     if cfg.ego_turn_rate > 0:
         # A sample keeps the ego's turned box until it has travelled far enough to turn back (its heading falling by
         # ego_turn_rate per metre; the growth with it, linearly: the growth is concave in the heading, so this errs
@@ -465,17 +509,17 @@ def _analysis_step(
         grow_lat = jnp.maximum(problem.ellipse_growth[1, 0] * turned, problem.ellipse_growth[1])
         # 1 / (b_i + growth) without a division per obstacle: two Newton steps from 1 / (b_i + half the growth now),
         # relative error under 1e-3 (the growth is under a third of b_i) and always from below (ellipses never smaller).
-        inv_b_mid = 1.0 / (problem.obstacle_b + 0.5 * problem.ellipse_growth[1, 0])  # (N,)
+        inv_b_mid = 1.0 / (obstacles.obstacle_b + 0.5 * problem.ellipse_growth[1, 0])  # (N,)
         # The longitudinal growth (< 0.3 m at 0.3 rad, on semi-axes of 7 m and more) is kept whole.
-        inv_a_full = 1.0 / (problem.obstacle_a + problem.ellipse_growth[0, 0])
+        inv_a_full = 1.0 / (obstacles.obstacle_a + problem.ellipse_growth[0, 0])
 
     def ellipse(i):
         """(x - x_o, y - y_o, 1 / ellipse ratio) of obstacle i, (B, K) each; i None: of every obstacle, (N, B, K)."""
         def pick(a):  # obstacle i's entry of an (N,) or (N, K) array; all of them shaped to broadcast against (N, B, K)
             return a[i] if i is not None else a.reshape(a.shape[0], 1, a.shape[1] if a.ndim == 2 else 1)
-        dx, dy = x - pick(problem.obstacle_x), y - pick(problem.obstacle_y)
+        dx, dy = x - pick(obstacles.obstacle_x), y - pick(obstacles.obstacle_y)
         if cfg.ego_turn_rate > 0:
-            b_i, mid = pick(problem.obstacle_b) + grow_lat, pick(inv_b_mid)
+            b_i, mid = pick(obstacles.obstacle_b) + grow_lat, pick(inv_b_mid)
             inv_b_i = mid * (2.0 - b_i * mid)
             inv_b_i = inv_b_i * (2.0 - b_i * inv_b_i)
             dx_n, dy_n = dx * pick(inv_a_full), dy * inv_b_i
@@ -487,18 +531,19 @@ def _analysis_step(
         """h - x_o = (x - x_o) * d / ratio = (x - x_o) * scale with d = max(ratio, lower bound). The lower bound is
         lowered by the obstacle's recovery (1 - floor: 0 unless the ego starts inside the ellipse); with the barrier it
         follows the ratio at the previous node (the state holds the ratios shifted by one node)."""
-        floor = ops.obstacle_floor[i] if i is not None else ops.obstacle_floor[:, None, :]
+        floors = ops.obstacle_floor if ops.nearest is None else ops.nearest.obstacle_floor
+        floor = floors[i] if i is not None else floors[:, None, :]
         if not cfg.barrier:
             return jnp.maximum(1.0, floor * inv_ratio)
         prev = d_obs_prev[i] if i is not None else d_obs_prev
         return jnp.maximum(1.0, (1.0 + (1.0 - gamma_obs) * (prev - 1.0) - (1.0 - floor)) * inv_ratio)
 
-    for i in range(problem.obstacle_x.shape[0]):
+    for i in range(obstacles.obstacle_x.shape[0]):
         dx, dy, inv_ratio = ellipse(i)
         scale = scale_factor(i, inv_ratio)
-        m = problem.obstacle_mask[i]
-        h_ox = h_ox + m * (problem.obstacle_x[i] + dx * scale)
-        h_oy = h_oy + m * (problem.obstacle_y[i] + dy * scale)
+        m = obstacles.obstacle_mask[i]
+        h_ox = h_ox + m * (obstacles.obstacle_x[i] + dx * scale)
+        h_oy = h_oy + m * (obstacles.obstacle_y[i] + dy * scale)
         if with_residuals and not aggregate_obstacles:
             obstacle_sq = obstacle_sq + m * (dx * dx + dy * dy) * (1.0 - scale) ** 2
     one = jax.lax.complex(jnp.abs(ops.direction), 0.0 * ops.direction)  # 1 + 0i, known only at run time (_pair)
@@ -573,7 +618,7 @@ def _analysis_step(
         return pull, d_obs_next, d_acc, None
     free = ops.free_nodes
     if aggregate:
-        n_active = jnp.sum(problem.obstacle_mask)
+        n_active = jnp.sum(obstacles.obstacle_mask, axis=0)  # per sample and node with the nearest obstacles
         return pull, d_obs_next, d_acc, Residuals(
             obstacle=_safe_sqrt(jnp.sum(free[0] * ((n_active * x - h_ox) ** 2 + (n_active * y - h_oy) ** 2), axis=1)),
             velocity=_safe_sqrt(jnp.sum(free[1] * ((vx - vel_x) ** 2 + (vy - vel_y) ** 2), axis=1)),
@@ -633,6 +678,9 @@ def project(
     gamma_obs = _per_sample(cfg.gamma_obs if gamma_obs is None else gamma_obs, B, "gamma_obs")
     gamma_lane = _per_sample(cfg.gamma_lane if gamma_lane is None else gamma_lane, B, "gamma_lane")
     ops = _operators(model, problem, cfg, gamma_lane)
+    if 0 < cfg.nearest_obstacles < N:
+        ops = ops._replace(nearest=_nearest_obstacles(model, problem, _stacked(target), cfg.nearest_obstacles,
+                                                      ops.obstacle_floor))
     # The boundary part of the linear solve never changes: compute it once.
     b_x, b_y = jnp.broadcast_to(b_x, (B, b_x.shape[-1])), jnp.broadcast_to(b_y, (B, b_y.shape[-1]))
     fixed = jnp.stack([b_x @ ops.boundary[0].T, b_y @ ops.boundary[1].T])

@@ -14,14 +14,14 @@ from benchmarks.perf import derivative_bounds
 def test_a_small_run_records_every_side(tmp_path):
     out = tmp_path / "bounds.json"
     assert derivative_bounds.main(["--samples", "8", "--iterations", "2", "--calls", "1", "--keys", "1", "--pieces", "4",
-                                   "--problems", "static-blockage", "--json", str(out)]) == 0
+                                   "--nearest", "1", "--problems", "static-blockage", "--json", str(out)]) == 0
     (case,) = json.loads(out.read_text())["cases"]
     (entry,) = case["residuals"]
-    for side in ("nodes", "control_points/4"):
+    for side in ("nodes", "control_points/4", "nearest/1"):
         assert entry[side]["total"]["nonfinite"] == 0 and entry[side]["max_speed"] > 0
         assert 0 <= entry[side]["control_points_within_bounds"] <= 1 and case["timing_ms"][side] > 0
-    assert set(case["plans"]["against_nodes"]) == {"control_points/4", "nodes_other_key"}
-    assert set(case["plans"]["picks"][0]) == {"nodes", "control_points/4", "nodes_other_key"}
+    assert set(case["plans"]["against_nodes"]) == {"control_points/4", "nearest/1", "nodes_other_key"}
+    assert set(case["plans"]["picks"][0]) == {"nodes", "control_points/4", "nearest/1", "nodes_other_key"}
 
 
 @pytest.mark.parametrize("argv", [["--pieces", "0", "--json", "x.json"], []])
