@@ -26,6 +26,7 @@ MAX_ACCELERATION = 100.0  # [m/s^2] highest acceleration bound
 MAX_WEIGHT = 1e6  # [-] highest cost weight, gain or penalty weight
 MIN_TEMPERATURE = 1e-6  # [-] lowest sampler temperature: far below it (1e-300) it rounds to 0 in float32 and the
 # elite weights exp(-(c - min c) / temperature) are 0 / 0 = NaN
+DERIVATIVE_BOUNDS = ("nodes", "control_points")  # values of ProjectionConfig.derivative_bounds
 
 
 @dataclass(frozen=True)
@@ -128,9 +129,27 @@ class ProjectionConfig:
     # the last this many iterates of a sample (3 to 5), kept only where it lowers that sample's fixed-point residual; 0: off
     relaxation: float = 1.0  # [-] in (0, 2): each step moves the multipliers and pulls this multiple of the way to the
     # next iterate (below 1 damped, above 1 over-relaxed); 1: off
+    derivative_bounds: str = "nodes"  # where the projection's velocity [m/s] and acceleration [m/s^2] rows act: "nodes" (at
+    # every time node; the default) or "control_points" (docs/results/speed.md: at the Bernstein control points of each on
+    # ``derivative_pieces`` equal pieces of the horizon: fewer rows, and a bound on the speed or acceleration magnitude
+    # met there holds at every time; the rows' other bounds, course, centripetal, curvature and lower speed, are applied
+    # there too, as approximations). Residuals are measured at the nodes either way
+    derivative_pieces: int = 4  # [-] in [1, 16], with "control_points": the pieces, each with basis.order control points
+    # (the shared ones once); more pieces bring the points closer to the curve, so the bounds are less conservative
+    nearest_obstacles: int = 0  # [-] 0: every obstacle has rows at every node (the default); k > 0: at each node of a
+    # sample only the k obstacles nearest it (by ellipse ratio) on the sample's target trajectory, chosen once per
+    # projection (docs/results/speed.md): k rows per node instead of one per obstacle. Residuals count every obstacle
 
     def __post_init__(self) -> None:
         check_types(self, "projection")
+        require(self.derivative_bounds in DERIVATIVE_BOUNDS, f"projection.derivative_bounds must be one of "
+                f"{', '.join(map(repr, DERIVATIVE_BOUNDS))}, got {self.derivative_bounds!r}")
+        require(1 <= self.derivative_pieces <= 16,
+                f"projection.derivative_pieces must be in [1, 16], got {self.derivative_pieces}")
+        require(0 <= self.nearest_obstacles <= 1000,
+                f"projection.nearest_obstacles must be in [0, 1000], got {self.nearest_obstacles}")
+        require(self.nearest_obstacles == 0 or not self.barrier,
+                "projection.nearest_obstacles > 0 needs projection.barrier = false (the barrier follows every obstacle)")
         require(0 <= self.max_iterations <= 10_000, f"projection.max_iterations must be in [0, 10000], got {self.max_iterations}")
         require(self.tolerance >= 0, "projection.tolerance must be >= 0")
         for name in ("rho_obstacle", "rho_velocity", "rho_acceleration", "rho_lane"):

@@ -15,7 +15,11 @@ iteration is: a linear solve with a KKT matrix that is constant during the call
 slack and multiplier updates. Residuals are Euclidean distances to the feasible
 set per constraint family, in physical units: obstacle [m], velocity [m/s],
 acceleration [m/s^2], lane [m], each an L2 norm over the nodes, leaving out the values
-that A_eq fixes (node 0 is the current state: no plan can change it).
+that A_eq fixes (node 0 is the current state: no plan can change it). The velocity and acceleration rows act at the
+nodes, or (``cfg.derivative_bounds``) at the Bernstein control points of the velocity and acceleration on a few pieces
+of the horizon: fewer rows, so less arithmetic per iteration, and a speed or acceleration bound met at them holds at
+every time (convex hull; conservative). With ``cfg.nearest_obstacles`` a sample has, at each node, only the rows of the
+obstacles nearest its target there. The residuals are measured at the nodes, against every obstacle, either way.
 
 Two loop modes share one step function: ``unroll=False`` stops early
 (``lax.while_loop``) for planning; ``unroll=True`` runs exactly
@@ -40,6 +44,7 @@ import jax
 import jax.numpy as jnp
 
 from driveopt import anderson
+from driveopt.basis import derivative_control_points
 from driveopt.config import ProjectionConfig
 from driveopt.problem import PlanningProblem, ellipse_axes, travel_direction
 from driveopt.qp import TrajectoryModel, split
@@ -96,23 +101,44 @@ class _SampleY(NamedTuple):
     penalty_weights: jnp.ndarray  # (2, B, 1)
 
 
+class _Nearest(NamedTuple):
+    """The obstacle slots a sample's rows use at each node when only the nearest k obstacles have rows
+    (``cfg.nearest_obstacles``, :func:`_nearest_obstacles`): the fields of :class:`~driveopt.problem.PlanningProblem`
+    and :class:`_Operators` that the obstacle rows read, each (k, B, K), slot j holding the j-th nearest obstacle."""
+
+    obstacle_x: jnp.ndarray  # [m]
+    obstacle_y: jnp.ndarray  # [m]
+    obstacle_a: jnp.ndarray  # [m]
+    obstacle_b: jnp.ndarray  # [m]
+    obstacle_mask: jnp.ndarray  # 1 for a real obstacle, 0 for padding
+    inverse_axes: jnp.ndarray  # (2, k, B, K) [1/m]
+    obstacle_floor: jnp.ndarray  # [-]
+
+
 class _Operators(NamedTuple):
-    """Per-call constants of the alternating minimisation; axis 0 of stacked arrays is (x, y)."""
+    """Per-call constants of the alternating minimisation; axis 0 of stacked arrays is (x, y). The velocity and
+    acceleration rows are P each: the K nodes, or the control points (``cfg.derivative_bounds``, :func:`_derivative_operators`)."""
 
     solve: jnp.ndarray  # (2, n, n) coefficient block of the inverse KKT matrix of each axis
     boundary: tuple[jnp.ndarray, jnp.ndarray]  # (n, mx), (n, my) boundary block of each inverse
-    forward: jnp.ndarray  # (n, 3K): c -> (position, velocity, acceleration) at the nodes
-    back: jnp.ndarray  # (3K, n): transpose of ``forward`` without node 0 (the current state is not a constraint)
-    free_nodes: jnp.ndarray  # (3, K) 0 where position / velocity / acceleration is fixed by A_eq
+    forward: jnp.ndarray  # (n, K + 2P): c -> position at the nodes, velocity and acceleration at their rows
+    back: jnp.ndarray  # (K + 2P, n): transpose of ``forward`` without the rows A_eq fixes (the current state is not a constraint)
+    free_nodes: tuple  # (K,), (P,), (P,): 0 where position / velocity / acceleration is fixed by A_eq
     penalty: jnp.ndarray  # (2, n, n): rho F'F of each axis
     lane_gamma: jnp.ndarray  # () gamma of the lane rows (1 in plain mode), or (B, 1) one per sample
     lane_rows: jnp.ndarray  # (K,) 1 at the nodes that carry a lane row (all but node 0)
     lane_bounds: jnp.ndarray  # (2, K) upper-row and lower-row bounds e of the row at each node (node 0: unused); (2, B, K) per sample
-    course: jnp.ndarray  # (2, K) cosine and sine of the course-angle bound at each node (:func:`course_bounds`)
+    course: jnp.ndarray  # (2, P) cosine and sine of the course-angle bound at each velocity row (:func:`course_bounds`)
     direction: jnp.ndarray  # () [-] the ego's direction of travel along x: 1 forwards, -1 reversing
     obstacle_floor: jnp.ndarray  # (N, K) lowest ellipse ratio allowed per obstacle and node (:func:`obstacle_floor`)
     inverse_axes: jnp.ndarray  # (2, N, K) [1/m] 1 / the ellipses' longitudinal and lateral semi-axes per node
     per_sample: _SampleY | None  # the y axis's per-sample changes when gamma_lane is per sample, else None
+    nearest: _Nearest | None = None  # the obstacles with rows per sample and node when not all of them have rows
+
+    @property
+    def derivative_rows(self) -> int:
+        """P: the velocity rows (and the acceleration rows) per axis."""
+        return (self.back.shape[0] - self.lane_rows.shape[0]) // 2
 
 
 class _State(NamedTuple):
@@ -121,7 +147,7 @@ class _State(NamedTuple):
     pull: jnp.ndarray  # (2, B, n) rho F' h for the current (alpha, d)
     d_obs: jnp.ndarray  # (N, B, K) obstacle distance ratios at each node's previous node (1 at node 0), for the barrier
     # bound; (0, B, K) in plain mode
-    d_acc: jnp.ndarray  # (B, K) acceleration lengths (curvature bound uses them)
+    d_acc: jnp.ndarray  # (B, P) acceleration lengths of the acceleration rows (curvature bound uses them)
     iteration: jnp.ndarray
     error: jnp.ndarray  # () max over samples of the coefficient change of the last step
 
@@ -154,9 +180,9 @@ def lane_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: Projectio
     return problem.y_lb - below * fade, problem.y_ub + above * fade
 
 
-def course_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
+def course_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig, t=None) -> jnp.ndarray:
     """[rad] bound on |course angle| (the velocity's angle to the ego's direction of travel along the road,
-    :func:`~driveopt.problem.travel_direction`) at every node (K,): ``cfg.course_max``,
+    :func:`~driveopt.problem.travel_direction`) at every node (K,), or at the times ``t`` [s] given: ``cfg.course_max``,
     except near t = 0 when the car's course already exceeds it: then the bound starts at the current course and
     narrows linearly to ``course_max`` by ``recovery_time`` (as the lane bounds do for a car off the road), so a
     car that is turned across the road plans its way back instead of finding every plan infeasible.
@@ -167,7 +193,7 @@ def course_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: Project
 
     Below ``cfg.course_min_speed`` the bound is a right angle (:func:`_analysis_step`): a slow plan may move sideways
     but never against the direction of travel, so a plan braked to rest does not roll back."""
-    t = jnp.asarray(model.t)
+    t = jnp.asarray(model.t) if t is None else t
     vx0, vy0 = problem.init_x[1], problem.init_y[1]
     moving = vx0 * vx0 + vy0 * vy0 > CURVATURE_MIN_SPEED ** 2
     course0 = jnp.where(moving, jnp.abs(jnp.arctan2(vy0, travel_direction(problem) * vx0)), 0.0)
@@ -286,23 +312,50 @@ def _shift_left(a):
     return jnp.concatenate([a[:, 1:], jnp.zeros_like(a[:, :1])], axis=1)
 
 
+def _derivative_operators(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig, where: str) -> dict:
+    """The fields ``forward``, ``back``, ``free_nodes`` and ``course`` of :class:`_Operators` with the velocity and
+    acceleration rows at the K nodes (``where`` "nodes"), or at the control points of the velocity and of the
+    acceleration on ``cfg.derivative_pieces`` pieces of the horizon (``where`` "control_points",
+    :func:`~driveopt.basis.derivative_control_points`). A control point stands for the time of its abscissa (the course
+    bound is taken there); the first is the value at t = 0, fixed where node 0's is."""
+    W = jnp.asarray(model.W)
+    free = jnp.asarray(model.free_nodes)
+    if where == "nodes":
+        Wd, Wdd, free_v, free_a = jnp.asarray(model.Wd), jnp.asarray(model.Wdd), free[1], free[2]
+        course = course_bounds(model, problem, cfg)
+    else:
+        horizon = jnp.asarray(model.t)[-1]
+        velocity, acceleration = (jnp.asarray(a, W.dtype)
+                                  for a in derivative_control_points(W.shape[1] - 1, 1.0, cfg.derivative_pieces))
+        Wd, Wdd = velocity / horizon, acceleration / (horizon * horizon)
+        first = jnp.arange(Wd.shape[0]) == 0
+        free_v, free_a = jnp.where(first, free[1, 0], 1.0), jnp.where(first, free[2, 0], 1.0)
+        course = course_bounds(model, problem, cfg, jnp.linspace(0.0, 1.0, Wd.shape[0]) * horizon)
+    # Values fixed by A_eq (the current state at node 0) are not constraint rows: no plan can change them.
+    free = (free[0], free_v, free_a)
+    return dict(forward=jnp.concatenate([W, Wd, Wdd]).T,
+                back=jnp.concatenate([a * f[:, None] for a, f in zip((W, Wd, Wdd), free)]), free_nodes=free,
+                course=jnp.stack([jnp.cos(course), jnp.sin(course)]))
+
+
 def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig, gamma_lane) -> _Operators:
     """gamma_lane: a number, or (B, 1) one per sample (barrier mode only; see the module docstring and :class:`_SampleY`)."""
     n_active = jnp.sum(problem.obstacle_mask)
-    W, Wd, Wdd = (jnp.asarray(a) for a in (model.W, model.Wd, model.Wdd))
+    if 0 < cfg.nearest_obstacles < problem.obstacle_x.shape[0]:  # k rows per node (fewer where fewer obstacles are real)
+        n_active = jnp.minimum(n_active, cfg.nearest_obstacles)
+    W = jnp.asarray(model.W)
+    rows = _derivative_operators(model, problem, cfg, cfg.derivative_bounds)
     per_sample = cfg.barrier and jnp.ndim(gamma_lane) == 2
     shared_gamma = cfg.gamma_lane if per_sample else gamma_lane
     G, e = lane_constraint(model, *lane_bounds(model, problem, cfg), shared_gamma, cfg.barrier)
-    # Values fixed by A_eq (the current state at node 0) are not constraint rows: no plan can change them.
-    free = jnp.asarray(model.free_nodes)
-    Wm, Wdm, Wddm = (a * f[:, None] for a, f in zip((W, Wd, Wdd), free))
+    K, P = W.shape[0], rows["course"].shape[1]
+    Wm, Wdm, Wddm = rows["back"][:K], rows["back"][K:K + P], rows["back"][K + P:]
     penalty_x = (
         cfg.rho_obstacle * n_active * Wm.T @ Wm + cfg.rho_velocity * Wdm.T @ Wdm + cfg.rho_acceleration * Wddm.T @ Wddm
     )
     penalty_y = penalty_x + cfg.rho_lane * G.T @ G
     n = W.shape[1]
     eye = jnp.eye(n, dtype=W.dtype)
-    course = course_bounds(model, problem, cfg)
 
     inv_x = kkt_inverse(_kkt_matrix(eye + penalty_x, model.A_x))
     inv_y = kkt_inverse(_kkt_matrix(eye + penalty_y, model.A_y))
@@ -326,19 +379,46 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
     return _Operators(
         solve=jnp.stack([inv_x[:n, :n], inv_y[:n, :n]]),
         boundary=(inv_x[:n, n:], inv_y[:n, n:]),
-        forward=jnp.concatenate([W, Wd, Wdd]).T,
-        back=jnp.concatenate([Wm, Wdm, Wddm]),
-        free_nodes=free,
+        **rows,
         penalty=jnp.stack([penalty_x, penalty_y]),
         lane_gamma=jnp.asarray(gamma_lane if cfg.barrier else 1.0, W.dtype),
         lane_rows=(jnp.arange(W.shape[0]) > 0).astype(W.dtype),
         lane_bounds=bounds,  # (2, K), or (2, B, K) per sample
-        course=jnp.stack([jnp.cos(course), jnp.sin(course)]),
         direction=travel_direction(problem),
         obstacle_floor=obstacle_floor(model, problem, cfg),
         inverse_axes=1.0 / jnp.stack(ellipse_axes(problem)),
         per_sample=sample_y,
     )
+
+
+def _at_nodes(ops: _Operators, model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> _Operators:
+    """``ops`` with its velocity and acceleration rows at the nodes and every obstacle's rows, to measure residuals where
+    the plain rows act."""
+    if cfg.derivative_bounds == "nodes" and ops.nearest is None:
+        return ops
+    rows = _derivative_operators(model, problem, cfg, "nodes") if cfg.derivative_bounds != "nodes" else {}
+    return ops._replace(nearest=None, **rows)
+
+
+def _nearest_obstacles(model: TrajectoryModel, problem: PlanningProblem, target: jnp.ndarray, k: int,
+                       floor: jnp.ndarray) -> _Nearest:
+    """The k obstacles nearest each sample's target trajectory (2, B, n) at each node, by ellipse ratio (real
+    obstacles before padding), with their lowest allowed ratios ``floor`` (N, K), chosen once per projection: the rows
+    stay the same during the call, so its KKT matrix (k obstacle rows per node) and its fixed-point map do not change."""
+    W = jnp.asarray(model.W)
+    x, y = target[0] @ W.T, target[1] @ W.T  # (B, K) [m]
+    a, b = ellipse_axes(problem)  # (N, K)
+    N, K = a.shape
+    ratio = ((x - problem.obstacle_x[:, None]) / a[:, None]) ** 2 + ((y - problem.obstacle_y[:, None]) / b[:, None]) ** 2
+    ratio = jnp.where(problem.obstacle_mask[:, None, None] > 0, ratio, jnp.inf)  # (N, B, K)
+    slots = jnp.moveaxis(jax.lax.top_k(-jnp.moveaxis(ratio, 0, -1), k)[1], -1, 0)  # (k, B, K) obstacle indices
+
+    def gather(values):  # (N,) or (N, K) -> (k, B, K)
+        return jnp.broadcast_to(values[:, None] if values.ndim == 1 else values, (N, K))[slots, jnp.arange(K)]
+
+    return _Nearest(*(gather(v) for v in (problem.obstacle_x, problem.obstacle_y, problem.obstacle_a, problem.obstacle_b,
+                                          problem.obstacle_mask)),
+                    1.0 / jnp.stack([gather(a), gather(b)]), gather(floor))
 
 
 def _safe_sqrt(x):
@@ -404,18 +484,21 @@ def _analysis_step(
     aggregate_obstacles: the obstacle residual from the sum of the obstacles' displacements sum_i (p - h_i) at each node
     (what the pull holds anyway) instead of each obstacle's own: the same where at most one obstacle binds at a node,
     and about half the cost of an iteration less (XLA computes each obstacle's terms again for a per-obstacle sum)."""
-    K = ops.forward.shape[1] // 3
-    nodes = coeffs @ ops.forward  # (2, B, 3K)
-    x, vx, ax = nodes[0, :, :K], nodes[0, :, K:2 * K], nodes[0, :, 2 * K:]
-    y, vy, ay = nodes[1, :, :K], nodes[1, :, K:2 * K], nodes[1, :, 2 * K:]
+    K, P = ops.lane_rows.shape[0], ops.derivative_rows
+    nodes = coeffs @ ops.forward  # (2, B, K + 2P)
+    x, vx, ax = nodes[0, :, :K], nodes[0, :, K:K + P], nodes[0, :, K + P:]
+    y, vy, ay = nodes[1, :, :K], nodes[1, :, K:K + P], nodes[1, :, K + P:]
 
     # Obstacles: x - x_o = a d cos(alpha), y - y_o = b d sin(alpha), d >= lower bound. For the pulls, a static loop
     # over obstacles of (B, K) slices fuses far better on CPU than (B, N, K) arrays reduced over N; the barrier's
     # ratios, a state, are one (N, B, K) array, computed in one loop instead of one per obstacle and a stacking copy.
+    # With ``cfg.nearest_obstacles`` the rows are those of each sample's nearest obstacles per node (slots of (B, K)
+    # arrays in place of the problem's (K,) rows; the same arithmetic).
+    obstacles = problem if ops.nearest is None else ops.nearest
     h_ox = jnp.zeros_like(x)
     h_oy = jnp.zeros_like(y)
     obstacle_sq = jnp.zeros_like(x)
-    inv_a, inv_b = ops.inverse_axes
+    inv_a, inv_b = obstacles.inverse_axes if ops.nearest is not None else ops.inverse_axes
     if cfg.ego_turn_rate > 0:
         # A sample keeps the ego's turned box until it has travelled far enough to turn back (its heading falling by
         # ego_turn_rate per metre; the growth with it, linearly: the growth is concave in the heading, so this errs
@@ -426,17 +509,17 @@ def _analysis_step(
         grow_lat = jnp.maximum(problem.ellipse_growth[1, 0] * turned, problem.ellipse_growth[1])
         # 1 / (b_i + growth) without a division per obstacle: two Newton steps from 1 / (b_i + half the growth now),
         # relative error under 1e-3 (the growth is under a third of b_i) and always from below (ellipses never smaller).
-        inv_b_mid = 1.0 / (problem.obstacle_b + 0.5 * problem.ellipse_growth[1, 0])  # (N,)
+        inv_b_mid = 1.0 / (obstacles.obstacle_b + 0.5 * problem.ellipse_growth[1, 0])  # (N,)
         # The longitudinal growth (< 0.3 m at 0.3 rad, on semi-axes of 7 m and more) is kept whole.
-        inv_a_full = 1.0 / (problem.obstacle_a + problem.ellipse_growth[0, 0])
+        inv_a_full = 1.0 / (obstacles.obstacle_a + problem.ellipse_growth[0, 0])
 
     def ellipse(i):
         """(x - x_o, y - y_o, 1 / ellipse ratio) of obstacle i, (B, K) each; i None: of every obstacle, (N, B, K)."""
         def pick(a):  # obstacle i's entry of an (N,) or (N, K) array; all of them shaped to broadcast against (N, B, K)
             return a[i] if i is not None else a.reshape(a.shape[0], 1, a.shape[1] if a.ndim == 2 else 1)
-        dx, dy = x - pick(problem.obstacle_x), y - pick(problem.obstacle_y)
+        dx, dy = x - pick(obstacles.obstacle_x), y - pick(obstacles.obstacle_y)
         if cfg.ego_turn_rate > 0:
-            b_i, mid = pick(problem.obstacle_b) + grow_lat, pick(inv_b_mid)
+            b_i, mid = pick(obstacles.obstacle_b) + grow_lat, pick(inv_b_mid)
             inv_b_i = mid * (2.0 - b_i * mid)
             inv_b_i = inv_b_i * (2.0 - b_i * inv_b_i)
             dx_n, dy_n = dx * pick(inv_a_full), dy * inv_b_i
@@ -448,18 +531,19 @@ def _analysis_step(
         """h - x_o = (x - x_o) * d / ratio = (x - x_o) * scale with d = max(ratio, lower bound). The lower bound is
         lowered by the obstacle's recovery (1 - floor: 0 unless the ego starts inside the ellipse); with the barrier it
         follows the ratio at the previous node (the state holds the ratios shifted by one node)."""
-        floor = ops.obstacle_floor[i] if i is not None else ops.obstacle_floor[:, None, :]
+        floors = ops.obstacle_floor if ops.nearest is None else ops.nearest.obstacle_floor
+        floor = floors[i] if i is not None else floors[:, None, :]
         if not cfg.barrier:
             return jnp.maximum(1.0, floor * inv_ratio)
         prev = d_obs_prev[i] if i is not None else d_obs_prev
         return jnp.maximum(1.0, (1.0 + (1.0 - gamma_obs) * (prev - 1.0) - (1.0 - floor)) * inv_ratio)
 
-    for i in range(problem.obstacle_x.shape[0]):
+    for i in range(obstacles.obstacle_x.shape[0]):
         dx, dy, inv_ratio = ellipse(i)
         scale = scale_factor(i, inv_ratio)
-        m = problem.obstacle_mask[i]
-        h_ox = h_ox + m * (problem.obstacle_x[i] + dx * scale)
-        h_oy = h_oy + m * (problem.obstacle_y[i] + dy * scale)
+        m = obstacles.obstacle_mask[i]
+        h_ox = h_ox + m * (obstacles.obstacle_x[i] + dx * scale)
+        h_oy = h_oy + m * (obstacles.obstacle_y[i] + dy * scale)
         if with_residuals and not aggregate_obstacles:
             obstacle_sq = obstacle_sq + m * (dx * dx + dy * dy) * (1.0 - scale) ** 2
     one = jax.lax.complex(jnp.abs(ops.direction), 0.0 * ops.direction)  # 1 + 0i, known only at run time (_pair)
@@ -523,7 +607,7 @@ def _analysis_step(
         h_ox, h_oy, vel_x, vel_y, acc_x, acc_y, target_ub, target_lb, lane_pull = jax.lax.optimization_barrier(
             (h_ox, h_oy, vel_x, vel_y, acc_x, acc_y, target_ub, target_lb, lane_pull))
     # rho F'h per axis as three (B, K) x (K, n) products: no (B, 3K) concatenation is materialised.
-    back_pos, back_vel, back_acc = ops.back[:K], ops.back[K:2 * K], ops.back[2 * K:]
+    back_pos, back_vel, back_acc = ops.back[:K], ops.back[K:K + P], ops.back[K + P:]
     pull = jnp.stack([
         (cfg.rho_obstacle * h_ox) @ back_pos + (cfg.rho_velocity * vel_x) @ back_vel
         + (cfg.rho_acceleration * acc_x) @ back_acc,
@@ -534,7 +618,7 @@ def _analysis_step(
         return pull, d_obs_next, d_acc, None
     free = ops.free_nodes
     if aggregate:
-        n_active = jnp.sum(problem.obstacle_mask)
+        n_active = jnp.sum(obstacles.obstacle_mask, axis=0)  # per sample and node with the nearest obstacles
         return pull, d_obs_next, d_acc, Residuals(
             obstacle=_safe_sqrt(jnp.sum(free[0] * ((n_active * x - h_ox) ** 2 + (n_active * y - h_oy) ** 2), axis=1)),
             velocity=_safe_sqrt(jnp.sum(free[1] * ((vx - vel_x) ** 2 + (vy - vel_y) ** 2), axis=1)),
@@ -594,6 +678,9 @@ def project(
     gamma_obs = _per_sample(cfg.gamma_obs if gamma_obs is None else gamma_obs, B, "gamma_obs")
     gamma_lane = _per_sample(cfg.gamma_lane if gamma_lane is None else gamma_lane, B, "gamma_lane")
     ops = _operators(model, problem, cfg, gamma_lane)
+    if 0 < cfg.nearest_obstacles < N:
+        ops = ops._replace(nearest=_nearest_obstacles(model, problem, _stacked(target), cfg.nearest_obstacles,
+                                                      ops.obstacle_floor))
     # The boundary part of the linear solve never changes: compute it once.
     b_x, b_y = jnp.broadcast_to(b_x, (B, b_x.shape[-1])), jnp.broadcast_to(b_y, (B, b_y.shape[-1]))
     fixed = jnp.stack([b_x @ ops.boundary[0].T, b_y @ ops.boundary[1].T])
@@ -605,6 +692,12 @@ def project(
 
     def analyse(coeffs, d_obs, d_acc, with_residuals=False, aggregate_obstacles=False):
         return _analysis_step(coeffs, d_obs, d_acc, ops, problem, cfg, gamma_obs, with_residuals, aggregate_obstacles)
+
+    node_ops = _at_nodes(ops, model, problem, cfg)
+
+    def measure(coeffs, d_obs):
+        """The residuals of a result, at the nodes (the curvature bound from the trajectory's own acceleration)."""
+        return _analysis_step(coeffs, d_obs, None, node_ops, problem, cfg, gamma_obs)[3]
 
     def solve(rhs):
         """(2, B, n) linear term -> the coefficients minimising the augmented Lagrangian with it."""
@@ -631,19 +724,18 @@ def project(
     coeffs0 = target_s if init_coeffs is None else _stacked(init_coeffs)
     lam0 = jnp.zeros_like(target_s) if init_multipliers is None else _stacked(init_multipliers)
     d_obs0 = jnp.ones((N, B, K) if cfg.barrier else (0, B, K), target.dtype)
-    pull0, d_obs0, d_acc0, _ = analyse(coeffs0, d_obs0, jnp.zeros((B, K), target.dtype))
+    pull0, d_obs0, d_acc0, _ = analyse(coeffs0, d_obs0, jnp.zeros((B, ops.derivative_rows), target.dtype))
     state = _State(coeffs0, lam0, pull0, d_obs0, d_acc0, jnp.asarray(0), jnp.asarray(jnp.inf, target.dtype))
 
     if cfg.anderson_window > 0 or cfg.relaxation != 1.0:
-        return _accelerated(state, solve, analyse, penalise, target_s, cfg, unroll)
+        return _accelerated(state, solve, analyse, measure, penalise, target_s, cfg, unroll)
     if unroll:
         state, _ = jax.lax.scan(lambda s, _: (step(s), None), state, None, length=cfg.max_iterations)
     else:
         state = jax.lax.while_loop(
             lambda s: (s.iteration < cfg.max_iterations) & (s.error > cfg.tolerance), step, state
         )
-    # Residuals of the final iterate (the curvature bound uses the trajectory's own acceleration).
-    residuals = analyse(state.coeffs, state.d_obs, None, with_residuals=True)[3]
+    residuals = measure(state.coeffs, state.d_obs)
     status = jnp.where(state.error <= cfg.tolerance, ProjectionStatus.CONVERGED, ProjectionStatus.MAX_ITERATIONS)
     return ProjectionResult(_flat(state.coeffs), _flat(state.lam), residuals, state.iteration, status, state.error)
 
@@ -686,7 +778,8 @@ def _unrows(rows: jnp.ndarray, n: int) -> tuple[jnp.ndarray, jnp.ndarray]:
     return jnp.stack(parts[:2]), jnp.stack(parts[2:])
 
 
-def _accelerated(state: _State, solve, analyse, penalise, target_s, cfg: ProjectionConfig, unroll: bool) -> ProjectionResult:
+def _accelerated(state: _State, solve, analyse, measure, penalise, target_s, cfg: ProjectionConfig,
+                 unroll: bool) -> ProjectionResult:
     """The alternating minimisation x <- G(x) on x = (lam, pull), over-relaxed (x <- x + ``relaxation`` (G(x) - x)) and
     Anderson-accelerated (:mod:`driveopt.anderson`, window ``anderson_window``), per sample with a safeguard: an
     extrapolated point is evaluated, and kept only where the constraint residual of its trajectory (``Residuals.total``,
@@ -753,7 +846,7 @@ def _accelerated(state: _State, solve, analyse, penalise, target_s, cfg: Project
         final, _ = jax.lax.scan(lambda s, _: (step(s), None), start, None, length=cfg.max_iterations)
     else:
         final = jax.lax.while_loop(lambda s: (s.iteration < cfg.max_iterations) & (s.error > cfg.tolerance), step, start)
-    residuals = analyse(final.coeffs, final.d_obs, None, with_residuals=True)[3]
+    residuals = measure(final.coeffs, final.d_obs)
     status = jnp.where(final.error <= cfg.tolerance, ProjectionStatus.CONVERGED, ProjectionStatus.MAX_ITERATIONS)
     return ProjectionResult(_flat(final.coeffs), _flat(final.multipliers), residuals, final.iteration, status, final.error)
 
@@ -779,7 +872,7 @@ def constraint_residuals(
 ) -> Residuals:
     """Distances of trajectories (B, 2n) to the feasible set, per family, without projecting them: the plain
     constraints (gamma = 1 whatever ``cfg.gamma_obs`` / ``cfg.gamma_lane``), i.e. the safety bounds themselves."""
-    ops = _operators(model, problem, cfg, 1.0)
+    ops = _at_nodes(_operators(model, problem, cfg, 1.0), model, problem, cfg)
     B, K = coeffs.shape[0], model.W.shape[0]
     d_obs = jnp.ones((problem.obstacle_x.shape[0] if cfg.barrier else 0, B, K), coeffs.dtype)
     return _analysis_step(_stacked(coeffs), d_obs, None, ops, problem, cfg, 1.0)[3]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import jax
 import jax.numpy as jnp
 import pytest
@@ -39,3 +41,17 @@ def test_a_while_loop_is_refused():
     fn = lambda x: jax.lax.while_loop(lambda c: c[0] < 3.0, lambda c: c + 1.0, x)  # noqa: E731
     with pytest.raises(ValueError, match="while_loop"):
         count(fn, jnp.zeros(2))
+
+
+def test_the_projection_counts_from_the_command_line_match_the_products_closed_form(tmp_path):
+    """Per row and iteration, the projection's products are both axes' maps to the K nodes' positions and the P velocity
+    and acceleration rows and back (2 x 2 x 11 (K + 2P) each way) plus the solve and the penalty (2 x 2 x 11 x 11 each):
+    P = 100 nodes plainly, 37 control points on 4 pieces. Written to --json with the command."""
+    out = tmp_path / "counts.json"
+    assert op_count.main(["--samples", "8", "--iterations", "1", "--projection-iterations", "2",
+                          "--set", "derivative_bounds=control_points", "--json", str(out)]) == 0
+    record = json.loads(out.read_text())
+    for side, rows in (("plain", 100), ("changed", 37)):
+        assert record[side]["per_row_and_iteration"]["products"] == 2 * 2 * 11 * (100 + 2 * rows) * 2 + 2 * 2 * 11 * 11 * 2
+    assert record["changed"]["settings"] == {"derivative_bounds": "control_points"}
+    assert record["changed"]["per_call"]["total"] < record["plain"]["per_call"]["total"]
