@@ -15,9 +15,12 @@ def test_each_setting_is_one_bench_command():
     assert argv[1:4] == ["-m", "driveopt.cli", "bench"] and argv[-2:] == ["--lockstep", "4"]
     assert argv[argv.index("--episodes") + 1] == "16" and argv[argv.index("--duration") + 1] == "5.0"
     assert lockstep_throughput.bench_argv(Path("OUT"), args, 2, 0.3, {"workers": 2})[-2:] == ["--workers", "2"]
+    both = lockstep_throughput.bench_argv(Path("OUT"), args, 16, 5.0, {"lockstep": 2, "workers": 2})
+    assert both[-4:] == ["--lockstep", "2", "--workers", "2"]
 
 
-@pytest.mark.parametrize("argv", [["--lockstep", "0"], ["--workers", "0"], ["--duration", "0"], ["--episodes", "0"]])
+@pytest.mark.parametrize("argv", [["--lockstep", "0"], ["--workers", "0"], ["--duration", "0"], ["--episodes", "0"],
+                                  ["--lockstep-workers", "0"]])
 def test_bad_sizes_are_refused(argv, capsys, tmp_path):
     with pytest.raises(SystemExit) as exit_:
         lockstep_throughput.main(["--json", str(tmp_path / "x.json"), *argv])
