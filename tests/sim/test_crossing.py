@@ -143,3 +143,9 @@ def test_a_routed_car_with_the_ego_on_its_lanes_ahead_is_predicted_to_stop_behin
     for elsewhere in ([56.0, 20.0], [30.0, 0.0]):  # beside its lane; behind it
         ego.position = np.array(elsewhere)
         np.testing.assert_allclose(_along_route(car, times, ego)[0], free)
+    car.speed = 0.5  # creeping 2.5 m in 5 s: it never reaches the ego 7.5 m ahead, but comes within the gap, so it
+    ego.position = np.array([47.5, 0.0])  # stops 1.5 m on, bumpers YIELD_GAP apart
+    crept, _ = _along_route(car, times, ego)
+    stop_x = 47.5 - 0.5 * (car.LENGTH + ego.LENGTH) - YIELD_GAP
+    np.testing.assert_allclose(crept[-1], [stop_x, 0.0], atol=1e-9)
+    assert np.all(crept[:, 0] <= stop_x + 1e-9)

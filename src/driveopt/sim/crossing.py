@@ -51,9 +51,9 @@ def _along_route(vehicle: Any, times: np.ndarray, ego: Any = None) -> tuple[np.n
 
     lanes = [lane_of(index) for index in route]
     start = float(vehicle.lane.local_coordinates(np.asarray(vehicle.position, dtype=float))[0])
-    reach = start + float(vehicle.speed) * float(np.max(times, initial=0.0))
-    stop = math.inf if ego is None else _ego_along(lanes, np.asarray(ego.position, dtype=float), start, reach)
-    stop -= 0.5 * (float(vehicle.LENGTH) + (float(ego.LENGTH) if ego is not None else 0.0)) + YIELD_GAP
+    gap = 0.5 * (float(vehicle.LENGTH) + (float(ego.LENGTH) if ego is not None else 0.0)) + YIELD_GAP  # [m] centres
+    reach = start + float(vehicle.speed) * float(np.max(times, initial=0.0)) + gap
+    stop = math.inf if ego is None else _ego_along(lanes, np.asarray(ego.position, dtype=float), start, reach) - gap
     positions, headings = [], []
     for t in np.asarray(times, dtype=float):
         longitudinal, k, lane = min(start + float(vehicle.speed) * t, max(stop, start)), 0, lanes[0]
@@ -68,14 +68,14 @@ def _along_route(vehicle: Any, times: np.ndarray, ego: Any = None) -> tuple[np.n
 
 def _ego_along(lanes: list[Any], position: np.ndarray, start: float, reach: float) -> float:
     """[m] the distance along ``lanes`` (measured as ``start``, from the first lane's start) at which ``position``
-    lies on one of them (within its half width and 1 m, as upstream's ``on_lane(margin=1)``), between ``start`` and
-    ``reach``; inf when it lies on none there."""
+    lies on one of them (upstream's ``on_lane(margin=1)``, what its IDM reads a car in front by: within the lane's half
+    width and 1 m, and up to a car's length beyond its ends), between ``start`` and ``reach``; inf when it lies on
+    none there."""
     offset = 0.0
     for lane in lanes:
         longitudinal, lateral = lane.local_coordinates(position)
         along = offset + float(longitudinal)
-        if (0.0 <= longitudinal <= float(lane.length) and abs(lateral) <= 0.5 * float(lane.width_at(longitudinal)) + 1.0
-                and start < along <= reach):
+        if lane.on_lane(position, longitudinal, lateral, margin=1.0) and start < along <= reach:
             return along
         offset += float(lane.length)
         if offset > reach:
