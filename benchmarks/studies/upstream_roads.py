@@ -14,10 +14,9 @@ parking-v0's goal pose) is recorded as refused with the message. Every episode i
 one recorded with these settings, not only this run's), the episodes, collisions, off-road episodes, refusals,
 arrivals, the mean speed over the episodes without collision and the median over episodes of each episode's median
 planning time (wall clock of the machine the episodes ran on: see its load).
-An episode *arrived* when the env says so (intersection-v0's ``has_arrived``) or, on a route (the controller's:
-the task's, e.g. roundabout-v0's and exit-v0's exit, u-turn-v0's road back), when the ego ends on the route's last
-road (exit-v0: on the exit road; upstream's own success also counts the exit lane before it); null without a
-destination (highway-v0, the racetracks, lane-keeping-v0 ...). :data:`ENVS` holds every env of highway-env 1.12.1
+An episode *arrived* when the env says so at its end (its ``is_success`` info: exit-v0's, in the exit lane or on the
+exit road; intersection-v0's ``has_arrived``) or, on a route (the controller's: the task's, e.g. roundabout-v0's
+exit, u-turn-v0's road back), when the ego ends on the route's last road; null without a destination (highway-v0, the racetracks, lane-keeping-v0 ...). :data:`ENVS` holds every env of highway-env 1.12.1
 but its variants of the same roads (``-v1``: connected-lane neighbours; highway-fast, the multi-agent intersection,
 the parking variants); ``merge-generic-v0`` and ``roundabout-generic-v0`` at their default settings.
 """
@@ -49,9 +48,9 @@ ENVS = {  # env id -> (gymnasium.make config besides ContinuousAction, make kwar
     "roundabout-generic-v0": ({}, {}),  # upstream routes its ego to the exit "nxs", as roundabout-v0's
     "parking-v0": ({}, {}),  # refused at reset: a goal pose, no lane to follow
 }
-SETUP = {"exit-v0": "route to the exit"}
-"""Envs whose episodes changed since the records began (exit-v0 drove straight on before): a record counts only with
-its env's setup, older ones are driven again."""
+SETUP = {"exit-v0": "route to the exit, arrived as upstream's success"}
+"""Envs whose episodes changed since the records began (exit-v0 drove straight on, then counted arrivals on the exit road
+only): a record counts only with its env's setup, older ones are driven again."""
 
 
 def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: float) -> dict:
@@ -75,6 +74,7 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
         steps = round(duration * sim.config["policy_frequency"])
         speeds, statuses, plan_ms = [], Counter(), []
         collided = off_road = False
+        info: dict = {}
         start = time.perf_counter()
         for _ in range(steps):
             try:
@@ -84,13 +84,13 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
             if controller.status is not None:
                 statuses[controller.status.name] += 1
                 plan_ms.append(1e3 * controller.last.plan_seconds)
-            _, _, terminated, truncated, _ = env.step(action)
+            _, _, terminated, truncated, info = env.step(action)
             speeds.append(float(sim.vehicle.speed))
             collided |= bool(sim.vehicle.crashed)  # lane-keeping-v0 gives no info
             off_road |= not sim.vehicle.on_road
             if terminated or truncated or collided:
                 break
-        return {**record, "collided": collided, "off_road": off_road, "arrived": arrived(sim, controller.task.route),
+        return {**record, "collided": collided, "off_road": off_road, "arrived": arrived(sim, controller.task.route, info),
                 "mean_speed": float(np.mean(speeds)),
                 "time": clock(sim), "steps": len(speeds), "statuses": dict(statuses),
                 "plan_ms_median": float(np.median(plan_ms)) if plan_ms else None,
@@ -104,8 +104,10 @@ def clock(sim) -> float:
     return sim.steps / sim.config["simulation_frequency"]
 
 
-def arrived(sim, route) -> bool | None:
+def arrived(sim, route, info: dict) -> bool | None:
     """Whether the ego reached the env's destination (see the module docstring); None without one."""
+    if "is_success" in info:  # the env's own success after the last step (exit-v0: in the exit lane or on the exit)
+        return bool(info["is_success"])
     if hasattr(sim, "has_arrived"):
         return bool(sim.has_arrived(sim.vehicle))
     if route:
