@@ -11,7 +11,7 @@ run (one episode per slot and worker, 0.3 s each) that fills the compilation cac
 from the records (a lock-step call plans for all its episodes) and the collisions, with the load average before and
 after. The file is rewritten after every setting (strict JSON), and a rerun with the same parameters keeps the settings
 it holds and runs the others (resume). On a busy machine the figures are noisy: the load average is recorded so that
-a reader can tell. ``--lockstep-workers W`` runs each lock-step setting in W worker processes (cells of 4 x E jobs).
+a reader can tell. ``--lockstep-workers W`` runs each lock-step setting in W worker processes (each arm cut into about W cells).
 
 Agreement: each setting keeps its episodes' outcomes (collided, steps, statuses, mean speed); every lock-step setting
 is compared with the first one-by-one setting on the same episodes (``agreement``: episodes compared, how many have

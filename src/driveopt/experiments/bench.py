@@ -19,6 +19,7 @@ summaries and ``spec.json`` are replaced whole, never left half-written.
 from __future__ import annotations
 
 import json
+import math
 import numbers
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -253,13 +254,15 @@ def _run_locked(spec: BenchSpec, out: Path, workers: int, backend: str, episode_
 
 def _run_lockstep(todo: list[JobKey], options: dict[str, Any], finished: Any, slots: int, backend: str,
                   workers: int) -> None:
-    """The jobs ``todo`` in lock-step, ``slots`` episodes per planning call: each arm whole in this process, or cut
-    into cells of :data:`driveopt.experiments.lockstep.CELL_ROUNDS` x ``slots`` jobs, one local worker process's or
-    Ray task's each."""
+    """The jobs ``todo`` in lock-step, ``slots`` episodes per planning call: each arm whole in this process, cut into
+    about as many cells as local ``workers`` (so that each has a share), or into cells of
+    :data:`driveopt.experiments.lockstep.CELL_ROUNDS` x ``slots`` jobs, one Ray task each."""
     from driveopt.experiments.lockstep import cells, run_lockstep
 
-    whole = backend != "ray" and workers == 1
-    parts = cells(todo, slots, rounds=max(len(todo), 1)) if whole else cells(todo, slots)
+    if backend == "ray":
+        parts = cells(todo, slots)
+    else:
+        parts = cells(todo, slots, rounds=max(math.ceil(len(todo) / (slots * workers)), 1))
     execute_cells(parts, options, run_lockstep, finished, args=(slots,), backend=backend, workers=workers)
 
 
