@@ -490,6 +490,7 @@ def _control_point_magnitudes(coeffs, pieces):
     return tuple(np.hypot(*(c @ points.T).transpose(1, 0, 2)).max(axis=1) for points in (velocity, acceleration))
 
 
+@pytest.mark.slow  # settings that are off by default: compiles the projection with them (10-30 s each)
 def test_control_point_rows_are_off_by_default_and_residuals_are_still_measured_at_the_nodes():
     """Off by default (off, every plan and projection is bit for bit as before the setting existed: checked when it was
     added, on the plans of a 250-sample and a barrier planner and on plain, early-stopping, unrolled, per-sample-gamma and
@@ -552,6 +553,7 @@ def test_control_point_rows_leave_residuals_about_as_low_as_the_plain_ones(name)
 
 
 # Rows of the nearest obstacles only (projection.nearest_obstacles; 0, every obstacle, by default).
+@pytest.mark.slow  # settings that are off by default: compiles the projection with them (10-30 s each)
 def test_nearest_obstacles_keep_k_rows_per_node_and_report_every_obstacle():
     """Off by default (off, plans and projections bit for bit as before: checked when it was added, as for
     derivative_bounds). With k = 4 of dense-snapshot's 10 neighbours, the KKT matrix holds 4 obstacle rows per node
@@ -577,6 +579,7 @@ def test_nearest_obstacles_keep_k_rows_per_node_and_report_every_obstacle():
                                    plain.coeffs, rtol=1e-5, atol=1e-4)
 
 
+@pytest.mark.slow  # settings that are off by default: compiles the projection with them (10-30 s each)
 def test_the_nearest_four_obstacles_leave_residuals_about_as_low_as_every_obstacle():
     """dense-snapshot (10 neighbours), 20 iterations, two batches of 64: with the nearest 4 per node the mean residual
     is within 1.05x + 0.05 and the p90 within 1.25x + 0.1 of the plain loop's (measured on seeds 0-3: mean 0.90-0.96x, p90
