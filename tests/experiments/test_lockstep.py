@@ -31,6 +31,17 @@ def test_cells_keep_to_one_arm_and_to_slots_times_rounds_jobs():
     assert sorted(j for c in parts for j in c) == sorted(jobs)
 
 
+def test_local_workers_each_get_a_share_of_an_arm():
+    from driveopt.experiments.bench import lockstep_cells
+
+    jobs = [JobKey("a", "x", 42, e) for e in range(32)]
+    assert [len(c) for c in lockstep_cells(jobs, 2, "local", 1)] == [32]  # one process: the arm whole
+    assert [len(c) for c in lockstep_cells(jobs, 2, "local", 2)] == [16, 16]
+    assert [len(c) for c in lockstep_cells(jobs, 8, "local", 2)] == [16, 16]
+    assert [len(c) for c in lockstep_cells(jobs[:20], 2, "local", 2)] == [10, 10]
+    assert [len(c) for c in lockstep_cells(jobs, 2, "ray", 1)] == [8, 8, 8, 8]  # CELL_ROUNDS x slots
+
+
 @pytest.mark.parametrize("planners, options, workers, match", [
     (("idm",), {}, None, "planner idm cannot run in lock-step"),
     (("bilevel", "idm"), {}, None, "planner idm cannot run in lock-step"),

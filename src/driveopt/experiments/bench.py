@@ -257,13 +257,19 @@ def _run_lockstep(todo: list[JobKey], options: dict[str, Any], finished: Any, sl
     """The jobs ``todo`` in lock-step, ``slots`` episodes per planning call: each arm whole in this process, cut into
     about as many cells as local ``workers`` (so that each has a share), or into cells of
     :data:`driveopt.experiments.lockstep.CELL_ROUNDS` x ``slots`` jobs, one Ray task each."""
-    from driveopt.experiments.lockstep import cells, run_lockstep
+    from driveopt.experiments.lockstep import run_lockstep
+
+    execute_cells(lockstep_cells(todo, slots, backend, workers), options, run_lockstep, finished, args=(slots,),
+                  backend=backend, workers=workers)
+
+
+def lockstep_cells(todo: list[JobKey], slots: int, backend: str, workers: int) -> list[list[JobKey]]:
+    """How :func:`_run_lockstep` cuts ``todo`` (see there)."""
+    from driveopt.experiments.lockstep import cells
 
     if backend == "ray":
-        parts = cells(todo, slots)
-    else:
-        parts = cells(todo, slots, rounds=max(math.ceil(len(todo) / (slots * workers)), 1))
-    execute_cells(parts, options, run_lockstep, finished, args=(slots,), backend=backend, workers=workers)
+        return cells(todo, slots)
+    return cells(todo, slots, rounds=max(math.ceil(len(todo) / (slots * workers)), 1))
 
 
 def write_summaries(rows: list[dict[str, Any]], out: Path) -> None:
