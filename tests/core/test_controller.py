@@ -241,8 +241,9 @@ def test_exit_route_changes_lanes_before_the_split_and_takes_the_exit():
     assert not crashed and ("2", "exit") in roads
 
 
-@pytest.mark.parametrize("env_id, route", [("intersection-v0", ("o0", "ir0", "il1", "o1")),
-                                           ("roundabout-v0", ("ser", "ses", "se", "ex", "ee", "nx", "nxs"))])
+@pytest.mark.parametrize("env_id, route", [
+    pytest.param("intersection-v0", ("o0", "ir0", "il1", "o1"), marks=pytest.mark.slow),  # another compilation: 17 s
+    ("roundabout-v0", ("ser", "ses", "se", "ex", "ee", "nx", "nxs"))])
 def test_crossings_and_roundabouts_are_driven_toward_the_envs_destination(env_id, route):
     """Crossing traffic is predicted along its own lanes, so the frame follows the route through the junction; the
     destination is the env's (intersection-v0's config, roundabout-v0's exit), as upstream routes its own ego."""

@@ -81,6 +81,8 @@ def test_racetrack_roads_still_join_at_their_starts():
     assert {at for _, _, at in road_joins(env.unwrapped.road.network, ("i", "a"), ("a", "b"))} == {0.0}
 
 
+@pytest.mark.slow  # compiles the planner for another road: about 20 s (the frame's join and the one-step tracking
+# have tests that do not drive: above, and tests/sim/test_sim_control.py)
 def test_lane_keeping_is_driven_onto_its_sine_road_without_weaving():
     """One simulation step per action: the car follows its plans' course rather than weaving across the 10 m lane
     (it averaged 5 to 7 m/s when each replan inherited the step's turn of the heading)."""

@@ -47,13 +47,14 @@ VARIANTS = ("-p1", "-faithful", "vqvae-cem", "cvae-filter", "vqvae-filter")  # t
 EVERY_LAYOUT = ("bilevel", "grid", "idm")  # the other planners share their road handling: the extreme lane counts suffice
 
 
+SLOW_IN_DEFAULT_RUN = ("vqvae-filter",)  # 26 s on a fresh clone; tests/training/test_filter.py plans with it
 FAITHFUL_IN_DEFAULT_RUN = ("vanilla-faithful",)  # one faithful planner: the others share its driver settings (the
 # P2 ones the [vqvae-filter] case's prior and filter), and tests/core/test_registry.py plans with their priors
 
 
 def _planner_cases():
     for name in list_planners():
-        slow = name.endswith("-faithful") and name not in FAITHFUL_IN_DEFAULT_RUN
+        slow = (name.endswith("-faithful") and name not in FAITHFUL_IN_DEFAULT_RUN) or name in SLOW_IN_DEFAULT_RUN
         yield pytest.param(name, marks=pytest.mark.slow) if slow else name
 
 
