@@ -1,10 +1,10 @@
-"""Planning latency benchmark (issue 2 targets).
+"""Planning latency benchmark.
 
     python benchmarks/perf/latency.py --json out/latency.json [--calls 30] [--resume] [--config overrides.json]
-                                 [--batches 250 ...] [--obstacles 10 4 1]
+                                 [--batches 250 ...] [--obstacles 10 4 1] [--schedules 5x20 1x100]
 
 For each batch size in {250, 500, 1000} and (sampler iterations x projection
-iterations) in {(5, 20), (1, 100)}, on the built-in 10-neighbour problem
+iterations) in {(5, 20), (1, 100)} (``--schedules``), on the built-in 10-neighbour problem
 ``dense-snapshot`` with 100 nodes: compile time (first call minus the
 steady-state median) and the steady-state median / p90 wall time of a full
 ``plan()`` call over ``--calls`` calls with fresh PRNG keys, plus samples per
@@ -86,6 +86,14 @@ def run_case(batch: int, iterations: int, projection: int, calls: int, overrides
     }
 
 
+def _schedule(text: str) -> tuple[int, int]:
+    """IxP: I sampler iterations of P projection iterations each, both positive."""
+    sampler, sep, projection = text.partition("x")
+    if not (sep and sampler.isdigit() and projection.isdigit() and int(sampler) > 0 and int(projection) > 0):
+        raise argparse.ArgumentTypeError(f"expected IxP with positive integers, e.g. 5x20, got {text!r}")
+    return int(sampler), int(projection)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", default="out/latency.json", help="results file (updated after every case)")
@@ -94,6 +102,8 @@ def main(argv=None) -> int:
     parser.add_argument("--batches", type=int, nargs="+", default=list(BATCHES))
     parser.add_argument("--obstacles", type=int, nargs="+", default=[MAX_OBSTACLES],
                         help="plan against the N most relevant neighbours (1-10; default 10: all of dense-snapshot's)")
+    parser.add_argument("--schedules", type=_schedule, nargs="+", default=list(SCHEDULES), metavar="IxP",
+                        help="sampler iterations x projection iterations per call (default: 5x20 1x100)")
     parser.add_argument("--config", help="planner-config overrides (JSON, as for driveopt plan --config), applied before "
                                          "each case's samples and iterations")
     args = parser.parse_args(argv)
@@ -128,7 +138,7 @@ def main(argv=None) -> int:
                   "resume with the same --config or write another file", file=sys.stderr)
             return 2
     done = {r["case"] for r in report["results"]}
-    cases = [(b, i, p, n) for b in args.batches for i, p in SCHEDULES for n in args.obstacles
+    cases = [(b, i, p, n) for b in args.batches for i, p in args.schedules for n in args.obstacles
              if case_name(b, i, p, n) not in done]
     for batch, iterations, projection, obstacles in tqdm(cases, desc="latency", unit="case"):
         result = run_case(batch, iterations, projection, args.calls, overrides, obstacles)

@@ -1,13 +1,14 @@
 """driveopt's controller and highway-env's IDM on upstream highway-env's own envs: collisions, off-road, speed.
 
     python benchmarks/studies/upstream_roads.py --out benchmarks/results/upstream-roads [--episodes 20] [--samples 250]
-        [--envs highway-v0 racetrack-v0 ...] [--planners bilevel idm] [--seed 0] [--duration 20]
+        [--envs highway-v0 racetrack-v0 ...] [--planners bilevel idm] [--seed 0] [--duration 20] [--config C.json]
 
 Each episode makes the env with ``driveopt.gym_make`` (``gymnasium.make`` with rewards for array actions) and
 ``ContinuousAction`` (default traffic; the settings of :data:`ENVS` make every env last the duration: an env config's
 ``duration`` is ``--duration``; lane-keeping-v0 stops at gymnasium's 200 steps, 20 s), resets it with seed
 ``seed + episode`` and drives it through :class:`driveopt.Controller` (``idm``: highway-env's IDM/MOBIL vehicle takes
-the ego's place) at the ego lane's speed limit as desired speed, for ``--duration`` seconds or until the env ends the
+the ego's place; ``--config``: planner-config overrides of the optimisers, a JSON file as for ``driveopt bench
+--config``) at the ego lane's speed limit as desired speed, for ``--duration`` seconds or until the env ends the
 episode. An env the controller refuses at reset (``RoadFrameError``: a road it cannot represent; ``ControllerError``:
 parking-v0's goal pose) is recorded as refused with the message. Every episode is one line of
 ``OUT/episodes.jsonl`` (a rerun skips those done: resumable); ``OUT/summary.json`` gives, per env and planner (every
@@ -53,7 +54,8 @@ SETUP = {"exit-v0": "route to the exit, arrived as upstream's success"}
 only): a record counts only with its env's setup, older ones are driven again."""
 
 
-def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: float) -> dict:
+def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: float,
+                planner_config: dict | None = None) -> dict:
     """One episode's record."""
     import driveopt
     from driveopt.controller import ControllerError
@@ -65,7 +67,9 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
     record = {"env": env_id, "planner": planner, "seed": seed, **({"setup": SETUP[env_id]} if env_id in SETUP else {})}
     try:
         env.reset(seed=seed)
-        controller = driveopt.Controller(planner, samples=samples if planner != "idm" else None)
+        optimiser = planner != "idm"
+        controller = driveopt.Controller(planner, samples=samples if optimiser else None,
+                                         config=planner_config if optimiser else None)
         try:
             controller.reset(env, seed=seed)
         except (RoadFrameError, ControllerError) as exc:
@@ -151,6 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="episode k is reset with seed + k")
     parser.add_argument("--samples", type=int, default=250)
     parser.add_argument("--duration", type=float, default=20.0, help="[s] at most, per episode")
+    parser.add_argument("--config", type=Path, help="planner-config overrides of the optimisers (JSON file)")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.samples < 1 or args.duration <= 0:
         parser.error("--episodes, --samples and --duration must be positive")
@@ -163,6 +168,9 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "episodes.jsonl"
     settings = {"samples": args.samples, "duration": args.duration}
+    config = json.loads(args.config.read_text()) if args.config else None
+    if config:  # recorded only when given, so the records of the planners' own configuration stay as they are
+        settings["config"] = config
     records = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
     records = [r for r in records if r.get("setup") == SETUP.get(r["env"])]  # this setup's (the file keeps all)
     done = {(r["env"], r["planner"], r["seed"]) for r in records if r.get("settings") == settings}
@@ -173,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
                     seed = args.seed + k
                     if (env_id, planner, seed) in done:
                         continue
-                    record = {**run_episode(env_id, planner, seed, args.samples, args.duration), "settings": settings}
+                    record = {**run_episode(env_id, planner, seed, args.samples, args.duration, config), "settings": settings}
                     out.write(row_line(record))
                     out.flush()
                     records.append(record)

@@ -21,8 +21,8 @@ def test_a_case_runs_with_the_overrides_and_is_recorded_with_them(tmp_path, monk
     overrides = tmp_path / "c.json"
     overrides.write_text(json.dumps({"projection": {"course_max": 0.0}}))
     out = tmp_path / "lat.json"
-    monkeypatch.setattr(latency, "SCHEDULES", ((1, 2),))
-    assert latency.main(["--json", str(out), "--calls", "2", "--batches", "50", "--config", str(overrides)]) == 0
+    assert latency.main(["--json", str(out), "--calls", "2", "--batches", "50", "--config", str(overrides),
+                         "--schedules", "1x2"]) == 0
     report = json.loads(out.read_text())
     assert report["config"] == {"projection": {"course_max": 0.0}}
     assert [r["case"] for r in report["results"]] == ["50x1x2"]
@@ -71,3 +71,10 @@ def test_fewer_obstacles_plan_against_that_many_and_are_named(tmp_path, monkeypa
     with pytest.raises(SystemExit) as exc:
         latency.main(["--json", str(tmp_path / "other.json"), "--obstacles", "0"])
     assert exc.value.code == 2
+
+
+@pytest.mark.parametrize("schedule", ["5", "0x20", "5x", "ax2"])
+def test_a_malformed_schedule_is_refused(schedule, capsys):
+    with pytest.raises(SystemExit) as stop:
+        latency.main(["--json", "x.json", "--schedules", schedule])
+    assert stop.value.code == 2 and "IxP" in capsys.readouterr().err

@@ -1,0 +1,150 @@
+"""A planner-configuration change against the planner's own configuration, in closed loop on the same episodes: does
+it drive as safely and as quickly?
+
+    python benchmarks/studies/setting_ab.py --config C.json --out DIR [--planner bilevel] [--samples N]
+        [--scenarios four-lane-d3.0 two-lane-d2.5] [--episodes 50] [--seed 42]
+        [--upstream highway-v0] [--upstream-episodes 20] [--workers 2]
+
+``driveopt bench`` drives ``--planner`` on each scenario with its own configuration (``DIR/own``) and with the
+overrides of ``--config`` (a JSON file of nested sections, as for ``driveopt bench --config``; ``DIR/changed``), on
+the same traffic seeds; ``benchmarks/studies/upstream_roads.py`` drives each ``--upstream`` env through
+``driveopt.Controller`` both ways (``DIR/upstream-own``, ``DIR/upstream-changed``, resets ``0 .. --upstream-episodes -
+1``). Every part resumes where it stopped. Then each road's pairs are judged by the rule a setting must pass before it
+becomes a default:
+
+- collisions no worse: the changed side collided in at most ``ceil(pairs / 50)`` more episodes than its own side, and
+  exact McNemar on the discordant pairs does not find it worse (two-sided p >= 0.05 where it collided more);
+- speed within 2 %: the mean speed over the pairs where neither side collided is at least 0.98 of the own side's.
+
+``DIR/verdict.json`` holds per road: pairs, collisions each way, discordant pairs, the McNemar p-value, off-road
+episodes, mean speeds, median plan time [ms] each way, and whether it passed; and overall whether every road passed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from driveopt.experiments.paired_stats import mcnemar_exact
+from driveopt.files import write_json
+
+if __package__ in (None, ""):  # run as a file: the repository root on the path, for the package import below
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from benchmarks.studies import upstream_roads  # noqa: E402
+
+ALPHA = 0.05
+SPEED_SHARE = 0.98  # the changed side's mean speed at least this share of the own side's
+
+
+def judge(pairs: list[tuple[dict, dict]]) -> dict:
+    """The rule of the module docstring on (own, changed) episode records of one road, each with ``collided``,
+    ``off_road`` and ``mean_speed`` (``plan_ms`` or ``plan_ms_median`` for the time)."""
+    own_hits = sum(a["collided"] for a, _ in pairs)
+    changed_hits = sum(b["collided"] for _, b in pairs)
+    only_own = sum(a["collided"] and not b["collided"] for a, b in pairs)
+    only_changed = sum(b["collided"] and not a["collided"] for a, b in pairs)
+    p = mcnemar_exact(only_changed, only_own)
+    allowed = math.ceil(len(pairs) / 50)
+    collisions_ok = changed_hits <= own_hits + allowed and not (only_changed > only_own and p < ALPHA)
+    clean = [(a, b) for a, b in pairs if not a["collided"] and not b["collided"]]
+    own_speed = float(np.mean([a["mean_speed"] for a, _ in clean])) if clean else math.nan
+    changed_speed = float(np.mean([b["mean_speed"] for _, b in clean])) if clean else math.nan
+    speed_ok = bool(clean) and changed_speed >= SPEED_SHARE * own_speed
+
+    def plan_ms(record):
+        return record["plan_ms_median"] if "plan_ms_median" in record else float(np.median(record["plan_ms"]))
+
+    return {"pairs": len(pairs), "collisions": [own_hits, changed_hits], "only_own": only_own,
+            "only_changed": only_changed, "mcnemar_p": p, "collisions_allowed_extra": allowed,
+            "off_road": [sum(a["off_road"] for a, _ in pairs), sum(b["off_road"] for _, b in pairs)],
+            "clean_pairs": len(clean), "mean_speed": [own_speed, changed_speed],
+            "speed_ratio": changed_speed / own_speed if clean else math.nan,
+            "plan_ms_median": [float(np.median([plan_ms(a) for a, _ in pairs])),
+                               float(np.median([plan_ms(b) for _, b in pairs]))],
+            "collisions_ok": collisions_ok, "speed_ok": speed_ok, "passed": collisions_ok and speed_ok}
+
+
+def read_jsonl(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+def bench_pairs(out: Path, scenario: str, planner: str) -> list[tuple[dict, dict]]:
+    def episodes(side):
+        return {(r["seed"], r["episode"]): r for r in read_jsonl(out / side / "episodes.jsonl")
+                if r["scenario"] == scenario and r["planner"] == planner}
+
+    own, changed = episodes("own"), episodes("changed")
+    return [(own[key], changed[key]) for key in sorted(own.keys() & changed.keys())]
+
+
+def upstream_pairs(out: Path, env: str, planner: str, episodes: int, seed: int) -> list[tuple[dict, dict]]:
+    def records(side):
+        return {r["seed"]: r for r in read_jsonl(out / f"upstream-{side}" / "episodes.jsonl")
+                if r["env"] == env and r["planner"] == planner and "refused" not in r}
+
+    own, changed = records("own"), records("changed")
+    return [(own[s], changed[s]) for s in range(seed, seed + episodes) if s in own and s in changed]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", type=Path, required=True, help="the changed side's overrides (JSON file)")
+    parser.add_argument("--out", type=Path, required=True, help="folder of both sides' records and verdict.json")
+    parser.add_argument("--planner", default="bilevel")
+    parser.add_argument("--samples", type=int, help="samples per batch (default: the planner's own)")
+    parser.add_argument("--scenarios", nargs="*", default=["four-lane-d3.0", "two-lane-d2.5"])
+    parser.add_argument("--episodes", type=int, default=50, help="episodes per scenario and side")
+    parser.add_argument("--seed", type=int, default=42, help="bench traffic seed")
+    parser.add_argument("--upstream", nargs="*", default=["highway-v0"], choices=list(upstream_roads.ENVS))
+    parser.add_argument("--upstream-episodes", type=int, default=20)
+    parser.add_argument("--workers", type=int, default=2, help="parallel bench episodes")
+    args = parser.parse_args(argv)
+    from driveopt.errors import DriveoptError
+    from driveopt.registry import get_optimiser
+
+    try:  # a bad planner, file, section, field or value is refused here, before any driving
+        spec = get_optimiser(args.planner)
+        overrides = json.loads(args.config.read_text())
+        spec.with_overrides(**overrides)
+    except (DriveoptError, OSError, ValueError, TypeError) as exc:
+        parser.error(str(exc))
+    samples = args.samples or spec.config.sampler.num_samples
+    if args.episodes < 1 or args.upstream_episodes < 1 or samples < 1:
+        parser.error("--episodes, --upstream-episodes and --samples must be positive")
+    common = ["--planners", args.planner, "--seeds", str(args.seed), "--episodes", str(args.episodes),
+              "--samples", str(samples), "--workers", str(args.workers)]
+    sides = (("own", []), ("changed", ["--config", str(args.config.resolve())]))
+    for side, extra in sides:
+        if args.scenarios:
+            subprocess.run([sys.executable, "-m", "driveopt.cli", "bench", "--scenarios", *args.scenarios, *common,
+                            *extra, "--out", str(args.out / side)], check=True)
+    for side, extra in sides:
+        if args.upstream:
+            upstream_roads.main(["--out", str(args.out / f"upstream-{side}"), "--envs", *args.upstream, "--planners",
+                                 args.planner, "--episodes", str(args.upstream_episodes), "--samples", str(samples),
+                                 *extra])
+    roads = {name: judge(bench_pairs(args.out, name, args.planner)) for name in args.scenarios}
+    roads.update({name: judge(upstream_pairs(args.out, name, args.planner, args.upstream_episodes, 0))
+                  for name in args.upstream})
+    verdict = {"command": "python benchmarks/studies/setting_ab.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+               "planner": args.planner, "samples": samples, "config": overrides, "roads": roads,
+               "passed": all(road["passed"] for road in roads.values())}
+    write_json(args.out / "verdict.json", verdict)
+    for name, road in roads.items():
+        print(f"{name}: {road['pairs']} pairs, collisions {road['collisions'][0]} -> {road['collisions'][1]} "
+              f"(McNemar p {road['mcnemar_p']:.3g}), speed {road['mean_speed'][0]:.2f} -> {road['mean_speed'][1]:.2f} "
+              f"m/s, plan {road['plan_ms_median'][0]:.0f} -> {road['plan_ms_median'][1]:.0f} ms: "
+              + ("passed" if road["passed"] else "failed"))
+    print("passed" if verdict["passed"] else "failed")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

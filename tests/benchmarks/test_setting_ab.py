@@ -1,0 +1,51 @@
+"""benchmarks/studies/setting_ab.py: the rule a setting passes before it becomes a default, on hand-built pairs."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from benchmarks.studies import setting_ab
+
+
+def episode(collided: bool = False, speed: float = 10.0) -> dict:
+    return {"collided": collided, "off_road": False, "mean_speed": speed, "plan_ms": [20.0, 30.0]}
+
+
+def test_identical_sides_pass():
+    pairs = [(episode(), episode()) for _ in range(50)]
+    verdict = setting_ab.judge(pairs)
+    assert verdict["passed"] and verdict["mcnemar_p"] == 1.0 and verdict["speed_ratio"] == 1.0
+
+
+def test_one_extra_collision_in_fifty_is_allowed_two_are_not():
+    one = [(episode(), episode(collided=True))] + [(episode(), episode()) for _ in range(49)]
+    two = [(episode(), episode(collided=True))] * 2 + [(episode(), episode()) for _ in range(48)]
+    assert setting_ab.judge(one)["collisions_ok"]
+    assert not setting_ab.judge(two)["collisions_ok"] and setting_ab.judge(two)["collisions"] == [0, 2]
+
+
+def test_a_significantly_worse_side_fails_even_within_the_allowance():
+    # 600 pairs allow 12 extra collisions: 20 only-changed against 8 only-own is 12 more, but McNemar finds it worse
+    worse = [(episode(), episode(collided=True))] * 20 + [(episode(collided=True), episode())] * 8
+    worse += [(episode(), episode())] * 572
+    verdict = setting_ab.judge(worse)
+    assert verdict["collisions"] == [8, 20] and verdict["collisions_allowed_extra"] == 12
+    assert verdict["mcnemar_p"] < 0.05 and not verdict["collisions_ok"]
+
+
+def test_speed_counts_only_pairs_where_neither_collided():
+    pairs = [(episode(speed=10.0), episode(speed=9.7))] * 10 + [(episode(speed=10.0), episode(collided=True, speed=1.0))]
+    verdict = setting_ab.judge(pairs)
+    assert verdict["clean_pairs"] == 10 and verdict["speed_ratio"] == pytest.approx(0.97)
+    assert not verdict["speed_ok"] and verdict["collisions_ok"] and not verdict["passed"]
+
+
+def test_a_bad_override_is_refused_before_any_driving(tmp_path, capsys):
+    config = tmp_path / "c.json"
+    config.write_text(json.dumps({"projection": {"derivative_bounds": "everywhere"}}))
+    with pytest.raises(SystemExit) as stop:
+        setting_ab.main(["--config", str(config), "--out", str(tmp_path / "out")])
+    assert stop.value.code == 2 and "derivative_bounds" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
