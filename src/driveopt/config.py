@@ -100,7 +100,8 @@ class ProjectionConfig:
     """Batch projection onto the constraint set (DESIGN §2.3)."""
 
     max_iterations: int = 20  # [-] alternating-minimisation iterations; 0: no projection, every sample is ranked as drawn
-    # (P2 Fig. 9's "no filter" ablation)
+    # (P2 Fig. 9's "no filter" ablation); the registered ``bilevel`` runs 12 with ``anderson_window`` 4 and
+    # ``derivative_bounds`` "control_points" (``driveopt.registry.REALTIME_PROJECTION``; docs/results/speed.md)
     tolerance: float = 1e-3  # [m] early stop when no coefficient of any sample moved more than this in the last iteration
     rho_obstacle: float = 1.0  # [-] penalty weight of the obstacle rows
     rho_velocity: float = 10.0  # [-] penalty weight of the velocity rows
