@@ -33,6 +33,7 @@ def test_an_empty_goal_leaves_bounds_and_speed():
     assert float(problem.v_des) == float(plain.v_des)
 
 
+@pytest.mark.slow  # a compile of its own (about 20 s); the goal-free plans are every other test's
 def test_no_goal_plans_bit_for_bit_as_before():
     s = load_scene("slow-leader-three-lane")
     config = PlannerConfig().with_samples(40)

@@ -54,8 +54,9 @@ def _projection_case(terminal_position: bool, copies: int = 3):
 
 
 @pytest.mark.parametrize("terminal_position, tolerance", [  # boundary values shared, or one set per row (goals); fixed
-    (False, 1e-3), (True, 0.0),                              # work, or the early stop (the other two pairings: slow)
-    pytest.param(False, 0.0, marks=pytest.mark.slow), pytest.param(True, 1e-3, marks=pytest.mark.slow)])
+    (False, 1e-3),                                           # work, or the early stop (the other three pairings: slow)
+    pytest.param(True, 0.0, marks=pytest.mark.slow), pytest.param(False, 0.0, marks=pytest.mark.slow),
+    pytest.param(True, 1e-3, marks=pytest.mark.slow)])
 def test_distinct_rows_in_chunks_project_as_the_whole_batch(terminal_position, tolerance):
     config, problem, model, coeffs, b_x, b_y = _projection_case(terminal_position)
     config = config.replace(projection={"tolerance": tolerance})
