@@ -31,7 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
+from driveopt.cli.common import positive_int
 from driveopt.experiments.paired_stats import mcnemar_exact
+from driveopt.experiments.store import load_folder
 from driveopt.files import write_json
 
 if __package__ in (None, ""):  # run as a file: the repository root on the path, for the package import below
@@ -71,26 +73,24 @@ def judge(pairs: list[tuple[dict, dict]]) -> dict:
             "collisions_ok": collisions_ok, "speed_ok": speed_ok, "passed": collisions_ok and speed_ok}
 
 
-def read_jsonl(path: Path) -> list[dict]:
-    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
-
-
 def bench_pairs(out: Path, scenario: str, planner: str) -> list[tuple[dict, dict]]:
     def episodes(side):
-        return {(r["seed"], r["episode"]): r for r in read_jsonl(out / side / "episodes.jsonl")
-                if r["scenario"] == scenario and r["planner"] == planner}
+        _, records = load_folder(out / side)  # checked against the side's spec.json
+        return {(r["seed"], r["episode"]): r for r in records if r["scenario"] == scenario and r["planner"] == planner}
 
     own, changed = episodes("own"), episodes("changed")
     return [(own[key], changed[key]) for key in sorted(own.keys() & changed.keys())]
 
 
-def upstream_pairs(out: Path, env: str, planner: str, episodes: int, seed: int) -> list[tuple[dict, dict]]:
+def upstream_pairs(out: Path, env: str, planner: str, episodes: int) -> list[tuple[dict, dict]]:
     def records(side):
-        return {r["seed"]: r for r in read_jsonl(out / f"upstream-{side}" / "episodes.jsonl")
-                if r["env"] == env and r["planner"] == planner and "refused" not in r}
+        path = out / f"upstream-{side}" / "episodes.jsonl"
+        lines = path.read_text().splitlines() if path.exists() else []
+        return {r["seed"]: r for r in map(json.loads, lines) if r["env"] == env and r["planner"] == planner
+                and "refused" not in r}
 
     own, changed = records("own"), records("changed")
-    return [(own[s], changed[s]) for s in range(seed, seed + episodes) if s in own and s in changed]
+    return [(own[s], changed[s]) for s in range(episodes) if s in own and s in changed]  # upstream_roads' resets 0, 1, ...
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -98,13 +98,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", type=Path, required=True, help="the changed side's overrides (JSON file)")
     parser.add_argument("--out", type=Path, required=True, help="folder of both sides' records and verdict.json")
     parser.add_argument("--planner", default="bilevel")
-    parser.add_argument("--samples", type=int, help="samples per batch (default: the planner's own)")
+    parser.add_argument("--samples", type=positive_int, help="samples per batch (default: the planner's own)")
     parser.add_argument("--scenarios", nargs="*", default=["four-lane-d3.0", "two-lane-d2.5"])
-    parser.add_argument("--episodes", type=int, default=50, help="episodes per scenario and side")
+    parser.add_argument("--episodes", type=positive_int, default=50, help="episodes per scenario and side")
     parser.add_argument("--seed", type=int, default=42, help="bench traffic seed")
     parser.add_argument("--upstream", nargs="*", default=["highway-v0"], choices=list(upstream_roads.ENVS))
-    parser.add_argument("--upstream-episodes", type=int, default=20)
-    parser.add_argument("--workers", type=int, default=2, help="parallel bench episodes")
+    parser.add_argument("--upstream-episodes", type=positive_int, default=20)
+    parser.add_argument("--workers", type=positive_int, default=2, help="parallel bench episodes")
     args = parser.parse_args(argv)
     from driveopt.errors import DriveoptError
     from driveopt.registry import get_optimiser
@@ -115,9 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         spec.with_overrides(**overrides)
     except (DriveoptError, OSError, ValueError, TypeError) as exc:
         parser.error(str(exc))
-    samples = args.samples or spec.config.sampler.num_samples
-    if args.episodes < 1 or args.upstream_episodes < 1 or samples < 1:
-        parser.error("--episodes, --upstream-episodes and --samples must be positive")
+    samples = args.samples if args.samples is not None else spec.config.sampler.num_samples
     common = ["--planners", args.planner, "--seeds", str(args.seed), "--episodes", str(args.episodes),
               "--samples", str(samples), "--workers", str(args.workers)]
     sides = (("own", []), ("changed", ["--config", str(args.config.resolve())]))
@@ -131,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
                                  args.planner, "--episodes", str(args.upstream_episodes), "--samples", str(samples),
                                  *extra])
     roads = {name: judge(bench_pairs(args.out, name, args.planner)) for name in args.scenarios}
-    roads.update({name: judge(upstream_pairs(args.out, name, args.planner, args.upstream_episodes, 0))
+    roads.update({name: judge(upstream_pairs(args.out, name, args.planner, args.upstream_episodes))
                   for name in args.upstream})
     verdict = {"command": "python benchmarks/studies/setting_ab.py " + " ".join(argv if argv is not None else sys.argv[1:]),
                "planner": args.planner, "samples": samples, "config": overrides, "roads": roads,

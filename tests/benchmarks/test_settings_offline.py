@@ -28,3 +28,13 @@ def test_agreement_against_the_own_pick():
     agreement = settings_offline.agreement(records, "changed")
     assert agreement["same_lanes"] == 0.5 and agreement["same_last_lane"] == 0.5
     assert agreement["speed_gap_median"] == pytest.approx(2.0)
+
+
+def test_saved_states_load_as_the_same_problems(tmp_path):
+    problems = [("a", build_problem(load_scene("slow-leader-four-lane"))), ("b", build_problem(load_scene("dense-snapshot")))]
+    settings_offline.save_states(tmp_path / "s.npz", problems)
+    loaded = settings_offline.load_states(tmp_path / "s.npz")
+    assert [name for name, _ in loaded] == ["a", "b"]
+    for (_, before), (_, after) in zip(problems, loaded):
+        for field in before._fields:
+            np.testing.assert_array_equal(np.asarray(getattr(after, field)), np.asarray(getattr(before, field)))

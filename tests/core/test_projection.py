@@ -10,7 +10,7 @@ import pytest
 
 from driveopt.basis import basis_at, derivative_control_points
 from driveopt.config import ProjectionConfig, QPConfig
-from driveopt.problem import PlanningProblem, build_problem
+from driveopt.problem import build_problem
 from driveopt.projection import (
     _fast_rsqrt,
     _fast_sqrt,
@@ -604,10 +604,10 @@ _STATES = Path(__file__).with_name("closed-loop-states.npz")
 def _recorded_batches(seed: int):
     """Per recorded state: the problem, 64 set-point QP targets (speeds the current one +- 4 m/s, random lane centres)
     and the boundary values."""
-    with np.load(_STATES) as data:
-        count = len(data["scenarios"])
-        problems = [PlanningProblem(**{f: jnp.asarray(data[f"{i}.{f}"]) for f in PlanningProblem._fields}) for i in range(count)]
-    for index, problem in enumerate(problems):
+    from benchmarks.perf.settings_offline import load_states  # the writer of the file reads it
+
+    for index, (_, problem) in enumerate(load_states(_STATES)):
+        problem = jax.tree_util.tree_map(jnp.asarray, problem)
         key = jax.random.PRNGKey(100 * seed + index)
         speeds = jnp.clip(problem.init_x[1] + 4 * jax.random.normal(key, (_SAMPLES, 4)), 0.0, 30.0)
         lanes = problem.lane_center0 + problem.lane_width * jax.random.randint(jax.random.fold_in(key, 1), (_SAMPLES, 4), 0,

@@ -48,8 +48,8 @@ EVERY_LAYOUT = ("bilevel", "grid", "idm")  # the other planners share their road
 
 
 SLOW_IN_DEFAULT_RUN = ("vqvae-filter",)  # 26 s on a fresh clone; tests/training/test_filter.py plans with it
-FAITHFUL_IN_DEFAULT_RUN = ("vanilla-faithful",)  # one faithful planner: the others share its driver settings (the
-# P2 ones the [vqvae-filter] case's prior and filter), and tests/core/test_registry.py plans with their priors
+FAITHFUL_IN_DEFAULT_RUN = ("vanilla-faithful",)  # one faithful planner: the others share its driver settings, and
+# tests/core/test_registry.py plans with their priors
 
 
 def _planner_cases():
