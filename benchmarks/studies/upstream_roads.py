@@ -2,6 +2,7 @@
 
     python benchmarks/studies/upstream_roads.py --out benchmarks/results/upstream-roads [--episodes 20] [--samples 250]
         [--envs highway-v0 racetrack-v0 ...] [--planners bilevel idm] [--seed 0] [--duration 20] [--config C.json]
+        [--hold-actions]
 
 Each episode makes the env with ``driveopt.gym_make`` (``gymnasium.make`` with rewards for array actions) and
 ``ContinuousAction`` (default traffic; the settings of :data:`ENVS` make every env last the duration: an env config's
@@ -9,15 +10,20 @@ Each episode makes the env with ``driveopt.gym_make`` (``gymnasium.make`` with r
 ``seed + episode`` and drives it through :class:`driveopt.Controller` (``idm``: highway-env's IDM/MOBIL vehicle takes
 the ego's place; ``--config``: planner-config overrides of the optimisers, a JSON file as for ``driveopt bench
 --config``) at the ego lane's speed limit as desired speed, for ``--duration`` seconds or until the env ends the
-episode. An env the controller refuses at reset (``RoadFrameError``: a road it cannot represent; ``ControllerError``:
+episode. The optimisers' plans are tracked at every simulation step of a policy period (``Controller``'s
+``track_within_period``; their records say ``tracked_within_period`` where the env holds an action for more
+than one simulation step); ``--hold-actions``: each action held for the period
+(the records before the controller tracked within it). An env the controller refuses at reset (``RoadFrameError``: a road it cannot represent; ``ControllerError``:
 parking-v0's goal pose) is recorded as refused with the message. Every episode is one line of
-``OUT/episodes.jsonl`` (a rerun skips those done: resumable); ``OUT/summary.json`` gives, per env and planner (every
+``OUT/episodes.jsonl`` (a rerun skips those done: resumable); ``OUT/table.md`` is docs/controller.md's table of
+them; ``OUT/summary.json`` gives, per env and planner (every
 one recorded with these settings, not only this run's), the episodes, collisions, off-road episodes, refusals,
 arrivals, the mean speed over the episodes without collision and the median over episodes of each episode's median
 planning time (wall clock of the machine the episodes ran on: see its load).
 An episode *arrived* when the env says so at its end (its ``is_success`` info: exit-v0's, in the exit lane or on the
 exit road; intersection-v0's ``has_arrived``) or, on a route (the controller's: the task's, e.g. roundabout-v0's
-exit, u-turn-v0's road back), when the ego ends on the route's last road; null without a destination (highway-v0, the racetracks, lane-keeping-v0 ...). :data:`ENVS` holds every env of highway-env 1.12.1
+exit, u-turn-v0's road back), when the ego was on the route's last road at a policy step (the road may lead on:
+roundabout-v0's exit road into the road beyond it); null without a destination (highway-v0, the racetracks, lane-keeping-v0 ...). :data:`ENVS` holds every env of highway-env 1.12.1
 but its variants of the same roads (``-v1``: connected-lane neighbours; highway-fast, the multi-agent intersection,
 the parking variants); ``merge-generic-v0`` and ``roundabout-generic-v0`` at their default settings.
 """
@@ -49,13 +55,16 @@ ENVS = {  # env id -> (gymnasium.make config besides ContinuousAction, make kwar
     "roundabout-generic-v0": ({}, {}),  # upstream routes its ego to the exit "nxs", as roundabout-v0's
     "parking-v0": ({}, {}),  # refused at reset: a goal pose, no lane to follow
 }
-SETUP = {"exit-v0": "route to the exit, arrived as upstream's success"}
+ROUTE_REACHED = "arrived: the route's last road reached"
+SETUP = {"exit-v0": "route to the exit, arrived as upstream's success", "roundabout-v0": ROUTE_REACHED,
+         "u-turn-v0": ROUTE_REACHED, "roundabout-generic-v0": ROUTE_REACHED}
 """Envs whose episodes changed since the records began (exit-v0 drove straight on, then counted arrivals on the exit road
-only): a record counts only with its env's setup, older ones are driven again."""
+only; the route envs counted the ego ending on the route's last road, not one that drove on past it): a record counts
+only with its env's setup, older ones are driven again."""
 
 
 def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: float,
-                planner_config: dict | None = None) -> dict:
+                planner_config: dict | None = None, within_period: bool = True) -> dict:
     """One episode's record."""
     import driveopt
     from driveopt.controller import ControllerError
@@ -69,7 +78,8 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
         env.reset(seed=seed)
         optimiser = planner != "idm"
         controller = driveopt.Controller(planner, samples=samples if optimiser else None,
-                                         config=planner_config if optimiser else None)
+                                         config=planner_config if optimiser else None,
+                                         track_within_period=within_period)
         try:
             controller.reset(env, seed=seed)
         except (RoadFrameError, ControllerError) as exc:
@@ -79,6 +89,8 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
         speeds, statuses, plan_ms = [], Counter(), []
         collided = off_road = False
         info: dict = {}
+        route = controller.task.route
+        reached = False  # the route's last road at a policy step
         start = time.perf_counter()
         for _ in range(steps):
             try:
@@ -92,13 +104,26 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
             speeds.append(float(sim.vehicle.speed))
             collided |= bool(sim.vehicle.crashed)  # lane-keeping-v0 gives no info
             off_road |= not sim.vehicle.on_road
+            reached |= bool(route) and tuple(sim.vehicle.lane_index[:2]) == tuple(route[-2:])
             if terminated or truncated or collided:
                 break
-        return {**record, "collided": collided, "off_road": off_road, "arrived": arrived(sim, controller.task.route, info),
+        return {**record, "collided": collided, "off_road": off_road, "arrived": arrived(sim, route, info, reached),
                 "mean_speed": float(np.mean(speeds)),
                 "time": clock(sim), "steps": len(speeds), "statuses": dict(statuses),
                 "plan_ms_median": float(np.median(plan_ms)) if plan_ms else None,
                 "compile_seconds": controller.compile_seconds, "wall_seconds": time.perf_counter() - start}
+    finally:
+        env.close()
+
+
+def holds_several_steps(env_id: str) -> bool:
+    """Whether the env holds each action for more than one simulation step (the controller then tracks within it)."""
+    import driveopt
+
+    config, kwargs = ENVS[env_id]
+    env = driveopt.gym_make(env_id, config={"action": {"type": "ContinuousAction"}, **config}, **kwargs)
+    try:
+        return env.unwrapped.config["simulation_frequency"] // env.unwrapped.config["policy_frequency"] > 1
     finally:
         env.close()
 
@@ -108,15 +133,14 @@ def clock(sim) -> float:
     return sim.steps / sim.config["simulation_frequency"]
 
 
-def arrived(sim, route, info: dict) -> bool | None:
-    """Whether the ego reached the env's destination (see the module docstring); None without one."""
+def arrived(sim, route, info: dict, reached: bool) -> bool | None:
+    """Whether the ego reached the env's destination (see the module docstring; ``reached``: it was on the route's last
+    road at a policy step); None without one."""
     if "is_success" in info:  # the env's own success after the last step (exit-v0: in the exit lane or on the exit)
         return bool(info["is_success"])
     if hasattr(sim, "has_arrived"):
         return bool(sim.has_arrived(sim.vehicle))
-    if route:
-        return tuple(sim.vehicle.lane_index[:2]) == tuple(route[-2:])
-    return None
+    return reached if route else None
 
 
 def summarise(records: list[dict]) -> dict:
@@ -146,6 +170,34 @@ def summarise(records: list[dict]) -> dict:
     return summary
 
 
+def cell(row: dict | None, with_plan_time: bool) -> str:
+    """One planner's results on one env as the table shows them: collisions, off road / episodes, refusals, arrivals,
+    mean speed [m/s] (episodes without collision), median planning time [ms]."""
+    if row is None:
+        return "not run"
+    if row["refused"] == row["episodes"]:
+        return f"refused ({row['refused']} / {row['episodes']})"
+    parts = [f"{row['collisions']}, {row['off_road_episodes']} / {row['episodes']}"]
+    if row["refused"]:
+        parts.append(f"{row['refused']} refused")
+    if row["arrived"] is not None:
+        parts.append(f"{row['arrived']} arrived")
+    parts.append(f"{row['mean_speed']:.2f}" if row["mean_speed"] is not None else "-")
+    if with_plan_time and row["plan_ms_median"] is not None:
+        parts.append(f"{row['plan_ms_median']:.0f} ms")
+    return ", ".join(parts)
+
+
+def table(results: dict, planners: list[str], samples: int) -> str:
+    """The markdown table of docs/controller.md: one row per env, one column per planner."""
+    heads = [f"`{p}`, {samples} samples: collisions, off road, arrived, speed [m/s], planning [ms]" if p != "idm"
+             else "`idm`: collisions, off road, arrived, speed [m/s]" for p in planners]
+    lines = ["| upstream env | " + " | ".join(heads) + " |", "|---" * (len(planners) + 1) + "|"]
+    for env_id, rows in results.items():
+        lines.append(f"| `{env_id}` | " + " | ".join(cell(rows.get(p), p != "idm") for p in planners) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True, help="folder for episodes.jsonl and summary.json")
@@ -156,6 +208,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--samples", type=int, default=250)
     parser.add_argument("--duration", type=float, default=20.0, help="[s] at most, per episode")
     parser.add_argument("--config", type=Path, help="planner-config overrides of the optimisers (JSON file)")
+    parser.add_argument("--hold-actions", action="store_true",
+                        help="hold each action for the policy period instead of tracking the plan within it")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.samples < 1 or args.duration <= 0:
         parser.error("--episodes, --samples and --duration must be positive")
@@ -173,7 +227,13 @@ def main(argv: list[str] | None = None) -> int:
         settings["config"] = config
     records = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
     records = [r for r in records if r.get("setup") == SETUP.get(r["env"])]  # this setup's (the file keeps all)
-    done = {(r["env"], r["planner"], r["seed"]) for r in records if r.get("settings") == settings}
+    holds = {env_id: holds_several_steps(env_id) for env_id in ENVS}
+
+    def settings_of(env_id: str, planner: str) -> dict:  # what a record of this run holds: the optimisers' tracking
+        tracked = planner != "idm" and not args.hold_actions and holds[env_id]  # (one step a period: nothing to track)
+        return {**settings, "tracked_within_period": True} if tracked else settings
+
+    done = {(r["env"], r["planner"], r["seed"]) for r in records if r.get("settings") == settings_of(r["env"], r["planner"])}
     with path.open("a") as out:
         for env_id in args.envs:
             for planner in args.planners:
@@ -181,18 +241,21 @@ def main(argv: list[str] | None = None) -> int:
                     seed = args.seed + k
                     if (env_id, planner, seed) in done:
                         continue
-                    record = {**run_episode(env_id, planner, seed, args.samples, args.duration, config), "settings": settings}
+                    record = {**run_episode(env_id, planner, seed, args.samples, args.duration, config,
+                                            not args.hold_actions), "settings": settings_of(env_id, planner)}
                     out.write(row_line(record))
                     out.flush()
                     records.append(record)
                     print(f"{env_id} {planner} seed {seed}: " + ("refused" if "refused" in record else
                           f"collided {record['collided']}, off-road {record['off_road']}, {record['mean_speed']:.1f} m/s"),
                           flush=True)
-    chosen = [r for r in records if r.get("settings") == settings]
+    chosen = [r for r in records if r.get("settings") == settings_of(r["env"], r["planner"])]
     summary = {"command": "python benchmarks/studies/upstream_roads.py " + " ".join(argv if argv is not None else os.sys.argv[1:]),
-               "settings": settings, "results": summarise(chosen)}
+               "settings": {**settings, "tracked_within_period": not args.hold_actions}, "results": summarise(chosen)}
     write_json(args.out / "summary.json", summary)
+    (args.out / "table.md").write_text(table(summary["results"], args.planners, args.samples))
     print(json.dumps(summary["results"], indent=1))
+    print(f"wrote {args.out / 'table.md'}")
     return 0
 
 

@@ -40,6 +40,7 @@ from driveopt.config import PlannerConfig
 from driveopt.drivers.base import Decision, DriverSpec, check_given_weights
 from driveopt.errors import DriveoptError
 from driveopt.registry import get_planner
+from driveopt.sim import step_hook
 from driveopt.sim.lane_graph import env_destination_route
 from driveopt.sim.perception import Task
 
@@ -92,6 +93,33 @@ class _Episode:
                 and float(getattr(sim, "time", 0.0)) >= self.time)
 
 
+class _WithinPeriod:
+    """The plan of the controller's latest action tracked at every simulation step of that action's period
+    (:mod:`driveopt.sim.step_hook`): highway-env holds an action for ``simulation_frequency // policy_frequency``
+    simulation steps, and a steering angle held for upstream's 1 s period misses a plan that turns within it (a
+    roundabout's entry). The first simulation step is the returned action's; each later one takes the driver's
+    command for that step alone (``within_period``), unless ``env.step`` was given another action."""
+
+    def __init__(self, sim: Any, driver: Any) -> None:
+        self.sim, self.driver, self.vehicle = sim, driver, sim.vehicle
+        self.dt = driver.model.simulation_dt  # [s] one simulation step
+        self.steps = driver.model.steps_per_action  # [-] simulation steps per policy period
+        self.acted: tuple[int, np.ndarray] | None = None  # (the env's step count at the decision, the action returned)
+        self.tracked = 0  # [-] simulation steps whose command this episode replaced
+
+    def on_step(self, vehicle: Any) -> None:
+        if vehicle is not self.vehicle or self.acted is None:
+            return
+        key, action = self.acted
+        step = int(self.sim.steps) - key  # which simulation step of the period this is (0: the action's own)
+        if not 0 < step < self.steps or not np.array_equal(np.asarray(self.sim.action_type.last_action), action):
+            return
+        command = self.driver.within_period(self.sim, step * self.dt)
+        if command is not None:
+            vehicle.action = self.sim.action_type.get_action(command.action)
+            self.tracked += 1
+
+
 def _state_key(env: Any) -> int:
     """The env's simulation step count: which state of the episode a decision was made at."""
     return int(getattr(env.unwrapped, "steps", 0))
@@ -117,6 +145,9 @@ class Controller:
     ``latency``: ``"sync"`` (default: each ``act`` returns the command of the plan it just made), ``"measured"`` or a
     compute time [ms]: each plan takes effect that many policy periods (rounded up, at least one) after the ``act``
     that started it, and the car keeps tracking the previous plan meanwhile (:mod:`driveopt.drivers.latency`);
+    ``track_within_period``: where the env holds each action for several simulation steps (upstream's 1 Hz envs: 15),
+    the plan is tracked at every one of them, the first with the returned action (default True; False: the returned
+    action is held for the whole period, as the env does for any policy; optimisers only);
     ``verbose``: ``reset`` writes one line on stderr when it compiles the planner and how long that took
     (``driveopt: compiling bilevel (150 samples) for highway-v0 ... 9.1 s``: the process's first reset of a planner
     and sample count; a later reset only when it took over 2 s, i.e. compiled anew; False: silent).
@@ -125,7 +156,7 @@ class Controller:
     def __init__(self, planner: str | DriverSpec = "bilevel", *, samples: int | None = None,
                  config: PlannerConfig | Mapping[str, Any] | None = None, v_des: float | None = None,
                  route: Sequence[str] | None = None, weights: str | None = None,
-                 latency: str | float | None = None, verbose: bool = True) -> None:
+                 latency: str | float | None = None, track_within_period: bool = True, verbose: bool = True) -> None:
         spec = get_planner(planner) if isinstance(planner, str) else planner
         if not isinstance(spec, DriverSpec):
             raise ControllerError(f"planner must be a registered name or a DriverSpec, got {type(planner).__name__}")
@@ -149,9 +180,12 @@ class Controller:
         self.spec = spec.with_samples(samples).with_weights(weights).with_latency(latency)
         self.v_des = None if v_des is None else float(v_des)
         self.route = None if route is None else tuple(route)
-        if not isinstance(verbose, bool):
-            raise ControllerError(f"verbose must be True or False, got {verbose!r}")
+        for name, value in (("track_within_period", track_within_period), ("verbose", verbose)):
+            if not isinstance(value, bool):
+                raise ControllerError(f"{name} must be True or False, got {value!r}")
+        self.track_within_period = track_within_period
         self.verbose = verbose
+        self._within: _WithinPeriod | None = None  # the plan tracked between the env's policy steps
         self._decided_at: int | None = None  # _state_key of the state self.last was decided at
         self._ahead: tuple[int, Decision] | None = None  # a decision render() made for a state act() has not acted at
         self.driver: Any = None
@@ -208,6 +242,13 @@ class Controller:
         self.last = self.planned = None
         self._decided_at = self._ahead = None
         self.episode = _Episode.of(sim)
+        if self._within is not None:
+            step_hook.remove(self._within.vehicle)
+        self._within = None
+        model = getattr(self.driver, "model", None)
+        if self.track_within_period and hasattr(self.driver, "within_period") and model.steps_per_action > 1:
+            self._within = _WithinPeriod(sim, self.driver)
+            step_hook.install(sim.vehicle, self._within)
 
     @property
     def compile_seconds(self) -> float:
@@ -227,7 +268,10 @@ class Controller:
         else:
             self._decide(env, key)
         self._ahead = None
-        return np.array(self.last.action, dtype=np.float32)  # a new array each call: envs keep it in their info
+        action = np.array(self.last.action, dtype=np.float32)  # a new array each call: envs keep it in their info
+        if self._within is not None:
+            self._within.acted = (key, action.copy())
+        return action
 
     def _decide(self, env: Any, key: int) -> Decision:
         self.last = self.driver.act(env)

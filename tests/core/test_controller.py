@@ -261,6 +261,37 @@ def test_crossings_and_roundabouts_are_driven_toward_the_envs_destination(env_id
     assert not crashed and steps >= 3 and ctrl.status is not None
 
 
+def test_the_plan_is_tracked_at_every_simulation_step_of_the_envs_period():
+    """roundabout-v0 holds an action for 15 simulation steps (1 Hz): tracked at each of them, the car ends every period
+    on its plan's course (the exact inverse over each step), where a steering angle held for the period is degrees
+    off it as the car turns onto the ring; an action that is not the controller's is held as the env holds any."""
+    from driveopt.sim.control import sample_trajectory
+    from driveopt.sim.road_frame import slip_angle
+
+    misses = {}
+    for within in (True, False):
+        env = driveopt.gym_make("roundabout-v0", config={**CONTINUOUS, "duration": 4})
+        env.reset(seed=0)
+        ctrl = driveopt.Controller("bilevel", samples=100, verbose=False, track_within_period=within)
+        ctrl.reset(env, seed=0)
+        period = 1.0 / env.unwrapped.config["policy_frequency"]
+        misses[within] = []
+        for _ in range(3):
+            action = ctrl.act(env)
+            planned = sample_trajectory(ctrl.planned.plan_world, ctrl.last.plan_elapsed + period)
+            env.step(action)
+            car = env.unwrapped.vehicle
+            course = car.heading + slip_angle(car.action["steering"])
+            miss = (course - np.arctan2(planned.vy, planned.vx) + np.pi) % (2 * np.pi) - np.pi
+            misses[within].append(abs(float(miss)))
+        if within:
+            tracked = ctrl._within.tracked
+            assert tracked == 3 * 14, "every simulation step of a period but the action's own"
+            env.step(np.zeros(2, np.float32))  # the user's own action: held
+            assert ctrl._within.tracked == tracked
+    assert max(misses[True]) < 1e-3 < 0.03 < max(misses[False]), misses
+
+
 def test_parking_is_refused_at_reset_in_one_line():
     env = driveopt.gym_make("parking-v0", config=CONTINUOUS)
     env.reset(seed=0)

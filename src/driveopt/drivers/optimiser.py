@@ -57,7 +57,8 @@ from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, plan, previou
 from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
 from driveopt.sim.contact import guard
-from driveopt.sim.control import BicycleModel, Command, EgoKinematics, brake_at_least, ego_kinematics, predict, sample_trajectory
+from driveopt.sim.control import (BicycleModel, Command, EgoKinematics, brake_at_least, ego_kinematics, predict,
+                                  sample_trajectory, track)
 from driveopt.sim.perception import Perception, RoadPreview, perceive
 from driveopt.sim.road_frame import RoadFrameError, slip_angle
 from driveopt.sim.scenarios import Scenario
@@ -301,6 +302,7 @@ class OptimiserDriver:
         :class:`~driveopt.sim.perception.Task`) gives only the desired speed, a name and optionally a route."""
         self.scenario = scenario
         self.model = BicycleModel.from_env(env)
+        self._one_step = dataclasses.replace(self.model, steps_per_action=1)  # the car over one simulation step
         self.preview = RoadPreview(lateral_acceleration=self.spec.config.projection.centripetal_max)
         first = perceive(env, scenario, self.preview)
         self.config = adapt_to_vehicle(self.spec.config, self.model, first.frame.curvature_between(-math.inf, math.inf))
@@ -328,6 +330,7 @@ class OptimiserDriver:
         self.executed_periods = 0  # [policy periods] into the plan in effect at the current step
         self.pending: _Call | None = None  # a plan computed but not yet in effect (real-time latency)
         self.steps = 0  # [-] policy steps acted this episode
+        self._step: tuple[_Call, float, bool] | None = None  # the latest step's (plan followed, [s] into it, guarded)
         self.started_at = 0  # [-] the step the latest planning call started at
         self.expected = self.spec.latency.periods(0.0, self.period)  # [policy periods] a call's expected compute time
 
@@ -405,6 +408,7 @@ class OptimiserDriver:
         executing, elapsed = self.executing, self.executed_periods * self.period
         if command is None:
             command, guarded = self._step_command(env, perception)
+        self._step = (executing, elapsed, guarded)
         action = command.action
         self.executed_periods += 1
         self.steps += 1
@@ -425,6 +429,24 @@ class OptimiserDriver:
         """[policy periods] how far ahead of now a call started now plans: 0 synchronously and for the episode's first
         call, else the expected compute time."""
         return 0 if self.executing is None or not self.spec.latency.realtime else self.expected
+
+    def within_period(self, env: Any, offset: float) -> Command | None:
+        """The command for the simulation step ``offset`` [s] into the latest step's policy period, from the ego's
+        state now: the plan that step's action follows, tracked over this simulation step alone (the exact inverse
+        with one step, :func:`driveopt.sim.control.track`: the course after the step is the plan's then), braking now
+        where that is the fallback; None where the step's action stands for the whole period (no step acted yet, the
+        contact guard braked, or the loop's command is not the exact inverse, as P2's authors' mean of the first
+        nodes)."""
+        if self._step is None:
+            return None
+        executing, elapsed, guarded = self._step
+        if guarded or not isinstance(self.spec.loop.command, ExactTracking):
+            return None
+        command = track(executing.world, elapsed + offset, ego_kinematics(env), self._one_step)
+        if not self._executes_chosen(executing.result) and executing.result.status != PlanStatus.SUCCESS:
+            command = brake_at_least(command, executing.result.fallback_deceleration, self._one_step,
+                                     float(env.unwrapped.vehicle.speed))
+        return command
 
     def _step_command(self, env: Any, perception: Perception | None) -> tuple[Command, bool]:
         """(the command of this step for the plan in effect, whether the contact guard replaced it)."""
