@@ -78,6 +78,11 @@ main() {
         local p1_dense="four-lane-d3.0 two-lane-d2.5"
         # P2's headline and Fig. 9, the pipelines as their authors ran them.
         claim p2 fig7:p2-four-lane-d3.0:vqvae-filter-faithful-vs-cvae-multipliers-faithful:collisions 10
+        # P2 Fig. 9 at density 3, with the filter against without it: each row to the look that decides it (driveopt's
+        # rows to their second look, where rates of 0 against 0 are not decidable; the faithful row to its third).
+        claim p2 fig9:p2-four-lane-d3.0:vqvae-filter@n1000-vs-vqvae-filter@n1000-maxiterations0:collisions 10
+        claim p2 fig9:p2-four-lane-d3.0:vqvae-filter-faithful@n1000-vs-vqvae-filter-faithful@n1000-maxiterations0:collisions 20
+        claim p2 fig9:p2-four-lane-d3.0:cvae-filter@n1000-vs-cvae-filter@n1000-maxiterations0:collisions 10
         # P1 Fig. 7's dense roads: the faithful MPC-Bi-Level against the authors' MPC baselines (the rows short of
         # their first look first), then driveopt's rows.
         claim p1 fig7:four-lane-d3.0:cvae-faithful-vs-grid-faithful:collisions 5
