@@ -26,6 +26,17 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from driveopt.config import PlannerConfig
+from driveopt.sim.traffic import restore_traffic_constants, traffic_constants
+
+_UPSTREAM_TRAFFIC = traffic_constants()  # before any test makes an env
+
+
+@pytest.fixture(autouse=True)
+def _upstream_traffic():
+    """Each test starts from upstream's traffic constants, whatever env an earlier test in its process reset
+    (intersection-v0 changes them for the process: driveopt.sim.traffic)."""
+    restore_traffic_constants(_UPSTREAM_TRAFFIC)
+    yield
 
 # One small configuration shared by the tests, so that it compiles once per session.
 SMALL = PlannerConfig().replace(

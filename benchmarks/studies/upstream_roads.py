@@ -103,8 +103,12 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
             _, _, terminated, truncated, info = env.step(action)
             speeds.append(float(sim.vehicle.speed))
             collided |= bool(sim.vehicle.crashed)  # lane-keeping-v0 gives no info
-            off_road |= not sim.vehicle.on_road
+            if not (off_road or sim.vehicle.on_road):  # where it first left the road
+                off_road = True
+                record["off_road_at"] = where(sim)
             reached |= bool(route) and tuple(sim.vehicle.lane_index[:2]) == tuple(route[-2:])
+            if collided:
+                record["collided_at"] = where(sim)
             if terminated or truncated or collided:
                 break
         return {**record, "collided": collided, "off_road": off_road, "arrived": arrived(sim, route, info, reached),
@@ -114,6 +118,13 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
                 "compile_seconds": controller.compile_seconds, "wall_seconds": time.perf_counter() - start}
     finally:
         env.close()
+
+
+def where(sim) -> dict:
+    """The ego's simulated time [s], position [m] and nearest lane now."""
+    vehicle = sim.vehicle
+    return {"time": clock(sim), "position": [round(float(x), 2) for x in vehicle.position],
+            "lane": [str(part) for part in vehicle.lane_index]}
 
 
 def holds_several_steps(env_id: str) -> bool:
@@ -227,6 +238,9 @@ def main(argv: list[str] | None = None) -> int:
         settings["config"] = config
     records = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
     records = [r for r in records if r.get("setup") == SETUP.get(r["env"])]  # this setup's (the file keeps all)
+    from driveopt.sim.traffic import restore_traffic_constants, traffic_constants
+
+    upstream_traffic = traffic_constants()  # before any env is made (intersection-v0 changes them for the process)
     holds = {env_id: holds_several_steps(env_id) for env_id in ENVS}
 
     def settings_of(env_id: str, planner: str) -> dict:  # what a record of this run holds: the optimisers' tracking
@@ -241,6 +255,7 @@ def main(argv: list[str] | None = None) -> int:
                     seed = args.seed + k
                     if (env_id, planner, seed) in done:
                         continue
+                    restore_traffic_constants(upstream_traffic)
                     record = {**run_episode(env_id, planner, seed, args.samples, args.duration, config,
                                             not args.hold_actions), "settings": settings_of(env_id, planner)}
                     out.write(row_line(record))

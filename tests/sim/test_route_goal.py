@@ -77,9 +77,9 @@ def _place(env, position, heading):
 
 def test_a_roundabouts_exit_leaves_by_the_outer_ring_lane_and_the_frame_covers_the_gap_to_it():
     """roundabout-v0's exit lane starts 5.6 m from the end of the outer ring lane, 2 m outside it and 5 m further round:
-    no lane joins it, so the lane nearest its start (the outer one) is the one to be in; the frame's ring reaches the
-    exit's start (no stretch of road between them the frame does not cover) and a car in that stretch is framed on the
-    route, not on the ring going round again."""
+    no lane joins it, so the lane nearest its start (the outer one) is the one to be in; the frame's corner piece turns
+    from the ring into the exit (no stretch of road between them the frame does not cover) and a car in that stretch is
+    framed on the route, not on the ring going round again."""
     env = driveopt.gym_make("roundabout-v0", config=CONTINUOUS)
     env.reset(seed=0)
     _place(env, [15.0, -18.2], -2.4)  # on road ("ee", "nx"), before the exit
@@ -88,8 +88,11 @@ def test_a_roundabouts_exit_leaves_by_the_outer_ring_lane_and_the_frame_covers_t
     assert (split.road, split.following) == (("ee", "nx"), ("nx", "nxs"))
     band = next(b for p in frame.pieces for b in p.bands if b.road == ("ee", "nx"))
     assert split.bands == ((band.first_center + 0.5 * band.lane_width, band.high),)  # the outer lane only
+    exit_band = next(b for p in frame.pieces for b in p.bands if b.road == ("nx", "nxs"))
+    assert split.s == pytest.approx(exit_band.s_from, abs=1e-6)  # the split is where the exit's lane takes over
     exit_start = frame.locate(env.unwrapped.road.network.graph["nx"]["nxs"][0].position(0.0, 0.0))
-    assert exit_start is not None and split.s == pytest.approx(exit_start[0], abs=1e-6)  # the split is where it starts
+    assert exit_start is not None and abs(exit_start[0] - split.s) < 2.0  # framed on the route, in the corner piece
+    assert abs(exit_start[1] - exit_band.first_center) < 0.2  # on the exit's lane, which continues the outer ring lane
     _place(env, [7.3, -24.6], -2.9)  # past the ring lane's end, 1.9 m short of the exit lane's start
     assert env.unwrapped.vehicle.lane_index[:2] == ("nx", "ne")  # upstream's closest lane goes round the ring
     frame, me = ego_frame(env, ROUNDABOUT_EXIT)

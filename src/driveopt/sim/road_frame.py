@@ -42,6 +42,7 @@ import numpy as np
 
 from driveopt.errors import DriveoptError
 from driveopt.scene import Road
+from driveopt.sim.corner_lane import CornerLane
 from driveopt.sim.lane_graph import (
     BRANCH_DISTANCE,
     JOIN_DISTANCE,
@@ -68,6 +69,11 @@ CROSSING_ANGLE = math.radians(30.0)  # [rad] a lane meeting the route at a large
 MAX_EGO_OFFSET = 8.0  # [m] the ego further than this beside its road's lanes is not on the frame
 _CURVATURE_STEP = 1.0  # [m] half-step of the numerical curvature of a sine lane, and spacing of its samples
 _MAX_PIECES = 256  # [-] roads followed at most in each direction
+CORNER_ANGLE = math.radians(10.0)  # [rad] where the route turns more than this from one road's lane to the next's
+# (a roundabout's entry and exit), a corner piece turns the frame from one lane into the other (driveopt.sim.corner_lane)
+CORNER_LENGTH = 16.0  # [m] ... over this long on the entry's or exit's side (all but _MIN_PIECE of a shorter lane) ...
+RING_REACH = 4.0  # [m] ... and this far into the ring
+_MIN_PIECE = 1.0  # [m] a corner leaves at least this much of the piece it reaches into
 
 
 class RoadFrameError(DriveoptError):
@@ -161,6 +167,8 @@ class Piece:
     open_hi: bool = False  # a straight last piece extends forwards without end
     lo_margin: float = 0.0  # [m] it also covers this far before lo: the outside of the corner where the route enters
     # its road part-way along (lane-keeping-v0's sine road), which the piece before does not reach
+    ring: bool = False  # a ring that an entry ends beside or an exit starts beside: the corner piece between them lies
+    # on the entry's or exit's side of the joint, whose lane reaches the ring's outer lane there
 
     def covers(self, longitudinal: float, margin: float = 0.0) -> bool:
         return ((self.open_lo or longitudinal >= self.lo - margin - self.lo_margin)
@@ -340,6 +348,17 @@ def _entry(network: Any, road: tuple[str, str], ref: Any, following: tuple[str, 
     return next((at for lane, joined, at in road_joins(network, road, following) if lane is ref and joined is nxt), 0.0)
 
 
+def _aligned(network: Any, ring: tuple[str, str], lateral: float) -> float:
+    """[m] lateral offset, from the reference lane of road ``ring``, of its lane centre nearest ``lateral`` [m] (where an
+    entry ends or an exit starts beside the ring: upstream's roundabout-v0 2.1 m outside the outer lane's centre), when
+    within one lane's width; else ``lateral``. The frame puts the entry's or exit's lane on that lane's centre line
+    (the two lanes' maps then differ at the joint by that gap, which the corner piece between them closes), so the
+    planner's lanes continue across the joint as the lane graph joins them."""
+    _, offsets, width = _road_lanes(network, ring)
+    nearest = min(offsets, key=lambda offset: abs(offset - lateral))
+    return nearest if abs(nearest - lateral) <= width else lateral
+
+
 def _corner(before: Any, after: Any, entry: float, band: Band) -> float:
     """[m] how far before ``entry`` [m] a piece along lane ``after`` reaches to cover the outside of the corner where
     lane ``before`` ends on it part-way along: the road's width and :data:`MAX_EGO_OFFSET` beside it, times the tangent
@@ -392,11 +411,14 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
             if offset and continues_past_end(network, road):  # a ring's exit: the ring's lanes reach its start
                 last.hi = float(longitudinal)
                 last.bands[-1] = last.bands[-1]._replace(s_to=last.s_start + last.hi)
-                piece = Piece(nxt, last.s_start + last.hi, last.d_shift + float(lateral), 0.0, length, [])
+                last.ring = True
+                piece = Piece(nxt, last.s_start + last.hi, last.d_shift + _aligned(network, road, float(lateral)), 0.0,
+                              length, [])
             elif offset and continued_before_start(network, following):  # a ring's entry: the ring reaches back to it
                 back, across = nxt.local_coordinates(np.asarray(last.lane.position(last.hi, 0.0), dtype=float))
-                piece = Piece(nxt, last.s_start + last.hi - float(back), last.d_shift - float(across), float(back),
-                              length, [])
+                piece = Piece(nxt, last.s_start + last.hi - float(back),
+                              last.d_shift - _aligned(network, following, float(across)), float(back), length, [],
+                              ring=True)
             else:
                 piece = Piece(nxt, last.s_start + last.hi - entry, last.d_shift + float(lateral), entry, length, [])
             piece.bands.append(_bands_of(network, piece, following, piece.s_start + piece.lo, piece.s_start + piece.hi))
@@ -437,11 +459,14 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
             if offset and continued_before_start(network, road):  # a ring seen from its entry: the ring reaches back
                 head.lo = float(longitudinal)
                 head.bands[0] = head.bands[0]._replace(s_from=head.s_start + head.lo)
-                piece = Piece(prev, head.s_start + head.lo - length, head.d_shift + float(lateral), 0.0, length, [])
+                head.ring = True
+                piece = Piece(prev, head.s_start + head.lo - length, head.d_shift + _aligned(network, road, float(lateral)),
+                              0.0, length, [])
             elif offset and continues_past_end(network, preceding):  # an exit's ring: its lanes reach the exit's start
                 ahead_, across = prev.local_coordinates(np.asarray(head.lane.position(head.lo, 0.0), dtype=float))
-                piece = Piece(prev, head.s_start + head.lo - float(ahead_), head.d_shift - float(across), 0.0,
-                              float(ahead_), [])
+                piece = Piece(prev, head.s_start + head.lo - float(ahead_),
+                              head.d_shift - _aligned(network, preceding, float(across)), 0.0, float(ahead_), [],
+                              ring=True)
             else:
                 piece = Piece(prev, head.s_start + head.lo - length, head.d_shift + float(lateral), 0.0, length, [])
             piece.bands.append(_bands_of(network, piece, preceding, piece.s_start, piece.s_start + piece.hi))
@@ -452,7 +477,75 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
     else:
         pieces[0].open_lo = pieces[0].straight
 
-    return RoadFrame(pieces, ego_road, tuple(roads), s0 + ego_longitudinal)
+    return RoadFrame(_corners(_merge_arcs(pieces)), ego_road, tuple(roads), s0 + ego_longitudinal)
+
+
+def _continues(piece: Piece, nxt: Piece) -> bool:
+    """Whether ``nxt`` lies on ``piece``'s circle, its frame coordinates those of ``piece``'s lane there, within the
+    half-turn around ``piece``'s lane start that its local coordinates cover (consecutive arcs of a ring)."""
+    if not (_is_circular(piece.lane) and _is_circular(nxt.lane)) or nxt.lo_margin:
+        return False
+    reach = 0.9 * math.pi * float(piece.lane.radius)
+    if nxt.s_start + nxt.hi - piece.s_start > reach or piece.lo < -reach:
+        return False
+    for longitudinal in (nxt.lo, nxt.hi):
+        for lateral in (0.0, 1.0):
+            along, across = piece.lane.local_coordinates(np.asarray(nxt.lane.position(longitudinal, lateral), dtype=float))
+            if (abs(piece.s_start + along - nxt.s_start - longitudinal) > _GEOMETRY_TOL
+                    or abs(piece.d_shift + across - nxt.d_shift - lateral) > _GEOMETRY_TOL):
+                return False
+    return True
+
+
+def _merge_arcs(pieces: list[Piece]) -> list[Piece]:
+    """Consecutive pieces on one circle as one piece (the map is the same; a corner after them can then reach
+    over more than one short arc)."""
+    merged = [pieces[0]]
+    for piece in pieces[1:]:
+        last = merged[-1]
+        if _continues(last, piece):
+            last.hi = piece.s_start + piece.hi - last.s_start
+            last.bands.extend(piece.bands)
+            last.open_hi = piece.open_hi
+        else:
+            merged.append(piece)
+    return merged
+
+
+def _reach(piece: Piece, length: float) -> float:
+    """[m] how far a corner piece reaches into ``piece`` from its joint: ``length`` [m], leaving at least
+    :data:`_MIN_PIECE` of a piece with ends."""
+    if piece.open_lo or piece.open_hi:
+        return length
+    return max(min(length, piece.hi - piece.lo - _MIN_PIECE), 0.0)
+
+
+def _corners(pieces: list[Piece]) -> list[Piece]:
+    """The pieces with a corner piece (:class:`~driveopt.sim.corner_lane.CornerLane`) at each ring's entry or exit
+    where the reference line turns by more than :data:`CORNER_ANGLE`: :data:`CORNER_LENGTH` on the entry's or exit's
+    side of the joint and :data:`RING_REACH` into the ring, its reference line the entry's or exit's lane (which
+    :func:`_aligned` put on a ring lane's centre line). A corner swings wide of both lanes; reaching further into the
+    ring would take it off the ring's outer edge (upstream's roundabout-v0: 4 m keeps a car within 0.7 m of it on the
+    road, with a sharpest curvature of 0.12 1/m)."""
+    out = [pieces[0]]
+    for piece in pieces[1:]:
+        last = out[-1]
+        turn = wrap_angle(float(piece.lane.heading_at(piece.lo)) - float(last.lane.heading_at(last.hi)))
+        if abs(turn) <= CORNER_ANGLE or not (last.ring or piece.ring):
+            out.append(piece)
+            continue
+        if last.ring:
+            before, after, d_shift = _reach(last, RING_REACH), _reach(piece, CORNER_LENGTH), piece.d_shift
+        else:
+            before, after, d_shift = _reach(last, CORNER_LENGTH), _reach(piece, RING_REACH), last.d_shift
+        start = last.s_start + last.hi - before
+        lane = CornerLane(last.lane, start - last.s_start, d_shift - last.d_shift,
+                          piece.lane, start - piece.s_start, d_shift - piece.d_shift, before + after)
+        out.append(Piece(lane, start, d_shift, 0.0, before + after, [last.bands[-1], piece.bands[0]]))
+        last.hi -= before
+        piece.lo += after
+        out.append(piece)
+    return out
 
 
 # ---------------------------------------------------------------------- vehicles in the frame

@@ -1,0 +1,113 @@
+"""A lane that turns smoothly from one lane into another across a corner, so that a frame through the corner is smooth.
+
+Where a route leaves a roundabout's ring for its exit, or enters the ring from its entry, the two lanes meet at an
+angle (upstream's roundabout-v0: 47-59 degrees) and beside each other, not end to end. A frame that switches from
+one lane's coordinates to the other's at one arc length maps a point off the joint to two places metres apart, and
+its reference line turns by the whole angle at once: a plan that is smooth in the frame is a corner in the world.
+
+:class:`CornerLane` replaces a stretch on each side of such a joint. Its reference line is the cubic Bezier curve
+from a point of the first lane to a point of the second, leaving and arriving along their directions (control points
+a third of the chord along each); its lateral axis turns from the first lane's to the second's with a quintic
+smoothstep. Its map therefore equals each lane's map at its ends for every lateral offset (highway-env's lanes are
+affine in the lateral offset), the reference line's position and heading are continuous there, and the turn is
+spread over the stretch, where the planner's curvature bound sees it. Before its start it is the first lane's map,
+past its end the second's.
+
+It offers what the road frame asks of a highway-env lane: ``position``, ``local_coordinates`` (the nearest of the
+curve's samples, refined by Newton's method), ``heading_at`` and ``length``. Its ``longitudinal`` is the curve's
+parameter times ``length``, about the arc length (as a sine lane's is along its axis, not along its curve).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+_STEP = 1e-3  # [m] finite-difference step of the lanes' directions and of Newton's Jacobian
+_TOL = 1e-7  # [m] Newton's method stops when the mapped point is this close
+_MAX_NEWTON = 12  # [-] iterations at most
+_SAMPLES = np.linspace(0.0, 1.0, 41)  # [-] curve parameters of the first guess
+
+
+def smoothstep(u: np.ndarray | float) -> np.ndarray | float:
+    """The quintic 6u^5 - 15u^4 + 10u^3 of ``u`` clipped to [0, 1]: 0 -> 0, 1 -> 1, first and second derivatives 0
+    at both ends."""
+    u = np.clip(u, 0.0, 1.0)
+    return u * u * u * (u * (6.0 * u - 15.0) + 10.0)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+class CornerLane:
+    """From lane ``a`` at ``a_from`` [m] along it to lane ``b`` at ``b_from + length`` [m] along it: longitudinal
+    ``l`` < 0 here is ``a_from + l`` along ``a``, ``l`` > ``length`` is ``b_from + l`` along ``b``; lateral ``y`` here
+    is ``y + a_lateral`` on ``a`` and ``y + b_lateral`` on ``b`` [m]."""
+
+    def __init__(self, a: Any, a_from: float, a_lateral: float, b: Any, b_from: float, b_lateral: float,
+                 length: float) -> None:
+        if not length > 0.0:
+            raise ValueError(f"a corner lane needs a positive length, got {length!r}")
+        self.a, self.a_from, self.a_lateral = a, float(a_from), float(a_lateral)
+        self.b, self.b_from, self.b_lateral = b, float(b_from), float(b_lateral)
+        self.length = float(length)
+        start, start_across, start_along = self._frame_of(a, self.a_from, self.a_lateral)
+        end, end_across, end_along = self._frame_of(b, self.b_from + self.length, self.b_lateral)
+        reach = float(np.linalg.norm(end - start)) / 3.0
+        self._controls = np.stack([start, start + reach * start_along, end - reach * end_along, end])
+        self._across = np.stack([start_across, end_across])
+
+    @staticmethod
+    def _frame_of(lane: Any, longitudinal: float, lateral: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(point, lateral axis, unit direction) of ``lane``'s map at (``longitudinal``, ``lateral``)."""
+        point = np.asarray(lane.position(longitudinal, lateral), dtype=float)
+        across = np.asarray(lane.position(longitudinal, lateral + 1.0), dtype=float) - point
+        ahead = np.asarray(lane.position(longitudinal + _STEP, lateral), dtype=float)
+        behind = np.asarray(lane.position(longitudinal - _STEP, lateral), dtype=float)
+        return point, across, _unit(ahead - behind)
+
+    def _curve(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(reference points, unit lateral axes) at curve parameters ``u`` in [0, 1], each (len(u), 2)."""
+        u = np.asarray(u, dtype=float)[:, None]
+        p0, p1, p2, p3 = self._controls
+        v = 1.0 - u
+        points = v ** 3 * p0 + 3 * v * v * u * p1 + 3 * v * u * u * p2 + u ** 3 * p3
+        w = smoothstep(u)
+        return points, _unit((1.0 - w) * self._across[0] + w * self._across[1])
+
+    def position(self, longitudinal: float, lateral: float) -> np.ndarray:
+        """[m] world position of (``longitudinal``, ``lateral``) [m]."""
+        if longitudinal < 0.0:
+            return np.asarray(self.a.position(self.a_from + longitudinal, lateral + self.a_lateral), dtype=float)
+        if longitudinal > self.length:
+            return np.asarray(self.b.position(self.b_from + longitudinal, lateral + self.b_lateral), dtype=float)
+        points, across = self._curve(np.array([longitudinal / self.length]))
+        return points[0] + lateral * across[0]
+
+    def heading_at(self, longitudinal: float) -> float:
+        """[rad] heading of the reference line (lateral 0) at ``longitudinal`` [m]."""
+        ahead = self.position(longitudinal + _STEP, 0.0)
+        behind = self.position(longitudinal - _STEP, 0.0)
+        return math.atan2(ahead[1] - behind[1], ahead[0] - behind[0])
+
+    def local_coordinates(self, position: np.ndarray) -> tuple[float, float]:
+        """(longitudinal, lateral) [m] of a world ``position`` [m]: the curve's nearest sample, refined by Newton's
+        method on the map."""
+        position = np.asarray(position, dtype=float)
+        points, across = self._curve(_SAMPLES)
+        k = int(np.argmin(np.sum((points - position) ** 2, axis=1)))
+        x = np.array([_SAMPLES[k] * self.length, float(np.dot(position - points[k], across[k]))])
+        for _ in range(_MAX_NEWTON):
+            residual = self.position(x[0], x[1]) - position
+            if float(np.hypot(*residual)) < _TOL:
+                break
+            jacobian = np.column_stack([
+                (self.position(x[0] + _STEP, x[1]) - self.position(x[0] - _STEP, x[1])) / (2 * _STEP),
+                (self.position(x[0], x[1] + _STEP) - self.position(x[0], x[1] - _STEP)) / (2 * _STEP)])
+            if abs(float(np.linalg.det(jacobian))) < 1e-9:
+                break
+            x = x - np.linalg.solve(jacobian, residual)
+        return float(x[0]), float(x[1])
