@@ -232,7 +232,8 @@ def main(argv: list[str] | None = None) -> int:
     stop_cleanly_on_signals()
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "episodes.jsonl"
-    settings = {"samples": args.samples, "duration": args.duration}
+    settings = {"samples": args.samples, "duration": args.duration, "traffic": "upstream's constants"}  # (restored
+    # before each episode: earlier records ran with those intersection-v0 leaves for the process, and are driven again)
     config = json.loads(args.config.read_text()) if args.config else None
     if config:  # recorded only when given, so the records of the planners' own configuration stay as they are
         settings["config"] = config

@@ -19,8 +19,8 @@ def test_a_config_drives_the_episode_and_is_recorded_with_it(tmp_path):
                                 "--samples", "8", "--duration", "2", "--config", str(config)]) == 0
     (record,) = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
     assert "refused" not in record and record["steps"] >= 1
-    assert record["settings"] == {"samples": 8, "duration": 2.0, "config": {"projection": {"max_iterations": 3}},
-                                  "tracked_within_period": True}
+    assert record["settings"] == {"samples": 8, "duration": 2.0, "traffic": "upstream's constants",
+                                  "config": {"projection": {"max_iterations": 3}}, "tracked_within_period": True}
     summary = json.loads((out / "summary.json").read_text())
     assert summary["settings"]["config"] == {"projection": {"max_iterations": 3}}
     assert (out / "table.md").read_text().startswith("| upstream env | `bilevel`, 8 samples")
