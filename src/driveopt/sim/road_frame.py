@@ -507,6 +507,7 @@ def _merge_arcs(pieces: list[Piece]) -> list[Piece]:
             last.hi = piece.s_start + piece.hi - last.s_start
             last.bands.extend(piece.bands)
             last.open_hi = piece.open_hi
+            last.ring = last.ring or piece.ring
         else:
             merged.append(piece)
     return merged
