@@ -37,3 +37,14 @@ def test_the_table_shows_each_planners_counts_and_says_what_was_refused():
     assert lines[0].startswith("| upstream env | `bilevel`, 250 samples") and len(lines) == 4
     assert lines[2] == "| `roundabout-v0` | 2, 1 / 20, 1 refused, 12 arrived, 8.48, 43 ms | 7, 6 / 20, 0 arrived, 17.30 |"
     assert lines[3] == "| `parking-v0` | refused (20 / 20) | not run |"
+
+
+def test_the_pace_ab_refuses_an_unknown_field_or_a_missing_separator():
+    from benchmarks.studies import route_change_ab
+
+    with pytest.raises(SystemExit, match="unexpected keyword argument 'bogus'"):
+        route_change_ab.main(["bogus=1", "--", "--out", "x"])
+    with pytest.raises(SystemExit, match="must be a number"):
+        route_change_ab.main(["comfortable_lane_time=0", "--", "--out", "x"])
+    with pytest.raises(SystemExit, match="usage"):
+        route_change_ab.main(["comfortable_lane_time=2"])
