@@ -5,7 +5,7 @@ angle (upstream's roundabout-v0: 47-59 degrees) and beside each other, not end t
 one lane's coordinates to the other's at one arc length maps a point off the joint to two places metres apart, and
 its reference line turns by the whole angle at once: a plan that is smooth in the frame is a corner in the world.
 
-:class:`CornerLane` replaces a stretch on each side of such a joint. Its reference line is the cubic Bezier curve
+:class:`CornerLane` replaces a stretch around such a joint. Its reference line is the cubic Bezier curve
 from a point of the first lane to a point of the second, leaving and arriving along their directions (control points
 a third of the chord along each); its lateral axis turns from the first lane's to the second's with a quintic
 smoothstep. Its map therefore equals each lane's map at its ends for every lateral offset (highway-env's lanes are
