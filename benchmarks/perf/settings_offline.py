@@ -53,11 +53,19 @@ def save_states(path: Path, problems: list) -> None:
 
 
 def load_states(path: Path) -> list:
-    """The (scenario, PlanningProblem) pairs :func:`save_states` wrote."""
+    """The (scenario, PlanningProblem) pairs :func:`save_states` wrote; a file from before the road's curvature became a
+    table of cells (one number per problem) gets that number's magnitude in every cell."""
     from driveopt.problem import PlanningProblem
+    from driveopt.scene import CURVATURE_CELLS
+
+    def field_of(data, i: int, field: str) -> np.ndarray:
+        value = data[f"{i}.{field}"]
+        if field == "road_curvature" and value.ndim == 0:
+            return np.full(CURVATURE_CELLS, abs(value), dtype=value.dtype)
+        return value
 
     with np.load(path) as data:
-        return [(str(name), PlanningProblem(**{field: data[f"{i}.{field}"] for field in PlanningProblem._fields}))
+        return [(str(name), PlanningProblem(**{field: field_of(data, i, field) for field in PlanningProblem._fields}))
                 for i, name in enumerate(data["scenarios"])]
 
 

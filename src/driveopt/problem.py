@@ -29,13 +29,13 @@ from driveopt.prediction import (
     predict_neighbour,
     relevant_neighbours,
 )
-from driveopt.scene import EgoState, ProblemError, Scene
+from driveopt.scene import CURVATURE_CELLS, EgoState, ProblemError, Scene
 
 
 class PlanningProblem(NamedTuple):
     """Array form of a scene in the planning frame (ego at x = 0). A JAX pytree.
 
-    Shapes: N obstacles, K time nodes.
+    Shapes: N obstacles, K time nodes, C = :data:`~driveopt.scene.CURVATURE_CELLS` cells of the road ahead.
     """
 
     init_x: jnp.ndarray  # (3,) [m, m/s, m/s^2] x, x', x'' at t = 0
@@ -45,7 +45,8 @@ class PlanningProblem(NamedTuple):
     lane_center0: jnp.ndarray  # () [m] centre of the lowest lane
     lane_width: jnp.ndarray  # () [m]
     num_lanes: jnp.ndarray  # () [-] as float
-    road_curvature: jnp.ndarray  # () [1/m]
+    road_curvature: jnp.ndarray  # (C,) [1/m] the largest |road curvature| in each CURVATURE_CELL [m] cell ahead of x = 0
+    # (:attr:`driveopt.scene.Road.curvature_ahead`): the centripetal bound at a node reads the cell of its position
     v_des: jnp.ndarray  # () [m/s]
     obstacle_x: jnp.ndarray  # (N, K) [m] predicted centres
     obstacle_y: jnp.ndarray  # (N, K) [m]
@@ -135,7 +136,7 @@ def build_problem(
         lane_center0=f32(lanes[0]),
         lane_width=f32(lanes[1]),
         num_lanes=f32(lanes[2]),
-        road_curvature=f32(scene.road.curvature),
+        road_curvature=f32(scene.road.curvature_profile),
         v_des=f32(v_des),
         obstacle_x=f32(ox),
         obstacle_y=f32(oy),
@@ -161,7 +162,7 @@ def check_problem(problem: PlanningProblem, basis: BasisConfig = BasisConfig()) 
     N = np.shape(problem.obstacle_x)[0] if np.ndim(problem.obstacle_x) == 2 else -1
     expected = {
         "init_x": (3,), "init_y": (3,), "y_lb": (), "y_ub": (), "lane_center0": (), "lane_width": (),
-        "num_lanes": (), "road_curvature": (), "v_des": (), "obstacle_x": (N, K), "obstacle_y": (N, K),
+        "num_lanes": (), "road_curvature": (CURVATURE_CELLS,), "v_des": (), "obstacle_x": (N, K), "obstacle_y": (N, K),
         "obstacle_a": (N,), "obstacle_b": (N,), "obstacle_mask": (N,), "ellipse_growth": (2, K),
         "ego_heading": (),
         "observation": (OBSERVATION_DIM,),

@@ -42,12 +42,14 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from driveopt import anderson
 from driveopt.basis import derivative_control_points
 from driveopt.config import ProjectionConfig
 from driveopt.problem import PlanningProblem, ellipse_axes, travel_direction
 from driveopt.qp import TrajectoryModel, split
+from driveopt.scene import CURVATURE_CELL
 from driveopt.xla import float32_products
 
 _EPS = 1e-6
@@ -467,6 +469,19 @@ def _pair(x, y, one):
     return jnp.real(packed), jnp.imag(packed)
 
 
+def road_curvature_at(cells: jnp.ndarray, x: jnp.ndarray) -> jnp.ndarray:
+    """[1/m] the road's |curvature| at positions ``x`` [m] (any shape): the value of the CURVATURE_CELL-long cell of
+    ``cells`` (C,) each lies in, the first cell for positions behind x = 0 and the last beyond the table."""
+    index = jnp.clip(jnp.floor(x * (1.0 / CURVATURE_CELL)), 0, cells.shape[0] - 1).astype(jnp.int32)
+    return cells[index]
+
+
+def _row_nodes(rows: int, nodes: int) -> np.ndarray:
+    """Index of the node nearest in time to each of ``rows`` velocity rows spread evenly over the horizon (the control
+    points stand for the times of their abscissae)."""
+    return np.rint(np.linspace(0.0, nodes - 1, rows)).astype(int)
+
+
 def _normalise(ux, uy):
     """Length and unit direction of (ux, uy); direction (1, 0) where the length vanishes."""
     sq = ux * ux + uy * uy
@@ -566,7 +581,7 @@ def _analysis_step(
     turning = speed > CURVATURE_MIN_SPEED
     if cfg.kappa_max > 0:
         v_lo = jnp.where(turning, jnp.maximum(v_lo, _fast_sqrt(d_acc_prev * sin_va * (1.0 / cfg.kappa_max))), v_lo)
-    road_k = jnp.abs(problem.road_curvature)
+    road_k = road_curvature_at(problem.road_curvature, x if P == K else x[:, _row_nodes(P, K)])
     v_hi = jnp.minimum(cfg.v_max, cfg.centripetal_max ** 0.5 * _fast_rsqrt(jnp.maximum(uvx * uvx * road_k, _EPS)))
     # Course bound: a velocity turned further from the direction of travel (s = +-1 along x) than the bound goes to
     # the nearest point of the bound's ray, of length |v| cos(course - bound) (then the speed bounds apply); no

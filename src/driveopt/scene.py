@@ -41,6 +41,8 @@ RANGES = {
     "v_des": (0.0, 100.0, "m/s"), "edge_margin": (0.0, 100.0, "m"),
 }
 MAX_LANES = 64  # [-] lanes of a road
+CURVATURE_CELL = 2.5  # [m] length of a cell of Road.curvature_ahead
+CURVATURE_CELLS = 80  # [-] cells of Road.curvature_ahead: 200 m, what 40 m/s covers in a 5 s horizon
 
 
 def _number(name: str, value: Any, field: str | None = None) -> float:
@@ -141,13 +143,32 @@ class Road:
     num_lanes: int = 4  # [-]
     lane_width: float = 4.0  # [m]
     first_lane_center: float = 0.0  # [m]
-    curvature: float = 0.0  # [1/m] signed curvature of the centre line (used by the centripetal bound)
+    curvature: float = 0.0  # [1/m] signed curvature of the centre line at the ego
+    # [1/m] the largest |curvature| of the centre line in each of CURVATURE_CELLS cells of CURVATURE_CELL metres ahead
+    # of the ego (the first reaching back over the ego's length): the centripetal bound at a plan's node reads the
+    # cell the node is in. Empty: |curvature| everywhere (a constant-curvature road).
+    curvature_ahead: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.num_lanes, int) or isinstance(self.num_lanes, bool) or not 1 <= self.num_lanes <= MAX_LANES:
             raise ProblemError(f"road.num_lanes must be an int in [1, {MAX_LANES}], got {self.num_lanes!r}")
         for f in ("lane_width", "first_lane_center", "curvature"):
             object.__setattr__(self, f, _number(f"road.{f}", getattr(self, f)))
+        cells = self.curvature_ahead
+        if isinstance(cells, (str, bytes)) or not isinstance(cells, (tuple, list, np.ndarray)) or len(cells) not in (0, CURVATURE_CELLS):
+            raise ProblemError(f"road.curvature_ahead must be empty or a list of {CURVATURE_CELLS} curvatures [1/m], "
+                               f"got {cells!r:.80}")
+        values = tuple(_number(f"road.curvature_ahead[{i}]", c, "curvature") for i, c in enumerate(cells))
+        if any(v < 0 for v in values):
+            raise ProblemError("road.curvature_ahead holds magnitudes: every value must be >= 0")
+        object.__setattr__(self, "curvature_ahead", values)
+
+    @property
+    def curvature_profile(self) -> np.ndarray:
+        """[1/m] (CURVATURE_CELLS,) :attr:`curvature_ahead`, or ``|curvature|`` in every cell where it is empty."""
+        if self.curvature_ahead:
+            return np.asarray(self.curvature_ahead, dtype=float)
+        return np.full(CURVATURE_CELLS, abs(self.curvature))
 
     @property
     def lane_centers(self) -> np.ndarray:
@@ -209,7 +230,7 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
     return {
         "name": scene.name,
         "v_des": scene.v_des,
-        "road": asdict(scene.road),
+        "road": {k: v for k, v in asdict(scene.road).items() if k != "curvature_ahead" or v},
         "ego": asdict(scene.ego),
         "neighbours": [asdict(n) for n in scene.neighbours],
         "ellipse_margin": asdict(scene.ellipse_margin),

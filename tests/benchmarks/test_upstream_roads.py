@@ -7,6 +7,8 @@ import json
 
 import pytest
 
+from driveopt.sim.route_goal import RouteChange
+
 from benchmarks.studies import upstream_roads
 
 
@@ -39,12 +41,35 @@ def test_the_table_shows_each_planners_counts_and_says_what_was_refused():
     assert lines[3] == "| `parking-v0` | refused (20 / 20) | not run |"
 
 
-def test_the_pace_ab_refuses_an_unknown_field_or_a_missing_separator():
-    from benchmarks.studies import route_change_ab
+def test_the_preview_ab_refuses_an_unknown_field_a_bad_value_or_a_missing_separator():
+    from benchmarks.studies import preview_ab
 
     with pytest.raises(SystemExit, match="unexpected keyword argument 'bogus'"):
-        route_change_ab.main(["bogus=1", "--", "--out", "x"])
-    with pytest.raises(SystemExit, match="must be a number"):
-        route_change_ab.main(["comfortable_lane_time=0", "--", "--out", "x"])
+        preview_ab.main(["bogus=1", "--", "--out", "x"])
+    with pytest.raises(SystemExit, match="unexpected keyword argument 'bogus'"):
+        preview_ab.main(["route_change.bogus=1", "--", "--out", "x"])
+    with pytest.raises(SystemExit, match="RouteChange.comfortable_lane_time must be a number"):
+        preview_ab.main(["route_change.comfortable_lane_time=0", "--", "--out", "x"])
+    with pytest.raises(SystemExit, match="RoadPreview.speed_distance must be a number"):
+        preview_ab.main(["speed_distance=-1", "--", "--out", "x"])
+    with pytest.raises(SystemExit, match="could not convert"):
+        preview_ab.main(["speed_distance=far", "--", "--out", "x"])
     with pytest.raises(SystemExit, match="usage"):
-        route_change_ab.main(["comfortable_lane_time=2"])
+        preview_ab.main(["speed_distance=0"])
+    with pytest.raises(SystemExit, match="curvature_per_node must be True or False"):
+        preview_ab.main(["curvature_per_node=1", "--", "--out", "x"])
+    assert preview_ab.preview_fields(["speed_distance=0", "curvature_per_node=True", "route_change.comfortable_lane_time=2"]) == {
+        "speed_distance": 0.0, "curvature_per_node": True, "route_change": RouteChange(comfortable_lane_time=2.0)}
+
+
+def test_the_curve_speed_ceiling_drives_each_road_at_its_limit_or_its_curve_speed():
+    """100 m straight at the 10 m/s limit (10 s) and 50 m of radius 25 m: at 4 m/s^2 the curve allows 10 m/s (5 s),
+    at 1 m/s^2 5 m/s (10 s): 150 / 15 and 150 / 20 m/s."""
+    from benchmarks.studies import curve_speed_ceiling
+
+    roads = [{"length": 100.0, "curvature": 0.0, "speed_limit": 10.0},
+             {"length": 50.0, "curvature": 1.0 / 25.0, "speed_limit": 10.0}]
+    assert curve_speed_ceiling.ceiling(roads, 4.0) == pytest.approx(10.0)
+    assert curve_speed_ceiling.ceiling(roads, 1.0) == pytest.approx(7.5)
+    with pytest.raises(SystemExit):
+        curve_speed_ceiling.main(["--out", "x.json", "--bounds", "0"])

@@ -12,6 +12,7 @@ from driveopt.basis import basis_at, derivative_control_points
 from driveopt.config import ProjectionConfig, QPConfig
 from driveopt.problem import build_problem
 from driveopt.projection import (
+    road_curvature_at,
     _fast_rsqrt,
     _fast_sqrt,
     _operators,
@@ -24,7 +25,7 @@ from driveopt.projection import (
     quasi_definite_inverse,
 )
 from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
-from driveopt.scene import EgoState, Neighbour, Road, Scene, load_scene
+from driveopt.scene import CURVATURE_CELL, CURVATURE_CELLS, EgoState, Neighbour, Road, Scene, load_scene
 from driveopt.trajectory import evaluate
 from driveopt.xla import XLA_CPU_COMPILER_OPTIONS, supported_compiler_options
 
@@ -130,7 +131,7 @@ def test_centripetal_only():
     out = project(MODEL, problem, target, b_x, b_y, cfg)
     assert float(evaluate(MODEL, out.coeffs).speed.max()) < 10.0 * 1.05
     # The same road with zero curvature leaves the speed alone.
-    flat = project(MODEL, problem._replace(road_curvature=jnp.float32(0.0)), target, b_x, b_y, cfg)
+    flat = project(MODEL, problem._replace(road_curvature=jnp.zeros_like(problem.road_curvature)), target, b_x, b_y, cfg)
     assert float(evaluate(MODEL, flat.coeffs).speed.max()) > 15.0
 
 
@@ -636,3 +637,23 @@ def test_the_realtime_projection_leaves_recorded_states_residuals_about_as_low_a
     assert after.mean() <= 1.15 * before.mean()
     assert np.median(after) <= 1.1 * np.median(before) + 0.05
     assert np.percentile(after, 90) <= 1.25 * np.percentile(before, 90)
+
+
+def test_centripetal_bound_reads_the_curvature_where_each_node_is():
+    """A curve from 40 m on (0.04 1/m, 1 m/s^2: at most 5 m/s there): the plan keeps its speed before the curve and
+    slows to the curve's speed by the time it is in it, where a constant bound would slow the whole plan."""
+    cells = tuple(0.0 if i * CURVATURE_CELL < 40.0 else 0.04 for i in range(CURVATURE_CELLS))
+    scene = dataclasses.replace(empty_scene(vx=10.0), road=Road(num_lanes=4, curvature_ahead=cells))
+    problem, target, b_x, b_y = setup(scene, [[10.0] * 4 + [4.0] * 4])
+    cfg = dataclasses.replace(LOOSE, centripetal_max=1.0)
+    traj = evaluate(MODEL, project(MODEL, problem, target, b_x, b_y, cfg).coeffs)
+    x, speed = np.asarray(traj.x)[0], np.asarray(traj.speed)[0]
+    assert x.max() > 45.0  # the plan reaches the curve
+    assert speed[x >= 40.0 + CURVATURE_CELL].max() < 5.0 * 1.05
+    assert speed[x < 10.0].min() > 8.0  # not slowed from the start
+
+
+def test_road_curvature_at_reads_the_cell_of_each_position():
+    cells = jnp.arange(CURVATURE_CELLS, dtype=jnp.float32) * 1e-3
+    x = jnp.array([-3.0, 0.0, CURVATURE_CELL * 0.99, CURVATURE_CELL * 1.01, CURVATURE_CELL * 10.5, 1e4])
+    assert np.allclose(road_curvature_at(cells, x), [0.0, 0.0, 0.0, 1e-3, 1e-2, (CURVATURE_CELLS - 1) * 1e-3])

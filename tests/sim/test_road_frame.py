@@ -9,6 +9,7 @@ import pytest
 from highway_env.road.lane import CircularLane, StraightLane
 from highway_env.road.road import RoadNetwork
 
+from driveopt.scene import CURVATURE_CELL, CURVATURE_CELLS
 from driveopt.sim.road_frame import RoadFrameError, build_frame, lane_curvature
 from driveopt.sim.world_plan import to_world
 from driveopt.trajectory import Trajectory
@@ -37,6 +38,7 @@ def test_a_straight_road_along_x_is_the_world_frame_exactly():
         assert (s, d) == (300.0 + (x - 300.0), 0.0 + (y - 0.0)), "the ego road's lane measures every straight section"
     road = frame.road(350.0, 30.0, 10.0)
     assert (road.num_lanes, road.lane_width, road.first_lane_center, road.curvature) == (3, 4.0, 0.0, 0.0)
+    assert not road.curvature_profile.any()
 
 
 def test_an_arc_is_measured_along_its_reference_lane():
@@ -52,9 +54,28 @@ def test_an_arc_is_measured_along_its_reference_lane():
     # the straight after the arc continues the arc length
     s, d, *_ = frame.locate(np.array([80.0, 40.0]))
     assert s == pytest.approx(50.0 + quarter + 10.0) and d == pytest.approx(0.0, abs=1e-9)
-    road = frame.road(40.0, 30.0, 20.0)
+    road = frame.road(55.0, 30.0, 20.0)
     assert road.num_lanes == 2 and road.curvature == pytest.approx(1.0 / 30.0)
     assert frame.road(10.0, 10.0, 10.0).curvature == 0.0
+
+
+def test_the_curvature_per_node_is_the_arcs_in_the_cells_it_spans_and_their_neighbours():
+    """From s = 10 m the arc (1/30 1/m) spans 40 m to 40 + 47.1 m ahead: cells 16 to 34 of 2.5 m, widened by one
+    cell each way; straight elsewhere; nothing in the cells beyond the curvature preview."""
+    frame = build_frame(_loop(), ("a", "b"))
+    cells = frame.road(10.0, 10.0, 200.0, behind=2.5, per_node=True).curvature_profile
+    assert cells.shape == (CURVATURE_CELLS,)
+    quarter = 0.5 * math.pi * 30.0
+    first, last = int(40.0 // CURVATURE_CELL), int((40.0 + quarter) // CURVATURE_CELL)
+    curved = np.zeros(CURVATURE_CELLS, bool)
+    curved[first - 1:last + 2] = True
+    assert np.allclose(cells[curved], 1.0 / 30.0) and not cells[~curved].any()
+    # a preview of 45 m keeps the cells that start within it (the arc's first ones) and no others
+    short = frame.road(10.0, 10.0, 45.0, behind=2.5, per_node=True).curvature_profile
+    kept = CURVATURE_CELL * np.arange(CURVATURE_CELLS) <= 45.0
+    assert np.array_equal(short[kept], cells[kept]) and short[kept].any() and not short[~kept].any()
+    # without per_node the preview's sharpest curvature is every cell's
+    assert np.array_equal(frame.road(10.0, 10.0, 45.0, behind=2.5).curvature_profile, np.full(CURVATURE_CELLS, 1.0 / 30.0))
 
 
 def test_a_plan_along_the_arc_turns_back_into_the_lanes_world_motion():

@@ -102,7 +102,8 @@ def test_a_roundabouts_exit_leaves_by_the_outer_ring_lane_and_the_frame_covers_t
 def test_the_speed_before_a_curve_leaves_one_policy_period_to_the_next_decision():
     """A curve of radius 25 m 40 m ahead (4 m/s^2 lateral: 10 m/s there) enters the centripetal bound 15 m before it;
     braking at 1.5 m/s^2 over the 25 m before that allows 13.2 m/s now, but a decision once a second at 20 m/s covers
-    20 of those metres first: 10.7 m/s."""
+    20 of those metres first: 10.7 m/s. Bounded node by node, the plan can brake within the preview: the curve's
+    speed is due at the curve, less one 2.5 m cell (14.6 and 12.2 m/s)."""
     from types import SimpleNamespace
 
     from driveopt.sim.perception import RoadPreview, curve_speed
@@ -111,4 +112,7 @@ def test_the_speed_before_a_curve_leaves_one_policy_period_to_the_next_decision(
     preview = RoadPreview()
     assert curve_speed(frame, 0.0, 20.0, preview) == pytest.approx((100.0 + 2 * 1.5 * 25.0) ** 0.5)
     assert curve_speed(frame, 0.0, 20.0, preview, period=1.0) == pytest.approx((100.0 + 2 * 1.5 * 5.0) ** 0.5)
+    per_node = RoadPreview(curvature_per_node=True)
+    assert curve_speed(frame, 0.0, 20.0, per_node) == pytest.approx((100.0 + 2 * 1.5 * 37.5) ** 0.5)
+    assert curve_speed(frame, 0.0, 20.0, per_node, period=1.0) == pytest.approx((100.0 + 2 * 1.5 * 17.5) ** 0.5)
     assert curve_speed(frame, 0.0, 8.0, preview, period=1.0) == 8.0  # slower than the curve allows: unchanged

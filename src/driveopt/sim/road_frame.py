@@ -41,7 +41,7 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 
 from driveopt.errors import DriveoptError
-from driveopt.scene import Road
+from driveopt.scene import CURVATURE_CELL, CURVATURE_CELLS, Road
 from driveopt.sim.corner_lane import CornerLane
 from driveopt.sim.lane_graph import (
     BRANCH_DISTANCE,
@@ -286,16 +286,40 @@ class RoadFrame:
             curves += [(piece.s_start + float(x) - s_from, abs(lane_curvature(piece.lane, float(x)))) for x in samples]
         return curves
 
+    def curvature_cells(self, s: float, behind: float = 0.0) -> np.ndarray:
+        """[1/m] (CURVATURE_CELLS,) the largest |curvature| of the reference line in each CURVATURE_CELL-long cell
+        ahead of ``s`` [m] (:attr:`driveopt.scene.Road.curvature_ahead`), the first reaching back ``behind`` [m]. Each
+        cell also takes its neighbours' values: a node's position is read in one cell, while the car's length and the
+        plan's motion between iterations reach into the next."""
+        edges = s + CURVATURE_CELL * np.arange(CURVATURE_CELLS + 1)
+        edges[0] -= behind
+        cells = np.zeros(CURVATURE_CELLS)
+        for piece in self.pieces:
+            lo = max(edges[0] - piece.s_start, piece.lo if not piece.open_lo else -math.inf)
+            hi = min(edges[-1] - piece.s_start, piece.hi if not piece.open_hi else math.inf)
+            if lo > hi or piece.straight:
+                continue
+            along = np.linspace(lo, hi, max(2, int((hi - lo) / _CURVATURE_STEP) + 1))
+            along = np.union1d(along, np.clip(edges - piece.s_start, lo, hi))  # every cell the piece reaches is sampled
+            kappa = np.abs([lane_curvature(piece.lane, float(a)) for a in along])
+            index = np.clip(np.searchsorted(edges, piece.s_start + along, side="right") - 1, 0, CURVATURE_CELLS - 1)
+            np.maximum.at(cells, index, kappa)
+        padded = np.pad(cells, 1, mode="edge")
+        return np.maximum(cells, np.maximum(padded[:-2], padded[2:]))
+
     # ------------------------------------------------------------------ the planner's road
     def ego_band(self, s: float) -> Band:
         """The band of the ego's road holding ``s`` (the nearest one, on a loop)."""
         bands = [b for p in self.pieces for b in p.bands if b.road == self.ego_road]
         return min(bands, key=lambda b: max(b.s_from - s, s - b.s_to, 0.0))
 
-    def road(self, s: float, lane_preview: float, curvature_preview: float, behind: float = 0.0) -> Road:
+    def road(self, s: float, lane_preview: float, curvature_preview: float, behind: float = 0.0,
+             per_node: bool = False) -> Road:
         """The planner's :class:`Road` at ``s`` [m]: the ego road's lanes that continue over the next ``lane_preview``
         [m] (a lane that ends, or leads only off the route, is left out), and the curvature of largest magnitude over
-        [s - behind, s + curvature_preview]."""
+        [s - behind, s + curvature_preview] (the plan's bound at every node); ``per_node``: over [s - behind, s], and
+        the curvature ahead in the cells that start within ``curvature_preview`` (:meth:`curvature_cells`; zero in
+        the others, and none at all where it is straight)."""
         ego = self.ego_band(s)
         k_lo, k_hi = 0, ego.num_lanes - 1
         for piece in self.pieces:
@@ -310,9 +334,12 @@ class RoadFrame:
                     k_lo, k_hi = max(k_lo, inside[0]), min(k_hi, inside[-1])
         if k_hi < k_lo:
             k_lo, k_hi = 0, ego.num_lanes - 1
+        ahead = self.curvature_cells(s, behind) if per_node else np.zeros(0)
+        ahead[CURVATURE_CELL * np.arange(ahead.size) > curvature_preview] = 0.0
         return Road(num_lanes=k_hi - k_lo + 1, lane_width=ego.lane_width,
                     first_lane_center=ego.first_center + k_lo * ego.lane_width,
-                    curvature=self.curvature_between(s - behind, s + curvature_preview))
+                    curvature=self.curvature_between(s - behind, s if per_node else s + curvature_preview),
+                    curvature_ahead=tuple(ahead) if ahead.any() else ())  # a straight road's, exactly
 
     # ------------------------------------------------------------------ frame -> world
     def to_world(self, s: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, ...]:
