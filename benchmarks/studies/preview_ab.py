@@ -6,7 +6,6 @@ split, :class:`driveopt.sim.route_goal.RouteChange`), for A/Bs of the preview on
     python benchmarks/studies/preview_ab.py curvature_per_node=true -- --out OUT --envs racetrack-v0 --planners bilevel
 """
 
-import dataclasses
 import functools
 import sys
 from pathlib import Path
@@ -20,9 +19,12 @@ from driveopt.sim.route_goal import RouteChange  # noqa: E402
 import upstream_roads  # noqa: E402
 
 
+_BOOLEANS = {"true": True, "false": False}
+
+
 def _value(text: str) -> float | bool:
     """``true`` / ``false`` (any case) as a bool, anything else as a number."""
-    return {"true": True, "false": False}[text.lower()] if text.lower() in ("true", "false") else float(text)
+    return _BOOLEANS[text.lower()] if text.lower() in _BOOLEANS else float(text)
 
 
 def preview_fields(assignments: list[str]) -> dict:

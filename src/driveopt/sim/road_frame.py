@@ -259,18 +259,25 @@ class RoadFrame:
         piece, longitudinal = self.piece_at(s)
         return lane_curvature(piece.lane, longitudinal)
 
-    def curvature_between(self, s_from: float, s_to: float) -> float:
-        """[1/m] the signed curvature of largest magnitude of the reference line on [s_from, s_to] (0.0 on straights)."""
-        worst = 0.0
+    def _curved_samples(self, s_from: float, s_to: float, extra: np.ndarray = np.zeros(0)):
+        """(arc lengths [m], signed curvatures [1/m]) of each curved piece over [s_from, s_to], sampled every
+        :data:`_CURVATURE_STEP` and at the arc lengths ``extra`` that fall on the piece."""
         for piece in self.pieces:
             lo = max(s_from - piece.s_start, piece.lo if not piece.open_lo else -math.inf)
             hi = min(s_to - piece.s_start, piece.hi if not piece.open_hi else math.inf)
             if lo > hi or piece.straight:
                 continue
-            for longitudinal in np.linspace(lo, hi, max(2, int((hi - lo) / _CURVATURE_STEP) + 1)):
-                k = lane_curvature(piece.lane, float(longitudinal))
-                if abs(k) > abs(worst):
-                    worst = k
+            along = np.linspace(lo, hi, max(2, int((hi - lo) / _CURVATURE_STEP) + 1))
+            along = np.union1d(along, np.clip(extra - piece.s_start, lo, hi)) if extra.size else along
+            yield piece.s_start + along, np.array([lane_curvature(piece.lane, float(a)) for a in along])
+
+    def curvature_between(self, s_from: float, s_to: float) -> float:
+        """[1/m] the signed curvature of largest magnitude of the reference line on [s_from, s_to] (0.0 on straights)."""
+        worst = 0.0
+        for _, kappa in self._curved_samples(s_from, s_to):
+            sharpest = kappa[np.argmax(np.abs(kappa))]
+            if abs(sharpest) > abs(worst):
+                worst = float(sharpest)
         return worst
 
     def curves_ahead(self, s_from: float, s_to: float) -> list[tuple[float, float]]:
@@ -294,16 +301,9 @@ class RoadFrame:
         edges = s + CURVATURE_CELL * np.arange(CURVATURE_CELLS + 1)
         edges[0] -= behind
         cells = np.zeros(CURVATURE_CELLS)
-        for piece in self.pieces:
-            lo = max(edges[0] - piece.s_start, piece.lo if not piece.open_lo else -math.inf)
-            hi = min(edges[-1] - piece.s_start, piece.hi if not piece.open_hi else math.inf)
-            if lo > hi or piece.straight:
-                continue
-            along = np.linspace(lo, hi, max(2, int((hi - lo) / _CURVATURE_STEP) + 1))
-            along = np.union1d(along, np.clip(edges - piece.s_start, lo, hi))  # every cell the piece reaches is sampled
-            kappa = np.abs([lane_curvature(piece.lane, float(a)) for a in along])
-            index = np.clip(np.searchsorted(edges, piece.s_start + along, side="right") - 1, 0, CURVATURE_CELLS - 1)
-            np.maximum.at(cells, index, kappa)
+        for along, kappa in self._curved_samples(edges[0], edges[-1], extra=edges):  # every cell a piece reaches
+            index = np.clip(np.searchsorted(edges, along, side="right") - 1, 0, CURVATURE_CELLS - 1)
+            np.maximum.at(cells, index, np.abs(kappa))
         padded = np.pad(cells, 1, mode="edge")
         return np.maximum(cells, np.maximum(padded[:-2], padded[2:]))
 
@@ -334,8 +334,10 @@ class RoadFrame:
                     k_lo, k_hi = max(k_lo, inside[0]), min(k_hi, inside[-1])
         if k_hi < k_lo:
             k_lo, k_hi = 0, ego.num_lanes - 1
-        ahead = self.curvature_cells(s, behind) if per_node else np.zeros(0)
-        ahead[CURVATURE_CELL * np.arange(ahead.size) > curvature_preview] = 0.0
+        ahead = np.zeros(0)
+        if per_node:
+            ahead = self.curvature_cells(s, behind)
+            ahead[CURVATURE_CELL * np.arange(CURVATURE_CELLS) > curvature_preview] = 0.0
         return Road(num_lanes=k_hi - k_lo + 1, lane_width=ego.lane_width,
                     first_lane_center=ego.first_center + k_lo * ego.lane_width,
                     curvature=self.curvature_between(s - behind, s if per_node else s + curvature_preview),
