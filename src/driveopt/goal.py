@@ -140,42 +140,28 @@ class Goal:
             return scene.lateral_bounds
         return band
 
-    def _toward_band(self, scene: Scene) -> tuple[list[float], float, tuple[float, float]]:
-        """(the road's lane centres, the centre of the ego's lane, the band nearest the ego) [m]."""
-        centres = [float(c) for c in scene.road.lane_centers]
-        own = min(centres, key=lambda c: abs(c - scene.ego.y))
-        band = min(self.bands, key=lambda b: max(b[0] - scene.ego.y, scene.ego.y - b[1], 0.0))
-        return centres, own, band
-
     def lanes(self, scene: Scene, bounds: tuple[float, float]) -> tuple[float, float, int]:
         """(lane_center0 [m], lane_width [m], num_lanes) the planner's lane terms see: the road's lanes, or, once the
         band is imposed (``bounds`` differ from the road's), the band as the one lane, so that lane centring and the
         sampler's lane choices lead into it instead of to the nearest lane outside it. A widened goal (``widen``): the
-        road's lanes within the bounds from the ego's own lane towards the nearest band and the band's own, so that
-        lane centring keeps the car centred in its lane or the next one towards the band (never between them) and the
-        sampler chooses among those lanes; :meth:`pull_band` draws it towards the band, while the bounds require the
-        band only as late as it can still be reached."""
+        road's lanes within the bounds from the next lane towards the nearest band on, and the band's own, so that lane
+        centring draws the car one lane towards the band whenever the traffic lets it (a soft pull: staying is feasible,
+        only dearer) while the bounds require the band only as late as it can still be reached."""
         road = scene.road
         if bounds == scene.lateral_bounds:
             return road.first_lane_center, road.lane_width, road.num_lanes
         if self.widen > 0.0:
-            centres, own, (low, high) = self._toward_band(scene)
+            centres = [float(c) for c in road.lane_centers]
+            own = min(centres, key=lambda c: abs(c - scene.ego.y))  # [m] centre of the ego's lane
+            low, high = min(self.bands, key=lambda b: max(b[0] - scene.ego.y, scene.ego.y - b[1], 0.0))
             target = min(max(own, low), high)  # [m] where the nearest band begins as seen from the ego's lane
+            step = math.copysign(road.lane_width, target - own) if target != own else 0.0
+            nearer = own + step  # [m] centre of the next lane towards the band (the ego's own inside the band)
             inside = [k for k, c in enumerate(centres) if bounds[0] - 1e-6 <= c <= bounds[1] + 1e-6
-                      and (min(own, target) - 1e-6 <= c <= max(own, target) + 1e-6 or low <= c <= high)]
+                      and (min(nearer, target) - 1e-6 <= c <= max(nearer, target) + 1e-6 or low <= c <= high)]
             if inside:
                 return centres[inside[0]], road.lane_width, inside[-1] - inside[0] + 1
         return 0.5 * (bounds[0] + bounds[1]), max(bounds[1] - bounds[0], 0.5), 1
-
-    def pull_band(self, scene: Scene, bounds: tuple[float, float]) -> tuple[float, float] | None:
-        """[m] (low, high) of the ego centre that the planner's ``route`` cost term draws plans towards: for a widened
-        goal whose band is not yet imposed (``bounds`` still wider than it), the centres of the nearest band's lanes (the
-        band inset by half a lane width; its middle when narrower than a lane); else None."""
-        if self.widen <= 0.0 or bounds == scene.lateral_bounds or not self.bands:
-            return None
-        _, _, (low, high) = self._toward_band(scene)
-        half = 0.5 * scene.road.lane_width
-        return (low + half, high - half) if high - low >= 2.0 * half else (0.5 * (low + high),) * 2
 
     def desired_speed(self, scene: Scene, time: float = 0.0) -> float:
         """[m/s] ``scene.v_des`` within the speed window, then within the speeds that reach the goal's x range inside

@@ -3,16 +3,13 @@
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from driveopt.config import PlannerConfig
 from driveopt.goal import Goal
 from driveopt.planner import plan
-from driveopt.costs import cost_terms
-from driveopt.problem import NO_PULL, build_problem
-from driveopt.trajectory import Trajectory
+from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, ProblemError, Road, Scene, load_scene
 
 ROAD = Road(num_lanes=3, lane_width=4.0, first_lane_center=0.0)  # lanes centred at 0, 4, 8 m
@@ -111,38 +108,9 @@ def test_a_widened_band_reaches_further_the_further_the_goal_and_keeps_the_lanes
     goal = Goal(bands=((6.0, 10.0),), x=(100.0, 110.0), widen=0.04, lead_distance=200.0)  # 4 m wider per side at 100 m
     lo, hi = goal.lateral_bounds(scene(x=0.0))
     assert lo == pytest.approx(2.3) and hi == pytest.approx(8.7)  # [2, 14] within the road, inset 0.3 m
-    assert goal.lanes(scene(x=0.0), (lo, hi)) == (4.0, 4.0, 2)  # lane 0 is outside the bounds: the lanes at 4 and 8 m
-    assert goal.lanes(scene(x=0.0, y=4.0), (lo, hi)) == (4.0, 4.0, 2)  # its own lane (4 m) and the band's (8 m)
+    assert goal.lanes(scene(x=0.0), (lo, hi)) == (4.0, 4.0, 2)  # from the next lane towards the band: 4 and 8 m
     assert goal.lanes(scene(x=0.0, y=8.0), (lo, hi)) == (8.0, 4.0, 1)  # in the band: its own lane
     assert goal.lateral_bounds(scene(x=100.0)) == pytest.approx((6.3, 8.7))  # at its start: the band itself
     assert Goal(bands=((6.0, 10.0),), x=(100.0, 110.0)).lateral_bounds(scene(x=99.0)) == pytest.approx((6.3, 8.7))
     with pytest.raises(ProblemError, match="widen"):
         Goal(widen=-1.0)
-
-
-def test_a_widened_goal_draws_plans_to_its_lanes_centres_until_it_is_imposed():
-    goal = Goal(bands=((6.0, 10.0),), x=(100.0, 110.0), widen=0.08, lead_distance=200.0)  # the whole road at 100 m
-    far = scene(x=10.0)  # 90 m to go: 7.2 m wider per side, the road's (-1, 9) inset by 0.3 m: lane 0 inside
-    bounds = goal.lateral_bounds(far)
-    assert bounds != far.lateral_bounds and goal.lanes(far, bounds) == (0.0, 4.0, 3)  # its own lane to the band's
-    assert goal.pull_band(far, bounds) == (8.0, 8.0)  # the band's lane centre
-    problem = build_problem(far, goal=goal)
-    np.testing.assert_array_equal(np.asarray(problem.pull_band), [8.0, 8.0])
-    assert goal.pull_band(far, far.lateral_bounds) is None  # not imposed (blocked or far): no pull
-    assert Goal(bands=((6.0, 10.0),), x=(100.0, 110.0)).pull_band(far, bounds) is None  # not widened: no pull
-    two_lanes = Goal(bands=((2.0, 10.0),), x=(100.0, 110.0), widen=0.08)
-    assert two_lanes.pull_band(far, bounds) == (4.0, 8.0)
-    assert np.all(np.asarray(build_problem(far).pull_band) == np.asarray(NO_PULL, dtype=np.float32))
-
-
-def test_the_route_term_counts_whole_lanes_so_a_plan_between_two_lanes_gains_nothing():
-    goal = Goal(bands=((6.0, 10.0),), x=(100.0, 110.0), widen=0.08, lead_distance=200.0)
-    problem = build_problem(scene(x=10.0), goal=goal)  # pull to 8 m, lanes of 4 m
-    y = jnp.array([[0.0, 1.9, 2.1, 4.0, 8.0, 9.5]])
-    lanes_to_go = [2.0, 2.0, 1.0, 1.0, 0.0, 0.0]
-    at = lambda y: Trajectory(**{name: y if name == "y" else jnp.zeros_like(y) for name in Trajectory._fields})  # noqa: E731
-    for node, expected in enumerate(lanes_to_go):
-        assert float(cost_terms(at(y[:, node:node + 1]), problem)["route"][0]) == expected  # a plan of one node
-    assert float(cost_terms(at(y), problem)["route"][0]) == pytest.approx(sum(lanes_to_go) / 6)  # the mean over nodes
-    plain = build_problem(scene(x=10.0))
-    assert float(cost_terms(at(y), plain)["route"][0]) == 0.0  # no goal: no pull anywhere
