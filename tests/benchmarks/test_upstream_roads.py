@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from driveopt.sim.route_goal import RouteChange
@@ -73,3 +74,25 @@ def test_the_curve_speed_ceiling_drives_each_road_at_its_limit_or_its_curve_spee
     assert curve_speed_ceiling.ceiling(roads, 1.0) == pytest.approx(7.5)
     with pytest.raises(SystemExit):
         curve_speed_ceiling.main(["--out", "x.json", "--bounds", "0"])
+
+
+def test_the_arrival_ceiling_accelerates_brakes_for_curves_and_reads_each_routed_envs_route(tmp_path):
+    """Straight 100 m from 0 m/s at 2 m/s^2, capped at 10 m/s: 5 s to the cap (25 m), 7.5 s for the other 75 m. A curve
+    of radius 25 m at the end, at 1 m/s^2 (5 m/s): the car brakes from 10 m/s in time (18.75 m before it)."""
+    from benchmarks.studies import arrival_ceiling
+
+    step = arrival_ceiling.STEP
+    straight = np.zeros(int(round(100.0 / step)) + 1)
+    assert arrival_ceiling.fastest_time(straight, 0.0, 4.0, 2.0, 10.0) == pytest.approx(12.5, rel=1e-3)
+    curve = np.concatenate([straight, np.full(int(round(50.0 / step)), 1.0 / 25.0)])
+    # accelerate to 10 (25 m, 5 s), cruise, brake 10 -> 5 (18.75 m, 2.5 s), then 50 m at 5 m/s (10 s)
+    assert arrival_ceiling.fastest_time(curve, 0.0, 1.0, 2.0, 10.0) == pytest.approx(5.0 + 56.25 / 10.0 + 2.5 + 10.0, rel=1e-2)
+    out = tmp_path / "ceiling.json"
+    assert arrival_ceiling.main(["--out", str(out), "--envs", "intersection-v0", "--episodes", "2", "--bounds", "4"]) == 0
+    result = json.loads(out.read_text())["results"]["intersection-v0"]
+    assert result["duration_s"] == 13.0 and len(result["episodes"]) == 2
+    for episode in result["episodes"]:
+        assert episode["route"][0][0] == "o0" and 30.0 < episode["distance_m"] < 80.0
+        assert 0.0 < episode["earliest_arrival_s"]["4"] < 13.0
+    with pytest.raises(SystemExit):
+        arrival_ceiling.main(["--out", str(out), "--bounds", "0"])
