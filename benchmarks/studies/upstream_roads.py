@@ -24,8 +24,8 @@ An episode *arrived* when the env says so at its end (its ``is_success`` info: e
 exit road; intersection-v0's ``has_arrived``) or, on a route (the controller's: the task's, e.g. roundabout-v0's
 exit, u-turn-v0's road back), when the ego was on the route's last road at a policy step (the road may lead on:
 roundabout-v0's exit road into the road beyond it); null without a destination (highway-v0, the racetracks, lane-keeping-v0 ...). :data:`ENVS` holds every env of highway-env 1.12.1
-but its variants of the same roads (``-v1``: connected-lane neighbours; highway-fast, the multi-agent intersection,
-the parking variants); ``merge-generic-v0`` and ``roundabout-generic-v0`` at their default settings.
+but its variants of the same roads (``-v1``: connected-lane neighbours; the multi-agent intersection, the parking
+variants); ``merge-generic-v0`` and ``roundabout-generic-v0`` at their default settings.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ import numpy as np
 
 ENVS = {  # env id -> (gymnasium.make config besides ContinuousAction, make kwargs)
     "highway-v0": ({"duration": 20}, {}),
+    "highway-fast-v0": ({"duration": 20}, {}),  # highway-v0 with 3 lanes, 20 cars and 5 Hz simulation
     "racetrack-v0": ({}, {}),
     "racetrack-oval-v0": ({}, {}),
     "exit-v0": ({"duration": 20}, {}),
@@ -204,7 +205,8 @@ def table(results: dict, planners: list[str], samples: int) -> str:
     heads = [f"`{p}`, {samples} samples: collisions, off road, arrived, speed [m/s], planning [ms]" if p != "idm"
              else "`idm`: collisions, off road, arrived, speed [m/s]" for p in planners]
     lines = ["| upstream env | " + " | ".join(heads) + " |", "|---" * (len(planners) + 1) + "|"]
-    for env_id, rows in results.items():
+    for env_id in sorted(results, key=lambda e: list(ENVS).index(e) if e in ENVS else len(ENVS)):  # ENVS's order
+        rows = results[env_id]
         lines.append(f"| `{env_id}` | " + " | ".join(cell(rows.get(p), p != "idm") for p in planners) + " |")
     return "\n".join(lines) + "\n"
 
