@@ -56,9 +56,13 @@ ENVS = {  # env id -> (gymnasium.make config besides ContinuousAction, make kwar
     "roundabout-generic-v0": ({}, {}),  # upstream routes its ego to the exit "nxs", as roundabout-v0's
     "parking-v0": ({}, {}),  # refused at reset: a goal pose, no lane to follow
 }
+ROUTED_ROWS = {  # a row of the table driving an env along a route given to the controller: row -> (env id, route)
+    "exit-v0, straight on": ("exit-v0", ("0", "1", "2", "3")),  # past the exit, the road exit-v0 does not reward
+}
+ROWS = [*ENVS, *ROUTED_ROWS]  # the table's rows, in order (an env's routed rows after every env)
 ROUTE_REACHED = "arrived: the route's last road reached"
 SETUP = {"exit-v0": "route to the exit, arrived as upstream's success", "roundabout-v0": ROUTE_REACHED,
-         "u-turn-v0": ROUTE_REACHED, "roundabout-generic-v0": ROUTE_REACHED}
+         "u-turn-v0": ROUTE_REACHED, "roundabout-generic-v0": ROUTE_REACHED, **{row: ROUTE_REACHED for row in ROUTED_ROWS}}
 """Envs whose episodes changed since the records began (exit-v0 drove straight on, then counted arrivals on the exit road
 only; the route envs counted the ego ending on the route's last road, not one that drove on past it): a record counts
 only with its env's setup, older ones are driven again."""
@@ -66,21 +70,23 @@ only with its env's setup, older ones are driven again."""
 
 def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: float,
                 planner_config: dict | None = None, within_period: bool = True) -> dict:
-    """One episode's record."""
+    """One episode's record; ``env_id``: an env of :data:`ENVS` or a row of :data:`ROUTED_ROWS`."""
     import driveopt
     from driveopt.controller import ControllerError
     from driveopt.sim.road_frame import RoadFrameError
 
+    row = env_id
+    env_id, given_route = ROUTED_ROWS.get(row, (row, None))
     config, kwargs = ENVS[env_id]
     config = {**config, "duration": duration} if "duration" in config else config
     env = driveopt.gym_make(env_id, config={"action": {"type": "ContinuousAction"}, **config}, **kwargs)
-    record = {"env": env_id, "planner": planner, "seed": seed, **({"setup": SETUP[env_id]} if env_id in SETUP else {})}
+    record = {"env": row, "planner": planner, "seed": seed, **({"setup": SETUP[row]} if row in SETUP else {})}
     try:
         env.reset(seed=seed)
         optimiser = planner != "idm"
         controller = driveopt.Controller(planner, samples=samples if optimiser else None,
                                          config=planner_config if optimiser else None,
-                                         track_within_period=within_period)
+                                         track_within_period=within_period, route=given_route)
         try:
             controller.reset(env, seed=seed)
         except (RoadFrameError, ControllerError) as exc:
@@ -112,7 +118,8 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
                 record["collided_at"] = where(sim)
             if terminated or truncated or collided:
                 break
-        return {**record, "collided": collided, "off_road": off_road, "arrived": arrived(sim, route, info, reached),
+        arrival = reached if given_route else arrived(sim, route, info, reached)  # a given route: its own end
+        return {**record, "collided": collided, "off_road": off_road, "arrived": arrival,
                 "mean_speed": float(np.mean(speeds)),
                 "time": clock(sim), "steps": len(speeds), "statuses": dict(statuses),
                 "plan_ms_median": float(np.median(plan_ms)) if plan_ms else None,
@@ -205,7 +212,7 @@ def table(results: dict, planners: list[str], samples: int) -> str:
     heads = [f"`{p}`, {samples} samples: collisions, off road, arrived, speed [m/s], planning [ms]" if p != "idm"
              else "`idm`: collisions, off road, arrived, speed [m/s]" for p in planners]
     lines = ["| upstream env | " + " | ".join(heads) + " |", "|---" * (len(planners) + 1) + "|"]
-    for env_id in sorted(results, key=lambda e: list(ENVS).index(e) if e in ENVS else len(ENVS)):  # ENVS's order
+    for env_id in sorted(results, key=lambda e: ROWS.index(e) if e in ROWS else len(ROWS)):  # ROWS's order
         rows = results[env_id]
         lines.append(f"| `{env_id}` | " + " | ".join(cell(rows.get(p), p != "idm") for p in planners) + " |")
     return "\n".join(lines) + "\n"
@@ -214,7 +221,7 @@ def table(results: dict, planners: list[str], samples: int) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True, help="folder for episodes.jsonl and summary.json")
-    parser.add_argument("--envs", nargs="+", default=list(ENVS), choices=list(ENVS))
+    parser.add_argument("--envs", nargs="+", default=ROWS, choices=ROWS, help="envs and routed rows (ROUTED_ROWS)")
     parser.add_argument("--planners", nargs="+", default=["bilevel", "idm"])
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0, help="episode k is reset with seed + k")
@@ -245,6 +252,7 @@ def main(argv: list[str] | None = None) -> int:
 
     upstream_traffic = traffic_constants()  # before any env is made (intersection-v0 changes them for the process)
     holds = {env_id: holds_several_steps(env_id) for env_id in ENVS}
+    holds.update({row: holds[env_id] for row, (env_id, _) in ROUTED_ROWS.items()})
 
     def settings_of(env_id: str, planner: str) -> dict:  # what a record of this run holds: the optimisers' tracking
         tracked = planner != "idm" and not args.hold_actions and holds[env_id]  # (one step a period: nothing to track)

@@ -96,3 +96,19 @@ def test_the_arrival_ceiling_accelerates_brakes_for_curves_and_reads_each_routed
         assert 0.0 < episode["earliest_arrival_s"]["4"] < 13.0
     with pytest.raises(SystemExit):
         arrival_ceiling.main(["--out", str(out), "--bounds", "0"])
+
+
+def test_a_routed_row_drives_its_env_along_the_given_route_and_counts_its_end(tmp_path):
+    row = "exit-v0, straight on"
+    assert upstream_roads.ROUTED_ROWS[row] == ("exit-v0", ("0", "1", "2", "3"))
+    record = upstream_roads.run_episode(row, "idm", 0, 250, 2.0)
+    assert record["env"] == row and record["setup"] == upstream_roads.ROUTE_REACHED
+    assert record["steps"] == 2 and record["arrived"] is False  # 2 s in: not yet on ("2", "3")
+    results = {row: {"idm": {"episodes": 1, "collisions": 0, "off_road_episodes": 0, "refused": 0, "arrived": 0,
+                             "mean_speed": 20.0, "plan_ms_median": None}},
+               "exit-v0": {"idm": {"episodes": 1, "collisions": 0, "off_road_episodes": 0, "refused": 0, "arrived": 1,
+                                   "mean_speed": 20.0, "plan_ms_median": None}}}
+    lines = upstream_roads.table(results, ["idm"], 250).splitlines()
+    assert lines[2].startswith("| `exit-v0` |") and lines[3].startswith(f"| `{row}` |")  # the env's rows first
+    with pytest.raises(SystemExit):
+        upstream_roads.main(["--out", str(tmp_path), "--envs", "exit-v0, sideways"])
