@@ -22,12 +22,10 @@ from driveopt.observation import OBSERVATION_DIM, observation_vector
 from driveopt.prediction import (
     BRAKING_TIME,
     SELECTION_TIME,
-    PathNeighbour,
     ego_box_growth,
     ellipse_semi_axes,
-    path_phases,
+    obstacle_slots,
     predict_neighbour,
-    relevant_neighbours,
 )
 from driveopt.scene import CURVATURE_CELLS, EgoState, ProblemError, Scene
 
@@ -117,10 +115,7 @@ def build_problem(
     oa = np.ones(N)
     ob = np.ones(N)
     mask = np.zeros(N)
-    slots = []  # (neighbour, the nodes it is planned against there: None for all)
-    for n in relevant_neighbours(scene, N, ignore_followers, selection_time, braking_time):
-        slots += path_phases(n, t) if isinstance(n, PathNeighbour) else [(n, None)]
-    for i, (n, nodes) in enumerate(slots[:N]):
+    for i, (n, nodes) in enumerate(obstacle_slots(scene, t, N, ignore_followers, selection_time, braking_time)):
         px, py = predict_neighbour(n, t, scene.road.edges, braking_time)
         ox[i], oy[i] = px - ego.x, py
         if nodes is not None:  # a phase of a turning path: elsewhere far behind, as padding

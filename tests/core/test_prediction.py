@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import box_corners, boxes_overlap
 
-from driveopt.prediction import EGO_TURN_FADE, ego_box_growth, ellipse_semi_axes
+from driveopt.prediction import EGO_TURN_FADE, PathNeighbour, box_corners as turned_corners, ego_box_growth, ellipse_semi_axes, minkowski_ellipse
 from driveopt.problem import build_problem, ellipse_axes
 from driveopt.scene import EgoState, EllipseMargin, Neighbour, Road, Scene
 
@@ -30,6 +30,48 @@ def test_overlapping_boxes_lie_inside_the_ellipse(ego_yaw, other_yaw):
             overlapping += 1
             inside += (dx / a) ** 2 + (dy / b) ** 2 <= 1.0
     assert overlapping > 100 and inside == overlapping
+
+
+def _crossing(yaws) -> PathNeighbour:
+    """A car standing at the origin whose path turns through ``yaws`` [rad]."""
+    yaws = tuple(float(y) for y in np.atleast_1d(yaws))
+    times = tuple(float(k) for k in range(len(yaws)))
+    return PathNeighbour(x=0.0, y=0.0, yaw=yaws[0], t=times, path_x=(0.0,) * len(yaws), path_y=(0.0,) * len(yaws),
+                         path_yaw=yaws)
+
+
+@pytest.mark.parametrize("ego_yaw", [0.0, 0.3, -0.5])
+@pytest.mark.parametrize("other_yaw", [0.0, 0.2, 0.6, math.pi / 4, 1.2, math.pi / 2, 2.4])
+def test_a_crossing_cars_overlapping_boxes_lie_inside_its_tighter_ellipse(ego_yaw, other_yaw):
+    ego = EgoState(x=0.0, y=0.0, vx=3.0, yaw=ego_yaw)
+    rng = np.random.default_rng(1)
+    a, b = _axes_now(ego, _crossing(other_yaw), EllipseMargin(0.0, 0.0))
+    ego_box = box_corners(0.0, 0.0, ego_yaw, ego.length, ego.width)
+    inside = overlapping = 0
+    for dx, dy in rng.uniform([-10.0, -8.0], [10.0, 8.0], size=(4000, 2)):
+        if boxes_overlap(ego_box, box_corners(dx, dy, other_yaw, 5.0, 2.0)):
+            overlapping += 1
+            inside += (dx / a) ** 2 + (dy / b) ** 2 <= 1.0
+    assert overlapping > 100 and inside == overlapping
+
+
+def test_the_crossing_ellipse_is_the_smallest_axis_aligned_one_and_the_box_ellipse_for_aligned_boxes():
+    margin = EllipseMargin(0.0, 0.0)
+    ego = EgoState(x=0.0, y=0.0, vx=3.0)
+    for yaw in (0.0, math.pi / 2, math.pi):  # boxes along the axes: sqrt(2) x the summed half-sides, as for any car
+        assert ellipse_semi_axes(ego, _crossing(yaw), margin) == pytest.approx(ellipse_semi_axes(ego, Neighbour(x=0.0, y=0.0, yaw=yaw), margin))
+    for yaws in ([math.pi / 4], [0.3], [0.7, 0.9, 1.05], [2.0]):
+        a, b = ellipse_semi_axes(ego, _crossing(yaws), margin)
+        points = (turned_corners(5.0, 2.0, np.asarray(yaws))[:, None, :]
+                  + np.array([[2.5, 1.0], [2.5, -1.0], [-2.5, 1.0], [-2.5, -1.0]])[None]).reshape(-1, 2)
+        assert np.all((points[:, 0] / a) ** 2 + (points[:, 1] / b) ** 2 <= 1.0 + 1e-6)  # contains the sum's corners
+        # no smaller one: for each a' on a fine grid, the least b' that contains every corner (independent reference)
+        grid = np.linspace(np.abs(points[:, 0]).max() * 1.0001, 20.0, 20000)
+        least_b = np.sqrt(np.max(points[None, :, 1] ** 2 / (1.0 - points[None, :, 0] ** 2 / grid[:, None] ** 2), axis=1))
+        assert a * b == pytest.approx(np.min(grid * least_b), rel=1e-3)
+        box_a, box_b = ellipse_semi_axes(ego, Neighbour(x=0.0, y=0.0, yaw=yaws[0]), margin)
+        assert a * b < (0.75 if yaws == [math.pi / 4] else 0.95) * box_a * box_b  # smaller than the box around the turned box
+    assert minkowski_ellipse(2.5, 1.0, turned_corners(5.0, 2.0, np.array([math.pi / 4]))) == pytest.approx((5.594, 4.505), abs=1e-3)
 
 
 def test_a_turned_ego_reaches_further_into_the_next_lane_for_the_first_second():

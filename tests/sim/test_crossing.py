@@ -12,7 +12,7 @@ from highway_env.vehicle.behavior import IDMVehicle
 from driveopt.config import BasisConfig
 from driveopt.prediction import PathNeighbour
 from driveopt.problem import build_problem
-from driveopt.scene import EgoState, Road as PlannerRoad, Scene
+from driveopt.scene import EgoState, Neighbour, Road as PlannerRoad, Scene
 from driveopt.sim.crossing import crossing_neighbour, may_cross
 from driveopt.sim.road_frame import build_frame
 
@@ -98,7 +98,8 @@ def test_a_path_that_crosses_and_then_runs_beside_the_route_is_bounded_phase_by_
     assert np.all(active.sum(axis=0) == 1), "one slot holds it at each node, the others are far behind"
     slot = np.nonzero(active[:, 0])[0][0]
     assert np.all(oy[slot, late] == -4.0) and b[slot] < 4.0, "4 m beside the ego's centre line, its ellipse clears it"
-    assert b[0] > 4.0, "while it crosses, its ellipse is as wide as the car is long (one box for all would be)"
+    across = np.nonzero(ox[:, np.argmin(np.abs(nodes - 20.0 / 7.0))] > -500.0)[0][0]  # the slot at y = 0 (t = 20/7 s)
+    assert b[across] > 4.0, "while it crosses, its ellipse is as wide as the car is long (one box for all would be)"
 
 
 def test_routes_with_a_road_that_names_no_lane_are_predicted_in_the_lane_that_exists():
@@ -149,3 +150,46 @@ def test_a_routed_car_with_the_ego_on_its_lanes_ahead_is_predicted_to_stop_behin
     stop_x = 47.5 - 0.5 * (car.LENGTH + ego.LENGTH) - YIELD_GAP
     np.testing.assert_allclose(crept[-1], [stop_x, 0.0], atol=1e-9)
     assert np.all(crept[:, 0] <= stop_x + 1e-9)
+
+
+def _turning_car(x: float, y: float, turn: float) -> PathNeighbour:
+    """A car at (x, y) [m] heading across the route (+y), turning by ``turn`` [rad] over 5 s at 5 m/s."""
+    t = np.linspace(0.0, 5.0, 11)
+    yaw = np.pi / 2 + turn * t / 5.0
+    path_x = x + np.concatenate([[0.0], np.cumsum(2.5 * np.cos(yaw[:-1]))])
+    path_y = y + np.concatenate([[0.0], np.cumsum(2.5 * np.sin(yaw[:-1]))])
+    return PathNeighbour(x=x, y=y, yaw=float(yaw[0]), t=tuple(t), path_x=tuple(path_x), path_y=tuple(path_y),
+                         path_yaw=tuple(yaw))
+
+
+def test_crossing_cars_share_the_slots_by_closest_approach_and_phases_beside_the_road_take_none():
+    """Three cars turning through 90 degrees want more than ten phase slots; taking the nearest car's first left the
+    farthest out. Every car's phases that reach the road compete by their closest approach to the ego, and a car that
+    stays 30 m beside the road takes no slot at all."""
+    from driveopt.prediction import ellipse_semi_axes, obstacle_slots, path_phases
+
+    road = PlannerRoad(num_lanes=1, lane_width=4.0)
+    cars = (_turning_car(20.0, -8.0, np.pi / 2), _turning_car(35.0, -8.0, np.pi / 2), _turning_car(50.0, -8.0, np.pi / 2))
+    beside = _turning_car(40.0, 30.0, 0.3)  # heading away from the road, 30 m beside it
+    scene = Scene(ego=EgoState(x=0.0, y=0.0, vx=10.0), road=road, neighbours=cars + (beside,), v_des=10.0)
+    basis = BasisConfig()
+    nodes = np.linspace(0.0, basis.horizon, basis.num_nodes)
+    assert sum(len(path_phases(car, nodes)) for car in cars) > 10
+    slots = obstacle_slots(scene, nodes, 10)
+    assert all(slot.y != beside.y for slot, _ in slots)
+    def approach(slot, on):  # closest approach [m] over the slot's nodes to the ego holding 10 m/s along the road
+        x, y = np.interp(nodes, slot.t, slot.path_x), np.interp(nodes, slot.t, slot.path_y)
+        return np.min(np.hypot(x - 10.0 * nodes, y)[on])
+
+    def reaches_road(slot, on):  # its ellipse's lateral semi-axis spans its distance from the road at some node
+        b = ellipse_semi_axes(scene.ego, slot, scene.ellipse_margin)[1]
+        y = np.interp(nodes, slot.t, slot.path_y)[on]
+        return np.any(np.abs(y) - 2.0 < b)
+
+    every = sorted(approach(slot, on) for car in cars for slot, on in path_phases(car, nodes) if reaches_road(slot, on))
+    assert len(every) > 6 and sorted(approach(slot, on) for slot, on in slots) == pytest.approx(every[:10])
+    problem = build_problem(scene, basis)
+    assert int(np.sum(np.asarray(problem.obstacle_mask))) == len(slots)
+    # without crossing traffic the slots are the relevant neighbours, each whole, as before
+    plain = Scene(ego=scene.ego, road=road, neighbours=(Neighbour(x=20.0, y=0.0, vx=5.0),), v_des=10.0)
+    assert [(n, nodes_) for n, nodes_ in obstacle_slots(plain, nodes, 10)] == [(plain.neighbours[0], None)]
