@@ -8,7 +8,9 @@ vehicle boxes. Ranking by distance now instead (P1) drops a stopped car 45 m ahe
 20 m/s whenever ten cars are nearer, in dense traffic often until braking no longer avoids it.
 A :class:`PathNeighbour` (crossing or merging traffic, predicted along its own lanes by the simulator side) carries
 its predicted poses instead: it is where its path says at each node, and its ellipse is the smallest axis-aligned one
-around the Minkowski sum of the ego's box and its boxes at the headings it has along the path. Positions and times in the road frame: metres, seconds.
+around the Minkowski sum of the ego's box and its boxes at the headings it has along the path; its heading phases
+compete for the obstacle slots with every other neighbour (:func:`obstacle_slots`). Positions and times in the road
+frame: metres, seconds.
 """
 
 from __future__ import annotations
@@ -254,8 +256,9 @@ def obstacle_slots(scene: Scene, t: np.ndarray, count: int, ignore_followers: bo
     :func:`path_phases`), a turning car takes several slots, and taking the nearest neighbours first would leave the
     others out (at intersection-v0 a call wants about 29 slots for 8 cars). Then every neighbour's slots are
     candidates: a phase whose ellipse never reaches the road's width at any of its times (widened by the ego's turned
-    box) is left out, and the others are ranked by their closest approach, over their own times, to the ego holding
-    its velocity (the same measure as :func:`relevant_neighbours`; ties to the nearer neighbour now)."""
+    box) is left out, and the others are ranked by their closest approach, over their own times ``t``, to the ego
+    holding its velocity (as :func:`relevant_neighbours` ranks neighbours within its look-ahead; ties go to the
+    neighbour it ranks first)."""
     if not any(isinstance(n, PathNeighbour) for n in scene.neighbours):
         return [(n, None) for n in relevant_neighbours(scene, count, ignore_followers, lookahead, braking_time)]
     ego = scene.ego

@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 from conftest import box_corners, boxes_overlap
 
-from driveopt.prediction import EGO_TURN_FADE, PathNeighbour, box_corners as turned_corners, ego_box_growth, ellipse_semi_axes, minkowski_ellipse
+from driveopt.prediction import (
+    EGO_TURN_FADE,
+    PathNeighbour,
+    box_corners as turned_corners,
+    ego_box_growth,
+    ellipse_semi_axes,
+    minkowski_ellipse,
+)
 from driveopt.problem import build_problem, ellipse_axes
 from driveopt.scene import EgoState, EllipseMargin, Neighbour, Road, Scene
 
@@ -59,7 +66,8 @@ def test_the_crossing_ellipse_is_the_smallest_axis_aligned_one_and_the_box_ellip
     margin = EllipseMargin(0.0, 0.0)
     ego = EgoState(x=0.0, y=0.0, vx=3.0)
     for yaw in (0.0, math.pi / 2, math.pi):  # boxes along the axes: sqrt(2) x the summed half-sides, as for any car
-        assert ellipse_semi_axes(ego, _crossing(yaw), margin) == pytest.approx(ellipse_semi_axes(ego, Neighbour(x=0.0, y=0.0, yaw=yaw), margin))
+        box_ellipse = ellipse_semi_axes(ego, Neighbour(x=0.0, y=0.0, yaw=yaw), margin)
+        assert ellipse_semi_axes(ego, _crossing(yaw), margin) == pytest.approx(box_ellipse)
     for yaws in ([math.pi / 4], [0.3], [0.7, 0.9, 1.05], [2.0]):
         a, b = ellipse_semi_axes(ego, _crossing(yaws), margin)
         points = (turned_corners(5.0, 2.0, np.asarray(yaws))[:, None, :]
