@@ -48,18 +48,18 @@ def _crossing(yaws) -> PathNeighbour:
 
 
 @pytest.mark.parametrize("ego_yaw", [0.0, 0.3, -0.5])
-@pytest.mark.parametrize("other_yaw", [0.0, 0.2, 0.6, math.pi / 4, 1.2, math.pi / 2, 2.4])
+@pytest.mark.parametrize("other_yaw", [0.2, 0.6, math.pi / 4, 1.2, 2.4])  # along the axes it is the box's ellipse (below)
 def test_a_crossing_cars_overlapping_boxes_lie_inside_its_tighter_ellipse(ego_yaw, other_yaw):
     ego = EgoState(x=0.0, y=0.0, vx=3.0, yaw=ego_yaw)
     rng = np.random.default_rng(1)
     a, b = _axes_now(ego, _crossing(other_yaw), EllipseMargin(0.0, 0.0))
     ego_box = box_corners(0.0, 0.0, ego_yaw, ego.length, ego.width)
     inside = overlapping = 0
-    for dx, dy in rng.uniform([-10.0, -8.0], [10.0, 8.0], size=(4000, 2)):
+    for dx, dy in rng.uniform([-10.0, -8.0], [10.0, 8.0], size=(2000, 2)):
         if boxes_overlap(ego_box, box_corners(dx, dy, other_yaw, 5.0, 2.0)):
             overlapping += 1
             inside += (dx / a) ** 2 + (dy / b) ** 2 <= 1.0
-    assert overlapping > 100 and inside == overlapping
+    assert overlapping > 50 and inside == overlapping
 
 
 def test_the_crossing_ellipse_is_the_smallest_axis_aligned_one_and_the_box_ellipse_for_aligned_boxes():
