@@ -25,17 +25,24 @@ def _axes_now(ego, other, margin):
     return a + grow_long, b + grow_lat
 
 
-@pytest.mark.parametrize("ego_yaw, other_yaw", [(0.0, 0.0), (0.3, 0.0), (-0.3, 0.1), (0.0, 0.4), (0.5, -0.2)])
-def test_overlapping_boxes_lie_inside_the_ellipse(ego_yaw, other_yaw):
-    ego = EgoState(x=0.0, y=0.0, vx=3.0, yaw=ego_yaw)
-    rng = np.random.default_rng(0)
-    a, b = _axes_now(ego, Neighbour(x=0.0, y=0.0, vx=3.0, yaw=other_yaw), EllipseMargin(0.0, 0.0))
-    ego_box = box_corners(0.0, 0.0, ego_yaw, ego.length, ego.width)
+def _overlaps_inside(ego, other_yaw, axes, rng, reach, draws) -> tuple[int, int]:
+    """(how many of ``draws`` offsets of a 5 x 2 m car at ``other_yaw`` [rad], uniform within +-``reach`` [m], overlap
+    ``ego``'s box, how many of those lie inside the ellipse of semi-axes ``axes`` [m])."""
+    a, b = axes
+    ego_box = box_corners(0.0, 0.0, ego.yaw, ego.length, ego.width)
     inside = overlapping = 0
-    for dx, dy in rng.uniform([-9.0, -5.0], [9.0, 5.0], size=(4000, 2)):
+    for dx, dy in rng.uniform(-np.asarray(reach), reach, size=(draws, 2)):
         if boxes_overlap(ego_box, box_corners(dx, dy, other_yaw, 5.0, 2.0)):
             overlapping += 1
             inside += (dx / a) ** 2 + (dy / b) ** 2 <= 1.0
+    return overlapping, inside
+
+
+@pytest.mark.parametrize("ego_yaw, other_yaw", [(0.0, 0.0), (0.3, 0.0), (-0.3, 0.1), (0.0, 0.4), (0.5, -0.2)])
+def test_overlapping_boxes_lie_inside_the_ellipse(ego_yaw, other_yaw):
+    ego = EgoState(x=0.0, y=0.0, vx=3.0, yaw=ego_yaw)
+    axes = _axes_now(ego, Neighbour(x=0.0, y=0.0, vx=3.0, yaw=other_yaw), EllipseMargin(0.0, 0.0))
+    overlapping, inside = _overlaps_inside(ego, other_yaw, axes, np.random.default_rng(0), (9.0, 5.0), 4000)
     assert overlapping > 100 and inside == overlapping
 
 
@@ -51,14 +58,8 @@ def _crossing(yaws) -> PathNeighbour:
 @pytest.mark.parametrize("other_yaw", [0.2, 0.6, math.pi / 4, 1.2, 2.4])  # along the axes it is the box's ellipse (below)
 def test_a_crossing_cars_overlapping_boxes_lie_inside_its_tighter_ellipse(ego_yaw, other_yaw):
     ego = EgoState(x=0.0, y=0.0, vx=3.0, yaw=ego_yaw)
-    rng = np.random.default_rng(1)
-    a, b = _axes_now(ego, _crossing(other_yaw), EllipseMargin(0.0, 0.0))
-    ego_box = box_corners(0.0, 0.0, ego_yaw, ego.length, ego.width)
-    inside = overlapping = 0
-    for dx, dy in rng.uniform([-10.0, -8.0], [10.0, 8.0], size=(2000, 2)):
-        if boxes_overlap(ego_box, box_corners(dx, dy, other_yaw, 5.0, 2.0)):
-            overlapping += 1
-            inside += (dx / a) ** 2 + (dy / b) ** 2 <= 1.0
+    axes = _axes_now(ego, _crossing(other_yaw), EllipseMargin(0.0, 0.0))
+    overlapping, inside = _overlaps_inside(ego, other_yaw, axes, np.random.default_rng(1), (10.0, 8.0), 2000)
     assert overlapping > 50 and inside == overlapping
 
 
