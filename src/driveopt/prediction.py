@@ -91,9 +91,6 @@ def path_phases(n: PathNeighbour, t: np.ndarray) -> list[tuple[PathNeighbour, np
     return phases
 
 
-CROSSING_TIGHTNESS = 3.0  # [-] weight of the semi-axis across a crossing car's travel (:func:`minkowski_ellipse`)
-
-
 def ellipse_semi_axes(ego: EgoState, other: Neighbour, margin: EllipseMargin) -> tuple[float, float]:
     """[m] semi-axes of an axis-aligned ellipse around the Minkowski sum of the two boxes, plus margins.
 
@@ -108,10 +105,7 @@ def ellipse_semi_axes(ego: EgoState, other: Neighbour, margin: EllipseMargin) ->
     first seconds of the plan (:func:`ego_box_growth`).
     """
     if isinstance(other, PathNeighbour):
-        yaws = other.yaws
-        along = np.mean(np.abs(np.cos(yaws))) >= np.mean(np.abs(np.sin(yaws)))  # it travels mostly along the route
-        weights = (1.0, CROSSING_TIGHTNESS) if along else (CROSSING_TIGHTNESS, 1.0)
-        a, b = minkowski_ellipse(0.5 * ego.length, 0.5 * ego.width, box_corners(other.length, other.width, yaws), weights)
+        a, b = minkowski_ellipse(0.5 * ego.length, 0.5 * ego.width, box_corners(other.length, other.width, other.yaws))
         return a + margin.longitudinal, b + margin.lateral
     other_long, other_lat = other.half_extents
     half_long = 0.5 * ego.length + other_long
@@ -128,28 +122,23 @@ def box_corners(length: float, width: float, yaws: np.ndarray) -> np.ndarray:
     return np.stack([c * along - s * across, s * along + c * across], axis=-1).reshape(-1, 2)
 
 
-def minkowski_ellipse(half_long: float, half_lat: float, corners: np.ndarray,
-                      weights: tuple[float, float] = (1.0, 1.0)) -> tuple[float, float]:
-    """[m] (a, b): the centred axis-aligned ellipse x^2/a^2 + y^2/b^2 <= 1 that contains the Minkowski sum of the
-    axis-aligned box (+-``half_long``, +-``half_lat``) and the convex hull of ``corners`` (M, 2) [m] (a centrally
-    symmetric set: each corner's reflection is among them, as :func:`box_corners` gives them), with the smallest
-    a^p b^q for ``weights`` (p, q): (1, 1) is the smallest area; a larger q makes it tighter across (smaller b) at the
-    cost of a longer a, and the other way round.
+def minkowski_ellipse(half_long: float, half_lat: float, corners: np.ndarray) -> tuple[float, float]:
+    """[m] (a, b): the smallest-area centred axis-aligned ellipse x^2/a^2 + y^2/b^2 <= 1 that contains the Minkowski
+    sum of the axis-aligned box (+-``half_long``, +-``half_lat``) and the convex hull of ``corners`` (M, 2) [m]
+    (a centrally symmetric set: each corner's reflection is among them, as :func:`box_corners` gives them).
 
     An axis-aligned centred ellipse is symmetric in both axes, so it contains the sum where it contains the points
     (|x| + half_long, |y| + half_lat); with u = 1/a^2, v = 1/b^2 the containment is linear (x^2 u + y^2 v <= 1) and
-    a^p b^q ~ 1/(u^p v^q). The optimum of max u^p v^q over that polygon is at one constraint's own optimum
-    (u = p/((p+q) x^2), v = q/((p+q) y^2)) or where two of them meet; every candidate is checked against all points.
-    For a single box (every corner reflecting the others in both axes) and equal weights it is sqrt(2) times its
-    half-sides."""
-    p, q = weights
+    the area ~ 1/sqrt(uv). The optimum of max uv over that polygon is at one constraint's own optimum (u = 1/(2 x^2),
+    v = 1/(2 y^2)) or where two of them meet; every candidate is checked against all points. For a single box (every
+    corner reflecting the others in both axes) it is sqrt(2) times its half-sides."""
     points = np.abs(np.asarray(corners, dtype=float)) + np.array([half_long, half_lat])
     # only the points no other point exceeds in both coordinates can be on the ellipse
     keep = ~np.any((points[None, :, 0] >= points[:, None, 0]) & (points[None, :, 1] >= points[:, None, 1])
                    & np.any(points[None, :, :] > points[:, None, :], axis=-1), axis=1)
     sq = np.unique(points[keep], axis=0) ** 2
     X, Y = sq[:, 0], sq[:, 1]
-    u, v = [p / ((p + q) * X)], [q / ((p + q) * Y)]
+    u, v = [1.0 / (2.0 * X)], [1.0 / (2.0 * Y)]
     i, j = np.triu_indices(len(sq), k=1)
     det = X[i] * Y[j] - X[j] * Y[i]
     ok = np.abs(det) > 1e-12
@@ -157,8 +146,7 @@ def minkowski_ellipse(half_long: float, half_lat: float, corners: np.ndarray,
     v.append((X[i][ok] - X[j][ok]) / det[ok])
     u, v = np.concatenate(u), np.concatenate(v)
     feasible = (u > 0.0) & (v > 0.0) & np.all(np.outer(u, X) + np.outer(v, Y) <= 1.0 + 1e-9, axis=1)
-    objective = p * np.log(np.where(feasible, u, 1.0)) + q * np.log(np.where(feasible, v, 1.0))
-    best = np.argmax(np.where(feasible, objective, -np.inf))
+    best = np.argmax(np.where(feasible, u * v, -np.inf))
     return float(1.0 / np.sqrt(u[best])), float(1.0 / np.sqrt(v[best]))
 
 
