@@ -2,7 +2,7 @@
 
     python benchmarks/studies/upstream_roads.py --out benchmarks/results/upstream-roads [--episodes 20] [--samples 250]
         [--envs highway-v0 racetrack-v0 ...] [--planners bilevel idm] [--seed 0] [--duration 20] [--config C.json]
-        [--hold-actions]
+        [--hold-actions] [--plan-frequency HZ]
 
 Each episode makes the env with ``driveopt.gym_make`` (``gymnasium.make`` with rewards for array actions) and
 ``ContinuousAction`` (default traffic; the settings of :data:`ENVS` make every env last the duration: an env config's
@@ -13,7 +13,9 @@ the ego's place; ``--config``: planner-config overrides of the optimisers, a JSO
 episode. The optimisers' plans are tracked at every simulation step of a policy period (``Controller``'s
 ``track_within_period``; their records say ``tracked_within_period`` where the env holds an action for more
 than one simulation step); ``--hold-actions``: each action held for the period
-(the records before the controller tracked within it). An env the controller refuses at reset (``RoadFrameError``: a road it cannot represent; ``ControllerError``:
+(the records before the controller tracked within it); ``--plan-frequency HZ``: the optimisers plan HZ times a second
+(``Controller``'s ``plan_frequency``) on the envs whose policy frequency is lower and whose simulation frequency it
+divides (their records say ``plan_frequency``), each plan tracked until the next. An env the controller refuses at reset (``RoadFrameError``: a road it cannot represent; ``ControllerError``:
 parking-v0's goal pose) is recorded as refused with the message. Every episode is one line of
 ``OUT/episodes.jsonl`` (a rerun skips those done: resumable); ``OUT/table.md`` is docs/controller.md's table of
 them; ``OUT/summary.json`` gives, per env and planner (every
@@ -69,8 +71,9 @@ only with its env's setup, older ones are driven again."""
 
 
 def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: float,
-                planner_config: dict | None = None, within_period: bool = True) -> dict:
-    """One episode's record; ``env_id``: an env of :data:`ENVS` or a row of :data:`ROUTED_ROWS`."""
+                planner_config: dict | None = None, within_period: bool = True, plan_frequency: float | None = None) -> dict:
+    """One episode's record; ``env_id``: an env of :data:`ENVS` or a row of :data:`ROUTED_ROWS`; ``plan_frequency``
+    [Hz]: the optimisers' where :func:`plans_within_period` allows it."""
     import driveopt
     from driveopt.controller import ControllerError
     from driveopt.sim.road_frame import RoadFrameError
@@ -86,7 +89,9 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
         optimiser = planner != "idm"
         controller = driveopt.Controller(planner, samples=samples if optimiser else None,
                                          config=planner_config if optimiser else None,
-                                         track_within_period=within_period, route=given_route)
+                                         track_within_period=within_period, route=given_route,
+                                         plan_frequency=plan_frequency if optimiser and plans_within_period(
+                                             env_id, plan_frequency) else None)
         try:
             controller.reset(env, seed=seed)
         except (RoadFrameError, ControllerError) as exc:
@@ -135,16 +140,31 @@ def where(sim) -> dict:
             "lane": [str(part) for part in vehicle.lane_index]}
 
 
-def holds_several_steps(env_id: str) -> bool:
-    """Whether the env holds each action for more than one simulation step (the controller then tracks within it)."""
+def frequencies(env_id: str) -> tuple[float, float]:
+    """[Hz] (simulation frequency, policy frequency) of ``env_id`` as the table makes it."""
     import driveopt
 
     config, kwargs = ENVS[env_id]
     env = driveopt.gym_make(env_id, config={"action": {"type": "ContinuousAction"}, **config}, **kwargs)
     try:
-        return env.unwrapped.config["simulation_frequency"] // env.unwrapped.config["policy_frequency"] > 1
+        return env.unwrapped.config["simulation_frequency"], env.unwrapped.config["policy_frequency"]
     finally:
         env.close()
+
+
+def holds_several_steps(env_id: str) -> bool:
+    """Whether the env holds each action for more than one simulation step (the controller then tracks within it)."""
+    simulation_hz, policy_hz = frequencies(env_id)
+    return simulation_hz // policy_hz > 1
+
+
+def plans_within_period(env_id: str, hz: float | None) -> bool:
+    """Whether planning ``hz`` times a second replans within ``env_id``'s policy period: above its policy frequency,
+    a divisor of its simulation frequency and a multiple of its policy frequency."""
+    if hz is None:
+        return False
+    simulation_hz, policy_hz = frequencies(env_id)
+    return hz > policy_hz and (simulation_hz / hz).is_integer() and (hz / policy_hz).is_integer()
 
 
 def clock(sim) -> float:
@@ -230,9 +250,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", type=Path, help="planner-config overrides of the optimisers (JSON file)")
     parser.add_argument("--hold-actions", action="store_true",
                         help="hold each action for the policy period instead of tracking the plan within it")
+    parser.add_argument("--plan-frequency", type=float, metavar="HZ",
+                        help="the optimisers plan HZ times a second where the env's policy frequency is lower")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.samples < 1 or args.duration <= 0:
         parser.error("--episodes, --samples and --duration must be positive")
+    if args.plan_frequency is not None and (args.hold_actions or not args.plan_frequency > 0):
+        parser.error("--plan-frequency must be > 0 Hz, and tracks plans within the period (not with --hold-actions)")
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     from driveopt.cli import stop_cleanly_on_signals
     from driveopt.experiments.rows_file import row_line
@@ -252,11 +276,14 @@ def main(argv: list[str] | None = None) -> int:
 
     upstream_traffic = traffic_constants()  # before any env is made (intersection-v0 changes them for the process)
     holds = {env_id: holds_several_steps(env_id) for env_id in ENVS}
-    holds.update({row: holds[env_id] for row, (env_id, _) in ROUTED_ROWS.items()})
+    replans = {env_id: plans_within_period(env_id, args.plan_frequency) for env_id in ENVS}
+    for table_rows in (holds, replans):
+        table_rows.update({row: table_rows[env_id] for row, (env_id, _) in ROUTED_ROWS.items()})
 
     def settings_of(env_id: str, planner: str) -> dict:  # what a record of this run holds: the optimisers' tracking
         tracked = planner != "idm" and not args.hold_actions and holds[env_id]  # (one step a period: nothing to track)
-        return {**settings, "tracked_within_period": True} if tracked else settings
+        replanned = {"plan_frequency": args.plan_frequency} if tracked and replans[env_id] else {}
+        return {**settings, "tracked_within_period": True, **replanned} if tracked else settings
 
     done = {(r["env"], r["planner"], r["seed"]) for r in records if r.get("settings") == settings_of(r["env"], r["planner"])}
     with path.open("a") as out:
@@ -268,7 +295,8 @@ def main(argv: list[str] | None = None) -> int:
                         continue
                     restore_traffic_constants(upstream_traffic)
                     record = {**run_episode(env_id, planner, seed, args.samples, args.duration, config,
-                                            not args.hold_actions), "settings": settings_of(env_id, planner)}
+                                            not args.hold_actions, args.plan_frequency),
+                              "settings": settings_of(env_id, planner)}
                     out.write(row_line(record))
                     out.flush()
                     records.append(record)
@@ -277,7 +305,9 @@ def main(argv: list[str] | None = None) -> int:
                           flush=True)
     chosen = [r for r in records if r.get("settings") == settings_of(r["env"], r["planner"])]
     summary = {"command": "python benchmarks/studies/upstream_roads.py " + " ".join(argv if argv is not None else os.sys.argv[1:]),
-               "settings": {**settings, "tracked_within_period": not args.hold_actions}, "results": summarise(chosen)}
+               "settings": {**settings, "tracked_within_period": not args.hold_actions,
+                            **({"plan_frequency": args.plan_frequency} if args.plan_frequency else {})},
+               "results": summarise(chosen)}
     write_json(args.out / "summary.json", summary)
     (args.out / "table.md").write_text(table(summary["results"], args.planners, args.samples))
     print(json.dumps(summary["results"], indent=1))

@@ -41,6 +41,7 @@ from driveopt.drivers.base import Decision, DriverSpec, check_given_weights
 from driveopt.errors import DriveoptError
 from driveopt.registry import get_planner
 from driveopt.sim import step_hook
+from driveopt.sim.control import check_frequencies
 from driveopt.sim.lane_graph import env_destination_route
 from driveopt.sim.perception import Task
 
@@ -94,16 +95,18 @@ class _Episode:
 
 
 class _WithinPeriod:
-    """The plan of the controller's latest action tracked at every simulation step of that action's period
+    """The controller's plans tracked at every simulation step of the env's policy period
     (:mod:`driveopt.sim.step_hook`): highway-env holds an action for ``simulation_frequency // policy_frequency``
     simulation steps, and a steering angle held for upstream's 1 s period misses a plan that turns within it (a
-    roundabout's entry). The first simulation step is the returned action's; each later one takes the driver's
-    command for that step alone (``within_period``), unless ``env.step`` was given another action."""
+    roundabout's entry). The first simulation step is the returned action's; at each later one the controller plans
+    anew where its planning frequency falls on that step (``replan``: the action of a new decision), else takes the
+    driver's command for that step alone (``within_period``), unless ``env.step`` was given another action."""
 
-    def __init__(self, sim: Any, driver: Any) -> None:
-        self.sim, self.driver, self.vehicle = sim, driver, sim.vehicle
+    def __init__(self, sim: Any, driver: Any, steps_per_period: int, replan: Any) -> None:
+        self.sim, self.driver, self.vehicle, self.replan = sim, driver, sim.vehicle, replan
         self.dt = driver.model.simulation_dt  # [s] one simulation step
-        self.steps = driver.model.steps_per_action  # [-] simulation steps per policy period
+        self.steps = steps_per_period  # [-] simulation steps per env policy period
+        self.steps_per_plan = driver.model.steps_per_action  # [-] simulation steps between two decisions
         self.acted: tuple[int, np.ndarray] | None = None  # (the env's step count at the decision, the action returned)
         self.tracked = 0  # [-] simulation steps whose command this episode replaced
 
@@ -114,9 +117,14 @@ class _WithinPeriod:
         step = int(self.sim.steps) - key  # which simulation step of the period this is (0: the action's own)
         if not 0 < step < self.steps or not np.array_equal(np.asarray(self.sim.action_type.last_action), action):
             return
-        command = self.driver.within_period(self.sim, step * self.dt)
+        offset = step % self.steps_per_plan  # [simulation steps] since the latest decision
+        if offset == 0:
+            command = self.replan(int(self.sim.steps))
+        else:
+            tracked = self.driver.within_period(self.sim, offset * self.dt)
+            command = None if tracked is None else tracked.action
         if command is not None:
-            vehicle.action = self.sim.action_type.get_action(command.action)
+            vehicle.action = self.sim.action_type.get_action(command)
             self.tracked += 1
 
 
@@ -148,6 +156,11 @@ class Controller:
     ``track_within_period``: where the env holds each action for several simulation steps (upstream's 1 Hz envs: 15),
     the plan is tracked at every one of them, the first with the returned action (default True; False: the returned
     action is held for the whole period, as the env does for any policy; optimisers only);
+    ``plan_frequency`` [Hz]: how often the optimiser plans (default: the env's ``policy_frequency``, a plan per
+    ``act``); a multiple of the env's policy frequency that divides its simulation frequency plans anew within the
+    env's period too (upstream's 1 Hz envs simulate at 15 Hz: 3, 5 or 15), at the simulation steps it falls on, each
+    plan tracked until the next (needs ``track_within_period``; ``last`` is the latest decision, within the period
+    or not);
     ``verbose``: ``reset`` writes one line on stderr when it compiles the planner and how long that took
     (``driveopt: compiling bilevel (150 samples) for highway-v0 ... 9.1 s``: the process's first reset of a planner
     and sample count; a later reset only when it took over 2 s, i.e. compiled anew; False: silent).
@@ -156,7 +169,8 @@ class Controller:
     def __init__(self, planner: str | DriverSpec = "bilevel", *, samples: int | None = None,
                  config: PlannerConfig | Mapping[str, Any] | None = None, v_des: float | None = None,
                  route: Sequence[str] | None = None, weights: str | None = None,
-                 latency: str | float | None = None, track_within_period: bool = True, verbose: bool = True) -> None:
+                 latency: str | float | None = None, track_within_period: bool = True,
+                 plan_frequency: float | None = None, verbose: bool = True) -> None:
         spec = get_planner(planner) if isinstance(planner, str) else planner
         if not isinstance(spec, DriverSpec):
             raise ControllerError(f"planner must be a registered name or a DriverSpec, got {type(planner).__name__}")
@@ -184,6 +198,17 @@ class Controller:
             if not isinstance(value, bool):
                 raise ControllerError(f"{name} must be True or False, got {value!r}")
         self.track_within_period = track_within_period
+        if plan_frequency is not None:
+            if isinstance(plan_frequency, bool) or not isinstance(plan_frequency, (int, float)) \
+                    or not (math.isfinite(plan_frequency) and plan_frequency > 0):
+                raise ControllerError(f"plan_frequency must be a frequency > 0 Hz, got {plan_frequency!r}")
+            if not self.spec.is_optimiser:
+                raise ControllerError(f"plan_frequency sets how often an optimiser plans; '{spec.name}' does not plan "
+                                      "(idm decides at every simulation step already)")
+            if not track_within_period:
+                raise ControllerError("plan_frequency needs track_within_period=True: the plans made within the env's "
+                                      "period are commanded at its simulation steps")
+        self.plan_frequency = None if plan_frequency is None else float(plan_frequency)
         self.verbose = verbose
         self._within: _WithinPeriod | None = None  # the plan tracked between the env's policy steps
         self._decided_at: int | None = None  # _state_key of the state self.last was decided at
@@ -216,6 +241,7 @@ class Controller:
             if missing:
                 raise ControllerError(f"route nodes {missing} are not in the env's lane graph; its nodes: "
                                       f"{sorted(set(sim.road.network.graph) | {t for tos in sim.road.network.graph.values() for t in tos})}")
+        plan_hz = self._plan_frequency(sim)
         v_des = self.v_des if self.v_des is not None else _env_speed_limit(env)
         route = self.route if self.route is not None else env_destination_route(sim)
         self.task = Task(v_des=v_des, name=getattr(getattr(env, "spec", None), "id", None) or type(sim).__name__,
@@ -229,7 +255,10 @@ class Controller:
                   end=" ", file=sys.stderr, flush=True)
         start = time.perf_counter()
         try:
-            self.driver.reset(env, self.task, seed)
+            if plan_hz is None:
+                self.driver.reset(env, self.task, seed)
+            else:
+                self.driver.reset(env, self.task, seed, policy_frequency=plan_hz)
         finally:
             if announce:
                 print(f"{time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
@@ -245,10 +274,29 @@ class Controller:
         if self._within is not None:
             step_hook.remove(self._within.vehicle)
         self._within = None
-        model = getattr(self.driver, "model", None)
-        if self.track_within_period and hasattr(self.driver, "within_period") and model.steps_per_action > 1:
-            self._within = _WithinPeriod(sim, self.driver)
-            step_hook.install(sim.vehicle, self._within)
+        if self.track_within_period and hasattr(self.driver, "within_period"):  # an optimiser: frequencies checked
+            period_steps = int(sim.config["simulation_frequency"] // sim.config["policy_frequency"])
+            if period_steps > 1:
+                self._within = _WithinPeriod(sim, self.driver, period_steps, self._replan)
+                step_hook.install(sim.vehicle, self._within)
+
+    def _plan_frequency(self, sim: Any) -> float | None:
+        """[Hz] ``plan_frequency`` checked against the env's frequencies (None: plan at each policy step)."""
+        hz = self.plan_frequency
+        if hz is None:
+            return None
+        simulation_hz, policy_hz = sim.config["simulation_frequency"], sim.config["policy_frequency"]
+        check_frequencies(simulation_hz, policy_hz)
+        plans, steps = hz / policy_hz, simulation_hz / hz  # [-] plans per policy period, simulation steps per plan
+        if abs(plans - round(plans)) > 1e-9 or round(plans) < 1 or abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
+            raise ControllerError(f"plan_frequency {hz:g} Hz must be a multiple of the env's policy_frequency "
+                                  f"({policy_hz:g} Hz) that divides its simulation_frequency ({simulation_hz:g} Hz): "
+                                  "plans are made at whole simulation steps, the first at each policy step")
+        return None if round(plans) == 1 else hz
+
+    def _replan(self, key: int) -> np.ndarray:
+        """The action of a decision made within the env's policy period, at its simulation step ``key``."""
+        return self._decide(self.episode.sim, key).action
 
     @property
     def compile_seconds(self) -> float:

@@ -29,6 +29,16 @@ def test_a_config_drives_the_episode_and_is_recorded_with_it(tmp_path):
     assert (out / "table.md").read_text().startswith("| upstream env | `bilevel`, 8 samples")
 
 
+@pytest.mark.parametrize("env_id, hz, replans", [
+    ("intersection-v0", 5.0, True), ("intersection-v0", 4.0, False),  # 1 Hz, 15 simulation steps a period
+    ("highway-fast-v0", 5.0, True), ("highway-fast-v0", 3.0, False),  # 1 Hz, 5 steps
+    ("racetrack-v0", 5.0, False), ("racetrack-v0", 15.0, True),  # 5 Hz, 3 steps: 5 Hz is its own rate
+    ("intersection-v0", None, False),
+])
+def test_plan_frequency_applies_where_it_replans_within_the_envs_period(env_id, hz, replans):
+    assert upstream_roads.plans_within_period(env_id, hz) is replans
+
+
 def test_the_table_shows_each_planners_counts_and_says_what_was_refused():
     results = {"roundabout-v0": {"bilevel": {"episodes": 20, "collisions": 2, "off_road_episodes": 1, "refused": 1,
                                              "arrived": 12, "mean_speed": 8.4795, "plan_ms_median": 43.2},

@@ -292,6 +292,35 @@ def test_the_plan_is_tracked_at_every_simulation_step_of_the_envs_period():
     assert max(misses[True]) < 1e-3 < 0.03 < max(misses[False]), misses
 
 
+def test_plan_frequency_replans_within_the_envs_period():
+    """At 5 Hz on roundabout-v0 (1 Hz, 15 simulation steps a period) each act is followed by four plans within the
+    period (its 3rd, 6th, 9th and 12th simulation steps), each tracked until the next: ``last`` is the period's fifth
+    plan, and the car ends the period on that plan's course."""
+    from driveopt.sim.control import sample_trajectory
+    from driveopt.sim.road_frame import slip_angle
+
+    env = driveopt.gym_make("roundabout-v0", config={**CONTINUOUS, "duration": 4})
+    env.reset(seed=0)
+    ctrl = driveopt.Controller("bilevel", samples=100, verbose=False, plan_frequency=5)
+    ctrl.reset(env, seed=0)
+    for period in range(3):
+        env.step(ctrl.act(env))
+        assert ctrl.last.plan_index == 5 * period + 4 and ctrl.last.result is not None
+        planned = sample_trajectory(ctrl.last.plan_world, ctrl.last.plan_elapsed + 0.2)
+        car = env.unwrapped.vehicle
+        course = car.heading + slip_angle(car.action["steering"])
+        assert abs((course - np.arctan2(planned.vy, planned.vx) + np.pi) % (2 * np.pi) - np.pi) < 1e-3
+    assert ctrl._within.tracked == 3 * 14
+
+
+@pytest.mark.parametrize("hz", [4, 0.5, 30])
+def test_a_plan_frequency_the_envs_steps_cannot_hold_is_refused_at_reset(hz):
+    env = driveopt.gym_make("highway-v0", config=CONTINUOUS)  # 1 Hz policy, 15 Hz simulation
+    env.reset(seed=0)
+    with pytest.raises(ControllerError, match="multiple of the env's policy_frequency"):
+        driveopt.Controller(samples=100, verbose=False, plan_frequency=hz).reset(env, seed=0)
+
+
 def test_parking_is_refused_at_reset_in_one_line():
     env = driveopt.gym_make("parking-v0", config=CONTINUOUS)
     env.reset(seed=0)
@@ -312,6 +341,9 @@ def test_roundabout_rewards_accept_array_actions():
     ({"planner": "no-such-planner"}, "unknown planner"),
     ({"planner": "dqn"}, "planner 'dqn' drives only driveopt's scenarios"),
     ({"planner": "ppo"}, "use `driveopt drive --planner ppo`"),
+    ({"plan_frequency": 0}, "plan_frequency"), ({"plan_frequency": True}, "plan_frequency"),
+    ({"planner": "idm", "plan_frequency": 5}, "does not plan"),
+    ({"plan_frequency": 5, "track_within_period": False}, "needs track_within_period=True"),
 ])
 def test_bad_settings_raise_one_clear_error(settings, message):
     with pytest.raises(driveopt.DriveoptError, match=message):

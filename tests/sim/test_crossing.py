@@ -53,6 +53,26 @@ def test_a_right_angle_crossing_is_an_obstacle_at_the_right_nodes_only():
     assert b > 2.0 * 1.4, "its box across the road is its length: it drives across"
 
 
+def test_a_car_turning_towards_the_route_from_beyond_the_frames_reach_is_predicted_along_its_path():
+    """A car at 60 degrees to the route, 17 m beside its lanes (beyond the frame's lateral reach), turning onto a lane
+    that joins the route at 10 degrees: no node of its path is on the frame while it runs steeply, yet its heading now
+    would carry the usual prediction straight across the lanes. It is a path neighbour, on the route's lane where
+    its path joins it."""
+    frame = _route_frame()
+    network = RoadNetwork()
+    steep, shallow = np.radians(60.0), np.radians(10.0)
+    turn = np.array([100.0, -19.0])  # where the steep lane meets the shallow one
+    join = np.array([turn[0] + 19.0 / np.tan(shallow), 0.0])  # the shallow lane meets the route's lane y = 0
+    network.add_lane("e", "f", StraightLane(turn - 30.0 * np.array([np.cos(steep), np.sin(steep)]), turn, width=4.0))
+    network.add_lane("f", "g", StraightLane(turn, join, width=4.0))
+    network.add_lane("g", "h", StraightLane(join, join + [200.0, 0.0], width=4.0))
+    car = IDMVehicle(Road(network=network), turn - 4.0 * np.array([np.cos(steep), np.sin(steep)]), heading=steep,
+                     speed=8.0, target_lane_index=("e", "f", 0), route=[("e", "f", 0), ("f", "g", 0), ("g", "h", 0)])
+    neighbour = crossing_neighbour(car, frame, np.arange(0.0, 15.01, 0.5), ego_x=50.0)
+    assert isinstance(neighbour, PathNeighbour)
+    assert abs(np.degrees(neighbour.path_yaw[0]) - 60.0) < 1e-6 and abs(neighbour.path_y[-1]) < 0.1
+
+
 def test_a_car_on_the_routes_own_road_is_left_to_the_usual_prediction():
     frame = _route_frame()
     network = frame.pieces[0].lane  # the route's lane; a car along it does not cross

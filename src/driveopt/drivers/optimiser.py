@@ -292,26 +292,31 @@ class OptimiserDriver:
         self.name = spec.name
         self.compile_seconds = 0.0
 
-    def reset(self, env: Any, scenario: Any, seed: int, *, warm_up: bool = True) -> None:
+    def reset(self, env: Any, scenario: Any, seed: int, *, warm_up: bool = True, policy_frequency: float | None = None
+              ) -> None:
         """Adapt the configuration to the env's car and road, load the prior, and compile (timed as ``compile_seconds``;
         ``warm_up`` False: no warm-up call, ``compile_seconds`` 0, for a caller that plans through
         :func:`driveopt.multi_plan.plan_many` and compiles that; the episode is the same either way).
 
         The car's acceleration and steering ranges, its length, the simulation and policy frequencies and the road
         are read from ``env``; ``scenario`` (a :class:`~driveopt.sim.scenarios.Scenario` or a
-        :class:`~driveopt.sim.perception.Task`) gives only the desired speed, a name and optionally a route."""
+        :class:`~driveopt.sim.perception.Task`) gives only the desired speed, a name and optionally a route.
+        ``policy_frequency`` [Hz]: how often ``act`` will be called, where that is not at each of the env's policy steps
+        (the :class:`~driveopt.controller.Controller` planning within the env's period: a multiple of the env's
+        policy frequency that divides its simulation frequency); default the env's."""
         self.scenario = scenario
-        self.model = BicycleModel.from_env(env)
+        self.model = BicycleModel.from_env(env, policy_frequency)
         self._one_step = dataclasses.replace(self.model, steps_per_action=1)  # the car over one simulation step
         self.preview = RoadPreview(lateral_acceleration=self.spec.config.projection.centripetal_max)
-        first = perceive(env, scenario, self.preview)
+        hz = env.unwrapped.config["policy_frequency"] if policy_frequency is None else policy_frequency
+        self.period = 1.0 / hz  # [s] one policy period: between two calls of act
+        first = perceive(env, scenario, self.preview, self.period)
         self.config = adapt_to_vehicle(self.spec.config, self.model, first.frame.curvature_between(-math.inf, math.inf))
         self.method = dataclasses.replace(self.spec.method, fallback=adapt_fallback(self.spec.method.fallback, self.model))
         lanes = first.scene.road.num_lanes
         self.prior = self.spec.prior(lanes)
         self.safety_filter = self.spec.safety_filter(lanes)
         self.key = jax.random.PRNGKey(seed)
-        self.period = 1.0 / env.unwrapped.config["policy_frequency"]  # [s] one policy period
         self.carries_plan = self.config.cost.consistency > 0
         # The first call passes the absent placeholder of the previous plan that later calls carry (a missing warm
         # start plan() runs as an absent one itself): every call runs one compilation, made here, outside the timed
@@ -379,9 +384,9 @@ class OptimiserDriver:
         self._guarded = False
         if not self._starts_call():
             if self.spec.loop.contact_guard:
-                self._perception = perceive(env, self.scenario, self.preview)
+                self._perception = perceive(env, self.scenario, self.preview, self.period)
             return None
-        perception = self._perception = perceive(env, self.scenario, self.preview)
+        perception = self._perception = perceive(env, self.scenario, self.preview, self.period)
         if self._ahead():  # the plan in effect carries the car until the new one takes effect: command it first
             self._command_now, self._guarded = self._step_command(env, perception)
         ahead = self._ahead() if self._command_now is not None else 0

@@ -84,8 +84,9 @@ class BicycleModel:
         return slip_angle(self.steering_range[0]), slip_angle(self.steering_range[1])
 
     @classmethod
-    def from_env(cls, env: Any) -> BicycleModel:
-        """Read the ego's length, the action ranges and the timing from ``env.unwrapped``."""
+    def from_env(cls, env: Any, policy_frequency: float | None = None) -> BicycleModel:
+        """Read the ego's length, the action ranges and the timing from ``env.unwrapped``; ``policy_frequency`` [Hz]:
+        how often the car is commanded, where that is not the env's own (a caller deciding within the env's period)."""
         sim = env.unwrapped
         action_type = sim.action_type
         if type(action_type).__name__ != "ContinuousAction" or not (action_type.longitudinal and action_type.lateral):
@@ -97,7 +98,8 @@ class BicycleModel:
             )
         if getattr(action_type, "dynamical", False):
             raise ControlError("ContinuousAction(dynamical=True) uses BicycleVehicle, not the kinematic model inverted here")
-        sim_hz, policy_hz = sim.config["simulation_frequency"], sim.config["policy_frequency"]
+        sim_hz = sim.config["simulation_frequency"]
+        policy_hz = sim.config["policy_frequency"] if policy_frequency is None else policy_frequency
         check_frequencies(sim_hz, policy_hz)
         return cls(
             length=float(sim.vehicle.LENGTH),

@@ -13,8 +13,10 @@ covers a car crossing the route, one crossing a junction to join it (whose veloc
 heading now, says nothing of where it will drive) and one that never enters the route's lanes (an oncoming road
 beside the route: the usual prediction would keep it on the route's lanes). Whether the ego waits for it or goes
 first is the optimiser's choice, like any other obstacle. A car whose path enters the route's lanes without ever
-running at more than :data:`~driveopt.sim.road_frame.CROSSING_ANGLE` to them (an on-ramp's) and vehicles on the
-frame's own roads are left to the usual prediction.
+running at more than :data:`~driveopt.sim.road_frame.CROSSING_ANGLE` to them, on the frame or beside it (an
+on-ramp's), and vehicles on the frame's own roads are left to the usual prediction. Beside the frame counts too: a
+car turning towards the route from beyond the frame's lateral reach may have no node on the frame while it turns (at
+8 m/s a 0.5 s node step is 4 m), and the usual prediction would carry its heading now straight across the lanes.
 """
 
 from __future__ import annotations
@@ -137,7 +139,7 @@ def crossing_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x:
         yaw = wrap_angle(float(heading) - float(piece.lane.heading_at(longitudinal)))
         xs[k], ys[k], yaws[k] = s, d, yaw
         enters |= on_frame and any(b.low < d < b.high and b.s_from <= s <= b.s_to for b in piece.bands)
-        turned |= on_frame and CROSSING_ANGLE < abs(yaw) < math.pi - CROSSING_ANGLE
+        turned |= CROSSING_ANGLE < abs(yaw) < math.pi - CROSSING_ANGLE  # on the frame or beside it
     if enters and not turned:  # joining at a shallow angle: the usual prediction
         return None
     return PathNeighbour(x=float(xs[0]), y=float(ys[0]), length=float(vehicle.LENGTH), width=float(vehicle.WIDTH),

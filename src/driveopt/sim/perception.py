@@ -114,9 +114,11 @@ def curve_speed(frame: RoadFrame, s: float, v_des: float, preview: RoadPreview, 
     return speed
 
 
-def _read(env: Any, task: Any, preview: RoadPreview) -> tuple[Scene, Motion, RoadFrame, Goal | None]:
+def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
+          ) -> tuple[Scene, Motion, RoadFrame, Goal | None]:
     """(scene, the ego's motion, the frame, the route's goal or None) of the current simulator state; ``task``: its
-    ``v_des`` [m/s], ``name`` and optional ``route`` (node names)."""
+    ``v_des`` [m/s], ``name`` and optional ``route`` (node names); ``period`` [s]: until the next decision (default: the
+    env's policy period)."""
     sim = env.unwrapped
     ego_vehicle = sim.vehicle
     if ego_vehicle is None or sim.road is None:
@@ -155,7 +157,8 @@ def _read(env: Any, task: Any, preview: RoadPreview) -> tuple[Scene, Motion, Roa
             neighbours.append(
                 Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width, yaw=m.heading, accel=accel)
             )
-        period = 1.0 / float(sim.config.get("policy_frequency", math.inf))
+        if period is None:
+            period = 1.0 / float(sim.config.get("policy_frequency", math.inf))
         v_des = curve_speed(frame, me.x, float(task.v_des), preview, period)
         scene = Scene(ego=ego, road=road, neighbours=tuple(neighbours), v_des=v_des, name=task.name)
     except ProblemError as exc:
@@ -168,10 +171,11 @@ def scene_from_env(env: Any, task: Any, preview: RoadPreview = RoadPreview()) ->
     return _read(env, task, preview)[0]
 
 
-def perceive(env: Any, task: Any, preview: RoadPreview = RoadPreview()) -> Perception:
+def perceive(env: Any, task: Any, preview: RoadPreview = RoadPreview(), period: float | None = None) -> Perception:
     """The planning scene, its frame and the ego's kinematics, read once; ``task``: anything with ``v_des`` [m/s] and
-    ``name`` (a :class:`~driveopt.sim.scenarios.Scenario`, a :class:`Task`), and optionally ``route``."""
-    scene, me, frame, goal = _read(env, task, preview)
+    ``name`` (a :class:`~driveopt.sim.scenarios.Scenario`, a :class:`Task`), and optionally ``route``; ``period`` [s]:
+    until the next decision, which the curves' desired speed allows for (default: the env's policy period)."""
+    scene, me, frame, goal = _read(env, task, preview, period)
     world = EgoKinematics(speed=me.speed, heading=wrap_angle(float(env.unwrapped.vehicle.heading)))
     return Perception(scene, EgoKinematics(speed=me.speed, heading=me.heading), frame, world, goal)
 
