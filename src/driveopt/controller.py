@@ -99,8 +99,9 @@ class _WithinPeriod:
     (:mod:`driveopt.sim.step_hook`): highway-env holds an action for ``simulation_frequency // policy_frequency``
     simulation steps, and a steering angle held for upstream's 1 s period misses a plan that turns within it (a
     roundabout's entry). The first simulation step is the returned action's; at each later one the controller plans
-    anew where its planning frequency falls on that step (``replan``: the action of a new decision), else takes the
-    driver's command for that step alone (``within_period``), unless ``env.step`` was given another action."""
+    anew where its planning frequency falls on that step (``replan``: the new plan's command for that step), else
+    takes the driver's command for that step alone (``within_period``), unless ``env.step`` was given another
+    action."""
 
     def __init__(self, sim: Any, driver: Any, steps_per_period: int, replan: Any) -> None:
         self.sim, self.driver, self.vehicle, self.replan = sim, driver, sim.vehicle, replan
@@ -295,8 +296,12 @@ class Controller:
         return None if round(plans) == 1 else hz
 
     def _replan(self, key: int) -> np.ndarray:
-        """The action of a decision made within the env's policy period, at its simulation step ``key``."""
-        return self._decide(self.episode.sim, key).action
+        """The command of a decision made within the env's policy period, at its simulation step ``key``: its plan
+        tracked over this simulation step alone, as at the steps that follow (the decision's own action is the
+        command held for its whole period, :attr:`last`.action), or that action where the driver tracks none."""
+        decision = self._decide(self.episode.sim, key)
+        command = self.driver.within_period(self.episode.sim, 0.0)
+        return decision.action if command is None else command.action
 
     @property
     def compile_seconds(self) -> float:
