@@ -122,6 +122,9 @@ def box_corners(length: float, width: float, yaws: np.ndarray) -> np.ndarray:
     return np.stack([c * along - s * across, s * along + c * across], axis=-1).reshape(-1, 2)
 
 
+_CANDIDATE_CHUNK = 32  # [-] candidate ellipses checked against every point at once in :func:`minkowski_ellipse`
+
+
 def minkowski_ellipse(half_long: float, half_lat: float, corners: np.ndarray) -> tuple[float, float]:
     """[m] (a, b): the smallest-area centred axis-aligned ellipse x^2/a^2 + y^2/b^2 <= 1 that contains the Minkowski
     sum of the axis-aligned box (+-``half_long``, +-``half_lat``) and the convex hull of ``corners`` (M, 2) [m]
@@ -145,8 +148,17 @@ def minkowski_ellipse(half_long: float, half_lat: float, corners: np.ndarray) ->
     u.append((Y[j][ok] - Y[i][ok]) / det[ok])
     v.append((X[i][ok] - X[j][ok]) / det[ok])
     u, v = np.concatenate(u), np.concatenate(v)
-    feasible = (u > 0.0) & (v > 0.0) & np.all(np.outer(u, X) + np.outer(v, Y) <= 1.0 + 1e-9, axis=1)
-    best = np.argmax(np.where(feasible, u * v, -np.inf))
+    # the feasible candidate of largest u v (the first such by index), checked in that order a chunk at a time: the
+    # best is nearly always among the first few of the hundreds of pairs a turned car's corners make
+    positive = (u > 0.0) & (v > 0.0)
+    order = np.argsort(-np.where(positive, u * v, -np.inf), kind="stable")
+    best = 0  # (none feasible: the first candidate, as an argmax over no feasible one gives)
+    for start in range(0, len(order), _CANDIDATE_CHUNK):
+        chunk = order[start:start + _CANDIDATE_CHUNK]
+        feasible = positive[chunk] & np.all(np.outer(u[chunk], X) + np.outer(v[chunk], Y) <= 1.0 + 1e-9, axis=1)
+        if feasible.any():
+            best = int(chunk[np.argmax(feasible)])
+            break
     return float(1.0 / np.sqrt(u[best])), float(1.0 / np.sqrt(v[best]))
 
 

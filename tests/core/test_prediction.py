@@ -69,7 +69,8 @@ def test_the_crossing_ellipse_is_the_smallest_axis_aligned_one_and_the_box_ellip
     for yaw in (0.0, math.pi / 2, math.pi):  # boxes along the axes: sqrt(2) x the summed half-sides, as for any car
         box_ellipse = ellipse_semi_axes(ego, Neighbour(x=0.0, y=0.0, yaw=yaw), margin)
         assert ellipse_semi_axes(ego, _crossing(yaw), margin) == pytest.approx(box_ellipse)
-    for yaws in ([math.pi / 4], [0.3], [0.7, 0.9, 1.05], [2.0]):
+    turning = list(np.linspace(0.1, 1.5, 31))  # a car turning through a junction: hundreds of candidate ellipses
+    for yaws in ([math.pi / 4], [0.3], [0.7, 0.9, 1.05], [2.0], turning):
         a, b = ellipse_semi_axes(ego, _crossing(yaws), margin)
         points = (turned_corners(5.0, 2.0, np.asarray(yaws))[:, None, :]
                   + np.array([[2.5, 1.0], [2.5, -1.0], [-2.5, 1.0], [-2.5, -1.0]])[None]).reshape(-1, 2)
@@ -79,7 +80,8 @@ def test_the_crossing_ellipse_is_the_smallest_axis_aligned_one_and_the_box_ellip
         least_b = np.sqrt(np.max(points[None, :, 1] ** 2 / (1.0 - points[None, :, 0] ** 2 / grid[:, None] ** 2), axis=1))
         assert a * b == pytest.approx(np.min(grid * least_b), rel=1e-3)
         box_a, box_b = ellipse_semi_axes(ego, Neighbour(x=0.0, y=0.0, yaw=yaws[0]), margin)
-        assert a * b < (0.75 if yaws == [math.pi / 4] else 0.95) * box_a * box_b  # smaller than the box around the turned box
+        if len(yaws) < 10:
+            assert a * b < (0.75 if yaws == [math.pi / 4] else 0.95) * box_a * box_b  # smaller than the box around it
     assert minkowski_ellipse(2.5, 1.0, turned_corners(5.0, 2.0, np.array([math.pi / 4]))) == pytest.approx((5.594, 4.505), abs=1e-3)
 
 
