@@ -73,7 +73,7 @@ only with its env's setup, older ones are driven again."""
 def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: float,
                 planner_config: dict | None = None, within_period: bool = True, plan_frequency: float | None = None) -> dict:
     """One episode's record; ``env_id``: an env of :data:`ENVS` or a row of :data:`ROUTED_ROWS`; ``plan_frequency``
-    [Hz]: the optimisers' where :func:`plans_within_period` allows it."""
+    [Hz]: the optimisers' (``Controller``'s ``plan_frequency``; None: a plan per policy step)."""
     import driveopt
     from driveopt.controller import ControllerError
     from driveopt.sim.road_frame import RoadFrameError
@@ -90,8 +90,7 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
         controller = driveopt.Controller(planner, samples=samples if optimiser else None,
                                          config=planner_config if optimiser else None,
                                          track_within_period=within_period, route=given_route,
-                                         plan_frequency=plan_frequency if optimiser and plans_within_period(
-                                             env_id, plan_frequency) else None)
+                                         plan_frequency=plan_frequency if optimiser else None)
         try:
             controller.reset(env, seed=seed)
         except (RoadFrameError, ControllerError) as exc:
@@ -295,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
                         continue
                     restore_traffic_constants(upstream_traffic)
                     record = {**run_episode(env_id, planner, seed, args.samples, args.duration, config,
-                                            not args.hold_actions, args.plan_frequency),
+                                            not args.hold_actions, args.plan_frequency if replans[env_id] else None),
                               "settings": settings_of(env_id, planner)}
                     out.write(row_line(record))
                     out.flush()
