@@ -1,5 +1,6 @@
-import os
 """Planner behaviours that closed-loop driving depends on."""
+
+import os
 
 import jax
 import jax.numpy as jnp
