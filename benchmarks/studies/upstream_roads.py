@@ -71,9 +71,11 @@ only with its env's setup, older ones are driven again."""
 
 
 def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: float,
-                planner_config: dict | None = None, within_period: bool = True, plan_frequency: float | None = None) -> dict:
+                planner_config: dict | None = None, within_period: bool = True, plan_frequency: float | None = None,
+                time_gap: float = 0.0) -> dict:
     """One episode's record; ``env_id``: an env of :data:`ENVS` or a row of :data:`ROUTED_ROWS`; ``plan_frequency``
-    [Hz]: the optimisers' (``Controller``'s ``plan_frequency``; None: a plan per policy step)."""
+    [Hz]: the optimisers' (``Controller``'s ``plan_frequency``; None: a plan per policy step); ``time_gap`` [s]: the
+    optimisers' (``Controller``'s)."""
     import driveopt
     from driveopt.controller import ControllerError
     from driveopt.sim.road_frame import RoadFrameError
@@ -90,7 +92,8 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
         controller = driveopt.Controller(planner, samples=samples if optimiser else None,
                                          config=planner_config if optimiser else None,
                                          track_within_period=within_period, route=given_route,
-                                         plan_frequency=plan_frequency if optimiser else None)
+                                         plan_frequency=plan_frequency if optimiser else None,
+                                         time_gap=time_gap if optimiser else 0.0)
         try:
             controller.reset(env, seed=seed)
         except (RoadFrameError, ControllerError) as exc:
@@ -251,11 +254,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="hold each action for the policy period instead of tracking the plan within it")
     parser.add_argument("--plan-frequency", type=float, metavar="HZ",
                         help="the optimisers plan HZ times a second where the env's policy frequency is lower")
+    parser.add_argument("--time-gap", type=float, default=0.0, metavar="S",
+                        help="[s] the headway the optimisers' plans keep to the cars in the lanes (Controller's time_gap)")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.samples < 1 or args.duration <= 0:
         parser.error("--episodes, --samples and --duration must be positive")
     if args.plan_frequency is not None and (args.hold_actions or not args.plan_frequency > 0):
         parser.error("--plan-frequency must be > 0 Hz, and tracks plans within the period (not with --hold-actions)")
+    if not 0.0 <= args.time_gap <= 10.0:
+        parser.error("--time-gap must be within [0, 10] s")
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     from driveopt.cli import stop_cleanly_on_signals
     from driveopt.experiments.rows_file import row_line
@@ -279,10 +286,13 @@ def main(argv: list[str] | None = None) -> int:
     for table_rows in (holds, replans):
         table_rows.update({row: table_rows[env_id] for row, (env_id, _) in ROUTED_ROWS.items()})
 
+    gap = {"time_gap": args.time_gap} if args.time_gap else {}  # recorded only when given, as the config
+
     def settings_of(env_id: str, planner: str) -> dict:  # what a record of this run holds: the optimisers' tracking
         tracked = planner != "idm" and not args.hold_actions and holds[env_id]  # (one step a period: nothing to track)
         replanned = {"plan_frequency": args.plan_frequency} if tracked and replans[env_id] else {}
-        return {**settings, "tracked_within_period": True, **replanned} if tracked else settings
+        own = {**settings, **gap} if planner != "idm" else settings
+        return {**own, "tracked_within_period": True, **replanned} if tracked else own
 
     done = {(r["env"], r["planner"], r["seed"]) for r in records if r.get("settings") == settings_of(r["env"], r["planner"])}
     with path.open("a") as out:
@@ -294,7 +304,8 @@ def main(argv: list[str] | None = None) -> int:
                         continue
                     restore_traffic_constants(upstream_traffic)
                     record = {**run_episode(env_id, planner, seed, args.samples, args.duration, config,
-                                            not args.hold_actions, args.plan_frequency if replans[env_id] else None),
+                                            not args.hold_actions, args.plan_frequency if replans[env_id] else None,
+                                            args.time_gap),
                               "settings": settings_of(env_id, planner)}
                     out.write(row_line(record))
                     out.flush()
@@ -304,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
                           flush=True)
     chosen = [r for r in records if r.get("settings") == settings_of(r["env"], r["planner"])]
     summary = {"command": "python benchmarks/studies/upstream_roads.py " + " ".join(argv if argv is not None else os.sys.argv[1:]),
-               "settings": {**settings, "tracked_within_period": not args.hold_actions,
+               "settings": {**settings, **gap, "tracked_within_period": not args.hold_actions,
                             **({"plan_frequency": args.plan_frequency} if args.plan_frequency else {})},
                "results": summarise(chosen)}
     write_json(args.out / "summary.json", summary)

@@ -162,6 +162,9 @@ class Controller:
     env's period too (upstream's 1 Hz envs simulate at 15 Hz: 3, 5 or 15), at the simulation steps it falls on, each
     plan tracked until the next (needs ``track_within_period``; ``last`` is the latest decision, within the period
     or not);
+    ``time_gap`` [s]: the headway the plans keep to the cars in the lanes, on top of the collision ellipse (the
+    ellipse of a car following its lane is longer by this time at the ego's speed; default 0: the ellipse alone), so
+    that a plan does not cut in just ahead of or behind a car whose braking the constant-speed prediction misses;
     ``verbose``: ``reset`` writes one line on stderr when it compiles the planner and how long that took
     (``driveopt: compiling bilevel (150 samples) for highway-v0 ... 9.1 s``: the process's first reset of a planner
     and sample count; a later reset only when it took over 2 s, i.e. compiled anew; False: silent).
@@ -171,7 +174,7 @@ class Controller:
                  config: PlannerConfig | Mapping[str, Any] | None = None, v_des: float | None = None,
                  route: Sequence[str] | None = None, weights: str | None = None,
                  latency: str | float | None = None, track_within_period: bool = True,
-                 plan_frequency: float | None = None, verbose: bool = True) -> None:
+                 plan_frequency: float | None = None, time_gap: float = 0.0, verbose: bool = True) -> None:
         spec = get_planner(planner) if isinstance(planner, str) else planner
         if not isinstance(spec, DriverSpec):
             raise ControllerError(f"planner must be a registered name or a DriverSpec, got {type(planner).__name__}")
@@ -210,6 +213,12 @@ class Controller:
                 raise ControllerError("plan_frequency needs track_within_period=True: the plans made within the env's "
                                       "period are commanded at its simulation steps")
         self.plan_frequency = None if plan_frequency is None else float(plan_frequency)
+        if isinstance(time_gap, bool) or not isinstance(time_gap, (int, float)) or not 0.0 <= time_gap <= 10.0:
+            raise ControllerError(f"time_gap must be a time in [0, 10] s, got {time_gap!r}")
+        if time_gap and not self.spec.is_optimiser:
+            raise ControllerError(f"time_gap sets the headway an optimiser's plans keep; '{spec.name}' does not plan "
+                                  "(idm keeps its own time gap)")
+        self.time_gap = float(time_gap)
         self.verbose = verbose
         self._within: _WithinPeriod | None = None  # the plan tracked between the env's policy steps
         self._decided_at: int | None = None  # _state_key of the state self.last was decided at
@@ -246,7 +255,7 @@ class Controller:
         v_des = self.v_des if self.v_des is not None else _env_speed_limit(env)
         route = self.route if self.route is not None else env_destination_route(sim)
         self.task = Task(v_des=v_des, name=getattr(getattr(env, "spec", None), "id", None) or type(sim).__name__,
-                         route=route)
+                         route=route, time_gap=self.time_gap)
         self.driver = self.spec.driver()
         samples = getattr(getattr(getattr(self.spec, "config", None), "sampler", None), "num_samples", None)
         first = (self.name, samples) not in _ANNOUNCED  # the process's first reset of this planner and size compiles

@@ -101,6 +101,7 @@ def ellipse_semi_axes(ego: EgoState, other: Neighbour, margin: EllipseMargin) ->
     A :class:`PathNeighbour` (crossing traffic, turned by any angle) gets instead the smallest axis-aligned ellipse
     around the Minkowski sum of the ego's box and its turned boxes at its headings (:func:`minkowski_ellipse`): for a
     car at 45 degrees to the route about a fifth less along it than the box around the turned box.
+    A lane-following neighbour's longitudinal semi-axis also grows by ``margin.time_gap`` times the ego's forward speed.
     The ego's box here is the one along the road; while the ego is turned its box grows for the
     first seconds of the plan (:func:`ego_box_growth`).
     """
@@ -110,7 +111,8 @@ def ellipse_semi_axes(ego: EgoState, other: Neighbour, margin: EllipseMargin) ->
     other_long, other_lat = other.half_extents
     half_long = 0.5 * ego.length + other_long
     half_lat = 0.5 * ego.width + other_lat
-    return math.sqrt(2.0) * half_long + margin.longitudinal, math.sqrt(2.0) * half_lat + margin.lateral
+    headway = margin.time_gap * max(ego.vx, 0.0)  # [m]
+    return math.sqrt(2.0) * half_long + margin.longitudinal + headway, math.sqrt(2.0) * half_lat + margin.lateral
 
 
 def box_corners(length: float, width: float, yaws: np.ndarray) -> np.ndarray:

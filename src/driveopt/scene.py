@@ -38,7 +38,7 @@ RANGES = {
     "length": (0.1, 100.0, "m"), "width": (0.1, 100.0, "m"), "yaw": (-100.0, 100.0, "rad"),
     "lane_width": (0.5, 100.0, "m"), "first_lane_center": (-1e3, 1e3, "m"), "curvature": (-1.0, 1.0, "1/m"),
     "longitudinal": (0.0, 100.0, "m"), "lateral": (0.0, 100.0, "m"),
-    "v_des": (0.0, 100.0, "m/s"), "edge_margin": (0.0, 100.0, "m"),
+    "v_des": (0.0, 100.0, "m/s"), "edge_margin": (0.0, 100.0, "m"), "time_gap": (0.0, 10.0, "s"),
 }
 MAX_LANES = 64  # [-] lanes of a road
 CURVATURE_CELL = 2.5  # [m] length of a cell of Road.curvature_ahead
@@ -183,13 +183,19 @@ class Road:
 
 @dataclass(frozen=True)
 class EllipseMargin:
-    """Extra clearance added to each semi-axis of the collision ellipse."""
+    """Extra clearance added to each semi-axis of the collision ellipse.
+
+    ``time_gap`` [s]: the longitudinal semi-axis of a car following its lane (a :class:`Neighbour`, not crossing
+    traffic) grows by this time at the ego's forward speed, so a plan keeps a headway to the car it follows and does
+    not cut in just ahead of or behind a car in the lane it enters, whose braking or speed the constant-speed
+    prediction does not foresee (0: the ellipse of the two boxes alone)."""
 
     longitudinal: float = 0.5  # [m]
     lateral: float = 0.3  # [m]
+    time_gap: float = 0.0  # [s]
 
     def __post_init__(self) -> None:
-        for f in ("longitudinal", "lateral"):
+        for f in ("longitudinal", "lateral", "time_gap"):
             object.__setattr__(self, f, _number(f"ellipse_margin.{f}", getattr(self, f)))
 
 

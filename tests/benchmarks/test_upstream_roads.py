@@ -1,4 +1,4 @@
-"""benchmarks/studies/upstream_roads.py: planner-config overrides and the tracking within the period reach the
+"""benchmarks/studies/upstream_roads.py: planner-config overrides, the time gap and the tracking within the period reach the
 controller and are recorded; the table reads the summary."""
 
 from __future__ import annotations
@@ -19,13 +19,14 @@ def test_a_config_drives_the_episode_and_is_recorded_with_it(tmp_path):
     config.write_text(json.dumps({"projection": {"max_iterations": 3}}))
     out = tmp_path / "out"
     assert upstream_roads.main(["--out", str(out), "--envs", "highway-v0", "--planners", "bilevel", "--episodes", "1",
-                                "--samples", "8", "--duration", "2", "--config", str(config)]) == 0
+                                "--samples", "8", "--duration", "2", "--config", str(config), "--time-gap", "0.3"]) == 0
     (record,) = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
     assert "refused" not in record and record["steps"] >= 1
     assert record["settings"] == {"samples": 8, "duration": 2.0, "traffic": "upstream's constants",
-                                  "config": {"projection": {"max_iterations": 3}}, "tracked_within_period": True}
+                                  "config": {"projection": {"max_iterations": 3}}, "time_gap": 0.3,
+                                  "tracked_within_period": True}
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["settings"]["config"] == {"projection": {"max_iterations": 3}}
+    assert summary["settings"]["config"] == {"projection": {"max_iterations": 3}} and summary["settings"]["time_gap"] == 0.3
     assert (out / "table.md").read_text().startswith("| upstream env | `bilevel`, 8 samples")
 
 

@@ -344,6 +344,8 @@ def test_roundabout_rewards_accept_array_actions():
     ({"plan_frequency": 0}, "plan_frequency"), ({"plan_frequency": True}, "plan_frequency"),
     ({"planner": "idm", "plan_frequency": 5}, "does not plan"),
     ({"plan_frequency": 5, "track_within_period": False}, "needs track_within_period=True"),
+    ({"time_gap": -0.5}, "time_gap"), ({"time_gap": True}, "time_gap"), ({"time_gap": "1"}, "time_gap"),
+    ({"planner": "idm", "time_gap": 1.0}, "idm keeps its own time gap"),
 ])
 def test_bad_settings_raise_one_clear_error(settings, message):
     with pytest.raises(driveopt.DriveoptError, match=message):

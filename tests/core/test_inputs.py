@@ -161,7 +161,7 @@ def test_a_missing_problem_file_says_no_such_file_and_an_unknown_name_lists_the_
         ({"ego": EGO, "neighbours": [{"x": 1, "y": 0, "yawn": 0}]}, "unknown key(s) ['yawn'] in 'neighbours[0]'"),
         ({"ego": EGO, "neighbours": [{"x": 1}]}, "'neighbours[0]' is missing ['y']"),
         ({"ego": EGO, "neighbours": [{"x": 1, "y": 1e9}]}, "neighbours[0]: neighbour.y must be within"),
-        ({"ego": EGO, "ellipse_margin": {"lateal": 1}}, "in 'ellipse_margin'; valid: ['lateral', 'longitudinal']"),
+        ({"ego": EGO, "ellipse_margin": {"lateal": 1}}, "in 'ellipse_margin'; valid: ['lateral', 'longitudinal', 'time_gap']"),
     ],
 )
 def test_a_misspelt_or_missing_key_is_a_problem_error_listing_the_valid_keys(data, needle):

@@ -16,7 +16,7 @@ from driveopt.prediction import (
     minkowski_ellipse,
 )
 from driveopt.problem import build_problem, ellipse_axes
-from driveopt.scene import EgoState, EllipseMargin, Neighbour, Road, Scene
+from driveopt.scene import EgoState, EllipseMargin, Neighbour, ProblemError, Road, Scene
 
 
 def _axes_now(ego, other, margin):
@@ -160,3 +160,26 @@ def test_a_standing_plan_keeps_the_grown_ellipse_of_a_turned_or_straight_neighbo
 
     assert obstacle_residual(1.01) < 1e-4
     assert obstacle_residual(0.99) > 1e-3
+
+
+def test_a_time_gap_lengthens_the_ellipse_of_lane_following_cars_by_the_gap_at_the_egos_speed():
+    """EllipseMargin.time_gap: a lane-following neighbour's longitudinal semi-axis grows by gap x the ego's forward
+    speed (none while it reverses), its lateral one and a crossing car's ellipse stay as they are; the problem carries
+    the longer ellipse."""
+    plain, gapped = EllipseMargin(), EllipseMargin(time_gap=0.5)
+    ego, car = EgoState(x=0.0, y=0.0, vx=20.0), Neighbour(x=30.0, y=0.0, vx=15.0)
+    a0, b0 = ellipse_semi_axes(ego, car, plain)
+    a1, b1 = ellipse_semi_axes(ego, car, gapped)
+    assert a1 == pytest.approx(a0 + 10.0) and b1 == b0
+    assert ellipse_semi_axes(EgoState(x=0.0, y=0.0, vx=-2.0), car, gapped) == ellipse_semi_axes(
+        EgoState(x=0.0, y=0.0, vx=-2.0), car, plain)
+    assert ellipse_semi_axes(ego, _crossing(0.8), gapped) == ellipse_semi_axes(ego, _crossing(0.8), plain)
+    axes = [np.asarray(ellipse_axes(build_problem(Scene(ego=ego, road=Road(num_lanes=3), neighbours=(car,),
+                                                        ellipse_margin=m)))[0])[0] for m in (plain, gapped)]
+    assert axes[1] - axes[0] == pytest.approx(np.full_like(axes[0], 10.0), rel=1e-5)
+
+
+@pytest.mark.parametrize("gap", [-0.1, 11.0, float("nan"), True])
+def test_a_time_gap_outside_0_to_10_s_is_refused(gap):
+    with pytest.raises(ProblemError, match="time_gap"):
+        EllipseMargin(time_gap=gap)

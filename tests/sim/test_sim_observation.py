@@ -22,7 +22,7 @@ from driveopt.prediction import ellipse_semi_axes
 from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, Road, Scene
 from driveopt.sim.env import step_env
-from driveopt.sim.perception import perceive, scene_from_env
+from driveopt.sim.perception import Task, perceive, scene_from_env
 from driveopt.sim.road_frame import RoadFrameError, build_frame
 from driveopt.sim.scenarios import get_scenario
 
@@ -165,6 +165,10 @@ def test_actual_vehicle_sizes_reach_the_collision_ellipses():
     problem = build_problem(scene)
     a, b = ellipse_semi_axes(scene.ego, scene.neighbours[index], scene.ellipse_margin)
     assert float(problem.obstacle_a[0]) == pytest.approx(a) and float(problem.obstacle_b[0]) == pytest.approx(b)
+
+    gapped = scene_from_env(env, Task(v_des=scenario.v_des, time_gap=0.4))  # a task's time gap reaches the ellipses
+    assert scene.ellipse_margin.time_gap == 0.0 and gapped.ellipse_margin.time_gap == 0.4
+    assert float(build_problem(gapped).obstacle_a[0]) == pytest.approx(a + 0.4 * scene.ego.vx)
 
 
 def _empty(ego_speed=12.0):

@@ -45,7 +45,7 @@ from typing import Any, NamedTuple, Sequence
 
 from driveopt.goal import Goal
 from driveopt.observation import ObservationError
-from driveopt.scene import CURVATURE_CELL, EgoState, Neighbour, ProblemError, Scene
+from driveopt.scene import CURVATURE_CELL, EgoState, EllipseMargin, Neighbour, ProblemError, Scene
 from driveopt.sim.control import EgoKinematics
 from driveopt.sim.crossing import crossing_neighbour, may_cross
 from driveopt.sim.road_frame import Motion, RoadFrame, ego_frame, vehicle_motion, wrap_angle
@@ -117,7 +117,7 @@ def curve_speed(frame: RoadFrame, s: float, v_des: float, preview: RoadPreview, 
 def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
           ) -> tuple[Scene, Motion, RoadFrame, Goal | None]:
     """(scene, the ego's motion, the frame, the route's goal or None) of the current simulator state; ``task``: its
-    ``v_des`` [m/s], ``name`` and optional ``route`` (node names); ``period`` [s]: until the next decision (default: the
+    ``v_des`` [m/s], ``name``, optional ``route`` (node names) and ``time_gap`` [s]; ``period`` [s]: until the next decision (default: the
     env's policy period)."""
     sim = env.unwrapped
     ego_vehicle = sim.vehicle
@@ -160,7 +160,8 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
         if period is None:
             period = 1.0 / float(sim.config.get("policy_frequency", math.inf))
         v_des = curve_speed(frame, me.x, float(task.v_des), preview, period)
-        scene = Scene(ego=ego, road=road, neighbours=tuple(neighbours), v_des=v_des, name=task.name)
+        margin = EllipseMargin(time_gap=getattr(task, "time_gap", 0.0))
+        scene = Scene(ego=ego, road=road, neighbours=tuple(neighbours), v_des=v_des, ellipse_margin=margin, name=task.name)
     except ProblemError as exc:
         raise ObservationError(f"simulator state at t = {sim.steps / sim.config['simulation_frequency']:.2f} s: {exc}") from None
     return scene, me, frame, goal
@@ -182,8 +183,10 @@ def perceive(env: Any, task: Any, preview: RoadPreview = RoadPreview(), period: 
 
 @dataclass(frozen=True)
 class Task:
-    """What a driver is asked to do on a user's env: its desired speed, a name for records, and optionally a route."""
+    """What a driver is asked to do on a user's env: its desired speed, a name for records, optionally a route, and the
+    time gap its plans keep to the cars in the lanes (:class:`~driveopt.scene.EllipseMargin`)."""
 
     v_des: float  # [m/s]
     name: str = "env"
     route: Sequence[str] | None = None  # node names of highway-env's lane graph, e.g. ("0", "1", "2", "exit")
+    time_gap: float = 0.0  # [s]
