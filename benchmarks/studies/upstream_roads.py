@@ -261,8 +261,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--episodes, --samples and --duration must be positive")
     if args.plan_frequency is not None and (args.hold_actions or not args.plan_frequency > 0):
         parser.error("--plan-frequency must be > 0 Hz, and tracks plans within the period (not with --hold-actions)")
-    if not 0.0 <= args.time_gap <= 10.0:
-        parser.error("--time-gap must be within [0, 10] s")
+    from driveopt.scene import EllipseMargin, ProblemError
+
+    try:
+        EllipseMargin(time_gap=args.time_gap)
+    except ProblemError as exc:
+        parser.error(f"--time-gap: {exc}")
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     from driveopt.cli import stop_cleanly_on_signals
     from driveopt.experiments.rows_file import row_line

@@ -40,6 +40,7 @@ from driveopt.config import PlannerConfig
 from driveopt.drivers.base import Decision, DriverSpec, check_given_weights
 from driveopt.errors import DriveoptError
 from driveopt.registry import get_planner
+from driveopt.scene import EllipseMargin, ProblemError
 from driveopt.sim import step_hook
 from driveopt.sim.control import check_frequencies
 from driveopt.sim.lane_graph import env_destination_route
@@ -213,8 +214,10 @@ class Controller:
                 raise ControllerError("plan_frequency needs track_within_period=True: the plans made within the env's "
                                       "period are commanded at its simulation steps")
         self.plan_frequency = None if plan_frequency is None else float(plan_frequency)
-        if isinstance(time_gap, bool) or not isinstance(time_gap, (int, float)) or not 0.0 <= time_gap <= 10.0:
-            raise ControllerError(f"time_gap must be a time in [0, 10] s, got {time_gap!r}")
+        try:
+            EllipseMargin(time_gap=time_gap)  # the scene's own check of the gap
+        except ProblemError as exc:
+            raise ControllerError(str(exc)) from None
         if time_gap and not self.spec.is_optimiser:
             raise ControllerError(f"time_gap sets the headway an optimiser's plans keep; '{spec.name}' does not plan "
                                   "(idm keeps its own time gap)")

@@ -117,8 +117,8 @@ def curve_speed(frame: RoadFrame, s: float, v_des: float, preview: RoadPreview, 
 def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
           ) -> tuple[Scene, Motion, RoadFrame, Goal | None]:
     """(scene, the ego's motion, the frame, the route's goal or None) of the current simulator state; ``task``: its
-    ``v_des`` [m/s], ``name``, optional ``route`` (node names) and ``time_gap`` [s]; ``period`` [s]: until the next decision (default: the
-    env's policy period)."""
+    ``v_des`` [m/s], ``name``, optional ``route`` (node names) and ``time_gap`` [s]; ``period`` [s]: until the next
+    decision (default: the env's policy period)."""
     sim = env.unwrapped
     ego_vehicle = sim.vehicle
     if ego_vehicle is None or sim.road is None:
