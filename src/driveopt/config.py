@@ -27,6 +27,7 @@ MAX_WEIGHT = 1e6  # [-] highest cost weight, gain or penalty weight
 MIN_TEMPERATURE = 1e-6  # [-] lowest sampler temperature: far below it (1e-300) it rounds to 0 in float32 and the
 # elite weights exp(-(c - min c) / temperature) are 0 / 0 = NaN
 DERIVATIVE_BOUNDS = ("nodes", "control_points")  # values of ProjectionConfig.derivative_bounds
+NEAREST_CHOICES = ("sample", "batch")  # values of ProjectionConfig.nearest_choice
 
 
 @dataclass(frozen=True)
@@ -137,9 +138,12 @@ class ProjectionConfig:
     # there too, as approximations). Residuals are measured at the nodes either way
     derivative_pieces: int = 4  # [-] in [1, 16], with "control_points": the pieces, each with basis.order control points
     # (the shared ones once); more pieces bring the points closer to the curve, so the bounds are less conservative
-    nearest_obstacles: int = 0  # [-] 0: every obstacle has rows at every node (the default); k > 0: at each node of a
-    # sample only the k obstacles nearest it (by ellipse ratio) on the sample's target trajectory, chosen once per
-    # projection (docs/results/speed.md): k rows per node instead of one per obstacle. Residuals count every obstacle
+    nearest_obstacles: int = 0  # [-] 0: every obstacle has rows at every node (the default); k > 0: at each node only
+    # the k obstacles nearest (by ellipse ratio) the target trajectories, chosen once per projection
+    # (docs/results/speed.md): k rows per node instead of one per obstacle. Residuals count every obstacle
+    nearest_choice: str = "sample"  # with nearest_obstacles: "sample" (each sample its own k nearest at each node) or
+    # "batch" (the k obstacles that come nearest to any sample at each node, one choice for the whole batch: the rows
+    # read each obstacle's per-node values as the plain rows do, with no per-sample copies)
 
     def __post_init__(self) -> None:
         check_types(self, "projection")
@@ -149,6 +153,8 @@ class ProjectionConfig:
                 f"projection.derivative_pieces must be in [1, 16], got {self.derivative_pieces}")
         require(0 <= self.nearest_obstacles <= 1000,
                 f"projection.nearest_obstacles must be in [0, 1000], got {self.nearest_obstacles}")
+        require(self.nearest_choice in NEAREST_CHOICES, f"projection.nearest_choice must be one of "
+                f"{', '.join(map(repr, NEAREST_CHOICES))}, got {self.nearest_choice!r}")
         require(self.nearest_obstacles == 0 or not self.barrier,
                 "projection.nearest_obstacles > 0 needs projection.barrier = false (the barrier follows every obstacle)")
         require(0 <= self.max_iterations <= 10_000, f"projection.max_iterations must be in [0, 10000], got {self.max_iterations}")

@@ -18,8 +18,9 @@ acceleration [m/s^2], lane [m], each an L2 norm over the nodes, leaving out the 
 that A_eq fixes (node 0 is the current state: no plan can change it). The velocity and acceleration rows act at the
 nodes, or (``cfg.derivative_bounds``) at the Bernstein control points of the velocity and acceleration on a few pieces
 of the horizon: fewer rows, so less arithmetic per iteration, and a speed or acceleration bound met at them holds at
-every time (convex hull; conservative). With ``cfg.nearest_obstacles`` a sample has, at each node, only the rows of the
-obstacles nearest its target there. The residuals are measured at the nodes, against every obstacle, either way.
+every time (convex hull; conservative). With ``cfg.nearest_obstacles`` a node has only the rows of the obstacles
+nearest the targets there (each sample's own nearest, or those nearest any sample: ``cfg.nearest_choice``). The
+residuals are measured at the nodes, against every obstacle, either way.
 
 Two loop modes share one step function: ``unroll=False`` stops early
 (``lax.while_loop``) for planning; ``unroll=True`` runs exactly
@@ -394,25 +395,28 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
 
 
 def _at_nodes(ops: _Operators, model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> _Operators:
-    """``ops`` with its velocity and acceleration rows at the nodes and every obstacle's rows, to measure residuals where
-    the plain rows act."""
-    if cfg.derivative_bounds == "nodes" and ops.nearest is None:
+    """``ops`` with its velocity and acceleration rows at the nodes, to measure residuals where the plain rows act."""
+    if cfg.derivative_bounds == "nodes":
         return ops
-    rows = _derivative_operators(model, problem, cfg, "nodes") if cfg.derivative_bounds != "nodes" else {}
-    return ops._replace(nearest=None, **rows)
+    return ops._replace(**_derivative_operators(model, problem, cfg, "nodes"))
 
 
-def _nearest_obstacles(model: TrajectoryModel, problem: PlanningProblem, target: jnp.ndarray, k: int,
-                       floor: jnp.ndarray) -> _Nearest:
-    """The k obstacles nearest each sample's target trajectory (2, B, n) at each node, by ellipse ratio (real
-    obstacles before padding), with their lowest allowed ratios ``floor`` (N, K), chosen once per projection: the rows
-    stay the same during the call, so its KKT matrix (k obstacle rows per node) and its fixed-point map do not change."""
+def _target_ratios(model: TrajectoryModel, problem: PlanningProblem, target: jnp.ndarray) -> jnp.ndarray:
+    """(N, B, K) squared ellipse ratio of every obstacle at each node of each sample's target trajectory (2, B, n);
+    infinite for padding, so real obstacles rank first."""
     W = jnp.asarray(model.W)
     x, y = target[0] @ W.T, target[1] @ W.T  # (B, K) [m]
     a, b = ellipse_axes(problem)  # (N, K)
-    N, K = a.shape
     ratio = ((x - problem.obstacle_x[:, None]) / a[:, None]) ** 2 + ((y - problem.obstacle_y[:, None]) / b[:, None]) ** 2
-    ratio = jnp.where(problem.obstacle_mask[:, None, None] > 0, ratio, jnp.inf)  # (N, B, K)
+    return jnp.where(problem.obstacle_mask[:, None, None] > 0, ratio, jnp.inf)
+
+
+def _nearest_obstacles(problem: PlanningProblem, ratio: jnp.ndarray, k: int, floor: jnp.ndarray) -> _Nearest:
+    """The k obstacles nearest each sample's target trajectory at each node (``ratio``, :func:`_target_ratios`), with
+    their lowest allowed ratios ``floor`` (N, K), chosen once per projection: the rows stay the same during the call, so
+    its KKT matrix (k obstacle rows per node) and its fixed-point map do not change."""
+    a, b = ellipse_axes(problem)  # (N, K)
+    N, K = a.shape
     slots = jnp.moveaxis(jax.lax.top_k(-jnp.moveaxis(ratio, 0, -1), k)[1], -1, 0)  # (k, B, K) obstacle indices
 
     def gather(values):  # (N,) or (N, K) -> (k, B, K)
@@ -421,6 +425,23 @@ def _nearest_obstacles(model: TrajectoryModel, problem: PlanningProblem, target:
     return _Nearest(*(gather(v) for v in (problem.obstacle_x, problem.obstacle_y, problem.obstacle_a, problem.obstacle_b,
                                           problem.obstacle_mask)),
                     1.0 / jnp.stack([gather(a), gather(b)]), gather(floor))
+
+
+def _nearest_for_batch(problem: PlanningProblem, ops: _Operators, ratio: jnp.ndarray,
+                       k: int) -> tuple[PlanningProblem, _Operators]:
+    """(problem, ops) with, at each node, only the k obstacles that come nearest to any sample's target trajectory
+    there (``ratio``, :func:`_target_ratios`): their per-node fields (k, K) in place of the N obstacles', so the rows
+    read them as the plain rows read every obstacle's."""
+    N, K = problem.obstacle_x.shape
+    slots = jax.lax.top_k(-jnp.min(ratio, axis=1).T, k)[1].T  # (k, K) obstacle indices, nearest first
+
+    def gather(values):  # (N,) or (N, K) -> (k, K)
+        return jnp.take_along_axis(jnp.broadcast_to(values[:, None] if values.ndim == 1 else values, (N, K)), slots, 0)
+
+    rows_problem = problem._replace(**{name: gather(getattr(problem, name)) for name in
+                                       ("obstacle_x", "obstacle_y", "obstacle_a", "obstacle_b", "obstacle_mask")})
+    return rows_problem, ops._replace(obstacle_floor=gather(ops.obstacle_floor),
+                                      inverse_axes=jnp.stack([gather(axes) for axes in ops.inverse_axes]))
 
 
 def _safe_sqrt(x):
@@ -693,9 +714,14 @@ def project(
     gamma_obs = _per_sample(cfg.gamma_obs if gamma_obs is None else gamma_obs, B, "gamma_obs")
     gamma_lane = _per_sample(cfg.gamma_lane if gamma_lane is None else gamma_lane, B, "gamma_lane")
     ops = _operators(model, problem, cfg, gamma_lane)
+    node_ops = _at_nodes(ops, model, problem, cfg)  # the residuals: every obstacle, the velocity and acceleration at the nodes
+    rows_problem = problem  # the obstacles the rows act on
     if 0 < cfg.nearest_obstacles < N:
-        ops = ops._replace(nearest=_nearest_obstacles(model, problem, _stacked(target), cfg.nearest_obstacles,
-                                                      ops.obstacle_floor))
+        ratio = _target_ratios(model, problem, _stacked(target))
+        if cfg.nearest_choice == "batch":
+            rows_problem, ops = _nearest_for_batch(problem, ops, ratio, cfg.nearest_obstacles)
+        else:
+            ops = ops._replace(nearest=_nearest_obstacles(problem, ratio, cfg.nearest_obstacles, ops.obstacle_floor))
     # The boundary part of the linear solve never changes: compute it once.
     b_x, b_y = jnp.broadcast_to(b_x, (B, b_x.shape[-1])), jnp.broadcast_to(b_y, (B, b_y.shape[-1]))
     fixed = jnp.stack([b_x @ ops.boundary[0].T, b_y @ ops.boundary[1].T])
@@ -706,9 +732,7 @@ def project(
         fixed = fixed.at[1].add(_batched_matvec(sample_y.boundary, b_y))
 
     def analyse(coeffs, d_obs, d_acc, with_residuals=False, aggregate_obstacles=False):
-        return _analysis_step(coeffs, d_obs, d_acc, ops, problem, cfg, gamma_obs, with_residuals, aggregate_obstacles)
-
-    node_ops = _at_nodes(ops, model, problem, cfg)
+        return _analysis_step(coeffs, d_obs, d_acc, ops, rows_problem, cfg, gamma_obs, with_residuals, aggregate_obstacles)
 
     def measure(coeffs, d_obs):
         """The residuals of a result, at the nodes (the curvature bound from the trajectory's own acceleration)."""

@@ -33,6 +33,8 @@ def test_round_trip_and_hashable():
         ({"projection": {"derivative_bounds": True}}, "projection.derivative_bounds must be one of"),
         ({"projection": {"derivative_pieces": 0}}, "projection.derivative_pieces must be in \\[1, 16\\], got 0"),
         ({"projection": {"nearest_obstacles": -1}}, "projection.nearest_obstacles must be in \\[0, 1000\\], got -1"),
+        ({"projection": {"nearest_choice": "node"}},
+         "projection.nearest_choice must be one of 'sample', 'batch', got 'node'"),
         ({"projection": {"nearest_obstacles": 4, "barrier": True}},
          "projection.nearest_obstacles > 0 needs projection.barrier = false"),
         ({"cost": {"speed": -1.0}}, "cost.speed"),
