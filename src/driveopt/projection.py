@@ -401,6 +401,11 @@ def _at_nodes(ops: _Operators, model: TrajectoryModel, problem: PlanningProblem,
     return ops._replace(**_derivative_operators(model, problem, cfg, "nodes"))
 
 
+def _per_node(values: jnp.ndarray, K: int) -> jnp.ndarray:
+    """An obstacle field (N,) or (N, K) as (N, K): one value per obstacle and node."""
+    return jnp.broadcast_to(values[:, None] if values.ndim == 1 else values, (values.shape[0], K))
+
+
 def _target_ratios(model: TrajectoryModel, problem: PlanningProblem, target: jnp.ndarray) -> jnp.ndarray:
     """(N, B, K) squared ellipse ratio of every obstacle at each node of each sample's target trajectory (2, B, n);
     infinite for padding, so real obstacles rank first."""
@@ -416,11 +421,11 @@ def _nearest_obstacles(problem: PlanningProblem, ratio: jnp.ndarray, k: int, flo
     their lowest allowed ratios ``floor`` (N, K), chosen once per projection: the rows stay the same during the call, so
     its KKT matrix (k obstacle rows per node) and its fixed-point map do not change."""
     a, b = ellipse_axes(problem)  # (N, K)
-    N, K = a.shape
+    K = a.shape[1]
     slots = jnp.moveaxis(jax.lax.top_k(-jnp.moveaxis(ratio, 0, -1), k)[1], -1, 0)  # (k, B, K) obstacle indices
 
     def gather(values):  # (N,) or (N, K) -> (k, B, K)
-        return jnp.broadcast_to(values[:, None] if values.ndim == 1 else values, (N, K))[slots, jnp.arange(K)]
+        return _per_node(values, K)[slots, jnp.arange(K)]
 
     return _Nearest(*(gather(v) for v in (problem.obstacle_x, problem.obstacle_y, problem.obstacle_a, problem.obstacle_b,
                                           problem.obstacle_mask)),
@@ -432,11 +437,11 @@ def _nearest_for_batch(problem: PlanningProblem, ops: _Operators, ratio: jnp.nda
     """(problem, ops) with, at each node, only the k obstacles that come nearest to any sample's target trajectory
     there (``ratio``, :func:`_target_ratios`): their per-node fields (k, K) in place of the N obstacles', so the rows
     read them as the plain rows read every obstacle's."""
-    N, K = problem.obstacle_x.shape
+    K = problem.obstacle_x.shape[1]
     slots = jax.lax.top_k(-jnp.min(ratio, axis=1).T, k)[1].T  # (k, K) obstacle indices, nearest first
 
     def gather(values):  # (N,) or (N, K) -> (k, K)
-        return jnp.take_along_axis(jnp.broadcast_to(values[:, None] if values.ndim == 1 else values, (N, K)), slots, 0)
+        return jnp.take_along_axis(_per_node(values, K), slots, 0)
 
     rows_problem = problem._replace(**{name: gather(getattr(problem, name)) for name in
                                        ("obstacle_x", "obstacle_y", "obstacle_a", "obstacle_b", "obstacle_mask")})
