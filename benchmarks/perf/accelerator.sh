@@ -3,9 +3,12 @@
 #
 #     benchmarks/perf/accelerator.sh OUT [PYTHON]
 #
+# - call-profile.json: one 1000 x 5 x 20 call split into its parts, the copy of its result to the host timed packed
+#   (one buffer per dtype, as plan() copies it there) and per array;
 # - latency.json: full plan() calls, 250 and 1000 samples x (5 x 20, 1 x 100), with what each call returned
 #   (P1 reports 0.06 s for 1000 x 5 x 20 on its GPU);
-# - call-profile.json: one 1000 x 5 x 20 call split into its parts;
+# - latency-realtime.json: the same with the real-time projection (driveopt.registry.REALTIME_PROJECTION), 5 x 12
+#   as bilevel plans and 5 x 8; latency-realtime-batch4.json: with the batch's nearest 4 neighbours' rows too;
 # - vqvae-sampling.json: P2's proposal (PixelCNN, decoder, set-point QP) at 1000 samples;
 # - filter-timing.json: P2's pipeline with the plain and the learned filter, 1000 samples x 100 iterations;
 # - machine.txt: the accelerator, the driver, Python and JAX.
@@ -35,7 +38,18 @@ run() {  # NAME ARGS...: one benchmark under the time limit, its log beside its 
     timeout --signal=INT --kill-after=20 "$limit" "$python" "$@" --calls "$calls" 2>&1 | tee -a "$out/$name.log" \
         && touch "$out/$name.done"
 }
+"$python" - "$out" <<'PY'
+import json, sys
+from driveopt.registry import REALTIME_PROJECTION
+for name, extra in (("realtime", {}), ("realtime-batch4", {"nearest_obstacles": 4, "nearest_choice": "batch"})):
+    with open(f"{sys.argv[1]}/config-{name}.json", "w") as f:
+        json.dump({"projection": {**REALTIME_PROJECTION, **extra}}, f)
+PY
+run call-profile benchmarks/perf/call_profile.py --samples 1000 --json "$out/call-profile.json"
+run latency-realtime benchmarks/perf/latency.py --batches 1000 250 --schedules 5x12 5x8 --config "$out/config-realtime.json" \
+    --resume --json "$out/latency-realtime.json"
 run latency benchmarks/perf/latency.py --batches 1000 250 --resume --json "$out/latency.json"
 run filter-timing benchmarks/perf/filter_timing.py --iterations 100 --reference 100 --json "$out/filter-timing.json"
 run vqvae-sampling benchmarks/perf/vqvae_sampling.py --samples 1000 --resume --json "$out/vqvae-sampling.json"
-run call-profile benchmarks/perf/call_profile.py --samples 1000 --json "$out/call-profile.json"
+run latency-realtime-batch4 benchmarks/perf/latency.py --batches 1000 250 --schedules 5x12 \
+    --config "$out/config-realtime-batch4.json" --resume --json "$out/latency-realtime-batch4.json"

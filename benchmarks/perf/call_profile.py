@@ -13,8 +13,9 @@ the built-in 10-neighbour problem ``dense-snapshot`` is split into the parts ``d
 - ``ranking_update``: trajectories, cost terms, ranking, elite selection and the CEM update (``evaluate``,
   ``cost_terms``, the ranking's ``score``/``key``/``elites``, ``cem_update``);
 - ``fallback``: the stop offered as fallback (``Fallback.choose``);
-- ``readout``: the host side of ``plan()`` after the compiled call (``jax.device_get`` of a solution not read before,
-  and the numpy result).
+- ``readout``: the host side of ``plan()`` after the compiled call (its copy of a solution not read before,
+  ``driveopt.host_copy.to_host``, and the numpy result); ``readout_ms`` times it with the copy forced to one buffer
+  per dtype (``packed``) and to one copy per array (``per_array``, ``jax.device_get``).
 
 Each part is jitted separately, with the planner's CPU compiler options and float32 products, and timed as the median
 of ``--calls`` calls after its compilation (compile time recorded separately, JAX's persistent compilation cache off);
@@ -49,6 +50,7 @@ from driveopt.costs import COST_TERMS, cost_terms, weighted_cost
 from driveopt.experiments.runner import cpu_model
 from driveopt.fallback import Fallback, braking_coeffs, stop_setpoints
 from driveopt.files import write_json
+from driveopt.host_copy import to_host
 from driveopt.method import Method
 from driveopt.planner import _to_result, compiled_solve, plan, project_batch, setpoint_batch
 from driveopt.problem import build_problem
@@ -205,8 +207,10 @@ def profile(samples: int, calls: int, iterations: int = 5, projection_iterations
     whole_ms = _median_ms(lambda: solve(*solve_args, **solve_kw), calls)
     # A solution of its own for each read-out, on the device as plan() reads it: a JAX array keeps its host copy after
     # the first read, so reading one solution again would time no copies
-    solutions = iter([jax.block_until_ready(solve(*solve_args, **solve_kw)) for _ in range(calls)])
-    readout_ms = _median_ms(lambda: _to_result(jax.device_get(next(solutions)), cfg, fallback, 0.0), calls)
+    readout_ms = {}  # plan()'s copy (to_host: packed on an accelerator), and each way forced
+    for name, copy in (("plan", to_host), ("packed", functools.partial(to_host, packed=True)), ("per_array", jax.device_get)):
+        solutions = iter([jax.block_until_ready(solve(*solve_args, **solve_kw)) for _ in range(calls)])
+        readout_ms[name] = _median_ms(lambda: _to_result(copy(next(solutions)), cfg, fallback, 0.0), calls)
     plan(problem, cfg, key=key, prior=prior)  # the same compiled solve: this call only warms plan()'s wrapper
     plan_ms = _median_ms(lambda: plan(problem, cfg, key=key, prior=prior).status, calls)
 
@@ -216,7 +220,7 @@ def profile(samples: int, calls: int, iterations: int = 5, projection_iterations
         "projection": pieces["projection"]["per_call_ms"],
         "ranking_update": pieces["ranking_update"]["per_call_ms"],
         "fallback": pieces["fallback"]["per_call_ms"],
-        "readout": readout_ms,
+        "readout": readout_ms["plan"],
     }
     compiled_sum = sum(v for k, v in parts.items() if k != "readout")
     operations = projection_operations(*pipeline.args["projection"][0], cfg)
@@ -228,6 +232,7 @@ def profile(samples: int, calls: int, iterations: int = 5, projection_iterations
         "parts_ms": parts, "share_of_parts": {k: v / sum(parts.values()) for k, v in parts.items()},
         "pieces": pieces, "parts_sum_ms": sum(parts.values()), "compiled_parts_sum_ms": compiled_sum,
         "whole_ms": whole_ms, "whole_compile_s": whole_compile_s, "plan_ms": plan_ms,
+        "readout_ms": {"packed": readout_ms["packed"], "per_array": readout_ms["per_array"]},
         "compile_s_parts_sum": sum(p["compile_s"] for p in pieces.values()),
         "projection_operations": operations, "projection_operations_per_call": per_call,
         "projection_gops_per_s": per_call["total"] / parts["projection"] / 1e6,
@@ -256,7 +261,8 @@ def main(argv=None) -> int:
         report["results"].append(result)
         parts = ", ".join(f"{k} {v:.1f}" for k, v in result["parts_ms"].items())
         print(f"{samples} x {args.iterations} x {args.projection_iterations}: {parts} ms; parts {result['parts_sum_ms']:.1f} ms, "
-              f"compiled solve {result['whole_ms']:.1f} ms, plan() {result['plan_ms']:.1f} ms; projection "
+              f"compiled solve {result['whole_ms']:.1f} ms, plan() {result['plan_ms']:.1f} ms (read-out packed "
+              f"{result['readout_ms']['packed']:.2f} ms, per array {result['readout_ms']['per_array']:.2f} ms); projection "
               f"{result['projection_operations_per_call']['total'] / 1e9:.2f} G operations per call, "
               f"{result['projection_gops_per_s']:.1f} G/s", flush=True)
     report["load_after"] = os.getloadavg()

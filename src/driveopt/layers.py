@@ -15,7 +15,8 @@ from pathlib import Path
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("errors", "lazy", "chunks", "pytree", "compilation_cache", "gym_envs", "layers", "learned_kinds"),  # exceptions,
     # lazy exports, loop helpers, learned weights as pytrees, registered ids, this order, learned components by kind
-    ("checks", "jsonfile", "files", "xla"),  # one-line input checks, the strict file reader, atomic writes, compiling
+    ("checks", "jsonfile", "files", "xla", "host_copy"),  # one-line input checks, the strict file reader, atomic writes,
+    # compiling, a result's copy to the host
     ("config", "scene", "solve_export"),  # configuration; the world; exported planner graphs
     ("basis", "prediction", "config_reference", "goal"),  # Bernstein basis; neighbours' predicted motion;
     # docs/configuration.md; where a plan should lead

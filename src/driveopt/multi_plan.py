@@ -29,6 +29,7 @@ import numpy as np
 
 from driveopt.config import PlannerConfig, split_runtime
 from driveopt.filtering import SafetyFilter
+from driveopt.host_copy import to_host
 from driveopt.method import DRIVEOPT_METHOD, Method
 from driveopt.planner import (
     _STATIC,
@@ -134,7 +135,7 @@ def plan_many(
     padded = checked + [checked[0]] * (slots - len(checked))
     previous = None if checked[0].previous is None else _stack([c.previous for c in padded])
     compiled_config, runtime = split_runtime(config)
-    solutions = jax.device_get(exported_solve_many()(
+    solutions = to_host(exported_solve_many()(
         _stack([c.problem for c in padded]), _stack_keys([c.key for c in padded]), prior=prior,
         warm_start=_stack([c.warm_start for c in padded]), previous=previous, safety_filter=safety_filter,
         config=compiled_config, method=method, runtime=runtime))

@@ -55,6 +55,7 @@ from driveopt.config import PlannerConfig, check_planning_size, split_runtime, w
 from driveopt.costs import COST_TERMS, cost_terms
 from driveopt.fallback import Fallback, braking_coeffs, stop_setpoints
 from driveopt.filtering import SafetyFilter, check_filter_init
+from driveopt.host_copy import to_host
 from driveopt.problem import PlanningProblem, check_problem
 from driveopt.projection import FAMILIES, ProjectionResult, project
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, boundary_values, make_model, solve_setpoint_qp
@@ -470,9 +471,9 @@ def plan(
     if prior is None:
         prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
     compiled_config, runtime = split_runtime(config)
-    solution = jax.device_get(exported_solve()(checked.problem, checked.key, prior=prior, warm_start=checked.warm_start,
-                                               previous=checked.previous, safety_filter=safety_filter,
-                                               config=compiled_config, method=method, runtime=runtime))
+    solution = to_host(exported_solve()(checked.problem, checked.key, prior=prior, warm_start=checked.warm_start,
+                                        previous=checked.previous, safety_filter=safety_filter, config=compiled_config,
+                                        method=method, runtime=runtime))
     return solution_result(solution, config, method, checked)
 
 
