@@ -100,7 +100,7 @@ def test_a_roundabouts_exit_leaves_by_the_outer_ring_lane_and_the_frame_covers_t
 
 
 def test_a_car_turning_out_of_the_ring_keeps_its_frame_state_when_the_closest_lane_switches_at_the_node():
-    """roundabout-generic-v0's exit starts where the outer ring lane ends, 50 degrees off the ring's direction. A car
+    """roundabout-generic-v0's exit starts where the outer ring lane ends, 66 degrees off the ring's direction. A car
     in the turn, 2.1 m apart on its path, has its closest lane on the ring before the node and on the ring's next road
     after it: its frame state moves on by about that distance, not by a jump (the frame built from the exit road placed the turn
     differently: the car's heading to its frame jumped from 0.09 to -0.49 rad, seed 4 of the upstream table)."""
