@@ -658,11 +658,11 @@ def _past_corner(network: Any, road: tuple[str, str], planned: Sequence[tuple[st
                  ) -> tuple[str, str]:
     """The route's road before ``road`` while ``position`` is on the first :data:`CORNER_LENGTH` of ``road`` and the
     route turns by more than :data:`CORNER_ANGLE` from the one's lanes to the other's (a roundabout's entry or exit),
-    else ``road``. Frames built from the two roads place that turn differently (by a few degrees of heading and tens
-    of centimetres), so a car driving through it would see its own state jump when the simulator's closest lane
-    switches at the junction's node (upstream's roundabout-generic-v0, seed 4: the ego's heading to the exit lane
-    jumped from 0.09 to -0.49 rad, its plans went infeasible and it left the road by 4 cm); starting from the road
-    before keeps the frame the car entered the turn in until it is through it."""
+    else ``road``. Frames built from the two roads place that turn differently, so a car driving through it would
+    see its own state jump when the simulator's closest lane switches at the junction's node (upstream's
+    roundabout-generic-v0, seed 4: the ego's heading to its frame jumped from 0.09 to -0.49 rad, its plans went
+    infeasible and it left the road by 4 cm); starting from the road before keeps the frame the car entered the turn
+    in until it is through it."""
     if road not in planned or planned.index(road) == 0:
         return road
     previous = planned[planned.index(road) - 1]
