@@ -634,46 +634,22 @@ def _ego_road(network: Any, ego: Any, planned: Sequence[tuple[str, str]]) -> tup
     node first, or short of its start by up to :data:`BRANCH_DISTANCE`: where a junction's branches start together,
     as an intersection's turns and straight on, the closest lane may be another branch than the one the car follows,
     and a roundabout's exit starts a few metres past the ring's lane the car leaves by), else of any road (upstream's
-    closest lane can be a sine lane far away, as roundabout-v0's entry when the car is on the far side of the ring);
-    and while the ego is on the first metres of a road the route turns into (a roundabout's entry or exit), the
-    route's road before it (:func:`_past_corner`)."""
+    closest lane can be a sine lane far away, as roundabout-v0's entry when the car is on the far side of the ring)."""
     road = (ego.lane_index[0], ego.lane_index[1])
     position = np.asarray(ego.position, dtype=float)
     on_road = _on_lanes(network, road, position)
     if on_road and (not planned or road in planned):
-        return _past_corner(network, road, planned, position)
+        return road
     same_node = [branch for branch in planned if branch[0] == road[0]]
     others = [branch for branch in planned if branch[0] != road[0]]
     everywhere = [] if on_road else [(frm, to) for frm, tos in network.graph.items() for to in tos]
     for candidate in same_node:
         if _on_lanes(network, candidate, position, before=BRANCH_DISTANCE):
-            return _past_corner(network, candidate, planned, position)
+            return candidate
     for candidate in others + everywhere:
         if _on_lanes(network, candidate, position):
-            return _past_corner(network, candidate, planned, position)
+            return candidate
     return road
-
-
-def _past_corner(network: Any, road: tuple[str, str], planned: Sequence[tuple[str, str]], position: np.ndarray
-                 ) -> tuple[str, str]:
-    """The route's road before ``road`` while ``position`` is on the first :data:`CORNER_LENGTH` of ``road`` and the
-    route turns by more than :data:`CORNER_ANGLE` from the one's lanes to the other's (a roundabout's entry or exit),
-    else ``road``. Frames built from the two roads place that turn differently, so a car driving through it would
-    see its own state jump when the simulator's closest lane switches at the junction's node (upstream's
-    roundabout-generic-v0, seed 4: the ego's heading to its frame jumped from 0.09 to -0.49 rad, its plans went
-    infeasible and it left the road by 4 cm); starting from the road before keeps the frame the car entered the turn
-    in until it is through it."""
-    if road not in planned or planned.index(road) == 0:
-        return road
-    previous = planned[planned.index(road) - 1]
-    if previous[1] != road[0]:
-        return road
-    before, _, _ = _road_lanes(network, previous)
-    after, _, _ = _road_lanes(network, road)
-    turn = wrap_angle(float(after.heading_at(0.0)) - float(before.heading_at(float(before.length))))
-    if abs(turn) <= CORNER_ANGLE:
-        return road
-    return previous if float(after.local_coordinates(position)[0]) < CORNER_LENGTH else road
 
 
 def ego_frame(env: Any, route: Sequence[Any] | None = None) -> tuple[RoadFrame, Motion]:
