@@ -2,9 +2,9 @@
 
 A planning call's result is a pytree of about 60 small arrays. ``jax.device_get`` copies each on its own; on an
 accelerator every copy is a transfer with its own latency (on an H200 the 62 copies were most of the 6 ms between a
-1000-sample call's compiled solve, 7.1 ms, and its ``plan()``, 13.3 ms: docs/results/speed.md). :func:`to_host` concatenates the arrays of each dtype on the device (one small jitted
-function, compiled once per result structure) and copies those few buffers, then splits them back on the host into
-views of the right shapes. On the CPU a copy is a pointer and the concatenation would cost more than it saves, so
+1000-sample call's compiled solve, 7.1 ms, and its ``plan()``, 13.3 ms: docs/results/speed.md). :func:`to_host`
+concatenates the arrays of each dtype on the device (one small jitted function, compiled once per result structure)
+and copies those few buffers, then splits them back on the host into views of the right shapes. On the CPU a copy is a pointer and the concatenation would cost more than it saves, so
 there it is ``jax.device_get``. Either way the values are the same bits.
 """
 
