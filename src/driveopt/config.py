@@ -144,6 +144,10 @@ class ProjectionConfig:
     nearest_choice: str = "sample"  # with nearest_obstacles: "sample" (each sample its own k nearest at each node) or
     # "batch" (the k obstacles that come nearest to any sample at each node, one choice for the whole batch: the rows
     # read each obstacle's per-node values as the plain rows do, with no per-sample copies)
+    obstacle_stride: int = 1  # [-] in [1, 16]: beyond ``obstacle_dense_time`` only every this-many-th node (and the last)
+    # carries obstacle rows, each ellipse grown by the ego's motion relative to the obstacle over the nodes left out
+    # (docs/results/speed.md); 1: every node (the default). Residuals count every node
+    obstacle_dense_time: float = 3.0  # [s] with ``obstacle_stride`` > 1, every node up to this time carries obstacle rows
 
     def __post_init__(self) -> None:
         check_types(self, "projection")
@@ -157,6 +161,12 @@ class ProjectionConfig:
                 f"{', '.join(map(repr, NEAREST_CHOICES))}, got {self.nearest_choice!r}")
         require(self.nearest_obstacles == 0 or not self.barrier,
                 "projection.nearest_obstacles > 0 needs projection.barrier = false (the barrier follows every obstacle)")
+        require(1 <= self.obstacle_stride <= 16, f"projection.obstacle_stride must be in [1, 16], got {self.obstacle_stride}")
+        require(0 <= self.obstacle_dense_time <= MAX_HORIZON,
+                f"projection.obstacle_dense_time must be in [0, {MAX_HORIZON:g}] s, got {self.obstacle_dense_time:g}")
+        require(self.obstacle_stride == 1 or not (self.barrier or self.nearest_obstacles),
+                "projection.obstacle_stride > 1 needs projection.barrier = false and nearest_obstacles = 0 (the barrier "
+                "follows every node; the nearest obstacles are chosen per node)")
         require(0 <= self.max_iterations <= 10_000, f"projection.max_iterations must be in [0, 10000], got {self.max_iterations}")
         require(self.tolerance >= 0, "projection.tolerance must be >= 0")
         for name in ("rho_obstacle", "rho_velocity", "rho_acceleration", "rho_lane"):

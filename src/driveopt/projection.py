@@ -19,8 +19,10 @@ that A_eq fixes (node 0 is the current state: no plan can change it). The veloci
 nodes, or (``cfg.derivative_bounds``) at the Bernstein control points of the velocity and acceleration on a few pieces
 of the horizon: fewer rows, so less arithmetic per iteration, and a speed or acceleration bound met at them holds at
 every time (convex hull; conservative). With ``cfg.nearest_obstacles`` a node has only the rows of the obstacles
-nearest the targets there (each sample's own nearest, or those nearest any sample: ``cfg.nearest_choice``). The
-residuals are measured at the nodes, against every obstacle, either way.
+nearest the targets there (each sample's own nearest, or those nearest any sample: ``cfg.nearest_choice``). With
+``cfg.obstacle_stride`` the obstacle rows act at every node over the plan's first seconds and at every few nodes later,
+each ellipse grown by how far the ego moves relative to the obstacle over the nodes left out. The residuals are
+measured at the nodes, against every obstacle, either way.
 
 Two loop modes share one step function: ``unroll=False`` stops early
 (``lax.while_loop``) for planning; ``unroll=True`` runs exactly
@@ -118,6 +120,18 @@ class _Nearest(NamedTuple):
     obstacle_floor: jnp.ndarray  # [-]
 
 
+class _ObstacleNodes(NamedTuple):
+    """The obstacle rows' nodes when not every node has them (``cfg.obstacle_stride``, :func:`obstacle_row_nodes`): K_o
+    nodes, node 0 the first."""
+
+    forward: jnp.ndarray  # (n, K_o): c -> position at those nodes
+    back: jnp.ndarray  # (K_o, n): its transpose, zero where A_eq fixes the position (node 0)
+    free: jnp.ndarray  # (K_o,) 0 where A_eq fixes the position
+    spread: jnp.ndarray  # (2, K_o) [-] the share of the relative motion to the previous / next of these nodes that a
+    # node's ellipse grows by, (g - 1) / (2 g) for a gap of g nodes: the half-gap beyond what a node covers when every
+    # node has rows (0 between neighbouring nodes)
+
+
 class _Operators(NamedTuple):
     """Per-call constants of the alternating minimisation; axis 0 of stacked arrays is (x, y). The velocity and
     acceleration rows are P each: the K nodes, or the control points (``cfg.derivative_bounds``, :func:`_derivative_operators`)."""
@@ -137,6 +151,7 @@ class _Operators(NamedTuple):
     inverse_axes: jnp.ndarray  # (2, N, K) [1/m] 1 / the ellipses' longitudinal and lateral semi-axes per node
     per_sample: _SampleY | None  # the y axis's per-sample changes when gamma_lane is per sample, else None
     nearest: _Nearest | None = None  # the obstacles with rows per sample and node when not all of them have rows
+    obstacle_nodes: _ObstacleNodes | None = None  # the nodes with obstacle rows when not every node has them
 
     @property
     def derivative_rows(self) -> int:
@@ -341,6 +356,25 @@ def _derivative_operators(model: TrajectoryModel, problem: PlanningProblem, cfg:
                 course=jnp.stack([jnp.cos(course), jnp.sin(course)]))
 
 
+def obstacle_row_nodes(t, cfg: ProjectionConfig) -> np.ndarray:
+    """Indices of the nodes (times ``t`` (K,) [s]) that carry obstacle rows: every node up to
+    ``cfg.obstacle_dense_time``, then every ``cfg.obstacle_stride``-th, and the last."""
+    t = np.asarray(t)
+    K = t.shape[0]
+    if cfg.obstacle_stride == 1:
+        return np.arange(K)
+    last_dense = max(int(np.searchsorted(t, cfg.obstacle_dense_time * (1 + 1e-6), side="right")) - 1, 0)
+    nodes = np.concatenate([np.arange(last_dense + 1), np.arange(last_dense + cfg.obstacle_stride, K, cfg.obstacle_stride)])
+    return nodes if nodes[-1] == K - 1 else np.append(nodes, K - 1)
+
+
+def _obstacle_nodes(W: jnp.ndarray, free: jnp.ndarray, nodes: np.ndarray) -> _ObstacleNodes:
+    gaps = np.diff(nodes).astype(np.float64)
+    before, after = np.concatenate([[1.0], gaps]), np.concatenate([gaps, [1.0]])
+    spread = np.stack([(before - 1.0) / (2.0 * before), (after - 1.0) / (2.0 * after)])
+    return _ObstacleNodes(W[nodes].T, W[nodes] * free[nodes, None], free[nodes], jnp.asarray(spread, W.dtype))
+
+
 def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig, gamma_lane) -> _Operators:
     """gamma_lane: a number, or (B, 1) one per sample (barrier mode only; see the module docstring and :class:`_SampleY`)."""
     n_active = jnp.sum(problem.obstacle_mask)
@@ -353,8 +387,12 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
     G, e = lane_constraint(model, *lane_bounds(model, problem, cfg), shared_gamma, cfg.barrier)
     K, P = W.shape[0], rows["course"].shape[1]
     Wm, Wdm, Wddm = rows["back"][:K], rows["back"][K:K + P], rows["back"][K + P:]
+    sparse = None
+    if cfg.obstacle_stride > 1:
+        sparse = _obstacle_nodes(W, rows["free_nodes"][0], obstacle_row_nodes(model.t, cfg))
+    Wo = Wm if sparse is None else sparse.back
     penalty_x = (
-        cfg.rho_obstacle * n_active * Wm.T @ Wm + cfg.rho_velocity * Wdm.T @ Wdm + cfg.rho_acceleration * Wddm.T @ Wddm
+        cfg.rho_obstacle * n_active * Wo.T @ Wo + cfg.rho_velocity * Wdm.T @ Wdm + cfg.rho_acceleration * Wddm.T @ Wddm
     )
     penalty_y = penalty_x + cfg.rho_lane * G.T @ G
     n = W.shape[1]
@@ -391,14 +429,16 @@ def _operators(model: TrajectoryModel, problem: PlanningProblem, cfg: Projection
         obstacle_floor=obstacle_floor(model, problem, cfg),
         inverse_axes=1.0 / jnp.stack(ellipse_axes(problem)),
         per_sample=sample_y,
+        obstacle_nodes=sparse,
     )
 
 
 def _at_nodes(ops: _Operators, model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> _Operators:
-    """``ops`` with its velocity and acceleration rows at the nodes, to measure residuals where the plain rows act."""
-    if cfg.derivative_bounds == "nodes":
-        return ops
-    return ops._replace(**_derivative_operators(model, problem, cfg, "nodes"))
+    """``ops`` with its velocity, acceleration and obstacle rows at every node, to measure residuals where the plain
+    rows act."""
+    if cfg.derivative_bounds != "nodes":
+        ops = ops._replace(**_derivative_operators(model, problem, cfg, "nodes"))
+    return ops._replace(obstacle_nodes=None)
 
 
 def _per_node(values: jnp.ndarray, K: int) -> jnp.ndarray:
@@ -535,16 +575,19 @@ def _analysis_step(
     # ratios, a state, are one (N, B, K) array, computed in one loop instead of one per obstacle and a stacking copy.
     # With ``cfg.nearest_obstacles`` the rows are those of each sample's nearest obstacles per node (slots of (B, K)
     # arrays in place of the problem's (K,) rows; the same arithmetic).
+    # With ``ops.obstacle_nodes`` the rows act at those nodes only (``problem`` holds the obstacles' values there).
     obstacles = problem if ops.nearest is None else ops.nearest
-    h_ox = jnp.zeros_like(x)
-    h_oy = jnp.zeros_like(y)
-    obstacle_sq = jnp.zeros_like(x)
+    sparse = ops.obstacle_nodes
+    ox, oy = (x, y) if sparse is None else coeffs @ sparse.forward  # (B, K_o) [m] the ego at the obstacle rows' nodes
+    h_ox = jnp.zeros_like(ox)
+    h_oy = jnp.zeros_like(oy)
+    obstacle_sq = jnp.zeros_like(ox)
     inv_a, inv_b = obstacles.inverse_axes if ops.nearest is not None else ops.inverse_axes
     if cfg.ego_turn_rate > 0:
         # A sample keeps the ego's turned box until it has travelled far enough to turn back (its heading falling by
         # ego_turn_rate per metre; the growth with it, linearly: the growth is concave in the heading, so this errs
         # by < 2 cm at 0.3 rad), and at least over the plan's first seconds as every plan does (ellipse_growth).
-        travelled = jnp.maximum(x - x[:, :1], 0.0)  # (B, K) [m]
+        travelled = jnp.maximum(ox - ox[:, :1], 0.0)  # (B, K) [m]
         per_metre = cfg.ego_turn_rate / jnp.maximum(jnp.abs(problem.ego_heading), 1e-6)
         turned = jnp.clip(1.0 - per_metre * travelled, 0.0, 1.0)
         grow_lat = jnp.maximum(problem.ellipse_growth[1, 0] * turned, problem.ellipse_growth[1])
@@ -558,8 +601,14 @@ def _analysis_step(
         """(x - x_o, y - y_o, 1 / ellipse ratio) of obstacle i, (B, K) each; i None: of every obstacle, (N, B, K)."""
         def pick(a):  # obstacle i's entry of an (N,) or (N, K) array; all of them shaped to broadcast against (N, B, K)
             return a[i] if i is not None else a.reshape(a.shape[0], 1, a.shape[1] if a.ndim == 2 else 1)
-        dx, dy = x - pick(obstacles.obstacle_x), y - pick(obstacles.obstacle_y)
-        if cfg.ego_turn_rate > 0:
+        dx, dy = ox - pick(obstacles.obstacle_x), oy - pick(obstacles.obstacle_y)
+        if sparse is not None:  # semi-axes grown by the relative motion over the nodes left out (no barrier here: i set)
+            long_axis = (obstacles.obstacle_a[i] + problem.ellipse_growth[0, 0] if cfg.ego_turn_rate > 0
+                         else 1.0 / ops.inverse_axes[0, i])
+            lat_axis = obstacles.obstacle_b[i] + grow_lat if cfg.ego_turn_rate > 0 else 1.0 / ops.inverse_axes[1, i]
+            dx_n = dx / (long_axis + _motion_growth(dx, sparse.spread))
+            dy_n = dy / (lat_axis + _motion_growth(dy, sparse.spread))
+        elif cfg.ego_turn_rate > 0:
             b_i, mid = pick(obstacles.obstacle_b) + grow_lat, pick(inv_b_mid)
             inv_b_i = mid * (2.0 - b_i * mid)
             inv_b_i = inv_b_i * (2.0 - b_i * inv_b_i)
@@ -649,19 +698,28 @@ def _analysis_step(
             (h_ox, h_oy, vel_x, vel_y, acc_x, acc_y, target_ub, target_lb, lane_pull))
     # rho F'h per axis as three (B, K) x (K, n) products: no (B, 3K) concatenation is materialised.
     back_pos, back_vel, back_acc = ops.back[:K], ops.back[K:K + P], ops.back[K + P:]
-    pull = jnp.stack([
-        (cfg.rho_obstacle * h_ox) @ back_pos + (cfg.rho_velocity * vel_x) @ back_vel
-        + (cfg.rho_acceleration * acc_x) @ back_acc,
-        (cfg.rho_obstacle * h_oy + cfg.rho_lane * lane_pull) @ back_pos + (cfg.rho_velocity * vel_y) @ back_vel
-        + (cfg.rho_acceleration * acc_y) @ back_acc,
-    ])  # (2, B, n)
+    if sparse is None:
+        pull = jnp.stack([
+            (cfg.rho_obstacle * h_ox) @ back_pos + (cfg.rho_velocity * vel_x) @ back_vel
+            + (cfg.rho_acceleration * acc_x) @ back_acc,
+            (cfg.rho_obstacle * h_oy + cfg.rho_lane * lane_pull) @ back_pos + (cfg.rho_velocity * vel_y) @ back_vel
+            + (cfg.rho_acceleration * acc_y) @ back_acc,
+        ])  # (2, B, n)
+    else:
+        pull = jnp.stack([
+            (cfg.rho_obstacle * h_ox) @ sparse.back + (cfg.rho_velocity * vel_x) @ back_vel
+            + (cfg.rho_acceleration * acc_x) @ back_acc,
+            (cfg.rho_obstacle * h_oy) @ sparse.back + (cfg.rho_lane * lane_pull) @ back_pos
+            + (cfg.rho_velocity * vel_y) @ back_vel + (cfg.rho_acceleration * acc_y) @ back_acc,
+        ])
     if not with_residuals:
         return pull, d_obs_next, d_acc, None
     free = ops.free_nodes
+    free_obstacle = free[0] if sparse is None else sparse.free
     if aggregate:
         n_active = jnp.sum(obstacles.obstacle_mask, axis=0)  # per sample and node with the nearest obstacles
         return pull, d_obs_next, d_acc, Residuals(
-            obstacle=_safe_sqrt(jnp.sum(free[0] * ((n_active * x - h_ox) ** 2 + (n_active * y - h_oy) ** 2), axis=1)),
+            obstacle=_safe_sqrt(jnp.sum(free_obstacle * ((n_active * ox - h_ox) ** 2 + (n_active * oy - h_oy) ** 2), axis=1)),
             velocity=_safe_sqrt(jnp.sum(free[1] * ((vx - vel_x) ** 2 + (vy - vel_y) ** 2), axis=1)),
             acceleration=_safe_sqrt(jnp.sum(free[2] * ((ax - acc_x) ** 2 + (ay - acc_y) ** 2), axis=1)),
             lane=_safe_sqrt(jnp.sum(ops.lane_rows * ((rows - target_ub) ** 2 + (-rows - target_lb) ** 2), axis=1)),
@@ -671,12 +729,21 @@ def _analysis_step(
     else:
         velocity_sq = (speed - d_vel) ** 2
     residuals = Residuals(
-        obstacle=_safe_sqrt(jnp.sum(free[0] * obstacle_sq, axis=1)),
+        obstacle=_safe_sqrt(jnp.sum(free_obstacle * obstacle_sq, axis=1)),
         velocity=_safe_sqrt(jnp.sum(free[1] * velocity_sq, axis=1)),
         acceleration=_safe_sqrt(jnp.sum(free[2] * (acc - d_acc) ** 2, axis=1)),
         lane=_safe_sqrt(jnp.sum(ops.lane_rows * ((rows - target_ub) ** 2 + (-rows - target_lb) ** 2), axis=1)),
     )
     return pull, d_obs_next, d_acc, residuals
+
+
+def _motion_growth(d: jnp.ndarray, spread: jnp.ndarray) -> jnp.ndarray:
+    """[m] (B, K_o) growth of a semi-axis at each obstacle-row node from the ego's coordinate relative to the obstacle
+    there, ``d`` (B, K_o): the larger of its changes to the previous and to the next such node, times their ``spread``
+    (:class:`_ObstacleNodes`), so that a node's ellipse covers the relative motion over the nodes left out around it
+    (linear between the nodes that carry rows)."""
+    change = jnp.abs(d[:, 1:] - d[:, :-1])
+    return jnp.maximum(jnp.pad(change, ((0, 0), (1, 0))) * spread[0], jnp.pad(change, ((0, 0), (0, 1))) * spread[1])
 
 
 def _stacked(coeffs: jnp.ndarray) -> jnp.ndarray:
@@ -721,6 +788,11 @@ def project(
     ops = _operators(model, problem, cfg, gamma_lane)
     node_ops = _at_nodes(ops, model, problem, cfg)  # the residuals: every obstacle, the velocity and acceleration at the nodes
     rows_problem = problem  # the obstacles the rows act on
+    if ops.obstacle_nodes is not None:  # their values at the nodes with rows
+        nodes = obstacle_row_nodes(model.t, cfg)
+        rows_problem = problem._replace(obstacle_x=problem.obstacle_x[:, nodes], obstacle_y=problem.obstacle_y[:, nodes],
+                                        ellipse_growth=problem.ellipse_growth[:, nodes])
+        ops = ops._replace(obstacle_floor=ops.obstacle_floor[:, nodes], inverse_axes=ops.inverse_axes[:, :, nodes])
     if 0 < cfg.nearest_obstacles < N:
         ratio = _target_ratios(model, problem, _stacked(target))
         if cfg.nearest_choice == "batch":
