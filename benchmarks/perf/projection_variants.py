@@ -1,6 +1,7 @@
 """Where the real-time projection's time goes: variants of it, timed against it in alternating rounds.
 
     python benchmarks/perf/projection_variants.py --json out/projection-variants.json [--samples 250 1000] [--rounds 30]
+        [--variants realtime obstacle-stride-4 ...]
 
 The projection of ``bilevel`` (``driveopt.registry.REALTIME_PROJECTION``, early stop off so that every call does the
 same work) on the built-in 10-neighbour problem ``dense-snapshot``, for one batch of ``--samples`` set-point-QP
@@ -12,6 +13,7 @@ trajectories (speeds the ego's +- 4 m/s, random lanes), and the same call with o
 - ``sample-nearest-4``: rows of only each sample's own 4 nearest neighbours at each node;
 - ``4-slots``, ``1-slot``: the problem built with room for only 4 (1) neighbours (``build_problem``'s
   ``max_obstacles``): what the neighbours' terms cost in the loops;
+- ``obstacle-stride-4``: obstacle rows at every node over the first 3 s, then at every 4th (``obstacle_stride``);
 - ``no-anderson``: the same 12 iterations without Anderson's window (its safeguard's residuals and fit);
 - ``plain-nodes``: 12 plain iterations with the speed and acceleration rows at the nodes;
 - ``no-iterations``: none (the per-call set-up and the final residuals).
@@ -55,6 +57,7 @@ VARIANTS = {  # name: (neighbour slots of the problem, projection configuration)
     "batch-nearest-4": (10, dataclasses.replace(REALTIME, nearest_obstacles=4, nearest_choice="batch")),
     "batch-nearest-5": (10, dataclasses.replace(REALTIME, nearest_obstacles=5, nearest_choice="batch")),
     "sample-nearest-4": (10, dataclasses.replace(REALTIME, nearest_obstacles=4)),
+    "obstacle-stride-4": (10, dataclasses.replace(REALTIME, obstacle_stride=4)),
     "4-slots": (4, REALTIME),
     "1-slot": (1, REALTIME),
     "no-anderson": (10, dataclasses.replace(REALTIME, anderson_window=0)),
@@ -76,11 +79,12 @@ def batch(samples: int, slots: int):
     return problem, solve_setpoint_qp(model, jnp.concatenate([speeds, lanes], 1), b_x, b_y), b_x, b_y
 
 
-def measure(samples: int, rounds: int) -> dict:
+def measure(samples: int, rounds: int, variants) -> dict:
     model = make_model()
     options = supported_compiler_options(XLA_CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else None
     calls = {}
-    for name, (slots, cfg) in VARIANTS.items():
+    for name in variants:
+        slots, cfg = VARIANTS[name]
         problem, target, b_x, b_y = batch(samples, slots)
         run = jax.jit(lambda t, p=problem, bx=b_x, by=b_y, c=cfg: project(model, p, t, bx, by, c),
                       compiler_options=options)
@@ -105,12 +109,13 @@ def main(argv=None) -> int:
     parser.add_argument("--json", type=Path, required=True, help="results file (written after every batch size)")
     parser.add_argument("--samples", type=positive_int, nargs="+", default=[250, 1000], help="batch sizes")
     parser.add_argument("--rounds", type=positive_int, default=30, help="timed rounds (each calls every variant once)")
+    parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS), help="variants to time")
     args = parser.parse_args(argv)
     jax.config.update("jax_enable_compilation_cache", False)  # first calls are compilations, not cache loads
     report = {"command": "python benchmarks/perf/projection_variants.py " + " ".join(argv or sys.argv[1:]),
               "machine": machine(), "load_before": os.getloadavg(), "rounds": args.rounds, "results": {}}
     for samples in args.samples:
-        report["results"][str(samples)] = measure(samples, args.rounds)
+        report["results"][str(samples)] = measure(samples, args.rounds, args.variants)
         report["load_after"] = os.getloadavg()
         write_json(args.json, report)
         row = ", ".join(f"{name} {r['median_ms']:.1f}" for name, r in report["results"][str(samples)].items())
