@@ -579,6 +579,9 @@ def _analysis_step(
     obstacles = problem if ops.nearest is None else ops.nearest
     sparse = ops.obstacle_nodes
     ox, oy = (x, y) if sparse is None else coeffs @ sparse.forward  # (B, K_o) [m] the ego at the obstacle rows' nodes
+    if sparse is not None:  # the ego's and the obstacles' moves between those nodes, each computed once
+        ego_steps = (_steps(ox), _steps(oy))  # (2, B, K_o) each
+        obstacle_steps = (_steps(obstacles.obstacle_x), _steps(obstacles.obstacle_y))  # (2, N, K_o) each
     h_ox = jnp.zeros_like(ox)
     h_oy = jnp.zeros_like(oy)
     obstacle_sq = jnp.zeros_like(ox)
@@ -606,8 +609,11 @@ def _analysis_step(
             long_axis = (obstacles.obstacle_a[i] + problem.ellipse_growth[0, 0] if cfg.ego_turn_rate > 0
                          else 1.0 / ops.inverse_axes[0, i])
             lat_axis = obstacles.obstacle_b[i] + grow_lat if cfg.ego_turn_rate > 0 else 1.0 / ops.inverse_axes[1, i]
-            dx_n = dx / (long_axis + _motion_growth(dx, sparse.spread))
-            dy_n = dy / (lat_axis + _motion_growth(dy, sparse.spread))
+            # 1 / axis as a fast reciprocal square root of its square: cheap operations only, which XLA fuses into
+            # the obstacle's loop (a division would be computed in a loop of its own and materialised).
+            long_axis = long_axis + _motion_growth(ego_steps[0], obstacle_steps[0], i, sparse.spread)
+            lat_axis = lat_axis + _motion_growth(ego_steps[1], obstacle_steps[1], i, sparse.spread)
+            dx_n, dy_n = dx * _fast_rsqrt(long_axis * long_axis), dy * _fast_rsqrt(lat_axis * lat_axis)
         elif cfg.ego_turn_rate > 0:
             b_i, mid = pick(obstacles.obstacle_b) + grow_lat, pick(inv_b_mid)
             inv_b_i = mid * (2.0 - b_i * mid)
@@ -737,13 +743,22 @@ def _analysis_step(
     return pull, d_obs_next, d_acc, residuals
 
 
-def _motion_growth(d: jnp.ndarray, spread: jnp.ndarray) -> jnp.ndarray:
-    """[m] (B, K_o) growth of a semi-axis at each obstacle-row node from the ego's coordinate relative to the obstacle
-    there, ``d`` (B, K_o): the larger of its changes to the previous and to the next such node, times their ``spread``
-    (:class:`_ObstacleNodes`), so that a node's ellipse covers the relative motion over the nodes left out around it
-    (linear between the nodes that carry rows)."""
-    change = jnp.abs(d[:, 1:] - d[:, :-1])
-    return jnp.maximum(jnp.pad(change, ((0, 0), (1, 0))) * spread[0], jnp.pad(change, ((0, 0), (0, 1))) * spread[1])
+def _steps(values: jnp.ndarray) -> jnp.ndarray:
+    """(..., K_o) -> (2, ..., K_o): each node's change from the previous node and to the next (0 beyond the ends)."""
+    change = values[..., 1:] - values[..., :-1]
+    pad = [(0, 0)] * (values.ndim - 1)
+    return jnp.stack([jnp.pad(change, pad + [(1, 0)]), jnp.pad(change, pad + [(0, 1)])])
+
+
+def _motion_growth(ego_steps: jnp.ndarray, obstacle_steps: jnp.ndarray, i: int, spread: jnp.ndarray) -> jnp.ndarray:
+    """[m] (B, K_o) growth of obstacle i's semi-axis along one axis at each obstacle-row node: the larger of the changes
+    of the ego's coordinate relative to the obstacle's from the previous and to the next such node (``ego_steps`` (2, B,
+    K_o) and ``obstacle_steps`` (2, N, K_o), :func:`_steps`), times their ``spread`` (:class:`_ObstacleNodes`), so that
+    a node's ellipse covers the relative motion over the nodes left out around it (linear between the nodes with
+    rows). Elementwise on arrays shared by the obstacles, so it fuses into each obstacle's loop."""
+    before = jnp.abs(ego_steps[0] - obstacle_steps[0, i]) * spread[0]
+    after = jnp.abs(ego_steps[1] - obstacle_steps[1, i]) * spread[1]
+    return jnp.maximum(before, after)
 
 
 def _stacked(coeffs: jnp.ndarray) -> jnp.ndarray:

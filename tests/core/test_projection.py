@@ -641,15 +641,17 @@ def test_obstacle_rows_keep_every_node_early_then_every_strideth_and_the_last():
 
 
 def test_a_nodes_ellipse_grows_by_the_relative_motion_over_the_nodes_left_out():
-    """Rows at nodes 0, 1, 5 (gaps 1 and 4): the relative coordinate moves 8 m from node 1 to node 5, so the ellipses
-    there grow by the 3 of those 4 nodes' motion a row no longer covers, halved: 8 x 3 / 8 = 3 m; node 0, whose neighbour
-    is the next node, not at all."""
-    from driveopt.projection import _motion_growth, _obstacle_nodes
+    """Rows at nodes 0, 1, 5 (gaps 1 and 4): the ego moves 9 m from node 1 to node 5 and the obstacle 1 m, so the
+    ellipses there grow by the 3 of those 4 nodes' relative motion (8 m) a row no longer covers, halved: 8 x 3 / 8 = 3 m;
+    node 0, whose neighbour is the next node, not at all; an obstacle moving with the ego not at all."""
+    from driveopt.projection import _motion_growth, _obstacle_nodes, _steps
 
     spread = _obstacle_nodes(jnp.asarray(MODEL.W), jnp.ones(100), np.array([0, 1, 5])).spread
     np.testing.assert_allclose(spread, [[0.0, 0.0, 3 / 8], [0.0, 3 / 8, 0.0]])
-    growth = _motion_growth(jnp.array([[10.0, 9.0, 1.0], [0.0, 0.0, 0.0]]), spread)
-    np.testing.assert_allclose(growth, [[0.0, 3.0, 3.0], [0.0, 0.0, 0.0]])
+    ego = _steps(jnp.array([[0.0, 2.0, 11.0]]))  # (2, 1, 3)
+    obstacles = _steps(jnp.array([[30.0, 30.0, 31.0], [30.0, 32.0, 41.0]]))  # (2, 2, 3)
+    np.testing.assert_allclose(_motion_growth(ego, obstacles, 0, spread), [[0.0, 3.0, 3.0]])
+    np.testing.assert_allclose(_motion_growth(ego, obstacles, 1, spread), [[0.0, 0.0, 0.0]])
 
 
 @pytest.mark.parametrize("stride", [4, 8])
