@@ -654,7 +654,7 @@ def test_a_nodes_ellipse_grows_by_the_relative_motion_over_the_nodes_left_out():
     np.testing.assert_allclose(_motion_growth(ego, obstacles, 1, spread), [[0.0, 0.0, 0.0]])
 
 
-@pytest.mark.parametrize("stride", [4, 8])
+@pytest.mark.parametrize("stride", [4, pytest.param(8, marks=pytest.mark.slow)])
 def test_sparse_obstacle_rows_keep_a_fast_pass_clear_of_a_stopped_car_at_every_node(stride):
     """A stopped car 60 m ahead in the ego's lane, passed at 20 m/s: between rows 4 or 8 nodes (0.6-1.2 s, 12-24 m)
     apart the ego would jump past most of the ellipse (15 m long), but grown by that motion the rows keep every node,
@@ -691,7 +691,8 @@ def _recorded_batches(seed: int):
         yield problem, solve_setpoint_qp(MODEL, jnp.concatenate([speeds, lanes], 1), b_x, b_y), b_x, b_y
 
 
-@pytest.mark.parametrize("extra", [{}, {"obstacle_stride": 4}], ids=["realtime", "obstacle-stride-4"])
+@pytest.mark.parametrize("extra", [{}, pytest.param({"obstacle_stride": 4}, marks=pytest.mark.slow)],
+                         ids=["realtime", "obstacle-stride-4"])  # the stride is off by default: its check runs with -m slow
 def test_the_realtime_projection_leaves_recorded_states_residuals_about_as_low_as_twenty_plain_iterations(extra):
     """12 iterations, Anderson window 4, bounds at the control points on 4 pieces (and with ``extra``: obstacle rows at
     every 4th node after 3 s), against the plain 20 iterations, on the 16 recorded states (64 random set-point rows each,
