@@ -590,7 +590,7 @@ def _analysis_step(
         # A sample keeps the ego's turned box until it has travelled far enough to turn back (its heading falling by
         # ego_turn_rate per metre; the growth with it, linearly: the growth is concave in the heading, so this errs
         # by < 2 cm at 0.3 rad), and at least over the plan's first seconds as every plan does (ellipse_growth).
-        travelled = jnp.maximum(ox - ox[:, :1], 0.0)  # (B, K) [m]
+        travelled = jnp.maximum(ox - ox[:, :1], 0.0)  # (B, K), or (B, K_o) at the obstacle rows' nodes [m]
         per_metre = cfg.ego_turn_rate / jnp.maximum(jnp.abs(problem.ego_heading), 1e-6)
         turned = jnp.clip(1.0 - per_metre * travelled, 0.0, 1.0)
         grow_lat = jnp.maximum(problem.ellipse_growth[1, 0] * turned, problem.ellipse_growth[1])
