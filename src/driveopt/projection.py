@@ -369,6 +369,8 @@ def obstacle_row_nodes(t, cfg: ProjectionConfig) -> np.ndarray:
 
 
 def _obstacle_nodes(W: jnp.ndarray, free: jnp.ndarray, nodes: np.ndarray) -> _ObstacleNodes:
+    """The rows' operators at ``nodes`` (:func:`obstacle_row_nodes`) from the basis ``W`` (K, n) and the position's free
+    flags ``free`` (K,), with each node's share of the motion over the gaps beside it."""
     gaps = np.diff(nodes).astype(np.float64)
     before, after = np.concatenate([[1.0], gaps]), np.concatenate([gaps, [1.0]])
     spread = np.stack([(before - 1.0) / (2.0 * before), (after - 1.0) / (2.0 * after)])
