@@ -8,8 +8,7 @@ import pytest
 import driveopt
 from driveopt.sim.perception import Task, perceive
 from driveopt.sim.road_frame import ego_frame
-from driveopt.scene import Neighbour
-from driveopt.sim.route_goal import RouteChange, Split, find_split, lane_flow, missed, next_lane_centre, split_goal
+from driveopt.sim.route_goal import RouteChange, Split, find_split, missed, split_goal
 
 CONTINUOUS = {"action": {"type": "ContinuousAction"}}
 EXIT = ["0", "1", "2", "exit"]
@@ -41,28 +40,6 @@ def test_the_goal_exists_only_with_a_route_and_narrows_the_far_lanes_first(exit_
     assert goal.x == (475.0, 500.0) and goal.widen == pytest.approx(4.0 / 37.5)
     assert goal.speed == pytest.approx((0.0, 300.0 / (6 * 3.0)))  # 6 lanes to change in 300 m, 3 s each
     assert split_goal(split, 175.0, 24.0, 25.0).speed is None  # in the lane: no speed advice
-
-
-def test_the_flow_margin_bounds_the_speed_by_the_next_lanes_traffic():
-    """With ``flow_margin``, the speed window is at most that much above the median speed of the cars in the next lane
-    towards the band (within ``flow_distance`` of the ego); the ego's own lane's cars and cars further away do not
-    count; without cars there, or without the margin, the window is the paced one alone."""
-    split = Split(("1", "2"), ("2", "exit"), 500.0, ((22.0, 26.0),), 4.0)
-    assert next_lane_centre(split, 0.0) == 4.0 and next_lane_centre(split, 5.0) == 8.0  # lane 1, the ego's own at 4 m
-    assert next_lane_centre(split, 24.4) == 24.0  # in the band: its own lane
-    paced = 300.0 / (6 * 3.0)
-    cars = (Neighbour(x=190.0, y=4.3, vx=12.0), Neighbour(x=160.0, y=3.9, vx=10.0), Neighbour(x=215.0, y=4.0, vx=11.0),
-            Neighbour(x=180.0, y=0.0, vx=2.0),  # the ego's own lane
-            Neighbour(x=260.0, y=4.0, vx=1.0))  # 85 m ahead
-    assert lane_flow(cars, 4.0, 4.0, 175.0, 50.0) == 11.0
-    pace = RouteChange(flow_margin=3.0)
-    assert split_goal(split, 175.0, 0.0, 25.0, pace, cars).speed == pytest.approx((0.0, 14.0))
-    assert split_goal(split, 175.0, 0.0, 25.0, pace).speed == pytest.approx((0.0, paced))  # nobody in the next lane
-    assert split_goal(split, 175.0, 0.0, 25.0, RouteChange(), cars).speed == pytest.approx((0.0, paced))
-    slow = (Neighbour(x=176.0, y=4.0, vx=0.5),)
-    assert split_goal(split, 175.0, 0.0, 25.0, pace, slow).speed == (0.0, RouteChange.min_speed)  # never below it
-    with pytest.raises(ValueError, match="flow_margin"):
-        RouteChange(flow_margin=-1.0)
 
 
 def test_a_split_out_of_reach_is_missed_and_one_within_reach_is_not():

@@ -49,7 +49,7 @@ from driveopt.scene import CURVATURE_CELL, EgoState, EllipseMargin, Neighbour, P
 from driveopt.sim.control import EgoKinematics
 from driveopt.sim.crossing import crossing_neighbour, may_cross
 from driveopt.sim.road_frame import Motion, RoadFrame, ego_frame, vehicle_motion, wrap_angle
-from driveopt.sim.route_goal import RouteChange, find_split, missed, settle_distance, split_goal
+from driveopt.sim.route_goal import RouteChange, find_split, missed, split_goal
 
 
 @dataclass(frozen=True)
@@ -127,15 +127,14 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
     frame, me = ego_frame(env, route)
     ahead = max(me.speed, 0.0)
     lane_preview = max(preview.lane_distance, ahead * preview.lane_time)
-    split = None
+    goal = None
     if route or getattr(ego_vehicle, "route", None):
         split = find_split(sim.road.network, frame, me.x)
         if split is not None and missed(split, me.x, me.y, me.speed, preview.route_change):
             frame, me = ego_frame(env, ())  # the split is out of reach: straight on, a lane that still leads somewhere
-            split = None
-        elif split is not None:  # the split's goal leads out of the other lanes from its start
-            start = split.s - settle_distance(me.speed, preview.route_change)
-            lane_preview = min(lane_preview, max(start - me.x, 0.0))
+        elif split is not None:
+            goal = split_goal(split, me.x, me.y, me.speed, preview.route_change)
+            lane_preview = min(lane_preview, max(goal.x[0] - me.x, 0.0))  # the goal leads out of the other lanes
     road = frame.road(me.x, lane_preview, max(preview.curvature_distance, ahead * preview.curvature_time),
                       behind=0.5 * me.length, per_node=preview.curvature_per_node)
     try:
@@ -158,7 +157,6 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
             neighbours.append(
                 Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width, yaw=m.heading, accel=accel)
             )
-        goal = None if split is None else split_goal(split, me.x, me.y, me.speed, preview.route_change, neighbours)
         if period is None:
             period = 1.0 / float(sim.config.get("policy_frequency", math.inf))
         v_des = curve_speed(frame, me.x, float(task.v_des), preview, period)

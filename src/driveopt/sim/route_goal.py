@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, NamedTuple, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -41,17 +41,11 @@ class RouteChange:
     fast_lane_time: float = 1.0  # [s] per lane: a split further across than this pace reaches is missed
     comfortable_lane_time: float = 3.0  # [s] per lane still to change: the desired speed leaves this long for each
     min_speed: float = 5.0  # [m/s] ... but is not lowered below this
-    # [m/s] while lanes remain, the desired speed is at most this much above the traffic's in the next lane towards
-    # the route's (:func:`lane_flow`), so the car changes into it near its speed; None: no such bound
-    flow_margin: float | None = None
-    flow_distance: float = 50.0  # [m] the cars within this distance ahead of or behind the ego make that lane's flow
 
     def __post_init__(self) -> None:
         for name in ("lane_time", "min_lane_distance", "settle_time", "min_settle_distance", "fast_lane_time",
-                     "comfortable_lane_time", "min_speed", "flow_margin", "flow_distance"):
+                     "comfortable_lane_time", "min_speed"):
             value = getattr(self, name)
-            if name == "flow_margin" and value is None:
-                continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < float(value) < 1e3:
                 raise ValueError(f"RouteChange.{name} must be a number in (0, 1000), got {value!r}")
 
@@ -124,46 +118,18 @@ def settle_distance(speed: float, pace: RouteChange) -> float:
     return max(pace.settle_time * abs(speed), pace.min_settle_distance)
 
 
-def next_lane_centre(split: Split, y: float) -> float:
-    """[m] centre of the lane next to the ego's (centre ``y`` [m]) towards the nearest of the split's bands (the ego's
-    own lane inside one); the lanes lie on the bands' grid of ``split.lane_width``."""
-    width = split.lane_width
-    low, high = min(split.bands, key=lambda b: max(b[0] - y, y - b[1], 0.0))
-    first = low + 0.5 * width  # a lane centre
-    own = first + round((y - first) / width) * width
-    if own < low:
-        return own + width
-    return own - width if own > high else own
-
-
-def lane_flow(neighbours: Sequence[Any], centre: float, width: float, x: float, distance: float) -> float | None:
-    """[m/s] median speed along the road of the ``neighbours`` (road-frame ``x``, ``y``, ``vx``) whose centre lies in
-    the lane of ``centre`` and ``width`` [m], within ``distance`` [m] of the ego's ``x``; None when there are none."""
-    speeds = [n.vx for n in neighbours if abs(n.y - centre) < 0.5 * width and abs(n.x - x) <= distance]
-    return float(np.median(speeds)) if speeds else None
-
-
-def split_goal(split: Split, x: float, y: float, speed: float, pace: RouteChange = RouteChange(),
-               neighbours: Sequence[Any] = ()) -> Goal:
+def split_goal(split: Split, x: float, y: float, speed: float, pace: RouteChange = RouteChange()) -> Goal:
     """The split as a goal for the ego at (``x``, ``y``) [m], ``speed`` [m/s]: its bands, required from
     :func:`settle_distance` before the split, widening by one lane per ``pace.lane_time`` of travel before that
     (the latest pace); never deferred for a slow car in them (the route must be kept). While lanes remain to be
     changed, its speed window leaves ``pace.comfortable_lane_time`` for each of them in the distance to the band's
-    start (at least ``pace.min_speed``): a lane change into slower traffic needs time at its speed, not only road.
-    With ``pace.flow_margin``, the window is also at most that much above the :func:`lane_flow` of the
-    ``neighbours`` (road frame) in the next lane towards the band (a car changing lanes much faster than the lane's
-    traffic closes on its cars faster than a replan can brake for them)."""
+    start (at least ``pace.min_speed``): a lane change into slower traffic needs time at its speed, not only road."""
     lane_distance = max(pace.lane_time * abs(speed), pace.min_lane_distance)
     start = split.s - settle_distance(speed, pace)
     lanes_left = math.ceil(_gap(y, split.bands) / split.lane_width - 1e-6)
     window = None
     if lanes_left > 0:
-        top = (start - x) / (lanes_left * pace.comfortable_lane_time)
-        flow = None if pace.flow_margin is None else lane_flow(
-            neighbours, next_lane_centre(split, y), split.lane_width, x, pace.flow_distance)
-        if flow is not None:
-            top = min(top, flow + pace.flow_margin)
-        window = (0.0, max(top, pace.min_speed))
+        window = (0.0, max((start - x) / (lanes_left * pace.comfortable_lane_time), pace.min_speed))
     return Goal(bands=split.bands, x=(start, split.s), speed=window, lead_distance=9999.0, block_speed=9999.0,
                 widen=split.lane_width / lane_distance)
 
