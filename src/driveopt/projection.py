@@ -130,6 +130,8 @@ class _ObstacleNodes(NamedTuple):
     spread: jnp.ndarray  # (2, K_o) [-] the share of the relative motion to the previous / next of these nodes that a
     # node's ellipse grows by, (g - 1) / (2 g) for a gap of g nodes: the half-gap beyond what a node covers when every
     # node has rows (0 between neighbouring nodes)
+    obstacle_steps: tuple | None = None  # ((2, N, K_o), (2, N, K_o)) [m] the obstacles' x and y changes to the previous
+    # and next of these nodes (:func:`_steps`), set once per call by :func:`project`
 
 
 class _Operators(NamedTuple):
@@ -581,9 +583,9 @@ def _analysis_step(
     obstacles = problem if ops.nearest is None else ops.nearest
     sparse = ops.obstacle_nodes
     ox, oy = (x, y) if sparse is None else coeffs @ sparse.forward  # (B, K_o) [m] the ego at the obstacle rows' nodes
-    if sparse is not None:  # the ego's and the obstacles' moves between those nodes, each computed once
+    if sparse is not None:  # the ego's moves between those nodes, once for every obstacle
         ego_steps = (_steps(ox), _steps(oy))  # (2, B, K_o) each
-        obstacle_steps = (_steps(obstacles.obstacle_x), _steps(obstacles.obstacle_y))  # (2, N, K_o) each
+        obstacle_steps = sparse.obstacle_steps
     h_ox = jnp.zeros_like(ox)
     h_oy = jnp.zeros_like(oy)
     obstacle_sq = jnp.zeros_like(ox)
@@ -809,7 +811,9 @@ def project(
         nodes = obstacle_row_nodes(model.t, cfg)
         rows_problem = problem._replace(obstacle_x=problem.obstacle_x[:, nodes], obstacle_y=problem.obstacle_y[:, nodes],
                                         ellipse_growth=problem.ellipse_growth[:, nodes])
-        ops = ops._replace(obstacle_floor=ops.obstacle_floor[:, nodes], inverse_axes=ops.inverse_axes[:, :, nodes])
+        ops = ops._replace(obstacle_floor=ops.obstacle_floor[:, nodes], inverse_axes=ops.inverse_axes[:, :, nodes],
+                           obstacle_nodes=ops.obstacle_nodes._replace(
+                               obstacle_steps=(_steps(rows_problem.obstacle_x), _steps(rows_problem.obstacle_y))))
     if 0 < cfg.nearest_obstacles < N:
         ratio = _target_ratios(model, problem, _stacked(target))
         if cfg.nearest_choice == "batch":
