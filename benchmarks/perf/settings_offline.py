@@ -54,11 +54,14 @@ def save_states(path: Path, problems: list) -> None:
 
 def load_states(path: Path) -> list:
     """The (scenario, PlanningProblem) pairs :func:`save_states` wrote; a file from before the road's curvature became a
-    table of cells (one number per problem) gets that number's magnitude in every cell."""
-    from driveopt.problem import PlanningProblem
+    table of cells (one number per problem) gets that number's magnitude in every cell, and one from before a route's
+    pull band existed gets none (NO_PULL)."""
+    from driveopt.problem import NO_PULL, PlanningProblem
     from driveopt.scene import CURVATURE_CELLS
 
     def field_of(data, i: int, field: str) -> np.ndarray:
+        if field == "pull_band" and f"{i}.{field}" not in data:  # recorded before the route's pull existed
+            return np.asarray(NO_PULL, dtype=np.float32)
         value = data[f"{i}.{field}"]
         if field == "road_curvature" and value.ndim == 0:
             return np.full(CURVATURE_CELLS, abs(value), dtype=value.dtype)

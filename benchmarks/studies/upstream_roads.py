@@ -14,8 +14,9 @@ episode. The optimisers' plans are tracked at every simulation step of a policy 
 ``track_within_period``; their records say ``tracked_within_period`` where the env holds an action for more
 than one simulation step); ``--hold-actions``: each action held for the period
 (the records before the controller tracked within it); ``--plan-frequency HZ``: the optimisers plan HZ times a second
-(``Controller``'s ``plan_frequency``) on the envs whose policy frequency is lower and whose simulation frequency it
-divides (their records say ``plan_frequency``), each plan tracked until the next. An env the controller refuses at reset (``RoadFrameError``: a road it cannot represent; ``ControllerError``:
+(``Controller``'s ``plan_frequency``; default its own, 5 Hz) on the envs whose policy frequency is lower and whose
+simulation frequency it divides (their records say ``plan_frequency``), each plan tracked until the next; elsewhere
+once per policy step (``--plan-frequency 1``: once per policy step at upstream's 1 Hz envs). An env the controller refuses at reset (``RoadFrameError``: a road it cannot represent; ``ControllerError``:
 parking-v0's goal pose) is recorded as refused with the message. Every episode is one line of
 ``OUT/episodes.jsonl`` (a rerun skips those done: resumable); ``OUT/table.md`` is docs/controller.md's table of
 them; ``OUT/summary.json`` gives, per env and planner (every
@@ -74,7 +75,7 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
                 planner_config: dict | None = None, within_period: bool = True, plan_frequency: float | None = None,
                 time_gap: float = 0.0) -> dict:
     """One episode's record; ``env_id``: an env of :data:`ENVS` or a row of :data:`ROUTED_ROWS`; ``plan_frequency``
-    [Hz]: the optimisers' (``Controller``'s ``plan_frequency``; None: a plan per policy step); ``time_gap`` [s]: the
+    [Hz]: the optimisers' (``Controller``'s ``plan_frequency``; None: its default); ``time_gap`` [s]: the
     optimisers' (``Controller``'s)."""
     import driveopt
     from driveopt.controller import ControllerError
@@ -160,13 +161,15 @@ def holds_several_steps(env_id: str) -> bool:
     return simulation_hz // policy_hz > 1
 
 
-def plans_within_period(env_id: str, hz: float | None) -> bool:
-    """Whether planning ``hz`` times a second replans within ``env_id``'s policy period: above its policy frequency,
-    a divisor of its simulation frequency and a multiple of its policy frequency."""
-    if hz is None:
-        return False
-    simulation_hz, policy_hz = frequencies(env_id)
-    return hz > policy_hz and (simulation_hz / hz).is_integer() and (hz / policy_hz).is_integer()
+def plan_rate(env_id: str, hz: float | None) -> float | None:
+    """[Hz] how often the controller's optimiser plans within ``env_id``'s policy period when asked to plan ``hz``
+    times a second (None: the controller's default, :data:`driveopt.controller.DEFAULT_PLAN_FREQUENCY`); None where
+    that is a plan per policy step (not above its policy frequency, or not a divisor of its simulation frequency that
+    is a multiple of its policy frequency)."""
+    from driveopt.controller import DEFAULT_PLAN_FREQUENCY, replans_at
+
+    rate = DEFAULT_PLAN_FREQUENCY if hz is None else hz
+    return rate if replans_at(rate, *frequencies(env_id)) else None
 
 
 def clock(sim) -> float:
@@ -253,7 +256,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--hold-actions", action="store_true",
                         help="hold each action for the policy period instead of tracking the plan within it")
     parser.add_argument("--plan-frequency", type=float, metavar="HZ",
-                        help="the optimisers plan HZ times a second where the env's policy frequency is lower")
+                        help="the optimisers plan HZ times a second where the env's policy frequency is lower "
+                             "(default: the controller's, 5 Hz)")
     parser.add_argument("--time-gap", type=float, default=0.0, metavar="S",
                         help="[s] the headway the optimisers' plans keep to the cars in the lanes (Controller's time_gap)")
     args = parser.parse_args(argv)
@@ -286,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
 
     upstream_traffic = traffic_constants()  # before any env is made (intersection-v0 changes them for the process)
     holds = {env_id: holds_several_steps(env_id) for env_id in ENVS}
-    replans = {env_id: plans_within_period(env_id, args.plan_frequency) for env_id in ENVS}
+    replans = {env_id: plan_rate(env_id, args.plan_frequency) for env_id in ENVS}
     for table_rows in (holds, replans):
         table_rows.update({row: table_rows[env_id] for row, (env_id, _) in ROUTED_ROWS.items()})
 
@@ -294,7 +298,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def settings_of(env_id: str, planner: str) -> dict:  # what a record of this run holds: the optimisers' tracking
         tracked = planner != "idm" and not args.hold_actions and holds[env_id]  # (one step a period: nothing to track)
-        replanned = {"plan_frequency": args.plan_frequency} if tracked and replans[env_id] else {}
+        replanned = {"plan_frequency": replans[env_id]} if tracked and replans[env_id] else {}
         own = {**settings, **gap} if planner != "idm" else settings
         return {**own, "tracked_within_period": True, **replanned} if tracked else own
 
@@ -308,7 +312,8 @@ def main(argv: list[str] | None = None) -> int:
                         continue
                     restore_traffic_constants(upstream_traffic)
                     record = {**run_episode(env_id, planner, seed, args.samples, args.duration, config,
-                                            not args.hold_actions, args.plan_frequency if replans[env_id] else None,
+                                            not args.hold_actions, None if args.hold_actions else
+                                            replans[env_id] or frequencies(env_id)[1],
                                             args.time_gap),
                               "settings": settings_of(env_id, planner)}
                     out.write(row_line(record))
@@ -320,7 +325,7 @@ def main(argv: list[str] | None = None) -> int:
     chosen = [r for r in records if r.get("settings") == settings_of(r["env"], r["planner"])]
     summary = {"command": "python benchmarks/studies/upstream_roads.py " + " ".join(argv if argv is not None else os.sys.argv[1:]),
                "settings": {**settings, **gap, "tracked_within_period": not args.hold_actions,
-                            **({"plan_frequency": args.plan_frequency} if args.plan_frequency else {})},
+                            **({} if args.hold_actions else {"plan_frequency": args.plan_frequency or "controller's default"})},
                "results": summarise(chosen)}
     write_json(args.out / "summary.json", summary)
     (args.out / "table.md").write_text(table(summary["results"], args.planners, args.samples))

@@ -200,6 +200,9 @@ class CostConfig:
     curvature: float = 10.0  # [m^2] weight of the curvature^2 (steering effort proxy)
     lane_centering: float = 0.5  # [1/m^2] weight of the squared distance of y(t) to the nearest lane centre
     consistency: float = 0.1  # [1/m^2] weight of (y(t) - y_previous(t))^2 against the previous replan's plan (0: not used, P1)
+    route: float = 10.0  # [1/lane] weight of the lane changes still between y(t)'s lane and the band a route's split draws
+    # it towards (PlanningProblem.pull_band; the term is 0 without one), counted from the nearest lane, so a plan stuck
+    # between two lanes gains nothing over the nearer one
 
     def __post_init__(self) -> None:
         check_types(self, "cost")
@@ -374,7 +377,7 @@ _SECTIONS = {
 # would differ in the last bits, and a closed loop amplifies that into another episode.
 RUNTIME_FIELDS: dict[str, tuple[str, ...]] = {
     "projection": ("v_min", "a_max"),
-    "cost": ("speed", "lateral_acceleration", "heading", "curvature", "lane_centering", "consistency"),
+    "cost": ("speed", "lateral_acceleration", "heading", "curvature", "lane_centering", "consistency", "route"),
 }
 
 

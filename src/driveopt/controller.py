@@ -47,6 +47,7 @@ from driveopt.sim.lane_graph import env_destination_route
 from driveopt.sim.perception import Task
 
 
+DEFAULT_PLAN_FREQUENCY = 5.0  # [Hz] how often an optimiser plans where the env decides less often and its rates allow
 _RECOMPILE_NOTICE_S = 2.0  # [s] a later reset's warm-up slower than this compiled anew (said when verbose)
 _ANNOUNCED: set[tuple[str, Any]] = set()  # (planner, samples) whose compilation a reset in this process has said
 
@@ -130,6 +131,13 @@ class _WithinPeriod:
             self.tracked += 1
 
 
+def replans_at(hz: float, simulation_hz: float, policy_hz: float) -> bool:
+    """Whether planning ``hz`` times a second plans anew within the env's policy period: a multiple (more than one)
+    of its policy frequency that divides its simulation frequency, so the plans fall on whole simulation steps."""
+    plans, steps = hz / policy_hz, simulation_hz / hz  # [-] plans per policy period, simulation steps per plan
+    return abs(plans - round(plans)) <= 1e-9 and round(plans) > 1 and abs(steps - round(steps)) <= 1e-9 and round(steps) >= 1
+
+
 def _state_key(env: Any) -> int:
     """The env's simulation step count: which state of the episode a decision was made at."""
     return int(getattr(env.unwrapped, "steps", 0))
@@ -158,11 +166,12 @@ class Controller:
     ``track_within_period``: where the env holds each action for several simulation steps (upstream's 1 Hz envs: 15),
     the plan is tracked at every one of them, the first with the returned action (default True; False: the returned
     action is held for the whole period, as the env does for any policy; optimisers only);
-    ``plan_frequency`` [Hz]: how often the optimiser plans (default: the env's ``policy_frequency``, a plan per
-    ``act``); a multiple of the env's policy frequency that divides its simulation frequency plans anew within the
-    env's period too (upstream's 1 Hz envs simulate at 15 Hz: 3, 5 or 15), at the simulation steps it falls on, each
-    plan tracked until the next (needs ``track_within_period``; ``last`` is the latest decision, within the period
-    or not);
+    ``plan_frequency`` [Hz]: how often the optimiser plans; a multiple of the env's policy frequency that divides its
+    simulation frequency plans anew within the env's period too (upstream's 1 Hz envs simulate at 15 Hz: 3, 5 or 15),
+    at the simulation steps it falls on, each plan tracked until the next (needs ``track_within_period``; ``last``
+    is the latest decision, within the period or not); the env's own policy frequency plans once per ``act``;
+    default :data:`DEFAULT_PLAN_FREQUENCY` (5 Hz) where the env decides less often and its rates allow it (at
+    upstream's 1 Hz envs: a plan at the policy step and four within the period), else once per ``act``;
     ``time_gap`` [s]: the headway the plans keep to the cars in the lanes, on top of the collision ellipse (the
     ellipse of a car following its lane is longer by this time at the ego's speed; default 0: the ellipse alone), so
     that a plan does not cut in just ahead of or behind a car whose braking the constant-speed prediction misses;
@@ -294,18 +303,24 @@ class Controller:
                 step_hook.install(sim.vehicle, self._within)
 
     def _plan_frequency(self, sim: Any) -> float | None:
-        """[Hz] ``plan_frequency`` checked against the env's frequencies (None: plan at each policy step)."""
+        """[Hz] how often the optimiser plans within the env's period, None: a plan per policy step. A given
+        ``plan_frequency`` is checked against the env's frequencies; the default plans at
+        :data:`DEFAULT_PLAN_FREQUENCY` where that replans within the period, else per policy step."""
+        simulation_hz, policy_hz = sim.config["simulation_frequency"], sim.config["policy_frequency"]
         hz = self.plan_frequency
         if hz is None:
-            return None
-        simulation_hz, policy_hz = sim.config["simulation_frequency"], sim.config["policy_frequency"]
+            if not (self.spec.is_optimiser and self.track_within_period):
+                return None
+            check_frequencies(simulation_hz, policy_hz)
+            return DEFAULT_PLAN_FREQUENCY if replans_at(DEFAULT_PLAN_FREQUENCY, simulation_hz, policy_hz) else None
         check_frequencies(simulation_hz, policy_hz)
-        plans, steps = hz / policy_hz, simulation_hz / hz  # [-] plans per policy period, simulation steps per plan
-        if abs(plans - round(plans)) > 1e-9 or round(plans) < 1 or abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
+        if abs(hz / policy_hz - 1.0) <= 1e-9:
+            return None
+        if not replans_at(hz, simulation_hz, policy_hz):
             raise ControllerError(f"plan_frequency {hz:g} Hz must be a multiple of the env's policy_frequency "
                                   f"({policy_hz:g} Hz) that divides its simulation_frequency ({simulation_hz:g} Hz): "
                                   "plans are made at whole simulation steps, the first at each policy step")
-        return None if round(plans) == 1 else hz
+        return hz
 
     def _replan(self, key: int) -> np.ndarray:
         """The command of a decision made within the env's policy period, at its simulation step ``key``: its plan

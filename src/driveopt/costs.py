@@ -11,13 +11,18 @@ from driveopt.config import CostConfig
 from driveopt.problem import PlanningProblem
 from driveopt.trajectory import Trajectory
 
-COST_TERMS = ("speed", "lateral_acceleration", "heading", "curvature", "lane_centering", "consistency")
+COST_TERMS = ("speed", "lateral_acceleration", "heading", "curvature", "lane_centering", "consistency", "route")
 
 
 def nearest_lane_center(problem: PlanningProblem, y: jnp.ndarray) -> jnp.ndarray:
     """[m] centre of the lane nearest to each lateral position y."""
     index = jnp.clip(jnp.round((y - problem.lane_center0) / problem.lane_width), 0, problem.num_lanes - 1)
     return problem.lane_center0 + index * problem.lane_width
+
+
+def outside_band(band: jnp.ndarray, y: jnp.ndarray) -> jnp.ndarray:
+    """[m] how far each lateral position y lies outside ``band`` = (low, high) (0 inside)."""
+    return jnp.maximum(band[0] - y, 0.0) + jnp.maximum(y - band[1], 0.0)
 
 
 def cost_terms(traj: Trajectory, problem: PlanningProblem, previous_y: jnp.ndarray | None = None) -> dict[str, jnp.ndarray]:
@@ -36,6 +41,9 @@ def cost_terms(traj: Trajectory, problem: PlanningProblem, previous_y: jnp.ndarr
         "curvature": jnp.mean(curvature**2, axis=-1),
         "lane_centering": jnp.mean(lane_offset**2, axis=-1),
         "consistency": jnp.zeros(traj.y.shape[:-1]) if previous_y is None else jnp.mean((traj.y - previous_y) ** 2, axis=-1),
+        # in whole lanes (the nearest lane's): a plan part way to the next lane gains nothing from it, so it costs more
+        # than one centred in either
+        "route": jnp.mean(jnp.round(outside_band(problem.pull_band, traj.y) / problem.lane_width), axis=-1),
     }
 
 

@@ -15,8 +15,12 @@ a split), so any road source can fill it in. :func:`driveopt.problem.build_probl
 - widening (``widen`` > 0, a route's lanes at a split): before the goal's start each band reaches ``widen`` metres
   further to each side per metre still to go, so that a band far ahead accepts every lane from which it can still be
   reached by lane changes, and narrows to the band itself at the goal's start; the lane terms then see the road's
-  lanes inside the bounds from the next lane towards the band on, so that lane centring draws the car towards it
-  one lane at a time from the start while the bounds require it only as late as it can still be reached.
+  lanes inside the bounds from the ego's own lane towards the band, so that lane centring keeps the car in a lane
+  (never between two) while the ``route`` cost term draws it towards the band and the bounds require it only as late
+  as it can still be reached. The bounds never exclude the ego's position or its lane's centre: they keep the car
+  from moving away from the band, never push it across a lane it cannot enter yet (a car beside it there made every
+  plan infeasible and the stop swerve into that car); a split that can no longer be reached is the road source's to
+  give up (:func:`driveopt.sim.route_goal.missed`).
 - speed: ``v_des`` clipped into the speed window, then into the speeds that arrive in the goal's range within the time
   window (fast enough to reach its start before the window closes, from the car's speed now: a car slower than the
   average speed that needs aims at the end speed of a steady acceleration that averages it; slow enough not to pass
@@ -134,34 +138,53 @@ class Goal:
 
     def lateral_bounds(self, scene: Scene) -> tuple[float, float]:
         """[m] (y_lb, y_ub) of the ego centre: the target band once the goal is near and the band is not
-        :meth:`blocked`, else the road's."""
+        :meth:`blocked`, else the road's; a widened goal's band stretched to hold the ego centre and its lane's centre
+        (see the module docstring)."""
         band = self.target_band(scene) if self.bands and self.is_near(scene) else None
         if band is None or not band[0] < band[1] or self.blocked(scene, band):
             return scene.lateral_bounds
+        if self.widen > 0.0:
+            y = scene.ego.y
+            centre = min((float(c) for c in scene.road.lane_centers), key=lambda c: abs(c - y))
+            return min(band[0], centre, y), max(band[1], centre, y)
         return band
+
+    def _toward_band(self, scene: Scene) -> tuple[list[float], float, tuple[float, float]]:
+        """(the road's lane centres, the centre of the ego's lane, the band nearest the ego) [m]."""
+        centres = [float(c) for c in scene.road.lane_centers]
+        own = min(centres, key=lambda c: abs(c - scene.ego.y))
+        band = min(self.bands, key=lambda b: max(b[0] - scene.ego.y, scene.ego.y - b[1], 0.0))
+        return centres, own, band
 
     def lanes(self, scene: Scene, bounds: tuple[float, float]) -> tuple[float, float, int]:
         """(lane_center0 [m], lane_width [m], num_lanes) the planner's lane terms see: the road's lanes, or, once the
         band is imposed (``bounds`` differ from the road's), the band as the one lane, so that lane centring and the
         sampler's lane choices lead into it instead of to the nearest lane outside it. A widened goal (``widen``): the
-        road's lanes within the bounds from the next lane towards the nearest band on, and the band's own, so that lane
-        centring draws the car one lane towards the band whenever the traffic lets it (a soft pull: staying is feasible,
-        only dearer) while the bounds require the band only as late as it can still be reached."""
+        road's lanes within the bounds from the ego's own lane towards the nearest band and the band's own, so that
+        lane centring keeps the car centred in its lane or the next one towards the band (never between them) and the
+        sampler chooses among those lanes; :meth:`pull_band` draws it towards the band, while the bounds require the
+        band only as late as it can still be reached."""
         road = scene.road
         if bounds == scene.lateral_bounds:
             return road.first_lane_center, road.lane_width, road.num_lanes
         if self.widen > 0.0:
-            centres = [float(c) for c in road.lane_centers]
-            own = min(centres, key=lambda c: abs(c - scene.ego.y))  # [m] centre of the ego's lane
-            low, high = min(self.bands, key=lambda b: max(b[0] - scene.ego.y, scene.ego.y - b[1], 0.0))
+            centres, own, (low, high) = self._toward_band(scene)
             target = min(max(own, low), high)  # [m] where the nearest band begins as seen from the ego's lane
-            step = math.copysign(road.lane_width, target - own) if target != own else 0.0
-            nearer = own + step  # [m] centre of the next lane towards the band (the ego's own inside the band)
             inside = [k for k, c in enumerate(centres) if bounds[0] - 1e-6 <= c <= bounds[1] + 1e-6
-                      and (min(nearer, target) - 1e-6 <= c <= max(nearer, target) + 1e-6 or low <= c <= high)]
+                      and (min(own, target) - 1e-6 <= c <= max(own, target) + 1e-6 or low <= c <= high)]
             if inside:
                 return centres[inside[0]], road.lane_width, inside[-1] - inside[0] + 1
         return 0.5 * (bounds[0] + bounds[1]), max(bounds[1] - bounds[0], 0.5), 1
+
+    def pull_band(self, scene: Scene, bounds: tuple[float, float]) -> tuple[float, float] | None:
+        """[m] (low, high) of the ego centre that the planner's ``route`` cost term draws plans towards: for a widened
+        goal whose band is not yet imposed (``bounds`` still wider than it), the centres of the nearest band's lanes (the
+        band inset by half a lane width; its middle when narrower than a lane); else None."""
+        if self.widen <= 0.0 or bounds == scene.lateral_bounds or not self.bands:
+            return None
+        _, _, (low, high) = self._toward_band(scene)
+        half = 0.5 * scene.road.lane_width
+        return (low + half, high - half) if high - low >= 2.0 * half else (0.5 * (low + high),) * 2
 
     def desired_speed(self, scene: Scene, time: float = 0.0) -> float:
         """[m/s] ``scene.v_des`` within the speed window, then within the speeds that reach the goal's x range inside

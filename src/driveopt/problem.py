@@ -29,6 +29,9 @@ from driveopt.prediction import (
 )
 from driveopt.scene import CURVATURE_CELLS, EgoState, ProblemError, Scene
 
+NO_PULL = (-1e4, 1e4)  # [m] PlanningProblem.pull_band without a band to draw plans towards: wider than any road
+
+
 
 class PlanningProblem(NamedTuple):
     """Array form of a scene in the planning frame (ego at x = 0). A JAX pytree.
@@ -46,6 +49,8 @@ class PlanningProblem(NamedTuple):
     road_curvature: jnp.ndarray  # (C,) [1/m] the largest |road curvature| in each CURVATURE_CELL [m] cell ahead of x = 0
     # (:attr:`driveopt.scene.Road.curvature_ahead`): the centripetal bound at a node reads the cell of its position
     v_des: jnp.ndarray  # () [m/s]
+    pull_band: jnp.ndarray  # (2,) [m] (low, high) of the ego centre that the ``route`` cost term draws plans towards:
+    # a widened goal's band ahead (:meth:`driveopt.goal.Goal.pull_band`); :data:`NO_PULL` without one (the term is 0)
     obstacle_x: jnp.ndarray  # (N, K) [m] predicted centres
     obstacle_y: jnp.ndarray  # (N, K) [m]
     obstacle_a: jnp.ndarray  # (N,) [m] longitudinal semi-axis of the collision ellipse
@@ -102,12 +107,14 @@ def build_problem(
     y_lb, y_ub = scene.lateral_bounds
     v_des = scene.v_des
     lanes = (scene.road.first_lane_center, scene.road.lane_width, scene.road.num_lanes)
+    pull = NO_PULL
     if goal is not None:
         if not isinstance(goal, Goal):
             raise ProblemError(f"goal must be a driveopt.goal.Goal, got {type(goal).__name__}")
         y_lb, y_ub = goal.lateral_bounds(scene)
         v_des = goal.desired_speed(scene, time)
         lanes = goal.lanes(scene, (y_lb, y_ub))
+        pull = goal.pull_band(scene, (y_lb, y_ub)) or NO_PULL
     K, N = basis.num_nodes, max_obstacles
     # Padding: far behind the ego, masked out; values stay moderate for float32.
     ox = np.full((N, K), -1000.0)
@@ -133,6 +140,7 @@ def build_problem(
         num_lanes=f32(lanes[2]),
         road_curvature=f32(scene.road.curvature_profile),
         v_des=f32(v_des),
+        pull_band=f32(pull),
         obstacle_x=f32(ox),
         obstacle_y=f32(oy),
         obstacle_a=f32(oa),
@@ -157,7 +165,8 @@ def check_problem(problem: PlanningProblem, basis: BasisConfig = BasisConfig()) 
     N = np.shape(problem.obstacle_x)[0] if np.ndim(problem.obstacle_x) == 2 else -1
     expected = {
         "init_x": (3,), "init_y": (3,), "y_lb": (), "y_ub": (), "lane_center0": (), "lane_width": (),
-        "num_lanes": (), "road_curvature": (CURVATURE_CELLS,), "v_des": (), "obstacle_x": (N, K), "obstacle_y": (N, K),
+        "num_lanes": (), "road_curvature": (CURVATURE_CELLS,), "v_des": (), "pull_band": (2,),
+        "obstacle_x": (N, K), "obstacle_y": (N, K),
         "obstacle_a": (N,), "obstacle_b": (N,), "obstacle_mask": (N,), "ellipse_growth": (2, K),
         "ego_heading": (),
         "observation": (OBSERVATION_DIM,),
@@ -172,6 +181,8 @@ def check_problem(problem: PlanningProblem, basis: BasisConfig = BasisConfig()) 
         raise ProblemError("problem needs at least one (possibly masked) obstacle row")
     if not float(problem.y_lb) < float(problem.y_ub):
         raise ProblemError("problem.y_lb must be below problem.y_ub")
+    if not float(problem.pull_band[0]) <= float(problem.pull_band[1]):
+        raise ProblemError("problem.pull_band must be (low, high) with low <= high")
     if np.any(np.asarray(problem.obstacle_a) <= 0) or np.any(np.asarray(problem.obstacle_b) <= 0):
         raise ProblemError("obstacle ellipse semi-axes must be > 0")
     if np.any(np.asarray(problem.ellipse_growth) < 0):

@@ -24,20 +24,21 @@ def test_a_config_drives_the_episode_and_is_recorded_with_it(tmp_path):
     assert "refused" not in record and record["steps"] >= 1
     assert record["settings"] == {"samples": 8, "duration": 2.0, "traffic": "upstream's constants",
                                   "config": {"projection": {"max_iterations": 3}}, "time_gap": 0.3,
-                                  "tracked_within_period": True}
+                                  "tracked_within_period": True, "plan_frequency": 5.0}
     summary = json.loads((out / "summary.json").read_text())
     assert summary["settings"]["config"] == {"projection": {"max_iterations": 3}} and summary["settings"]["time_gap"] == 0.3
     assert (out / "table.md").read_text().startswith("| upstream env | `bilevel`, 8 samples")
 
 
-@pytest.mark.parametrize("env_id, hz, replans", [
-    ("intersection-v0", 5.0, True), ("intersection-v0", 4.0, False),  # 1 Hz, 15 simulation steps a period
-    ("highway-fast-v0", 5.0, True), ("highway-fast-v0", 3.0, False),  # 1 Hz, 5 steps
-    ("racetrack-v0", 5.0, False), ("racetrack-v0", 15.0, True),  # 5 Hz, 3 steps: 5 Hz is its own rate
-    ("intersection-v0", None, False),
+@pytest.mark.parametrize("env_id, hz, rate", [
+    ("intersection-v0", 5.0, 5.0), ("intersection-v0", 4.0, None),  # 1 Hz, 15 simulation steps a period
+    ("highway-fast-v0", 5.0, 5.0), ("highway-fast-v0", 3.0, None),  # 1 Hz, 5 steps
+    ("racetrack-v0", 5.0, None), ("racetrack-v0", 15.0, 15.0),  # 5 Hz, 3 steps: 5 Hz is its own rate
+    ("intersection-v0", None, 5.0), ("racetrack-v0", None, None),  # the controller's default, 5 Hz
+    ("intersection-v0", 1.0, None),  # once per policy step
 ])
-def test_plan_frequency_applies_where_it_replans_within_the_envs_period(env_id, hz, replans):
-    assert upstream_roads.plans_within_period(env_id, hz) is replans
+def test_plan_frequency_applies_where_it_replans_within_the_envs_period(env_id, hz, rate):
+    assert upstream_roads.plan_rate(env_id, hz) == rate
 
 
 def test_the_table_shows_each_planners_counts_and_says_what_was_refused():

@@ -272,7 +272,8 @@ def test_the_plan_is_tracked_at_every_simulation_step_of_the_envs_period():
     for within in (True, False):
         env = driveopt.gym_make("roundabout-v0", config={**CONTINUOUS, "duration": 4})
         env.reset(seed=0)
-        ctrl = driveopt.Controller("bilevel", samples=100, verbose=False, track_within_period=within)
+        ctrl = driveopt.Controller("bilevel", samples=100, verbose=False, track_within_period=within,
+                                   plan_frequency=1 if within else None)  # one plan per period, as the env decides
         ctrl.reset(env, seed=0)
         period = 1.0 / env.unwrapped.config["policy_frequency"]
         misses[within] = []
@@ -292,7 +293,8 @@ def test_the_plan_is_tracked_at_every_simulation_step_of_the_envs_period():
     assert max(misses[True]) < 1e-3 < 0.03 < max(misses[False]), misses
 
 
-def test_plan_frequency_replans_within_the_envs_period():
+@pytest.mark.parametrize("hz", [5, None])  # given, and the default
+def test_plan_frequency_replans_within_the_envs_period(hz):
     """At 5 Hz on roundabout-v0 (1 Hz, 15 simulation steps a period) each act is followed by four plans within the
     period (its 3rd, 6th, 9th and 12th simulation steps), each tracked until the next: ``last`` is the period's fifth
     plan, and the car ends the period on that plan's course."""
@@ -301,7 +303,7 @@ def test_plan_frequency_replans_within_the_envs_period():
 
     env = driveopt.gym_make("roundabout-v0", config={**CONTINUOUS, "duration": 4})
     env.reset(seed=0)
-    ctrl = driveopt.Controller("bilevel", samples=100, verbose=False, plan_frequency=5)
+    ctrl = driveopt.Controller("bilevel", samples=100, verbose=False, plan_frequency=hz)
     ctrl.reset(env, seed=0)
     for period in range(3):
         env.step(ctrl.act(env))
@@ -311,6 +313,16 @@ def test_plan_frequency_replans_within_the_envs_period():
         course = car.heading + slip_angle(car.action["steering"])
         assert abs((course - np.arctan2(planned.vy, planned.vx) + np.pi) % (2 * np.pi) - np.pi) < 1e-3
     assert ctrl._within.tracked == 3 * 14
+
+
+def test_the_default_plans_once_per_act_where_the_env_decides_five_times_a_second_or_more():
+    env = driveopt.gym_make("racetrack-v0", config={**CONTINUOUS, "duration": 2})  # 5 Hz policy, 15 Hz simulation
+    env.reset(seed=0)
+    ctrl = driveopt.Controller("bilevel", samples=100, verbose=False)
+    ctrl.reset(env, seed=0)
+    for step in range(2):
+        env.step(ctrl.act(env))
+        assert ctrl.last.plan_index == step
 
 
 @pytest.mark.parametrize("hz", [4, 0.5, 30])

@@ -8,7 +8,7 @@ import pytest
 
 from driveopt.config import PlannerConfig
 from driveopt.goal import Goal
-from driveopt.planner import plan
+from driveopt.planner import PlanStatus, plan
 from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, ProblemError, Road, Scene, load_scene
 
@@ -106,11 +106,38 @@ def test_lanes_out_of_the_road_are_refused():
 
 def test_a_widened_band_reaches_further_the_further_the_goal_and_keeps_the_lanes_inside():
     goal = Goal(bands=((6.0, 10.0),), x=(100.0, 110.0), widen=0.04, lead_distance=200.0)  # 4 m wider per side at 100 m
-    lo, hi = goal.lateral_bounds(scene(x=0.0))
+    lo, hi = goal.lateral_bounds(scene(x=0.0, y=4.0))
     assert lo == pytest.approx(2.3) and hi == pytest.approx(8.7)  # [2, 14] within the road, inset 0.3 m
-    assert goal.lanes(scene(x=0.0), (lo, hi)) == (4.0, 4.0, 2)  # from the next lane towards the band: 4 and 8 m
+    assert goal.lanes(scene(x=0.0, y=4.0), (lo, hi)) == (4.0, 4.0, 2)  # the ego's own lane and the band's
     assert goal.lanes(scene(x=0.0, y=8.0), (lo, hi)) == (8.0, 4.0, 1)  # in the band: its own lane
-    assert goal.lateral_bounds(scene(x=100.0)) == pytest.approx((6.3, 8.7))  # at its start: the band itself
+    assert goal.lateral_bounds(scene(x=100.0, y=8.0)) == pytest.approx((6.3, 8.7))  # at its start: the band itself
     assert Goal(bands=((6.0, 10.0),), x=(100.0, 110.0)).lateral_bounds(scene(x=99.0)) == pytest.approx((6.3, 8.7))
     with pytest.raises(ProblemError, match="widen"):
         Goal(widen=-1.0)
+
+
+def test_a_widened_band_never_excludes_the_egos_lane_or_position():
+    goal = Goal(bands=((6.0, 10.0),), x=(100.0, 110.0), widen=0.04, lead_distance=200.0)
+    assert goal.lateral_bounds(scene(x=0.0, y=0.0)) == pytest.approx((0.0, 8.7))  # the band would start at 2.3 m
+    assert goal.lateral_bounds(scene(x=100.0, y=0.0)) == pytest.approx((0.0, 8.7))  # ... or at 6.3 m
+    assert goal.lateral_bounds(scene(x=100.0, y=4.6)) == pytest.approx((4.0, 8.7))  # its lane's centre, and itself
+    assert goal.lateral_bounds(scene(x=100.0, y=3.4)) == pytest.approx((3.4, 8.7))
+    # a goal that is not widened (a CommonRoad goal region) still requires its band
+    assert Goal(bands=((6.0, 10.0),), x=(100.0, 110.0)).lateral_bounds(scene(x=100.0)) == pytest.approx((6.3, 8.7))
+
+
+def test_a_car_alongside_in_the_next_lane_towards_a_widened_band_leaves_a_feasible_plan_that_keeps_clear(small_config):
+    """The band's edge has passed the ego (the latest pace of the lane changes): requiring it would push the car into
+    the one beside it (every plan infeasible, as exit-v0's route did at 5 Hz); the plan keeps its lane until it can
+    change."""
+    alongside = Neighbour(x=3.0, y=4.0, vx=22.0)
+    s = Scene(ego=EgoState(x=0.0, y=0.0, vx=25.0), road=ROAD, neighbours=(alongside,), v_des=25.0)
+    goal = Goal(bands=((6.0, 10.0),), x=(100.0, 110.0), widen=0.04, lead_distance=200.0, block_speed=9999.0)  # a route's
+    problem = build_problem(s, goal=goal)
+    assert float(problem.y_lb) == pytest.approx(0.0)
+    result = plan(problem, small_config, key=jax.random.PRNGKey(0))
+    assert result.status == PlanStatus.SUCCESS
+    t, x, y = (np.asarray(a) for a in (result.trajectory.t, result.trajectory.x, result.trajectory.y))
+    other_x = alongside.x + alongside.vx * t
+    overlapping = (np.abs(x - other_x) < s.ego.length) & (np.abs(y - alongside.y) < s.ego.width)  # the two boxes
+    assert not overlapping.any()

@@ -38,7 +38,7 @@ def test_the_goal_exists_only_with_a_route_and_narrows_the_far_lanes_first(exit_
     split = Split(("1", "2"), ("2", "exit"), 500.0, ((22.0, 26.0),), 4.0)
     goal = split_goal(split, 175.0, 0.0, 25.0)  # at the latest one lane per 37.5 m, the band itself from 475 m
     assert goal.x == (475.0, 500.0) and goal.widen == pytest.approx(4.0 / 37.5)
-    assert goal.speed == pytest.approx((0.0, 300.0 / (6 * 3.0)))  # 6 lanes to change in 300 m, 3 s each
+    assert goal.speed == pytest.approx((0.0, 300.0 / (6 * 1.5)))  # 6 lanes to change in 300 m, 1.5 s each
     assert split_goal(split, 175.0, 24.0, 25.0).speed is None  # in the lane: no speed advice
 
 

@@ -49,7 +49,7 @@ from driveopt.scene import CURVATURE_CELL, EgoState, EllipseMargin, Neighbour, P
 from driveopt.sim.control import EgoKinematics
 from driveopt.sim.crossing import crossing_neighbour, may_cross
 from driveopt.sim.road_frame import Motion, RoadFrame, ego_frame, vehicle_motion, wrap_angle
-from driveopt.sim.route_goal import RouteChange, find_split, missed, split_goal
+from driveopt.sim.route_goal import RouteChange, find_split, lanes_to_change, missed, split_goal
 
 
 @dataclass(frozen=True)
@@ -127,7 +127,7 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
     frame, me = ego_frame(env, route)
     ahead = max(me.speed, 0.0)
     lane_preview = max(preview.lane_distance, ahead * preview.lane_time)
-    goal = None
+    goal, route_gap = None, 0.0  # [s] the time gap the route's lane changes keep (while any remain)
     if route or getattr(ego_vehicle, "route", None):
         split = find_split(sim.road.network, frame, me.x)
         if split is not None and missed(split, me.x, me.y, me.speed, preview.route_change):
@@ -135,6 +135,8 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
         elif split is not None:
             goal = split_goal(split, me.x, me.y, me.speed, preview.route_change)
             lane_preview = min(lane_preview, max(goal.x[0] - me.x, 0.0))  # the goal leads out of the other lanes
+            if lanes_to_change(split, me.y) > 0:
+                route_gap = preview.route_change.time_gap
     road = frame.road(me.x, lane_preview, max(preview.curvature_distance, ahead * preview.curvature_time),
                       behind=0.5 * me.length, per_node=preview.curvature_per_node)
     try:
@@ -160,7 +162,7 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
         if period is None:
             period = 1.0 / float(sim.config.get("policy_frequency", math.inf))
         v_des = curve_speed(frame, me.x, float(task.v_des), preview, period)
-        margin = EllipseMargin(time_gap=getattr(task, "time_gap", 0.0))
+        margin = EllipseMargin(time_gap=max(getattr(task, "time_gap", 0.0), route_gap))
         scene = Scene(ego=ego, road=road, neighbours=tuple(neighbours), v_des=v_des, ellipse_margin=margin, name=task.name)
     except ProblemError as exc:
         raise ObservationError(f"simulator state at t = {sim.steps / sim.config['simulation_frequency']:.2f} s: {exc}") from None

@@ -9,7 +9,10 @@ ego; :func:`split_goal` makes them a goal whose band widens with the distance st
 go (:attr:`driveopt.goal.Goal.widen`): one lane's width per :attr:`RouteChange.lane_time` seconds of travel, so a
 band far ahead accepts every lane from which it can still be reached and the change is planned while the split is
 ahead, one lane at a time. The band is required in full from :attr:`RouteChange.settle_time` before the split;
-while lanes remain to be changed the desired speed leaves time for each (:attr:`RouteChange.comfortable_lane_time`).
+while lanes remain to be changed the desired speed leaves time for each (:attr:`RouteChange.comfortable_lane_time`),
+the plans keep a time gap to the cars in the lanes (:attr:`RouteChange.time_gap`: changing lanes through slower
+traffic, a cut-in just behind a car that then brakes is what the collision ellipse alone allows), and the planner's
+``route`` cost term counts the lanes still to change.
 
 A split that can no longer be made (:func:`missed`: the band is further across than lane changes at
 :attr:`RouteChange.fast_lane_time` per lane reach before the split) is given up: the driver follows the road
@@ -39,13 +42,17 @@ class RouteChange:
     settle_time: float = 1.0  # [s] the route's lanes are required in full from this long before the split
     min_settle_distance: float = 10.0  # [m] ... and at least this far before it
     fast_lane_time: float = 1.0  # [s] per lane: a split further across than this pace reaches is missed
-    comfortable_lane_time: float = 3.0  # [s] per lane still to change: the desired speed leaves this long for each
+    comfortable_lane_time: float = 1.5  # [s] per lane still to change: the desired speed leaves this long for each
     min_speed: float = 5.0  # [m/s] ... but is not lowered below this
+    time_gap: float = 0.45  # [s] while lanes remain, the plans keep at least this time gap to the cars in the lanes
+    # (the collision ellipses of lane-following cars longer by it at the ego's speed; 0: the controller's own gap)
 
     def __post_init__(self) -> None:
         for name in ("lane_time", "min_lane_distance", "settle_time", "min_settle_distance", "fast_lane_time",
-                     "comfortable_lane_time", "min_speed"):
+                     "comfortable_lane_time", "min_speed", "time_gap"):
             value = getattr(self, name)
+            if name == "time_gap" and value == 0.0:
+                continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < float(value) < 1e3:
                 raise ValueError(f"RouteChange.{name} must be a number in (0, 1000), got {value!r}")
 
@@ -113,6 +120,11 @@ def _gap(y: float, bands: tuple[tuple[float, float], ...]) -> float:
     return min(max(low - y, y - high, 0.0) for low, high in bands)
 
 
+def lanes_to_change(split: Split, y: float) -> int:
+    """How many lane changes still lie between the ego centre ``y`` [m] and the nearest of the split's bands."""
+    return math.ceil(_gap(y, split.bands) / split.lane_width - 1e-6)
+
+
 def settle_distance(speed: float, pace: RouteChange) -> float:
     """[m] how far before the split the route's lanes are required in full, at ``speed`` [m/s]."""
     return max(pace.settle_time * abs(speed), pace.min_settle_distance)
@@ -126,7 +138,7 @@ def split_goal(split: Split, x: float, y: float, speed: float, pace: RouteChange
     start (at least ``pace.min_speed``): a lane change into slower traffic needs time at its speed, not only road."""
     lane_distance = max(pace.lane_time * abs(speed), pace.min_lane_distance)
     start = split.s - settle_distance(speed, pace)
-    lanes_left = math.ceil(_gap(y, split.bands) / split.lane_width - 1e-6)
+    lanes_left = lanes_to_change(split, y)
     window = None
     if lanes_left > 0:
         window = (0.0, max((start - x) / (lanes_left * pace.comfortable_lane_time), pace.min_speed))
