@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import driveopt
-from driveopt.controller import ControllerError
+from driveopt.controller import DEFAULT_PLAN_FREQUENCY, ControllerError, replans_at
 from driveopt.drivers.base import WeightsError
 from driveopt.sim.road_frame import RoadFrameError
 
@@ -315,14 +315,16 @@ def test_plan_frequency_replans_within_the_envs_period(hz):
     assert ctrl._within.tracked == 3 * 14
 
 
-def test_the_default_plans_once_per_act_where_the_env_decides_five_times_a_second_or_more():
-    env = driveopt.gym_make("racetrack-v0", config={**CONTINUOUS, "duration": 2})  # 5 Hz policy, 15 Hz simulation
-    env.reset(seed=0)
-    ctrl = driveopt.Controller("bilevel", samples=100, verbose=False)
-    ctrl.reset(env, seed=0)
-    for step in range(2):
-        env.step(ctrl.act(env))
-        assert ctrl.last.plan_index == step
+@pytest.mark.parametrize("simulation_hz, policy_hz, replans", [
+    (15, 1, True),  # upstream's 1 Hz envs: a plan at the policy step and four within the period
+    (5, 1, True),  # highway-fast-v0: one simulation step per plan
+    (15, 5, False),  # the racetracks decide five times a second: once per act
+    (10, 2, False),  # 2.5 plans a period: not a whole number
+    (20, 10, False),
+])
+def test_the_default_plan_frequency_replans_only_where_the_env_decides_less_often_and_its_steps_allow(
+        simulation_hz, policy_hz, replans):
+    assert replans_at(DEFAULT_PLAN_FREQUENCY, simulation_hz, policy_hz) is replans
 
 
 @pytest.mark.parametrize("hz", [4, 0.5, 30])
