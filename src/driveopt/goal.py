@@ -144,9 +144,8 @@ class Goal:
         if band is None or not band[0] < band[1] or self.blocked(scene, band):
             return scene.lateral_bounds
         if self.widen > 0.0:
-            y = scene.ego.y
-            centre = min((float(c) for c in scene.road.lane_centers), key=lambda c: abs(c - y))
-            return min(band[0], centre, y), max(band[1], centre, y)
+            _, own, _ = self._toward_band(scene)
+            return min(band[0], own, scene.ego.y), max(band[1], own, scene.ego.y)
         return band
 
     def _toward_band(self, scene: Scene) -> tuple[list[float], float, tuple[float, float]]:
@@ -161,7 +160,7 @@ class Goal:
         band is imposed (``bounds`` differ from the road's), the band as the one lane, so that lane centring and the
         sampler's lane choices lead into it instead of to the nearest lane outside it. A widened goal (``widen``): the
         road's lanes within the bounds from the ego's own lane towards the nearest band and the band's own, so that
-        lane centring keeps the car centred in its lane or the next one towards the band (never between them) and the
+        lane centring keeps the car centred in its lane or one of those towards the band (never between two) and the
         sampler chooses among those lanes; :meth:`pull_band` draws it towards the band, while the bounds require the
         band only as late as it can still be reached."""
         road = scene.road
@@ -178,8 +177,8 @@ class Goal:
 
     def pull_band(self, scene: Scene, bounds: tuple[float, float]) -> tuple[float, float] | None:
         """[m] (low, high) of the ego centre that the planner's ``route`` cost term draws plans towards: for a widened
-        goal whose band is not yet imposed (``bounds`` still wider than it), the centres of the nearest band's lanes (the
-        band inset by half a lane width; its middle when narrower than a lane); else None."""
+        goal near enough to bound the plan (``bounds`` other than the road's), the centres of the nearest band's lanes
+        (the band inset by half a lane width; its middle when narrower than a lane); else None."""
         if self.widen <= 0.0 or bounds == scene.lateral_bounds or not self.bands:
             return None
         _, _, (low, high) = self._toward_band(scene)
