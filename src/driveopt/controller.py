@@ -135,7 +135,7 @@ def replans_at(hz: float, simulation_hz: float, policy_hz: float) -> bool:
     """Whether planning ``hz`` times a second plans anew within the env's policy period: a multiple (more than one)
     of its policy frequency that divides its simulation frequency, so the plans fall on whole simulation steps."""
     plans, steps = hz / policy_hz, simulation_hz / hz  # [-] plans per policy period, simulation steps per plan
-    return abs(plans - round(plans)) <= 1e-9 and round(plans) > 1 and abs(steps - round(steps)) <= 1e-9 and round(steps) >= 1
+    return round(plans) > 1 and abs(plans - round(plans)) <= 1e-9 and abs(steps - round(steps)) <= 1e-9
 
 
 def _state_key(env: Any) -> int:
@@ -306,14 +306,13 @@ class Controller:
         """[Hz] how often the optimiser plans within the env's period, None: a plan per policy step. A given
         ``plan_frequency`` is checked against the env's frequencies; the default plans at
         :data:`DEFAULT_PLAN_FREQUENCY` where that replans within the period, else per policy step."""
-        simulation_hz, policy_hz = sim.config["simulation_frequency"], sim.config["policy_frequency"]
         hz = self.plan_frequency
-        if hz is None:
-            if not (self.spec.is_optimiser and self.track_within_period):
-                return None
-            check_frequencies(simulation_hz, policy_hz)
-            return DEFAULT_PLAN_FREQUENCY if replans_at(DEFAULT_PLAN_FREQUENCY, simulation_hz, policy_hz) else None
+        if hz is None and not (self.spec.is_optimiser and self.track_within_period):
+            return None
+        simulation_hz, policy_hz = sim.config["simulation_frequency"], sim.config["policy_frequency"]
         check_frequencies(simulation_hz, policy_hz)
+        if hz is None:
+            return DEFAULT_PLAN_FREQUENCY if replans_at(DEFAULT_PLAN_FREQUENCY, simulation_hz, policy_hz) else None
         if abs(hz / policy_hz - 1.0) <= 1e-9:
             return None
         if not replans_at(hz, simulation_hz, policy_hz):

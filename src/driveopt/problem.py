@@ -32,7 +32,6 @@ from driveopt.scene import CURVATURE_CELLS, EgoState, ProblemError, Scene
 NO_PULL = (-1e4, 1e4)  # [m] PlanningProblem.pull_band without a band to draw plans towards: wider than any road
 
 
-
 class PlanningProblem(NamedTuple):
     """Array form of a scene in the planning frame (ego at x = 0). A JAX pytree.
 

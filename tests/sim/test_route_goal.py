@@ -49,6 +49,10 @@ def test_a_split_out_of_reach_is_missed_and_one_within_reach_is_not():
     assert not missed(split, 495.0, 24.0, 25.0)  # in the lane
     with pytest.raises(ValueError, match="lane_time"):
         RouteChange(lane_time=0.0)
+    assert RouteChange(time_gap=0.0).time_gap == 0.0  # no gap while lanes remain
+    for bad in (-0.1, 11.0, True):
+        with pytest.raises(ValueError, match=r"time_gap must be a number in \[0, 10\]"):
+            RouteChange(time_gap=bad)
 
 
 def test_a_missed_split_reads_the_road_straight_on(exit_env):

@@ -51,10 +51,10 @@ class RouteChange:
         for name in ("lane_time", "min_lane_distance", "settle_time", "min_settle_distance", "fast_lane_time",
                      "comfortable_lane_time", "min_speed", "time_gap"):
             value = getattr(self, name)
-            if name == "time_gap" and value == 0.0:
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < float(value) < 1e3:
-                raise ValueError(f"RouteChange.{name} must be a number in (0, 1000), got {value!r}")
+            gap = name == "time_gap"  # [0, 10] s, as EllipseMargin's: 0 is no gap
+            number = isinstance(value, (int, float)) and not isinstance(value, bool)
+            if not number or not ((0.0 <= value <= 10.0) if gap else (0.0 < value < 1e3)):
+                raise ValueError(f"RouteChange.{name} must be a number in {'[0, 10]' if gap else '(0, 1000)'}, got {value!r}")
 
 
 class Split(NamedTuple):
