@@ -106,15 +106,18 @@ def _continues(network: Any, current: Road, following: Road) -> float | None:
     return turn if turn is not None and turn <= MAX_TURN else None
 
 
-def continues_past_end(network: Any, road: Road) -> bool:
-    """Whether another road continues ``road``'s lanes at its end (a ring's segment past an exit: yes; an entry: no)."""
-    return any(_continues(network, road, (road[1], to)) is not None for to in network.graph.get(road[1], {}))
+def continues_past_end(network: Any, road: Road, other_than: Road | None = None) -> bool:
+    """Whether another road (not ``other_than``) continues ``road``'s lanes at its end (a ring's segment past an exit:
+    yes; an entry: no)."""
+    return any(_continues(network, road, (road[1], to)) is not None for to in network.graph.get(road[1], {})
+               if (road[1], to) != other_than)
 
 
-def continued_before_start(network: Any, road: Road) -> bool:
-    """Whether another road leads into ``road``'s lanes at its start (a ring's segment after an entry: yes)."""
+def continued_before_start(network: Any, road: Road, other_than: Road | None = None) -> bool:
+    """Whether another road (not ``other_than``) leads into ``road``'s lanes at its start (a ring's segment after an
+    entry: yes)."""
     return any(_continues(network, (frm, road[0]), road) is not None for frm, tos in network.graph.items()
-               if road[0] in tos)
+               if road[0] in tos and (frm, road[0]) != other_than)
 
 
 def _all_forbidden(network: Any, road: Road) -> bool:

@@ -167,8 +167,8 @@ class Piece:
     open_hi: bool = False  # a straight last piece extends forwards without end
     lo_margin: float = 0.0  # [m] it also covers this far before lo: the outside of the corner where the route enters
     # its road part-way along (lane-keeping-v0's sine road), which the piece before does not reach
-    ring: bool = False  # a ring that an entry ends beside or an exit starts beside: the corner piece between them lies
-    # on the entry's or exit's side of the joint, whose lane reaches the ring's outer lane there
+    ring: bool = False  # a ring that an entry joins or an exit leaves, beside its outer lane (roundabout-v0) or end to
+    # end (roundabout-generic-v0): the corner piece between them lies on the entry's or exit's side of the joint
 
     def covers(self, longitudinal: float, margin: float = 0.0) -> bool:
         return ((self.open_lo or longitudinal >= self.lo - margin - self.lo_margin)
@@ -450,6 +450,9 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
                               ring=True)
             else:
                 piece = Piece(nxt, last.s_start + last.hi - entry, last.d_shift + float(lateral), entry, length, [])
+                if not entry:  # end to end, as at roundabout-generic-v0's ring (at an angle): a ring's exit or entry?
+                    last.ring = last.ring or continues_past_end(network, road, other_than=following)
+                    piece.ring = continued_before_start(network, following, other_than=road)
             piece.bands.append(_bands_of(network, piece, following, piece.s_start + piece.lo, piece.s_start + piece.hi))
             if entry:
                 piece.lo_margin = _corner(road_ref, nxt, entry, piece.bands[0])
@@ -498,6 +501,9 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
                               ring=True)
             else:
                 piece = Piece(prev, head.s_start + head.lo - length, head.d_shift + float(lateral), 0.0, length, [])
+                if not entry:  # end to end: a ring's entry or exit?
+                    head.ring = head.ring or continued_before_start(network, road, other_than=preceding)
+                    piece.ring = continues_past_end(network, preceding, other_than=road)
             piece.bands.append(_bands_of(network, piece, preceding, piece.s_start, piece.s_start + piece.hi))
             pieces.insert(0, piece)
         left -= float(prev.length)
