@@ -10,7 +10,7 @@ from highway_env.road.lane import CircularLane, StraightLane
 
 import driveopt
 from driveopt.sim.corner_lane import CornerLane, smoothstep
-from driveopt.sim.road_frame import ego_frame
+from driveopt.sim.road_frame import build_frame, ego_frame
 
 
 def _corner() -> tuple[StraightLane, CircularLane, CornerLane]:
@@ -90,4 +90,29 @@ def test_the_frame_through_a_roundabouts_entry_and_exit_is_continuous_and_keeps_
         for k in range(0, len(s), 40):
             found = frame.locate(np.array([x[k], y[k]]), near_s=s[k])
             assert found is not None and abs(found[0] - s[k]) < 1e-5 and abs(found[1] - d) < 1e-5
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ["roundabout-v0", "roundabout-generic-v0"])
+def test_every_frame_along_the_route_has_the_same_corners(env_id):
+    """Built from any road of the route (the ego on the entry, on the ring, on the exit), the frame turns at the same
+    corner pieces: roundabout-generic-v0's entry and exit meet the ring's outer lane end to end at 66 degrees, which a
+    frame built from the ring once took at once."""
+    env = driveopt.gym_make(env_id, config={"action": {"type": "ContinuousAction"}})
+    env.reset(seed=0)
+    controller = driveopt.Controller("idm")
+    controller.reset(env, seed=0)
+    route = controller.task.route
+    network = env.unwrapped.road.network
+    # world points along the exit lane's centre, through the exit's corner
+    exit_lane = network.graph["nx"]["nxs"][0]
+    points = [np.asarray(exit_lane.position(along, 0.0)) for along in (0.0, 4.0, 8.0, 12.0)]
+    laterals = []
+    for road in [("ses", "se"), ("se", "ex"), ("ex", "ee"), ("ee", "nx"), ("nx", "nxs")]:
+        frame = build_frame(network, road, route)
+        assert sum(isinstance(p.lane, CornerLane) for p in frame.pieces) == 2, road
+        exit_band = next(b for p in frame.pieces for b in p.bands if b.road == ("nx", "nxs"))
+        laterals.append([frame.locate(point)[1] - exit_band.first_center for point in points])
+    np.testing.assert_allclose(laterals, np.broadcast_to(laterals[0], np.shape(laterals)), atol=1e-6)
+    assert np.ptp(laterals[0]) > 0.5, "the exit lane's centre swings across the corner's reference line"
     env.close()
