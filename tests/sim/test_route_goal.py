@@ -113,10 +113,10 @@ def test_the_speed_before_a_curve_leaves_one_policy_period_to_the_next_decision(
     from driveopt.sim.perception import RoadPreview, curve_speed
 
     frame = SimpleNamespace(curves_ahead=lambda s_from, s_to: [(40.0, 1.0 / 25.0)])
-    preview = RoadPreview()
+    preview = RoadPreview(lateral_acceleration=4.0)
     assert curve_speed(frame, 0.0, 20.0, preview) == pytest.approx((100.0 + 2 * 1.5 * 25.0) ** 0.5)
     assert curve_speed(frame, 0.0, 20.0, preview, period=1.0) == pytest.approx((100.0 + 2 * 1.5 * 5.0) ** 0.5)
-    per_node = RoadPreview(curvature_per_node=True)
+    per_node = RoadPreview(lateral_acceleration=4.0, curvature_per_node=True)
     assert curve_speed(frame, 0.0, 20.0, per_node) == pytest.approx((100.0 + 2 * 1.5 * 37.5) ** 0.5)
     assert curve_speed(frame, 0.0, 20.0, per_node, period=1.0) == pytest.approx((100.0 + 2 * 1.5 * 17.5) ** 0.5)
     assert curve_speed(frame, 0.0, 8.0, preview, period=1.0) == 8.0  # slower than the curve allows: unchanged
