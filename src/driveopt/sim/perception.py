@@ -43,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 from typing import Any, NamedTuple, Sequence
 
+from driveopt.config import ProjectionConfig
 from driveopt.goal import Goal
 from driveopt.observation import ObservationError
 from driveopt.scene import CURVATURE_CELL, EgoState, EllipseMargin, Neighbour, ProblemError, Scene
@@ -56,7 +57,7 @@ from driveopt.sim.route_goal import RouteChange, find_split, lanes_to_change, mi
 class RoadPreview:
     """How far along the route the scene looks, and the speed advice for curves."""
 
-    lateral_acceleration: float = 6.0  # [m/s^2] the planner's centripetal bound (projection.centripetal_max)
+    lateral_acceleration: float = ProjectionConfig.centripetal_max  # [m/s^2] the planner's centripetal bound
     deceleration: float = 1.5  # [m/s^2] comfortable braking towards a curve's speed
     lane_time: float = 4.0  # [s] lanes ending within this time at the current speed are left out of the road
     lane_distance: float = 30.0  # [m] ... or within this distance, whichever is further
