@@ -167,8 +167,9 @@ class Piece:
     open_hi: bool = False  # a straight last piece extends forwards without end
     lo_margin: float = 0.0  # [m] it also covers this far before lo: the outside of the corner where the route enters
     # its road part-way along (lane-keeping-v0's sine road), which the piece before does not reach
-    ring: bool = False  # a ring that an entry joins or an exit leaves, beside its outer lane (roundabout-v0) or end to
-    # end (roundabout-generic-v0): the corner piece between them lies on the entry's or exit's side of the joint
+    ring: bool = False  # a road whose lanes another road continues where the route joins or leaves it: a ring at an
+    # entry or exit, beside its outer lane (roundabout-v0) or end to end (roundabout-generic-v0). Where the route turns
+    # there by more than CORNER_ANGLE, the corner piece lies on the entry's or exit's side of the joint
 
     def covers(self, longitudinal: float, margin: float = 0.0) -> bool:
         return ((self.open_lo or longitudinal >= self.lo - margin - self.lo_margin)
