@@ -148,6 +148,8 @@ class _Operators(NamedTuple):
     lane_rows: jnp.ndarray  # (K,) 1 at the nodes that carry a lane row (all but node 0)
     lane_bounds: jnp.ndarray  # (2, K) upper-row and lower-row bounds e of the row at each node (node 0: unused); (2, B, K) per sample
     course: jnp.ndarray  # (2, P) cosine and sine of the course-angle bound at each velocity row (:func:`course_bounds`)
+    curve_recovery: jnp.ndarray  # (2, P) weight of the curve's speed and [m/s] share of the current speed in the speed
+    # bound of each velocity row (:func:`curve_speed_recovery`)
     direction: jnp.ndarray  # () [-] the ego's direction of travel along x: 1 forwards, -1 reversing
     obstacle_floor: jnp.ndarray  # (N, K) lowest ellipse ratio allowed per obstacle and node (:func:`obstacle_floor`)
     inverse_axes: jnp.ndarray  # (2, N, K) [1/m] 1 / the ellipses' longitudinal and lateral semi-axes per node
@@ -220,6 +222,19 @@ def course_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: Project
     excess = jnp.maximum(course0 - cfg.course_max, 0.0)
     fade = jnp.clip(1.0 - t / cfg.recovery_time, 0.0, 1.0) if cfg.recovery_time > 0 else jnp.zeros_like(t)
     return cfg.course_max + excess * fade
+
+
+def curve_speed_recovery(t, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
+    """(2, len(t)) ``(1 - w, w v0)`` at the times ``t`` [s], with ``w`` falling linearly from 1 at t = 0 to 0 at
+    ``recovery_time`` and ``v0`` [m/s] the current speed: a velocity row's bound from the centripetal bound is
+    ``max(v_c, (1 - w) v_c + w v0)`` for a curve's speed ``v_c``. A car already faster than that (a curve has come
+    into the preview, or grown sharper) is bounded from its current speed down to the curve's by ``recovery_time``,
+    as the lane and course bounds recover; without it no plan is feasible from the first row, and the fallback's
+    braking took upstream's racetrack 1.7 m/s below the curve's speed at every sharper curve. Where ``v0`` is below
+    every curve's speed (and on a straight road, where ``v_c`` is unbounded) the bound is ``v_c`` exactly."""
+    speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
+    weight = jnp.clip(1.0 - t / cfg.recovery_time, 0.0, 1.0) if cfg.recovery_time > 0 else jnp.zeros_like(t)
+    return jnp.stack([1.0 - weight, weight * speed])
 
 
 def obstacle_floor(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
@@ -333,7 +348,7 @@ def _shift_left(a):
 
 
 def _derivative_operators(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig, where: str) -> dict:
-    """The fields ``forward``, ``back``, ``free_nodes`` and ``course`` of :class:`_Operators` with the velocity and
+    """The fields ``forward``, ``back``, ``free_nodes``, ``course`` and ``curve_recovery`` of :class:`_Operators` with the velocity and
     acceleration rows at the K nodes (``where`` "nodes"), or at the control points of the velocity and of the
     acceleration on ``cfg.derivative_pieces`` pieces of the horizon (``where`` "control_points",
     :func:`~driveopt.basis.derivative_control_points`). A control point stands for the time of its abscissa (the course
@@ -342,7 +357,7 @@ def _derivative_operators(model: TrajectoryModel, problem: PlanningProblem, cfg:
     free = jnp.asarray(model.free_nodes)
     if where == "nodes":
         Wd, Wdd, free_v, free_a = jnp.asarray(model.Wd), jnp.asarray(model.Wdd), free[1], free[2]
-        course = course_bounds(model, problem, cfg)
+        t = jnp.asarray(model.t)
     else:
         horizon = jnp.asarray(model.t)[-1]
         velocity, acceleration = (jnp.asarray(a, W.dtype)
@@ -350,12 +365,13 @@ def _derivative_operators(model: TrajectoryModel, problem: PlanningProblem, cfg:
         Wd, Wdd = velocity / horizon, acceleration / (horizon * horizon)
         first = jnp.arange(Wd.shape[0]) == 0
         free_v, free_a = jnp.where(first, free[1, 0], 1.0), jnp.where(first, free[2, 0], 1.0)
-        course = course_bounds(model, problem, cfg, jnp.linspace(0.0, 1.0, Wd.shape[0]) * horizon)
+        t = jnp.linspace(0.0, 1.0, Wd.shape[0]) * horizon
+    course = course_bounds(model, problem, cfg, t)
     # Values fixed by A_eq (the current state at node 0) are not constraint rows: no plan can change them.
     free = (free[0], free_v, free_a)
     return dict(forward=jnp.concatenate([W, Wd, Wdd]).T,
                 back=jnp.concatenate([a * f[:, None] for a, f in zip((W, Wd, Wdd), free)]), free_nodes=free,
-                course=jnp.stack([jnp.cos(course), jnp.sin(course)]))
+                course=jnp.stack([jnp.cos(course), jnp.sin(course)]), curve_recovery=curve_speed_recovery(t, problem, cfg))
 
 
 def obstacle_row_nodes(t, cfg: ProjectionConfig) -> np.ndarray:
@@ -667,7 +683,10 @@ def _analysis_step(
     if cfg.kappa_max > 0:
         v_lo = jnp.where(turning, jnp.maximum(v_lo, _fast_sqrt(d_acc_prev * sin_va * (1.0 / cfg.kappa_max))), v_lo)
     road_k = road_curvature_at(problem.road_curvature, x if P == K else x[:, _row_nodes(P, K)])
-    v_hi = jnp.minimum(cfg.v_max, cfg.centripetal_max ** 0.5 * _fast_rsqrt(jnp.maximum(uvx * uvx * road_k, _EPS)))
+    v_curve = cfg.centripetal_max ** 0.5 * _fast_rsqrt(jnp.maximum(uvx * uvx * road_k, _EPS))
+    if cfg.recovery_time > 0:  # a car faster than a curve's speed comes down to it (curve_speed_recovery)
+        v_curve = jnp.maximum(v_curve, ops.curve_recovery[0] * v_curve + ops.curve_recovery[1])
+    v_hi = jnp.minimum(cfg.v_max, v_curve)
     # Course bound: a velocity turned further from the direction of travel (s = +-1 along x) than the bound goes to
     # the nearest point of the bound's ray, of length |v| cos(course - bound) (then the speed bounds apply); no
     # bound (P1): as it is. Above ``course_min_speed`` (by default CURVATURE_MIN_SPEED, as the curvature bound) the

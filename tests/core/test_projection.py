@@ -731,6 +731,26 @@ def test_centripetal_bound_reads_the_curvature_where_each_node_is():
     assert speed[x < 10.0].min() > 8.0  # not slowed from the start
 
 
+def test_a_car_faster_than_a_curves_speed_plans_its_way_down_to_it_by_the_recovery_time():
+    """At 12 m/s on a curve whose speed is 10 m/s (0.01 1/m, 1 m/s^2): the bound starts at the car's speed and
+    narrows to the curve's by the recovery time, so a plan that slows is feasible and within the bound from then on;
+    without the recovery no plan is (the first rows already exceed it). A car below the curve's speed is held to it
+    as before."""
+    scene = dataclasses.replace(empty_scene(vx=12.0), road=Road(num_lanes=4, curvature=0.01))
+    problem, target, b_x, b_y = setup(scene, [[10.0] * 4 + [4.0] * 4])
+    cfg = dataclasses.replace(LOOSE, a_max=4.5, centripetal_max=1.0, recovery_time=3.0)
+    out = project(MODEL, problem, target, b_x, b_y, cfg)
+    speed = np.asarray(evaluate(MODEL, out.coeffs).speed)[0]
+    assert float(out.residuals.velocity[0]) < 0.05
+    assert speed[np.asarray(MODEL.t) >= cfg.recovery_time].max() < 10.0 * 1.01
+    check_boundary(problem, out.coeffs)
+    never_relaxed = project(MODEL, problem, target, b_x, b_y, dataclasses.replace(cfg, recovery_time=0.0))
+    assert float(never_relaxed.residuals.velocity[0]) > 0.3
+    slower = setup(dataclasses.replace(scene, ego=EgoState(x=0.0, y=4.0, vx=9.0)), [[20.0] * 4 + [4.0] * 4])
+    held = evaluate(MODEL, project(MODEL, *slower, cfg).coeffs)
+    assert float(np.asarray(held.speed).max()) < 10.0 * 1.02
+
+
 def test_road_curvature_at_reads_the_cell_of_each_position():
     cells = jnp.arange(CURVATURE_CELLS, dtype=jnp.float32) * 1e-3
     x = jnp.array([-3.0, 0.0, CURVATURE_CELL * 0.99, CURVATURE_CELL * 1.01, CURVATURE_CELL * 10.5, 1e4])

@@ -13,7 +13,7 @@ from driveopt.config import BasisConfig
 from driveopt.prediction import PathNeighbour
 from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, Road as PlannerRoad, Scene
-from driveopt.sim.crossing import crossing_neighbour, may_cross
+from driveopt.sim.crossing import LANE_SHIFT, crossing_neighbour, lane_leaving_neighbour, may_cross
 from driveopt.sim.road_frame import build_frame
 
 
@@ -83,6 +83,33 @@ def test_a_car_on_the_routes_own_road_is_left_to_the_usual_prediction():
     assert crossing_neighbour(car, frame, np.arange(0.0, 15.01, 0.5), ego_x=50.0) is None
     with pytest.raises(Exception, match="equally long"):
         PathNeighbour(x=0.0, y=0.0, t=(0.0, 1.0), path_x=(0.0,), path_y=(0.0, 0.0), path_yaw=(0.0, 0.0))
+
+
+def test_a_routed_car_whose_lanes_cross_the_routes_on_its_own_roads_is_predicted_along_them():
+    """Two lanes (y = 0 and 4 m) lead into one that continues the upper lane (a roundabout's two ring lanes into its
+    exit): a car in the lower lane routed into it moves across the route's lanes, which the usual prediction, holding
+    it in its lane, misses. It is a path neighbour that ends in the one lane; a car in the upper lane, and one with no
+    route, are left to the usual prediction."""
+    network = RoadNetwork()
+    for k in range(2):
+        network.add_lane("a", "b", StraightLane([0.0, 4.0 * k], [300.0, 4.0 * k], width=4.0))
+    network.add_lane("b", "c", StraightLane([300.0, 4.0], [600.0, 4.0], width=4.0))
+    frame = build_frame(network, ("a", "b"), [("a", "b", 1), ("b", "c", 0)], ego_longitudinal=250.0)
+    road = Road(network=network)
+    times = np.arange(0.0, 15.01, 0.5)
+
+    def car(lane: int, route: list | None) -> IDMVehicle:
+        return IDMVehicle(road, [280.0, 4.0 * lane], heading=0.0, speed=10.0, target_lane_index=("a", "b", lane),
+                          route=route)
+
+    lower = car(0, [("a", "b", 0), ("b", "c", None)])
+    assert not may_cross(lower, frame), "its roads are the route's"
+    neighbour = lane_leaving_neighbour(lower, frame, times, ego_x=250.0)
+    assert isinstance(neighbour, PathNeighbour)
+    assert abs(neighbour.path_y[0]) < 1e-6 and abs(neighbour.path_y[-1] - 4.0) < 1e-6
+    assert max(neighbour.path_y) - min(neighbour.path_y) > LANE_SHIFT
+    assert lane_leaving_neighbour(car(1, [("a", "b", 1), ("b", "c", None)]), frame, times, ego_x=250.0) is None
+    assert lane_leaving_neighbour(car(0, None), frame, times, ego_x=250.0) is None
 
 
 def test_a_path_that_crosses_and_then_runs_beside_the_route_is_bounded_phase_by_phase():

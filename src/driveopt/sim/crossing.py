@@ -32,6 +32,8 @@ from driveopt.sim.road_frame import CROSSING_ANGLE, RoadFrame
 
 FAR_BEHIND = 1000.0  # [m] a pose beyond the frame's ends is put this far behind the ego
 MAX_OFFSET = 200.0  # [m] a pose beside the frame is kept within this lateral offset of it
+LANE_SHIFT = 2.0  # [m] half a lane: a routed vehicle on the frame's roads whose lanes move it further across the
+# frame's is predicted along them (:func:`lane_leaving_neighbour`)
 YIELD_GAP = 1.0  # [m] a routed vehicle with the ego on its lanes ahead is predicted to stop this far behind it (bumpers)
 
 
@@ -122,15 +124,15 @@ def may_cross(vehicle: Any, frame: RoadFrame) -> bool:
     return any(index is not None and (index[0], index[1]) not in roads for index in [lane, *route])
 
 
-def crossing_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x: float,
-                       ego: Any = None) -> PathNeighbour | None:
-    """``vehicle`` as a :class:`PathNeighbour` over ``times`` [s] (the planner's nodes), or None when its path joins
-    the route's lanes at a shallow angle (see the module docstring); ``ego_x`` [m]: the ego's arc length; ``ego``:
-    the ego vehicle, which a routed vehicle stops behind where it stands on its lanes."""
-    times = np.asarray(times, dtype=float)
+def _path(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x: float, ego: Any = None
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool, bool, float]:
+    """(s, d [m], heading relative to the route [rad], each (K,); whether the path enters the route's lanes; whether it
+    runs at more than CROSSING_ANGLE to them; [m] how far its offset on the frame moves) of ``vehicle``'s poses at
+    ``times`` [s] mapped onto the frame (:func:`crossing_neighbour`)."""
     positions, headings = _poses(vehicle, times, ego)
     xs, ys, yaws = np.full(len(times), ego_x - FAR_BEHIND), np.zeros(len(times)), np.zeros(len(times))
     enters = turned = False
+    placed = []  # [m] offsets of the poses the frame places
     for k, (position, heading) in enumerate(zip(positions, headings)):
         found = _frame_pose(frame, position, ego_x)
         if found is None:
@@ -140,7 +142,36 @@ def crossing_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x:
         xs[k], ys[k], yaws[k] = s, d, yaw
         enters |= on_frame and any(b.low < d < b.high and b.s_from <= s <= b.s_to for b in piece.bands)
         turned |= CROSSING_ANGLE < abs(yaw) < math.pi - CROSSING_ANGLE  # on the frame or beside it
-    if enters and not turned:  # joining at a shallow angle: the usual prediction
-        return None
+        if on_frame:
+            placed.append(d)
+    return xs, ys, yaws, enters, turned, float(np.ptp(placed)) if placed else 0.0
+
+
+def _path_neighbour(vehicle: Any, times: np.ndarray, xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray) -> PathNeighbour:
     return PathNeighbour(x=float(xs[0]), y=float(ys[0]), length=float(vehicle.LENGTH), width=float(vehicle.WIDTH),
                          yaw=float(yaws[0]), t=tuple(times), path_x=tuple(xs), path_y=tuple(ys), path_yaw=tuple(yaws))
+
+
+def crossing_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x: float,
+                       ego: Any = None) -> PathNeighbour | None:
+    """``vehicle`` as a :class:`PathNeighbour` over ``times`` [s] (the planner's nodes), or None when its path joins
+    the route's lanes at a shallow angle (see the module docstring); ``ego_x`` [m]: the ego's arc length; ``ego``:
+    the ego vehicle, which a routed vehicle stops behind where it stands on its lanes."""
+    times = np.asarray(times, dtype=float)
+    xs, ys, yaws, enters, turned, _ = _path(vehicle, frame, times, ego_x, ego)
+    if enters and not turned:  # joining at a shallow angle: the usual prediction
+        return None
+    return _path_neighbour(vehicle, times, xs, ys, yaws)
+
+
+def lane_leaving_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x: float,
+                           ego: Any = None) -> PathNeighbour | None:
+    """A routed ``vehicle`` on the frame's own roads as a :class:`PathNeighbour` (as :func:`crossing_neighbour`) when
+    its route's lanes move it more than :data:`LANE_SHIFT` across the frame's (a roundabout's inner lane into the
+    exit the route takes too, which starts from the outer one), else None: the usual prediction keeps it in its lane,
+    and the ego in the outer lane met it there as it cut across to the exit."""
+    if not getattr(vehicle, "route", None):
+        return None
+    times = np.asarray(times, dtype=float)
+    xs, ys, yaws, _, _, shift = _path(vehicle, frame, times, ego_x, ego)
+    return _path_neighbour(vehicle, times, xs, ys, yaws) if shift > LANE_SHIFT else None
