@@ -14,7 +14,9 @@ heading now, says nothing of where it will drive) and one that never enters the 
 beside the route: the usual prediction would keep it on the route's lanes). Whether the ego waits for it or goes
 first is the optimiser's choice, like any other obstacle. A car whose path enters the route's lanes without ever
 running at more than :data:`~driveopt.sim.road_frame.CROSSING_ANGLE` to them, on the frame or beside it (an
-on-ramp's), and vehicles on the frame's own roads are left to the usual prediction. Beside the frame counts too: a
+on-ramp's), and vehicles on the frame's own roads are left to the usual prediction, unless their route's lanes move
+them across the frame's lanes (:func:`lane_leaving_neighbour`: a roundabout's inner lane into the exit the route takes
+from the outer one). Beside the frame counts too: a
 car turning towards the route from beyond the frame's lateral reach may have no node on the frame while it turns (at
 8 m/s a 0.5 s node step is 4 m), and the usual prediction would carry its heading now straight across the lanes.
 """
