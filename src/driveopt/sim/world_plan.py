@@ -15,7 +15,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from driveopt.sim.road_frame import RoadFrame, wrap_angle
+from driveopt.sim.road_frame import RoadFrame
 
 
 class WorldTrajectory(NamedTuple):
@@ -30,33 +30,12 @@ class WorldTrajectory(NamedTuple):
     ay: np.ndarray  # [m/s^2]
 
 
-SPEED_CURVATURE_REACH = 5.0  # [m] the curvature that scales the speed is the reference line's mean this far either side
-
-
-def speed_curvature(frame: RoadFrame, s: np.ndarray) -> np.ndarray:
-    """[1/m] the reference line's signed curvature averaged over :data:`SPEED_CURVATURE_REACH` either side of each
-    ``s`` [m] (its turn over that stretch divided by the stretch's length): what scales a plan's speed along the line
-    to the world's, ``(1 - kappa n) s'``. Where the line's curvature jumps (upstream's racetracks join straight and
-    circular lanes) a plan that holds ``s'`` off the line would jump in world speed there, and tracking that jump
-    within one simulation step commanded the car's full acceleration (10.7 -> 11.7 m/s in 0.2 s at a 2 m offset),
-    whose perceived acceleration then made the next plan infeasible; averaged, the change is spread over 10 m, and
-    within an arc's or a straight's interior it is the line's own curvature. Zero on a straight road, exactly."""
-    def heading(at: float) -> float:
-        piece, longitudinal = frame.piece_at(at)
-        return float(piece.lane.heading_at(longitudinal))
-
-    reach = SPEED_CURVATURE_REACH
-    kappa = np.array([wrap_angle(heading(float(si) + reach) - heading(float(si) - reach)) / (2.0 * reach)
-                      for si in np.ravel(s)])
-    return np.where(np.abs(kappa) < 1e-9, 0.0, kappa)  # collinear straights whose headings differ by rounding
-
-
 def to_world(trajectory: Any, frame: RoadFrame) -> WorldTrajectory:
     """``trajectory`` (fields t, x = s, y = d, vx, vy, ax, ay in the frame) in world coordinates."""
     t, s, d, s_dot, d_dot, s_ddot, d_ddot = (np.asarray(getattr(trajectory, f), dtype=float)
                                              for f in ("t", "x", "y", "vx", "vy", "ax", "ay"))
     x, y, theta, kappa, offset = frame.to_world(s, d)
-    scale = 1.0 - speed_curvature(frame, s) * offset
+    scale = 1.0 - kappa * offset
     u, w = scale * s_dot, d_dot
     turn_rate = kappa * s_dot
     u_dot = scale * s_ddot - kappa * d_dot * s_dot
