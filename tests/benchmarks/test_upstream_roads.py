@@ -110,6 +110,18 @@ def test_the_arrival_ceiling_accelerates_brakes_for_curves_and_reads_each_routed
         arrival_ceiling.main(["--out", str(out), "--bounds", "0"])
 
 
+def test_the_curve_turn_study_records_each_step_of_a_racetrack_episode_and_refuses_bad_arguments(tmp_path):
+    from benchmarks.studies import curve_lateral_acceleration as study
+
+    out = tmp_path / "turns.json"
+    assert study.main(["--out", str(out), "--envs", "racetrack-v0", "--episodes", "1", "--duration", "0.4"]) == 0
+    (record,) = json.loads(out.read_text())["episodes"]
+    assert record["env"] == "racetrack-v0" and record["steps"] == 2 and record["bound"] == 6.0
+    assert record["max_turn"] >= 0.0 and 0 <= record["steps_above_bound"] <= 2
+    with pytest.raises(SystemExit):
+        study.main(["--out", str(out), "--duration", "0"])
+
+
 def test_a_routed_row_drives_its_env_along_the_given_route_and_counts_its_end(tmp_path):
     row = "exit-v0, straight on"
     assert upstream_roads.ROUTED_ROWS[row] == ("exit-v0", ("0", "1", "2", "3"))
