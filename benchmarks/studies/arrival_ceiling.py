@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from upstream_roads import ENVS  # noqa: E402
+from upstream_roads import make_env  # noqa: E402
 
 ROUTED_ENVS = ("roundabout-v0", "intersection-v0", "u-turn-v0", "roundabout-generic-v0")
 STEP = 0.25  # [m] spacing of the speed profile's samples along the route
@@ -104,13 +104,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.episodes < 1 or any(not b > 0 for b in args.bounds) or not args.acceleration > 0 or not args.speed_cap > 0:
         parser.error("--episodes, --bounds, --acceleration and --speed-cap must be positive")
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    import driveopt
     from driveopt.files import write_json
 
     results = {}
     for env_id in args.envs:
-        config, kwargs = ENVS[env_id]
-        env = driveopt.gym_make(env_id, config={"action": {"type": "ContinuousAction"}, **config}, **kwargs)
+        env = make_env(env_id)
         duration = float(env.unwrapped.config["duration"])
         episodes = []
         for seed in range(args.episodes):

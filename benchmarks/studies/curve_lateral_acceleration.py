@@ -19,7 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from upstream_roads import ENVS  # noqa: E402
+from upstream_roads import ENVS, make_env  # noqa: E402
 
 
 def episode(env_id: str, seed: int, samples: int, duration: float) -> dict:
@@ -28,9 +28,7 @@ def episode(env_id: str, seed: int, samples: int, duration: float) -> dict:
     from driveopt.config import ProjectionConfig
     from highway_env.road.lane import CircularLane
 
-    config, kwargs = ENVS[env_id]
-    config = {**config, "duration": duration} if "duration" in config else config
-    env = driveopt.gym_make(env_id, config={"action": {"type": "ContinuousAction"}, **config}, **kwargs)
+    env = make_env(env_id, duration)
     try:
         env.reset(seed=seed)
         controller = driveopt.Controller("bilevel", samples=samples)

@@ -71,6 +71,17 @@ only; the route envs counted the ego ending on the route's last road, not one th
 only with its env's setup, older ones are driven again."""
 
 
+def make_env(env_id: str, duration: float | None = None):
+    """``env_id`` as the table makes it (``driveopt.gym_make``, ``ContinuousAction``, :data:`ENVS`' settings), lasting
+    ``duration`` [s] where its settings set one (None: theirs)."""
+    import driveopt
+
+    config, kwargs = ENVS[env_id]
+    if duration is not None and "duration" in config:
+        config = {**config, "duration": duration}
+    return driveopt.gym_make(env_id, config={"action": {"type": "ContinuousAction"}, **config}, **kwargs)
+
+
 def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: float,
                 planner_config: dict | None = None, within_period: bool = True, plan_frequency: float | None = None,
                 time_gap: float = 0.0) -> dict:
@@ -83,9 +94,7 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
 
     row = env_id
     env_id, given_route = ROUTED_ROWS.get(row, (row, None))
-    config, kwargs = ENVS[env_id]
-    config = {**config, "duration": duration} if "duration" in config else config
-    env = driveopt.gym_make(env_id, config={"action": {"type": "ContinuousAction"}, **config}, **kwargs)
+    env = make_env(env_id, duration)
     record = {"env": row, "planner": planner, "seed": seed, **({"setup": SETUP[row]} if row in SETUP else {})}
     try:
         env.reset(seed=seed)
@@ -145,10 +154,7 @@ def where(sim) -> dict:
 
 def frequencies(env_id: str) -> tuple[float, float]:
     """[Hz] (simulation frequency, policy frequency) of ``env_id`` as the table makes it."""
-    import driveopt
-
-    config, kwargs = ENVS[env_id]
-    env = driveopt.gym_make(env_id, config={"action": {"type": "ContinuousAction"}, **config}, **kwargs)
+    env = make_env(env_id)
     try:
         return env.unwrapped.config["simulation_frequency"], env.unwrapped.config["policy_frequency"]
     finally:

@@ -202,6 +202,12 @@ def lane_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: Projectio
     return problem.y_lb - below * fade, problem.y_ub + above * fade
 
 
+def recovery_weight(t, cfg: ProjectionConfig) -> jnp.ndarray:
+    """[-] at the times ``t`` [s]: 1 at t = 0 falling linearly to 0 at ``cfg.recovery_time`` (0 everywhere when it is
+    0), how much of a bound's relaxation for a car that starts beyond it remains."""
+    return jnp.clip(1.0 - t / cfg.recovery_time, 0.0, 1.0) if cfg.recovery_time > 0 else jnp.zeros_like(t)
+
+
 def course_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig, t=None) -> jnp.ndarray:
     """[rad] bound on |course angle| (the velocity's angle to the ego's direction of travel along the road,
     :func:`~driveopt.problem.travel_direction`) at every node (K,), or at the times ``t`` [s] given: ``cfg.course_max``,
@@ -220,8 +226,7 @@ def course_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: Project
     moving = vx0 * vx0 + vy0 * vy0 > CURVATURE_MIN_SPEED ** 2
     course0 = jnp.where(moving, jnp.abs(jnp.arctan2(vy0, travel_direction(problem) * vx0)), 0.0)
     excess = jnp.maximum(course0 - cfg.course_max, 0.0)
-    fade = jnp.clip(1.0 - t / cfg.recovery_time, 0.0, 1.0) if cfg.recovery_time > 0 else jnp.zeros_like(t)
-    return cfg.course_max + excess * fade
+    return cfg.course_max + excess * recovery_weight(t, cfg)
 
 
 def curve_speed_recovery(t, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
@@ -232,9 +237,8 @@ def curve_speed_recovery(t, problem: PlanningProblem, cfg: ProjectionConfig) -> 
     as the lane and course bounds recover; without it no plan is feasible from the first row, and the fallback's
     braking took upstream's racetrack 1.7 m/s below the curve's speed at every sharper curve. Where ``v0`` is below
     every curve's speed (and on a straight road, where ``v_c`` is unbounded) the bound is ``v_c`` exactly."""
-    speed = jnp.hypot(problem.init_x[1], problem.init_y[1])
-    weight = jnp.clip(1.0 - t / cfg.recovery_time, 0.0, 1.0) if cfg.recovery_time > 0 else jnp.zeros_like(t)
-    return jnp.stack([1.0 - weight, weight * speed])
+    weight = recovery_weight(t, cfg)
+    return jnp.stack([1.0 - weight, weight * jnp.hypot(problem.init_x[1], problem.init_y[1])])
 
 
 def obstacle_floor(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
