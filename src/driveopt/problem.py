@@ -45,7 +45,7 @@ class PlanningProblem(NamedTuple):
     lane_center0: jnp.ndarray  # () [m] centre of the lowest lane
     lane_width: jnp.ndarray  # () [m]
     num_lanes: jnp.ndarray  # () [-] as float
-    road_curvature: jnp.ndarray  # (C,) [1/m] the largest |road curvature| in each CURVATURE_CELL [m] cell ahead of x = 0
+    road_curvature: jnp.ndarray  # (C,) [1/m] the sharpest signed road curvature in each CURVATURE_CELL [m] cell ahead of x = 0
     # (:attr:`driveopt.scene.Road.curvature_ahead`): the centripetal bound at a node reads the cell of its position
     v_des: jnp.ndarray  # () [m/s]
     pull_band: jnp.ndarray  # (2,) [m] (low, high) of the ego centre that the ``route`` cost term draws plans towards:

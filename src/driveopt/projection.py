@@ -52,7 +52,7 @@ from driveopt.basis import derivative_control_points
 from driveopt.config import ProjectionConfig
 from driveopt.problem import PlanningProblem, ellipse_axes, travel_direction
 from driveopt.qp import TrajectoryModel, split
-from driveopt.scene import CURVATURE_CELL
+from driveopt.scene import CURVATURE_CELL, PATH_SCALE_MIN
 from driveopt.xla import float32_products
 
 _EPS = 1e-6
@@ -560,8 +560,8 @@ def _pair(x, y, one):
 
 
 def road_curvature_at(cells: jnp.ndarray, x: jnp.ndarray) -> jnp.ndarray:
-    """[1/m] the road's |curvature| at positions ``x`` [m] (any shape): the value of the CURVATURE_CELL-long cell of
-    ``cells`` (C,) each lies in, the first cell for positions behind x = 0 and the last beyond the table."""
+    """[1/m] the road's signed curvature at positions ``x`` [m] (any shape): the value of the CURVATURE_CELL-long cell
+    of ``cells`` (C,) each lies in, the first cell for positions behind x = 0 and the last beyond the table."""
     index = jnp.clip(jnp.floor(x * (1.0 / CURVATURE_CELL)), 0, cells.shape[0] - 1).astype(jnp.int32)
     return cells[index]
 
@@ -686,8 +686,12 @@ def _analysis_step(
     turning = speed > CURVATURE_MIN_SPEED
     if cfg.kappa_max > 0:
         v_lo = jnp.where(turning, jnp.maximum(v_lo, _fast_sqrt(d_acc_prev * sin_va * (1.0 / cfg.kappa_max))), v_lo)
-    road_k = road_curvature_at(problem.road_curvature, x if P == K else x[:, _row_nodes(P, K)])
-    v_curve = cfg.centripetal_max ** 0.5 * _fast_rsqrt(jnp.maximum(uvx * uvx * road_k, _EPS))
+    # Centripetal bound on the car's own motion: off the reference line (curvature k, offset y) the car moves at
+    # (1 - k y) x' on a path of curvature k / (1 - k y), so its lateral acceleration is x'^2 |k| (1 - k y).
+    x_rows, y_rows = (x, y) if P == K else (x[:, _row_nodes(P, K)], y[:, _row_nodes(P, K)])
+    road_k = road_curvature_at(problem.road_curvature, x_rows)
+    path_scale = jnp.maximum(1.0 - road_k * y_rows, PATH_SCALE_MIN)
+    v_curve = cfg.centripetal_max ** 0.5 * _fast_rsqrt(jnp.maximum(uvx * uvx * jnp.abs(road_k) * path_scale, _EPS))
     if cfg.recovery_time > 0:  # a car faster than a curve's speed comes down to it (curve_speed_recovery)
         v_curve = jnp.maximum(v_curve, ops.curve_recovery[0] * v_curve + ops.curve_recovery[1])
     v_hi = jnp.minimum(cfg.v_max, v_curve)

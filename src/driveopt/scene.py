@@ -43,6 +43,10 @@ RANGES = {
 MAX_LANES = 64  # [-] lanes of a road
 CURVATURE_CELL = 2.5  # [m] length of a cell of Road.curvature_ahead
 CURVATURE_CELLS = 80  # [-] cells of Road.curvature_ahead: 200 m, what 40 m/s covers in a 5 s horizon
+# [-] the least (1 - k y) taken for a car at offset y [m] beside a reference line of curvature k [1/m], whose speed is
+# (1 - k y) times its rate along the line: near a curve's centre the true factor would free a plan's rate without
+# bound, so the bound on the car's speed is kept from below there (conservative)
+PATH_SCALE_MIN = 0.5
 
 
 def _number(name: str, value: Any, field: str | None = None) -> float:
@@ -144,9 +148,10 @@ class Road:
     lane_width: float = 4.0  # [m]
     first_lane_center: float = 0.0  # [m]
     curvature: float = 0.0  # [1/m] signed curvature of the centre line at the ego
-    # [1/m] the largest |curvature| of the centre line in each of CURVATURE_CELLS cells of CURVATURE_CELL metres ahead
-    # of the ego (the first reaching back over the ego's length): the centripetal bound at a plan's node reads the
-    # cell the node is in. Empty: |curvature| everywhere (a constant-curvature road).
+    # [1/m] the signed curvature of largest magnitude of the centre line in each of CURVATURE_CELLS cells of
+    # CURVATURE_CELL metres ahead of the ego (the first reaching back over the ego's length; positive: turning towards
+    # +y): the centripetal bound at a plan's node reads the cell the node is in. Empty: ``curvature`` everywhere (a
+    # constant-curvature road).
     curvature_ahead: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
@@ -159,16 +164,14 @@ class Road:
             raise ProblemError(f"road.curvature_ahead must be empty or a list of {CURVATURE_CELLS} curvatures [1/m], "
                                f"got {cells!r:.80}")
         values = tuple(_number(f"road.curvature_ahead[{i}]", c, "curvature") for i, c in enumerate(cells))
-        if any(v < 0 for v in values):
-            raise ProblemError("road.curvature_ahead holds magnitudes: every value must be >= 0")
         object.__setattr__(self, "curvature_ahead", values)
 
     @property
     def curvature_profile(self) -> np.ndarray:
-        """[1/m] (CURVATURE_CELLS,) :attr:`curvature_ahead`, or ``|curvature|`` in every cell where it is empty."""
+        """[1/m] (CURVATURE_CELLS,) :attr:`curvature_ahead`, or ``curvature`` in every cell where it is empty (signed)."""
         if self.curvature_ahead:
             return np.asarray(self.curvature_ahead, dtype=float)
-        return np.full(CURVATURE_CELLS, abs(self.curvature))
+        return np.full(CURVATURE_CELLS, self.curvature)
 
     @property
     def lane_centers(self) -> np.ndarray:

@@ -207,13 +207,12 @@ def test_a_roads_curvature_ahead_round_trips_through_a_problem_file_and_bad_ones
     from driveopt.problem import build_problem
     from driveopt.scene import CURVATURE_CELLS, Road, scene_to_dict
 
-    cells = [0.0] * 20 + [0.05] * (CURVATURE_CELLS - 20)
+    cells = [0.0] * 20 + [0.05] * 30 + [-0.02] * (CURVATURE_CELLS - 50)  # signed: a left curve, then a right one
     scene = dataclasses.replace(load_scene("dense-snapshot"), road=Road(curvature_ahead=cells))
     again = scene_from_dict(json.loads(json.dumps(scene_to_dict(scene))))
     assert again == scene
     assert [round(float(c), 6) for c in build_problem(again).road_curvature] == cells
     assert "curvature_ahead" not in scene_to_dict(load_scene("dense-snapshot"))["road"]  # none given: none written
-    for bad, message in (([0.01] * 3, "list of 80"), ("abc", "list of 80"), ([-0.01] * CURVATURE_CELLS, ">= 0"),
-                         ([float("nan")] * CURVATURE_CELLS, "finite")):
+    for bad, message in (([0.01] * 3, "list of 80"), ("abc", "list of 80"), ([float("nan")] * CURVATURE_CELLS, "finite")):
         with pytest.raises(ProblemError, match=message):
             Road(curvature_ahead=bad)

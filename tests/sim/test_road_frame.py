@@ -78,10 +78,23 @@ def test_the_curvature_per_node_is_the_arcs_in_the_cells_it_spans_and_their_neig
     assert np.array_equal(frame.road(10.0, 10.0, 45.0, behind=2.5).curvature_profile, np.full(CURVATURE_CELLS, 1.0 / 30.0))
 
 
+def test_a_right_curves_cells_keep_its_sign():
+    """The same quarter circle turning right (away from +d, where the second lane is the outer one): its cells hold
+    -1/30 1/m, as the reference line's signed curvature does, so the car's offset is known to be on the outside."""
+    net = RoadNetwork()
+    for i in range(2):
+        net.add_lane("a", "b", StraightLane([0.0, 4.0 * i], [50.0, 4.0 * i], width=4.0))
+        net.add_lane("b", "c", CircularLane([50.0, -30.0], 30.0 + 4.0 * i, math.pi / 2, 0.0, clockwise=False, width=4.0))
+    frame = build_frame(net, ("a", "b"))
+    cells = frame.road(10.0, 10.0, 200.0, behind=2.5, per_node=True).curvature_profile
+    assert cells.min() == pytest.approx(-1.0 / 30.0) and cells.max() == 0.0
+    assert np.allclose(frame.road(10.0, 10.0, 45.0, behind=2.5).curvature_profile, -1.0 / 30.0)
+
+
 def test_a_plan_along_the_arc_turns_back_into_the_lanes_world_motion():
     frame = build_frame(_loop(), ("a", "b"))
     t = np.linspace(0.0, 3.0, 31)
-    speed, d = 10.0, 4.0  # [m/s] along the reference line, [m] on the outer lane's centre
+    speed, d = 10.0, 4.0  # [m/s] along the reference line, [m] on the second lane's centre (the inner circle)
     s = 55.0 + speed * t
     zeros = np.zeros_like(t)
     plan = Trajectory(t=t, x=s, y=np.full_like(t, d), vx=np.full_like(t, speed), vy=zeros, ax=zeros, ay=zeros,
@@ -90,7 +103,7 @@ def test_a_plan_along_the_arc_turns_back_into_the_lanes_world_motion():
     lane = _loop().get_lane(("b", "c", 1))
     for k in range(len(t)):
         longitudinal, lateral = lane.local_coordinates(np.array([world.x[k], world.y[k]]))
-        assert lateral == pytest.approx(0.0, abs=1e-9), "the plan stays on the outer lane's centre line"
+        assert lateral == pytest.approx(0.0, abs=1e-9), "the plan stays on the second lane's centre line"
         course = math.atan2(world.vy[k], world.vx[k])
         assert math.cos(course - lane.heading_at(longitudinal)) == pytest.approx(1.0, abs=1e-12)
         # on a 26 m radius the car covers 26/30 of the reference line's arc length, and turns at v / 26 m

@@ -46,7 +46,7 @@ from typing import Any, NamedTuple, Sequence
 from driveopt.config import ProjectionConfig
 from driveopt.goal import Goal
 from driveopt.observation import ObservationError
-from driveopt.scene import CURVATURE_CELL, EgoState, EllipseMargin, Neighbour, ProblemError, Scene
+from driveopt.scene import CURVATURE_CELL, PATH_SCALE_MIN, EgoState, EllipseMargin, Neighbour, ProblemError, Scene
 from driveopt.sim.control import EgoKinematics
 from driveopt.sim.crossing import crossing_neighbour, lane_leaving_neighbour, may_cross
 from driveopt.sim.road_frame import Motion, RoadFrame, ego_frame, vehicle_motion, wrap_angle
@@ -95,24 +95,30 @@ class Perception(NamedTuple):
     goal: Goal | None = None  # the route's lanes at the split ahead (build_problem's goal=); None without one
 
 
-def curve_speed(frame: RoadFrame, s: float, v_des: float, preview: RoadPreview, period: float = 0.0) -> float:
-    """[m/s] ``v_des``, lowered to the fastest speed from which the car slows to each curve's speed within
-    ``preview.speed_distance`` ahead of ``s`` [m] at ``preview.deceleration``, having first driven one ``period`` [s]
-    at ``v_des`` (the next decision comes a policy period later: at 1 Hz that is 10 m at 10 m/s), by the point where
-    the curve enters the centripetal bound. With the preview's sharpest curvature bounding a whole plan, that is
-    when the curve comes within ``curvature_distance`` or ``curvature_time`` at the curve's speed (else the bound is
-    violated from the plan's first node and the call is infeasible); with ``curvature_per_node`` the plan can brake
-    within the preview, and it is the curve itself (less one cell of the planner's curvature table, whose cells read
-    their neighbours too)."""
-    speed = v_des
+def curve_speed(frame: RoadFrame, s: float, d: float, v_des: float, preview: RoadPreview, period: float = 0.0) -> float:
+    """[m/s] the rate along the reference line (the planner's speed) at which a car at ``s`` [m], offset ``d`` [m]
+    from the line, drives at ``v_des`` (the car's own speed is ``(1 - kappa d)`` times the rate), lowered to the
+    fastest rate from which the car slows to each curve's within ``preview.speed_distance`` ahead at
+    ``preview.deceleration``, having first driven one ``period`` [s] at ``v_des`` (the next decision comes a policy
+    period later: at 1 Hz that is 10 m at 10 m/s). A curve's rate is the lower of the centripetal bound's (the car's
+    lateral acceleration, ``rate^2 |kappa| (1 - kappa d)``, at ``preview.lateral_acceleration``) and ``v_des``'s at
+    the curve. The car slows to the first by the point where the curve enters the centripetal bound: with the
+    preview's sharpest curvature bounding a whole plan, when the curve comes within ``curvature_distance`` or
+    ``curvature_time`` at the curve's rate (else the bound is violated from the plan's first node and the call is
+    infeasible); with ``curvature_per_node`` the plan can brake within the preview, and it is the curve itself (less
+    one cell of the planner's curvature table, whose cells read their neighbours too). It slows to ``v_des``'s rate at
+    the curve itself."""
+    rate = v_des / max(1.0 - frame.curvature_at(s) * d, PATH_SCALE_MIN)
     for distance, kappa in frame.curves_ahead(s, s + preview.speed_distance):
-        if kappa > 0.0:
-            v_curve = math.sqrt(preview.lateral_acceleration / kappa)
+        if kappa != 0.0:
+            scale = max(1.0 - kappa * d, PATH_SCALE_MIN)
+            v_curve = math.sqrt(preview.lateral_acceleration / (abs(kappa) * scale))
             margin = (CURVATURE_CELL if preview.curvature_per_node
                       else max(preview.curvature_distance, preview.curvature_time * v_curve))
-            slowing = max(distance - margin - v_des * period, 0.0)
-            speed = min(speed, math.sqrt(v_curve * v_curve + 2.0 * preview.deceleration * slowing))
-    return speed
+            for target, before in ((v_curve, margin), (v_des / scale, 0.0)):
+                slowing = max(distance - before - v_des * period, 0.0)
+                rate = min(rate, math.sqrt(target * target + 2.0 * preview.deceleration * slowing))
+    return rate
 
 
 def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
@@ -163,7 +169,7 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
             )
         if period is None:
             period = 1.0 / float(sim.config.get("policy_frequency", math.inf))
-        v_des = curve_speed(frame, me.x, float(task.v_des), preview, period)
+        v_des = curve_speed(frame, me.x, me.y, float(task.v_des), preview, period)
         margin = EllipseMargin(time_gap=max(getattr(task, "time_gap", 0.0), route_gap))
         scene = Scene(ego=ego, road=road, neighbours=tuple(neighbours), v_des=v_des, ellipse_margin=margin, name=task.name)
     except ProblemError as exc:

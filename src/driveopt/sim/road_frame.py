@@ -282,8 +282,8 @@ class RoadFrame:
         return worst
 
     def curves_ahead(self, s_from: float, s_to: float) -> list[tuple[float, float]]:
-        """[(distance [m] from ``s_from``, |curvature| [1/m])] at the start of each curved stretch (and at ``s_from``
-        when it lies on one) up to ``s_to``, sampled every :data:`_CURVATURE_STEP` on sine lanes."""
+        """[(distance [m] from ``s_from``, signed curvature [1/m])] at the start of each curved stretch (and at
+        ``s_from`` when it lies on one) up to ``s_to``, sampled every :data:`_CURVATURE_STEP` on sine lanes."""
         curves = []
         for piece in self.pieces:
             lo = max(s_from - piece.s_start, piece.lo)
@@ -291,22 +291,25 @@ class RoadFrame:
             if lo > hi or piece.straight:
                 continue
             samples = [lo] if _is_circular(piece.lane) else np.arange(lo, hi + 1e-9, _CURVATURE_STEP)
-            curves += [(piece.s_start + float(x) - s_from, abs(lane_curvature(piece.lane, float(x)))) for x in samples]
+            curves += [(piece.s_start + float(x) - s_from, lane_curvature(piece.lane, float(x))) for x in samples]
         return curves
 
     def curvature_cells(self, s: float, behind: float = 0.0) -> np.ndarray:
-        """[1/m] (CURVATURE_CELLS,) the largest |curvature| of the reference line in each CURVATURE_CELL-long cell
-        ahead of ``s`` [m] (:attr:`driveopt.scene.Road.curvature_ahead`), the first reaching back ``behind`` [m]. Each
-        cell also takes its neighbours' values: a node's position is read in one cell, while the car's length and the
-        plan's motion between iterations reach into the next."""
+        """[1/m] (CURVATURE_CELLS,) the signed curvature of largest magnitude of the reference line in each
+        CURVATURE_CELL-long cell ahead of ``s`` [m] (:attr:`driveopt.scene.Road.curvature_ahead`), the first reaching
+        back ``behind`` [m]. Each cell also takes its neighbours' values where they are sharper: a node's position is
+        read in one cell, while the car's length and the plan's motion between iterations reach into the next."""
         edges = s + CURVATURE_CELL * np.arange(CURVATURE_CELLS + 1)
         edges[0] -= behind
         cells = np.zeros(CURVATURE_CELLS)
         for along, kappa in self._curved_samples(edges[0], edges[-1], extra=edges):  # every cell a piece reaches
             index = np.clip(np.searchsorted(edges, along, side="right") - 1, 0, CURVATURE_CELLS - 1)
-            np.maximum.at(cells, index, np.abs(kappa))
+            for i, k in zip(index, kappa):
+                if abs(k) > abs(cells[i]):
+                    cells[i] = k
         padded = np.pad(cells, 1, mode="edge")
-        return np.maximum(cells, np.maximum(padded[:-2], padded[2:]))
+        candidates = np.stack([cells, padded[:-2], padded[2:]])  # the sharpest of each cell and its two neighbours
+        return candidates[np.argmax(np.abs(candidates), axis=0), np.arange(CURVATURE_CELLS)]
 
     # ------------------------------------------------------------------ the planner's road
     def ego_band(self, s: float) -> Band:
@@ -318,7 +321,7 @@ class RoadFrame:
              per_node: bool = False) -> Road:
         """The planner's :class:`Road` at ``s`` [m]: the ego road's lanes that continue over the next ``lane_preview``
         [m] (a lane that ends, or leads only off the route, is left out), and the curvature of largest magnitude over
-        [s - behind, s + curvature_preview] (the plan's bound at every node); ``per_node``: over [s - behind, s], and
+        [s - behind, s + curvature_preview] (signed; the plan's bound at every node); ``per_node``: over [s - behind, s], and
         the curvature ahead in the cells that start within ``curvature_preview`` (:meth:`curvature_cells`; zero in
         the others, and none at all where it is straight)."""
         ego = self.ego_band(s)

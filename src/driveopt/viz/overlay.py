@@ -83,7 +83,8 @@ def hud_of(env: Any, decision: Any, planner: str, v_des: float | None, v_des_sou
     """The HUD of ``env``'s current state and the ``decision`` (or None) that ``planner`` made; ``v_des`` [m/s] and
     ``v_des_source`` (e.g. ``"lane limit"``): the task's desired speed and where it comes from. When the decision's
     scene planned for less (a curve ahead, :func:`driveopt.sim.perception.curve_speed`), the HUD shows that speed
-    and says so."""
+    and says so: a rate along the road's reference line, which beside the line on a curve is not the car's own
+    speed (on the outside of a curve it reads lower than the car will drive)."""
     sim = env.unwrapped
     time = sim.steps / sim.config["simulation_frequency"]
     plan_ms = 1e3 * decision.plan_seconds if decision is not None and decision.result is not None else None
