@@ -54,14 +54,16 @@ def save_states(path: Path, problems: list) -> None:
 
 def load_states(path: Path) -> list:
     """The (scenario, PlanningProblem) pairs :func:`save_states` wrote; a file from before the road's curvature became a
-    table of cells (one number per problem) gets that number's magnitude in every cell, and one from before a route's
-    pull band existed gets none (NO_PULL)."""
+    table of cells (one number per problem) gets that number's magnitude in every cell, one from before a route's
+    pull band existed gets none (NO_PULL), and one from before the curvature's origin the line y = 0."""
     from driveopt.problem import NO_PULL, PlanningProblem
     from driveopt.scene import CURVATURE_CELLS
 
     def field_of(data, i: int, field: str) -> np.ndarray:
         if field == "pull_band" and f"{i}.{field}" not in data:  # recorded before the route's pull existed
             return np.asarray(NO_PULL, dtype=np.float32)
+        if field == "road_origin" and f"{i}.{field}" not in data:  # recorded before the curvature had an origin
+            return np.float32(0.0)
         value = data[f"{i}.{field}"]
         if field == "road_curvature" and value.ndim == 0:
             return np.full(CURVATURE_CELLS, abs(value), dtype=value.dtype)

@@ -47,6 +47,7 @@ class PlanningProblem(NamedTuple):
     num_lanes: jnp.ndarray  # () [-] as float
     road_curvature: jnp.ndarray  # (C,) [1/m] the sharpest signed road curvature in each CURVATURE_CELL [m] cell ahead of x = 0
     # (:attr:`driveopt.scene.Road.curvature_ahead`): the centripetal bound at a node reads the cell of its position
+    road_origin: jnp.ndarray  # () [m] y of the line that curvature is of (:attr:`driveopt.scene.Road.curvature_origin`)
     v_des: jnp.ndarray  # () [m/s]
     pull_band: jnp.ndarray  # (2,) [m] (low, high) of the ego centre that the ``route`` cost term draws plans towards:
     # a widened goal's band ahead (:meth:`driveopt.goal.Goal.pull_band`); :data:`NO_PULL` without one (the term is 0)
@@ -138,6 +139,7 @@ def build_problem(
         lane_width=f32(lanes[1]),
         num_lanes=f32(lanes[2]),
         road_curvature=f32(scene.road.curvature_profile),
+        road_origin=f32(scene.road.curvature_origin),
         v_des=f32(v_des),
         pull_band=f32(pull),
         obstacle_x=f32(ox),
@@ -164,7 +166,7 @@ def check_problem(problem: PlanningProblem, basis: BasisConfig = BasisConfig()) 
     N = np.shape(problem.obstacle_x)[0] if np.ndim(problem.obstacle_x) == 2 else -1
     expected = {
         "init_x": (3,), "init_y": (3,), "y_lb": (), "y_ub": (), "lane_center0": (), "lane_width": (),
-        "num_lanes": (), "road_curvature": (CURVATURE_CELLS,), "v_des": (), "pull_band": (2,),
+        "num_lanes": (), "road_curvature": (CURVATURE_CELLS,), "road_origin": (), "v_des": (), "pull_band": (2,),
         "obstacle_x": (N, K), "obstacle_y": (N, K),
         "obstacle_a": (N,), "obstacle_b": (N,), "obstacle_mask": (N,), "ellipse_growth": (2, K),
         "ego_heading": (),

@@ -686,11 +686,11 @@ def _analysis_step(
     turning = speed > CURVATURE_MIN_SPEED
     if cfg.kappa_max > 0:
         v_lo = jnp.where(turning, jnp.maximum(v_lo, _fast_sqrt(d_acc_prev * sin_va * (1.0 / cfg.kappa_max))), v_lo)
-    # Centripetal bound on the car's own motion: off the reference line (curvature k, offset y) the car moves at
-    # (1 - k y) x' on a path of curvature k / (1 - k y), so its lateral acceleration is x'^2 |k| (1 - k y).
+    # Centripetal bound on the car's own motion: beside the line the curvature k is of (at y0) the car moves at
+    # (1 - k (y - y0)) x' on a path of curvature k / (1 - k (y - y0)): lateral acceleration x'^2 |k| (1 - k (y - y0)).
     x_rows, y_rows = (x, y) if P == K else (x[:, _row_nodes(P, K)], y[:, _row_nodes(P, K)])
     road_k = road_curvature_at(problem.road_curvature, x_rows)
-    path_scale = jnp.maximum(1.0 - road_k * y_rows, PATH_SCALE_MIN)
+    path_scale = jnp.maximum(1.0 - road_k * (y_rows - problem.road_origin), PATH_SCALE_MIN)
     v_curve = cfg.centripetal_max ** 0.5 * _fast_rsqrt(jnp.maximum(uvx * uvx * jnp.abs(road_k) * path_scale, _EPS))
     if cfg.recovery_time > 0:  # a car faster than a curve's speed comes down to it (curve_speed_recovery)
         v_curve = jnp.maximum(v_curve, ops.curve_recovery[0] * v_curve + ops.curve_recovery[1])

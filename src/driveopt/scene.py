@@ -37,6 +37,7 @@ RANGES = {
     "ax": (-100.0, 100.0, "m/s^2"), "ay": (-100.0, 100.0, "m/s^2"), "accel": (-100.0, 100.0, "m/s^2"),
     "length": (0.1, 100.0, "m"), "width": (0.1, 100.0, "m"), "yaw": (-100.0, 100.0, "rad"),
     "lane_width": (0.5, 100.0, "m"), "first_lane_center": (-1e3, 1e3, "m"), "curvature": (-1.0, 1.0, "1/m"),
+    "curvature_origin": (-1e3, 1e3, "m"),
     "longitudinal": (0.0, 100.0, "m"), "lateral": (0.0, 100.0, "m"),
     "v_des": (0.0, 100.0, "m/s"), "edge_margin": (0.0, 100.0, "m"), "time_gap": (0.0, 10.0, "s"),
 }
@@ -153,11 +154,14 @@ class Road:
     # +y): the centripetal bound at a plan's node reads the cell the node is in. Empty: ``curvature`` everywhere (a
     # constant-curvature road).
     curvature_ahead: tuple[float, ...] = ()
+    # [m] y of the line whose curvature ``curvature`` and ``curvature_ahead`` give, along which speeds in x are rates: a
+    # car at y moves (1 - k (y - curvature_origin)) times as fast as its rate, on a path of curvature k / (that factor)
+    curvature_origin: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.num_lanes, int) or isinstance(self.num_lanes, bool) or not 1 <= self.num_lanes <= MAX_LANES:
             raise ProblemError(f"road.num_lanes must be an int in [1, {MAX_LANES}], got {self.num_lanes!r}")
-        for f in ("lane_width", "first_lane_center", "curvature"):
+        for f in ("lane_width", "first_lane_center", "curvature", "curvature_origin"):
             object.__setattr__(self, f, _number(f"road.{f}", getattr(self, f)))
         cells = self.curvature_ahead
         if isinstance(cells, (str, bytes)) or not isinstance(cells, (tuple, list, np.ndarray)) or len(cells) not in (0, CURVATURE_CELLS):
@@ -239,7 +243,7 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
     return {
         "name": scene.name,
         "v_des": scene.v_des,
-        "road": {k: v for k, v in asdict(scene.road).items() if k != "curvature_ahead" or v},
+        "road": {k: v for k, v in asdict(scene.road).items() if k not in ("curvature_ahead", "curvature_origin") or v},
         "ego": asdict(scene.ego),
         "neighbours": [asdict(n) for n in scene.neighbours],
         "ellipse_margin": asdict(scene.ellipse_margin),

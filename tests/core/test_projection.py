@@ -760,17 +760,19 @@ def test_a_car_faster_than_a_curves_speed_plans_its_way_down_to_it_by_the_recove
 
 def test_the_centripetal_bound_holds_the_cars_own_lateral_acceleration_beside_the_reference_line():
     """A car held in the lane 12 m beside the reference line of a 50 m curve (1 m/s^2 bound) drives a 38 m circle on
-    the inside (its speed 0.76 times the plan's rate) and a 62 m one on the outside (1.24 times). Its lateral
+    the inside (its speed 0.76 times the plan's rate) and a 62 m one on the outside (1.24 times), wherever the line
+    lies in y (``Road.curvature_origin``). Its lateral
     acceleration, from the plan's nodes placed on those circles in the world and differentiated there (independent of
     the frame's formula), reaches the bound and stays within it on both sides: bounding the rate as on the reference
     line would give at most 0.76 and 1.24 m/s^2."""
     cfg = dataclasses.replace(LOOSE, centripetal_max=1.0)
     dt = float(MODEL.t[1] - MODEL.t[0])
-    for curvature in (0.02, -0.02):
-        scene = Scene(ego=EgoState(x=0.0, y=12.0, vx=6.0), road=Road(num_lanes=4, curvature=curvature))
-        problem, target, b_x, b_y = setup(scene, [[10.0] * 4 + [12.0] * 4])
+    for curvature, line in ((0.02, 0.0), (-0.02, 0.0), (0.02, 100.0)):  # the line at y = 100 m: lanes from there
+        road = Road(num_lanes=4, first_lane_center=line, curvature=curvature, curvature_origin=line)
+        problem, target, b_x, b_y = setup(Scene(ego=EgoState(x=0.0, y=line + 12.0, vx=6.0), road=road),
+                                          [[10.0] * 4 + [line + 12.0] * 4])
         traj = evaluate(MODEL, project(MODEL, problem, target, b_x, b_y, cfg).coeffs)
-        x, y = np.asarray(traj.x, float)[0], np.asarray(traj.y, float)[0]
+        x, y = np.asarray(traj.x, float)[0], np.asarray(traj.y, float)[0] - line
         radius = 1.0 / curvature  # signed: the centre at (0, radius) in the frame of the line's start
         angle = x / radius
         world = np.stack([(radius - y) * np.sin(angle), radius - (radius - y) * np.cos(angle)])

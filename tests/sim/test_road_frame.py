@@ -15,14 +15,16 @@ from driveopt.sim.world_plan import to_world
 from driveopt.trajectory import Trajectory
 
 
-def _loop(radius: float = 30.0, width: float = 4.0) -> RoadNetwork:
-    """A two-lane road: 50 m straight along +x, then a left-turning quarter circle, then 50 m straight along +y."""
+def _loop(radius: float = 30.0, width: float = 4.0, y0: float = 0.0) -> RoadNetwork:
+    """A two-lane road: 50 m straight along +x at y = y0, then a left-turning quarter circle, then 50 m straight
+    along +y."""
     net = RoadNetwork()
     for i in range(2):
-        net.add_lane("a", "b", StraightLane([0.0, i * width], [50.0, i * width], width=width))
-        net.add_lane("b", "c", CircularLane([50.0, radius], radius - i * width, -math.pi / 2, 0.0, clockwise=True, width=width))
-        net.add_lane("c", "d", StraightLane([50.0 + radius - i * width, radius], [50.0 + radius - i * width, radius + 50.0],
+        net.add_lane("a", "b", StraightLane([0.0, y0 + i * width], [50.0, y0 + i * width], width=width))
+        net.add_lane("b", "c", CircularLane([50.0, y0 + radius], radius - i * width, -math.pi / 2, 0.0, clockwise=True,
                                             width=width))
+        net.add_lane("c", "d", StraightLane([50.0 + radius - i * width, y0 + radius],
+                                            [50.0 + radius - i * width, y0 + radius + 50.0], width=width))
     return net
 
 
@@ -76,6 +78,16 @@ def test_the_curvature_per_node_is_the_arcs_in_the_cells_it_spans_and_their_neig
     assert np.array_equal(short[kept], cells[kept]) and short[kept].any() and not short[~kept].any()
     # without per_node the preview's sharpest curvature is every cell's
     assert np.array_equal(frame.road(10.0, 10.0, 45.0, behind=2.5).curvature_profile, np.full(CURVATURE_CELLS, 1.0 / 30.0))
+
+
+def test_the_curvatures_line_is_where_the_frame_puts_the_reference_lane():
+    """The loop 120 m up the world's y axis: the frame's d is 120 m on the reference lane, so the arc's curvature is
+    that of the line d = 120 m (``Road.curvature_origin``), not of d = 0."""
+    frame = build_frame(_loop(y0=120.0), ("a", "b"))
+    road = frame.road(55.0, 30.0, 20.0)
+    assert road.curvature == pytest.approx(1.0 / 30.0) and road.curvature_origin == pytest.approx(120.0)
+    assert road.first_lane_center == pytest.approx(120.0)
+    assert frame.curve_at(70.0) == (pytest.approx(1.0 / 30.0), pytest.approx(120.0))
 
 
 def test_a_right_curves_cells_keep_its_sign():

@@ -112,7 +112,7 @@ def test_the_speed_before_a_curve_leaves_one_policy_period_to_the_next_decision(
 
     from driveopt.sim.perception import RoadPreview, curve_speed
 
-    frame = SimpleNamespace(curves_ahead=lambda s_from, s_to: [(40.0, 1.0 / 25.0)], curvature_at=lambda s: 0.0)
+    frame = SimpleNamespace(curves_ahead=lambda s_from, s_to: [(40.0, 1.0 / 25.0, 0.0)], curve_at=lambda s: (0.0, 0.0))
     preview = RoadPreview(lateral_acceleration=4.0)
     assert curve_speed(frame, 0.0, 0.0, 20.0, preview) == pytest.approx((100.0 + 2 * 1.5 * 25.0) ** 0.5)
     assert curve_speed(frame, 0.0, 0.0, 20.0, preview, period=1.0) == pytest.approx((100.0 + 2 * 1.5 * 5.0) ** 0.5)
@@ -123,19 +123,21 @@ def test_the_speed_before_a_curve_leaves_one_policy_period_to_the_next_decision(
 
 
 def test_on_a_curve_the_planned_rate_gives_the_car_beside_the_reference_line_its_bounds_own_speed():
-    """The planner's speeds are rates along the reference line; a car 5 m outside a left curve of radius 25 m drives a
-    30 m circle at 1.2 times the rate, 5 m inside a 20 m one at 0.8 times it. The rate curve_speed plans gives the car
-    itself 4 m/s^2 of lateral acceleration (sqrt(4 x 30) and sqrt(4 x 20) m/s), or the desired speed where that is
-    lower; on the straight before the curve the rate is the desired speed."""
+    """The planner's speeds are rates along the reference line (here at d = 120 m, as a frame built on a road away
+    from the world's x axis has it); a car 5 m outside a left curve of radius 25 m drives a 30 m circle at 1.2 times
+    the rate, 5 m inside a 20 m one at 0.8 times it. The rate curve_speed plans gives the car itself 4 m/s^2 of
+    lateral acceleration (sqrt(4 x 30) and sqrt(4 x 20) m/s), or the desired speed where that is lower; on the
+    straight before the curve the rate is the desired speed."""
     from types import SimpleNamespace
 
     from driveopt.sim.perception import RoadPreview, curve_speed
 
-    on_curve = SimpleNamespace(curves_ahead=lambda s_from, s_to: [(0.0, 1.0 / 25.0)], curvature_at=lambda s: 1.0 / 25.0)
+    line = 120.0
+    on_curve = SimpleNamespace(curves_ahead=lambda s_from, s_to: [(0.0, 1.0 / 25.0, line)], curve_at=lambda s: (1.0 / 25.0, line))
     preview = RoadPreview(lateral_acceleration=4.0)
     for d, scale in ((-5.0, 1.2), (5.0, 0.8)):
-        car_speed = scale * curve_speed(on_curve, 0.0, d, 20.0, preview)
+        car_speed = scale * curve_speed(on_curve, 0.0, line + d, 20.0, preview)
         assert car_speed == pytest.approx((4.0 * 25.0 * scale) ** 0.5)
-        assert scale * curve_speed(on_curve, 0.0, d, 8.0, preview) == pytest.approx(8.0)
-    before = SimpleNamespace(curves_ahead=lambda s_from, s_to: [], curvature_at=lambda s: 0.0)
-    assert curve_speed(before, 0.0, -5.0, 8.0, preview) == 8.0
+        assert scale * curve_speed(on_curve, 0.0, line + d, 8.0, preview) == pytest.approx(8.0)
+    before = SimpleNamespace(curves_ahead=lambda s_from, s_to: [], curve_at=lambda s: (0.0, line))
+    assert curve_speed(before, 0.0, line - 5.0, 8.0, preview) == 8.0

@@ -96,26 +96,28 @@ class Perception(NamedTuple):
 
 
 def curve_speed(frame: RoadFrame, s: float, d: float, v_des: float, preview: RoadPreview, period: float = 0.0) -> float:
-    """[m/s] the rate along the reference line (the planner's speed) at which a car at ``s`` [m], offset ``d`` [m]
-    from the line, drives at ``v_des`` (the car's own speed is ``(1 - kappa d)`` times the rate), lowered to the
-    fastest rate from which the car slows to each curve's within ``preview.speed_distance`` ahead at
-    ``preview.deceleration``, having first driven one ``period`` [s] at ``v_des`` (the next decision comes a policy
-    period later: at 1 Hz that is 10 m at 10 m/s). A curve's rate is the lower of the centripetal bound's (the car's
-    lateral acceleration, ``rate^2 |kappa| (1 - kappa d)``, at ``preview.lateral_acceleration``) and ``v_des``'s at
-    the curve. The car slows to the first by the point where the curve enters the centripetal bound: with the
-    preview's sharpest curvature bounding a whole plan, when the curve comes within ``curvature_distance`` or
-    ``curvature_time`` at the curve's rate (else the bound is violated from the plan's first node and the call is
-    infeasible); with ``curvature_per_node`` the plan can brake within the preview, and it is the curve itself (less
-    one cell of the planner's curvature table, whose cells read their neighbours too). It slows to ``v_des``'s rate at
-    the curve itself."""
-    rate = v_des / max(1.0 - frame.curvature_at(s) * d, PATH_SCALE_MIN)
-    for distance, kappa in frame.curves_ahead(s, s + preview.speed_distance):
+    """[m/s] the rate along the frame's reference line (the planner's speed) at which a car at ``s`` [m] and ``d`` [m]
+    drives at ``v_des`` (beside a line of curvature ``kappa`` at ``d0`` the car moves ``1 - kappa (d - d0)`` times as
+    fast as its rate), lowered to the fastest rate from which the car slows to each curve's within
+    ``preview.speed_distance`` ahead at ``preview.deceleration``, having first driven one ``period`` [s] at ``v_des``
+    (the next decision comes a policy period later: at 1 Hz that is 10 m at 10 m/s). A curve's rate is the lower of
+    the centripetal bound's (the car's lateral acceleration, ``rate^2 |kappa| (1 - kappa (d - d0))``, at
+    ``preview.lateral_acceleration``) and ``v_des``'s there. The car slows to the first by the point where the curve
+    enters the centripetal bound: with the preview's sharpest curvature bounding a whole plan, when the curve comes
+    within ``curvature_distance`` or ``curvature_time`` at the curve's rate (else the bound is violated from the
+    plan's first node and the call is infeasible); with ``curvature_per_node`` the plan can brake within the
+    preview, and it is the curve itself (less one cell of the planner's curvature table, whose cells read their
+    neighbours too). It slows to ``v_des``'s rate at the curve itself."""
+    def scale(kappa: float, origin: float) -> float:
+        return max(1.0 - kappa * (d - origin), PATH_SCALE_MIN)
+
+    rate = v_des / scale(*frame.curve_at(s))
+    for distance, kappa, origin in frame.curves_ahead(s, s + preview.speed_distance):
         if kappa != 0.0:
-            scale = max(1.0 - kappa * d, PATH_SCALE_MIN)
-            v_curve = math.sqrt(preview.lateral_acceleration / (abs(kappa) * scale))
+            v_curve = math.sqrt(preview.lateral_acceleration / (abs(kappa) * scale(kappa, origin)))
             margin = (CURVATURE_CELL if preview.curvature_per_node
                       else max(preview.curvature_distance, preview.curvature_time * v_curve))
-            for target, before in ((v_curve, margin), (v_des / scale, 0.0)):
+            for target, before in ((v_curve, margin), (v_des / scale(kappa, origin), 0.0)):
                 slowing = max(distance - before - v_des * period, 0.0)
                 rate = min(rate, math.sqrt(target * target + 2.0 * preview.deceleration * slowing))
     return rate

@@ -257,11 +257,15 @@ class RoadFrame:
 
     def curvature_at(self, s: float) -> float:
         """[1/m] signed curvature of the reference line at ``s``."""
+        return self.curve_at(s)[0]
+
+    def curve_at(self, s: float) -> tuple[float, float]:
+        """([1/m] signed curvature of the reference line at ``s``, [m] the ``d`` of the piece's line it is of)."""
         piece, longitudinal = self.piece_at(s)
-        return lane_curvature(piece.lane, longitudinal)
+        return lane_curvature(piece.lane, longitudinal), piece.d_shift
 
     def _curved_samples(self, s_from: float, s_to: float, extra: np.ndarray = np.zeros(0)):
-        """(arc lengths [m], signed curvatures [1/m]) of each curved piece over [s_from, s_to], sampled every
+        """(piece, arc lengths [m], signed curvatures [1/m]) of each curved piece over [s_from, s_to], sampled every
         :data:`_CURVATURE_STEP` and at the arc lengths ``extra`` that fall on the piece."""
         for piece in self.pieces:
             lo = max(s_from - piece.s_start, piece.lo if not piece.open_lo else -math.inf)
@@ -270,20 +274,26 @@ class RoadFrame:
                 continue
             along = np.linspace(lo, hi, max(2, int((hi - lo) / _CURVATURE_STEP) + 1))
             along = np.union1d(along, np.clip(extra - piece.s_start, lo, hi)) if extra.size else along
-            yield piece.s_start + along, np.array([lane_curvature(piece.lane, float(a)) for a in along])
+            yield piece, piece.s_start + along, np.array([lane_curvature(piece.lane, float(a)) for a in along])
+
+    def sharpest_curve(self, s_from: float, s_to: float) -> tuple[float, float]:
+        """([1/m] the signed curvature of largest magnitude of the reference line on [s_from, s_to], [m] the ``d`` of
+        the piece's own line it is the curvature of); (0.0, 0.0) on straights."""
+        worst, origin = 0.0, 0.0
+        for piece, _, kappa in self._curved_samples(s_from, s_to):
+            sharpest = kappa[np.argmax(np.abs(kappa))]
+            if abs(sharpest) > abs(worst):
+                worst, origin = float(sharpest), piece.d_shift
+        return worst, origin
 
     def curvature_between(self, s_from: float, s_to: float) -> float:
         """[1/m] the signed curvature of largest magnitude of the reference line on [s_from, s_to] (0.0 on straights)."""
-        worst = 0.0
-        for _, kappa in self._curved_samples(s_from, s_to):
-            sharpest = kappa[np.argmax(np.abs(kappa))]
-            if abs(sharpest) > abs(worst):
-                worst = float(sharpest)
-        return worst
+        return self.sharpest_curve(s_from, s_to)[0]
 
-    def curves_ahead(self, s_from: float, s_to: float) -> list[tuple[float, float]]:
-        """[(distance [m] from ``s_from``, signed curvature [1/m])] at the start of each curved stretch (and at
-        ``s_from`` when it lies on one) up to ``s_to``, sampled every :data:`_CURVATURE_STEP` on sine lanes."""
+    def curves_ahead(self, s_from: float, s_to: float) -> list[tuple[float, float, float]]:
+        """[(distance [m] from ``s_from``, signed curvature [1/m], ``d`` [m] of the line it is the curvature of)] at the
+        start of each curved stretch (and at ``s_from`` when it lies on one) up to ``s_to``, sampled every
+        :data:`_CURVATURE_STEP` on sine lanes."""
         curves = []
         for piece in self.pieces:
             lo = max(s_from - piece.s_start, piece.lo)
@@ -291,7 +301,8 @@ class RoadFrame:
             if lo > hi or piece.straight:
                 continue
             samples = [lo] if _is_circular(piece.lane) else np.arange(lo, hi + 1e-9, _CURVATURE_STEP)
-            curves += [(piece.s_start + float(x) - s_from, lane_curvature(piece.lane, float(x))) for x in samples]
+            curves += [(piece.s_start + float(x) - s_from, lane_curvature(piece.lane, float(x)), piece.d_shift)
+                       for x in samples]
         return curves
 
     def curvature_cells(self, s: float, behind: float = 0.0) -> np.ndarray:
@@ -302,7 +313,7 @@ class RoadFrame:
         edges = s + CURVATURE_CELL * np.arange(CURVATURE_CELLS + 1)
         edges[0] -= behind
         cells = np.zeros(CURVATURE_CELLS)
-        for along, kappa in self._curved_samples(edges[0], edges[-1], extra=edges):  # every cell a piece reaches
+        for _, along, kappa in self._curved_samples(edges[0], edges[-1], extra=edges):  # every cell a piece reaches
             index = np.clip(np.searchsorted(edges, along, side="right") - 1, 0, CURVATURE_CELLS - 1)
             for i, k in zip(index, kappa):
                 if abs(k) > abs(cells[i]):
@@ -323,7 +334,9 @@ class RoadFrame:
         [m] (a lane that ends, or leads only off the route, is left out), and the curvature of largest magnitude over
         [s - behind, s + curvature_preview] (signed; the plan's bound at every node); ``per_node``: over [s - behind, s], and
         the curvature ahead in the cells that start within ``curvature_preview`` (:meth:`curvature_cells`; zero in
-        the others, and none at all where it is straight)."""
+        the others, and none at all where it is straight). The curvature's origin is the ``d`` of the line of the
+        sharpest curve within the preview (every cell's, with ``per_node``: exact while the route's pieces share
+        their reference lines, as a racetrack's do)."""
         ego = self.ego_band(s)
         k_lo, k_hi = 0, ego.num_lanes - 1
         for piece in self.pieces:
@@ -342,10 +355,13 @@ class RoadFrame:
         if per_node:
             ahead = self.curvature_cells(s, behind)
             ahead[CURVATURE_CELL * np.arange(CURVATURE_CELLS) > curvature_preview] = 0.0
+        curvature, origin = self.sharpest_curve(s - behind, s + curvature_preview)
+        if per_node:
+            curvature = self.curvature_between(s - behind, s)
         return Road(num_lanes=k_hi - k_lo + 1, lane_width=ego.lane_width,
-                    first_lane_center=ego.first_center + k_lo * ego.lane_width,
-                    curvature=self.curvature_between(s - behind, s if per_node else s + curvature_preview),
-                    curvature_ahead=tuple(ahead) if ahead.any() else ())  # a straight road's, exactly
+                    first_lane_center=ego.first_center + k_lo * ego.lane_width, curvature=curvature,
+                    curvature_ahead=tuple(ahead) if ahead.any() else (),  # a straight road's, exactly
+                    curvature_origin=origin)
 
     # ------------------------------------------------------------------ frame -> world
     def to_world(self, s: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, ...]:
