@@ -1,17 +1,18 @@
 """How hard the controller's car turns on upstream's curved envs, in the world: at each policy step its speed v [m/s]
 and the lane it is on (the simulator's nearest), ``v^2 / R`` [m/s^2] on a circular lane (0 elsewhere), against the
-planner's centripetal bound. The planner bounds speeds along its frame's reference line, which are the car's only on
-that line, so off it on the outside of a curve the car turns harder than the bound:
+planner's centripetal bound (which holds the car's own lateral acceleration at every offset from the frame's
+reference line), and the same for highway-env's IDM in the ego's place (``--planners idm``), which bounds no turn:
 
-    python benchmarks/studies/curve_lateral_acceleration.py --out OUT.json [--envs racetrack-v0 ...] [--episodes 5] [--duration 20]
+    python benchmarks/studies/curve_lateral_acceleration.py --out OUT.json [--envs racetrack-v0 ...] [--planners bilevel idm] [--episodes 5] [--duration 20]
 
-One JSON file: per env and seed the steps, the largest ``v^2 / R``, the steps above the bound and the largest speed
-over the lane's speed limit; written after every episode (a rerun redoes them all).
+One JSON file: per env, planner and seed the steps, the largest ``v^2 / R``, the steps above the bound and the
+largest speed over the lane's speed limit; written after every episode (a rerun redoes them all).
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import sys
@@ -22,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from upstream_roads import ENVS, make_env  # noqa: E402
 
 
-def episode(env_id: str, seed: int, samples: int, duration: float) -> dict:
-    """One episode of ``duration`` [s] through ``driveopt.Controller("bilevel")``: the turn at every policy step."""
+def episode(env_id: str, seed: int, samples: int, duration: float, planner: str = "bilevel") -> dict:
+    """One episode of ``duration`` [s] through ``driveopt.Controller(planner)``: the turn at every policy step."""
     import driveopt
     from driveopt.config import ProjectionConfig
     from highway_env.road.lane import CircularLane
@@ -31,7 +32,7 @@ def episode(env_id: str, seed: int, samples: int, duration: float) -> dict:
     env = make_env(env_id, duration)
     try:
         env.reset(seed=seed)
-        controller = driveopt.Controller("bilevel", samples=samples)
+        controller = driveopt.Controller(planner, samples=None if planner == "idm" else samples)
         controller.reset(env, seed=seed)
         sim = env.unwrapped
         turns, over_limit = [], []
@@ -44,7 +45,7 @@ def episode(env_id: str, seed: int, samples: int, duration: float) -> dict:
             if terminated or truncated or car.crashed:
                 break
         bound = ProjectionConfig().centripetal_max
-        return {"env": env_id, "seed": seed, "steps": len(turns), "bound": bound, "max_turn": max(turns),
+        return {"env": env_id, "planner": planner, "seed": seed, "steps": len(turns), "bound": bound, "max_turn": max(turns),
                 "steps_above_bound": sum(t > bound * 1.001 for t in turns), "max_over_speed_limit": max(over_limit)}
     finally:
         env.close()
@@ -57,17 +58,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--envs", nargs="+", default=["racetrack-v0", "racetrack-oval-v0", "racetrack-large-v0"],
                         choices=sorted(ENVS))
     parser.add_argument("--episodes", type=int, default=5, help="seeds 0.. of each env")
+    parser.add_argument("--planners", nargs="+", default=["bilevel"], choices=["bilevel", "idm"],
+                        help="idm: highway-env's IDM in the ego's place, which bounds no turn")
     parser.add_argument("--samples", type=int, default=250)
     parser.add_argument("--duration", type=float, default=20.0, help="[s] per episode, as the upstream table's")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.samples < 1 or not args.duration > 0:
         parser.error("--episodes and --samples must be >= 1, --duration > 0")
     records = []
-    for env_id in args.envs:
+    for env_id, planner in itertools.product(args.envs, args.planners):
         for seed in range(args.episodes):
-            records.append(episode(env_id, seed, args.samples, args.duration))
+            records.append(episode(env_id, seed, args.samples, args.duration, planner))
             r = records[-1]
-            print(f"{env_id} seed {seed}: v^2/R up to {r['max_turn']:.2f} m/s^2, {r['steps_above_bound']} of "
+            print(f"{env_id} {planner} seed {seed}: v^2/R up to {r['max_turn']:.2f} m/s^2, {r['steps_above_bound']} of "
                   f"{r['steps']} steps above {r['bound']:g}, up to {r['max_over_speed_limit']:+.2f} m/s over the limit",
                   flush=True)
             args.out.write_text(json.dumps({"command": " ".join(sys.argv), "episodes": records}, indent=1))

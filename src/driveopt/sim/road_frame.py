@@ -74,6 +74,7 @@ CORNER_ANGLE = math.radians(10.0)  # [rad] where the route turns more than this 
 CORNER_LENGTH = 16.0  # [m] ... over this long on the entry's or exit's side (all but _MIN_PIECE of a shorter lane) ...
 RING_REACH = 4.0  # [m] ... and this far into the ring
 _MIN_PIECE = 1.0  # [m] a corner leaves at least this much of the piece it reaches into
+MIN_REFERENCE_RADIUS = 5.0  # [m] an arc is measured along its circle through the ego's lane only where that is wider
 
 
 class RoadFrameError(DriveoptError):
@@ -321,6 +322,55 @@ class RoadFrame:
         padded = np.pad(cells, 1, mode="edge")
         candidates = np.stack([cells, padded[:-2], padded[2:]])  # the sharpest of each cell and its two neighbours
         return candidates[np.argmax(np.abs(candidates), axis=0), np.arange(CURVATURE_CELLS)]
+
+    # ------------------------------------------------------------------ measured along the ego's lane
+    def along(self, d_ref: float) -> "RoadFrame":
+        """The same frame (every world point keeps its ``d``) with each circular piece measured along its concentric
+        circle at ``d = d_ref`` [m] (the centre of the ego's lane) instead of its road's lowest lane, and ``s``
+        continued through the pieces as before. A plan that keeps that lane then moves along ``s`` at the car's own
+        speed on straights and arcs alike; measured along the lowest lane, its rate jumped where a straight met an
+        arc (by 1.5x five lanes' widths outside a 20 m arc: upstream's racetrack-oval-v0), which no smooth plan
+        follows: the plans braked before each curve and after it. Pieces along sine lanes and corner pieces are left
+        as they are, and so is an arc whose circle at ``d_ref`` is tighter than :data:`MIN_REFERENCE_RADIUS`."""
+        pieces: list[Piece] = []
+        scales: list[float] = []
+        for k, piece in enumerate(self.pieces):
+            lane, scale = piece.lane, 1.0
+            if _is_circular(lane):
+                radius = lane.radius - lane.direction * (d_ref - piece.d_shift)
+                if radius >= MIN_REFERENCE_RADIUS and radius != lane.radius:
+                    scale = radius / lane.radius
+                    lane = _lane_types().CircularLane(
+                        lane.center, radius, lane.start_phase, lane.end_phase, clockwise=lane.clockwise,
+                        width=lane.width, line_types=lane.line_types, forbidden=lane.forbidden,
+                        speed_limit=lane.speed_limit, priority=lane.priority)
+            lo = piece.lo * scale
+            if k == 0:  # the first piece starts where it did
+                s_start = piece.s_start + piece.lo - lo
+            else:  # each piece starts as far from the end of the one before as it did (a gap, or an overlap)
+                before, after = self.pieces[k - 1], pieces[-1]
+                s_start = after.s_start + after.hi + (piece.s_start + piece.lo - before.s_start - before.hi) - lo
+            pieces.append(dataclasses.replace(piece, lane=lane, s_start=s_start, lo=lo, hi=piece.hi * scale,
+                                              d_shift=piece.d_shift if lane is piece.lane else d_ref,
+                                              lo_margin=piece.lo_margin * scale))
+            scales.append(scale)
+
+        def moved(s: float) -> float:
+            """s in this frame -> s in the new one (a corner piece's bands are its neighbours', so bands move with
+            the piece their s lies on, not with the piece that lists them)."""
+            for old, new, scale in zip(self.pieces, pieces, scales):
+                if old.s_start + old.lo - 1e-9 <= s <= old.s_start + old.hi + 1e-9:
+                    return new.s_start + scale * (s - old.s_start)
+            ends = [(old.s_start + old.hi, new.s_start + new.hi) for old, new in zip(self.pieces, pieces)
+                    if old.s_start + old.hi < s]  # in a gap, or beyond the ends: shifted with the piece before
+            if ends:
+                return ends[-1][1] + s - ends[-1][0]
+            first, new_first = self.pieces[0], pieces[0]
+            return new_first.s_start + new_first.lo + s - first.s_start - first.lo
+
+        for piece in pieces:
+            piece.bands = [b._replace(s_from=moved(b.s_from), s_to=moved(b.s_to)) for b in piece.bands]
+        return RoadFrame(pieces, self.ego_road, self.roads, moved(self.ego_s))
 
     # ------------------------------------------------------------------ the planner's road
     def ego_band(self, s: float) -> Band:
@@ -692,6 +742,11 @@ def ego_frame(env: Any, route: Sequence[Any] | None = None) -> tuple[RoadFrame, 
     frame = build_frame(network, road, route, ego_longitudinal=longitudinal)
     me = vehicle_motion(ego, frame, near_s=frame.ego_s)
     band = frame.ego_band(me.x) if me is not None else None
+    if band is not None:  # measured along the centre of the ego's lane (RoadFrame.along)
+        lane = min(max(round((me.y - band.first_center) / band.lane_width), 0), band.num_lanes - 1)
+        frame = frame.along(band.first_center + lane * band.lane_width)
+        me = vehicle_motion(ego, frame, near_s=frame.ego_s)
+        band = frame.ego_band(me.x) if me is not None else None
     if band is None or max(band.low - me.y, me.y - band.high) > MAX_EGO_OFFSET:
         raise RoadFrameError(f"the ego at {np.round(np.asarray(ego.position, dtype=float), 2).tolist()} is more than "
                              f"{MAX_EGO_OFFSET} m from the lanes of road {road!r} (its nearest lane "
