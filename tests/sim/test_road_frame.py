@@ -124,6 +124,34 @@ def test_a_plan_along_the_arc_turns_back_into_the_lanes_world_motion():
         assert acceleration == pytest.approx((speed * 26.0 / 30.0) ** 2 / 26.0)
 
 
+def test_measured_along_the_ego_lane_an_arc_keeps_every_points_d_and_a_lane_keeping_plan_its_speed():
+    """The loop's frame measured along the second lane (d = 4 m): the arc is the 26 m circle's, so the straight after
+    it starts 26/30 of a quarter circle after the arc's start, every world point keeps its d, the arc's curvature is
+    1/26 1/m of the line d = 4 m, and a plan along that lane at a constant 10 m/s rate moves at 10 m/s in the world
+    on the straight, the arc and the straight after it (measured along the lowest lane the same plan would drop to
+    26/30 of that on the arc)."""
+    frame = build_frame(_loop(), ("a", "b"))
+    along = frame.along(4.0)
+    quarter = 0.5 * math.pi * 30.0
+    assert along.ego_s == frame.ego_s  # on the first straight
+    rng = np.random.default_rng(1)
+    for x, y in rng.uniform([0.0, -1.0], [79.0, 79.0], size=(40, 2)):
+        before, after = frame.locate(np.array([x, y])), along.locate(np.array([x, y]))
+        assert (before is None) == (after is None)
+        if before is not None:
+            assert after[1] == pytest.approx(before[1], abs=1e-9)
+    end = frame.locate(np.array([80.0, 70.0]))  # on the straight after the arc, 20 m along it
+    assert along.locate(np.array([80.0, 70.0]))[0] == pytest.approx(end[0] - quarter * 4.0 / 30.0, abs=1e-9)
+    assert along.curve_at(50.0 + 0.5 * quarter * 26.0 / 30.0) == (pytest.approx(1.0 / 26.0), pytest.approx(4.0))
+    t = np.linspace(0.0, 8.0, 81)
+    zeros = np.zeros_like(t)
+    s = 30.0 + 10.0 * t
+    plan = Trajectory(t=t, x=s, y=np.full_like(t, 4.0), vx=np.full_like(t, 10.0), vy=zeros, ax=zeros, ay=zeros,
+                      speed=np.full_like(t, 10.0), heading=zeros, curvature=zeros, acceleration=zeros)
+    world = to_world(plan, along)
+    assert np.allclose(np.hypot(world.vx, world.vy), 10.0)
+
+
 def test_lanes_that_are_not_parallel_are_named():
     net = RoadNetwork()
     net.add_lane("a", "b", StraightLane([0.0, 0.0], [100.0, 0.0]))
