@@ -152,6 +152,24 @@ def test_measured_along_the_ego_lane_an_arc_keeps_every_points_d_and_a_lane_keep
     assert np.allclose(np.hypot(world.vx, world.vy), 10.0)
 
 
+def test_where_a_roads_lanes_leave_a_gap_between_them_the_planner_keeps_the_egos_lane():
+    """Two 4 m lanes 4.1 m apart from 100 m on (upstream's racetrack-v0 has 8.7 cm between its ("f", "g") lanes,
+    a strip on no lane, which upstream counts as off the road): within the lane preview of it the road is the ego's
+    lane alone; before, and where the lanes are adjacent, both lanes."""
+    net = RoadNetwork()
+    for i, spacing in enumerate((4.0, 4.1)):
+        for lane in range(2):
+            start = 100.0 * i
+            net.add_lane(f"n{i}", f"n{i + 1}", StraightLane([start, spacing * lane], [start + 100.0, spacing * lane],
+                                                           width=4.0))
+    frame = build_frame(net, ("n0", "n1"))
+    assert frame.road(20.0, 30.0, 10.0, d=4.0).num_lanes == 2  # the gap is beyond the preview
+    near = frame.road(80.0, 30.0, 10.0, d=3.6)
+    assert (near.num_lanes, near.first_lane_center) == (1, 4.0)
+    assert frame.road(80.0, 30.0, 10.0, d=0.3).first_lane_center == 0.0
+    assert frame.road(80.0, 30.0, 10.0).num_lanes == 2  # without the ego's offset: the lanes as they are
+
+
 def test_lanes_that_are_not_parallel_are_named():
     net = RoadNetwork()
     net.add_lane("a", "b", StraightLane([0.0, 0.0], [100.0, 0.0]))

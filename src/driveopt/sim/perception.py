@@ -147,7 +147,7 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
             if lanes_to_change(split, me.y) > 0:
                 route_gap = preview.route_change.time_gap
     road = frame.road(me.x, lane_preview, max(preview.curvature_distance, ahead * preview.curvature_time),
-                      behind=0.5 * me.length, per_node=preview.curvature_per_node)
+                      behind=0.5 * me.length, per_node=preview.curvature_per_node, d=me.y)
     try:
         ego = EgoState(x=me.x, y=me.y, vx=me.vx, vy=me.vy, ax=me.ax, ay=me.ay, length=me.length, width=me.width,
                        yaw=me.heading)

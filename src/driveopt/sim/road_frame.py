@@ -74,6 +74,10 @@ CORNER_ANGLE = math.radians(10.0)  # [rad] where the route turns more than this 
 CORNER_LENGTH = 16.0  # [m] ... over this long on the entry's or exit's side (all but _MIN_PIECE of a shorter lane) ...
 RING_REACH = 4.0  # [m] ... and this far into the ring
 _MIN_PIECE = 1.0  # [m] a corner leaves at least this much of the piece it reaches into
+# [m] a road whose adjacent lanes are spaced wider than their width by more than this leaves a strip between them on
+# no lane, which upstream counts as off the road (racetrack-v0's road ("f", "g"): 8.7 cm; a car changing lanes there
+# was caught in it and the episode ended): the planner keeps the ego's lane while such a road is within its preview
+LANE_GAP = 0.01
 MIN_REFERENCE_RADIUS = 5.0  # [m] an arc is measured along its circle through the ego's lane only where that is wider
 
 
@@ -142,6 +146,7 @@ class Band(NamedTuple):
     first_center: float  # [m] d of its lowest lane's centre line
     num_lanes: int
     lane_width: float  # [m]
+    lane_gap: float = 0.0  # [m] the widest gap between two of its adjacent lanes (spaced wider than they are wide)
 
     @property
     def low(self) -> float:
@@ -379,9 +384,10 @@ class RoadFrame:
         return min(bands, key=lambda b: max(b.s_from - s, s - b.s_to, 0.0))
 
     def road(self, s: float, lane_preview: float, curvature_preview: float, behind: float = 0.0,
-             per_node: bool = False) -> Road:
+             per_node: bool = False, d: float | None = None) -> Road:
         """The planner's :class:`Road` at ``s`` [m]: the ego road's lanes that continue over the next ``lane_preview``
-        [m] (a lane that ends, or leads only off the route, is left out), and the curvature of largest magnitude over
+        [m] (a lane that ends, or leads only off the route, is left out; only the lane nearest ``d`` [m], the ego's,
+        where a road within the preview has a gap between its lanes: :data:`LANE_GAP`), and the curvature of largest magnitude over
         [s - behind, s + curvature_preview] (signed; the plan's bound at every node); ``per_node``: over [s - behind, s], and
         the curvature ahead in the cells that start within ``curvature_preview`` (:meth:`curvature_cells`; zero in
         the others, and none at all where it is straight). The curvature's origin is the ``d`` of the line of the
@@ -389,10 +395,12 @@ class RoadFrame:
         their reference lines, as a racetrack's do)."""
         ego = self.ego_band(s)
         k_lo, k_hi = 0, ego.num_lanes - 1
+        gapped = ego.lane_gap > LANE_GAP
         for piece in self.pieces:
             for band in piece.bands:
                 if band is ego or band.s_to < s or band.s_from > s + lane_preview:
                     continue
+                gapped = gapped or band.lane_gap > LANE_GAP
                 tol = 0.5 * abs(band.lane_width - ego.lane_width) + 0.5
                 inside = [k for k in range(ego.num_lanes)
                           if band.first_center - tol <= ego.first_center + k * ego.lane_width
@@ -401,6 +409,8 @@ class RoadFrame:
                     k_lo, k_hi = max(k_lo, inside[0]), min(k_hi, inside[-1])
         if k_hi < k_lo:
             k_lo, k_hi = 0, ego.num_lanes - 1
+        if gapped and d is not None:
+            k_lo = k_hi = int(np.clip(round((d - ego.first_center) / ego.lane_width), k_lo, k_hi))
         ahead = np.zeros(0)
         if per_node:
             ahead = self.curvature_cells(s, behind)
@@ -430,7 +440,8 @@ class RoadFrame:
 def _bands_of(network: Any, piece: Piece, road: tuple[str, str], s_from: float, s_to: float) -> Band:
     ref, offsets, width = _road_lanes(network, road)
     lateral = piece.lane.local_coordinates(lane_start(ref))[1] if ref is not piece.lane else 0.0
-    return Band(road, s_from, s_to, piece.d_shift + lateral, len(offsets), width)
+    gap = max(np.diff(offsets).max() - width, 0.0) if len(offsets) > 1 else 0.0
+    return Band(road, s_from, s_to, piece.d_shift + lateral, len(offsets), width, float(gap))
 
 
 def _origin(lane: Any) -> tuple[float, float]:
