@@ -41,7 +41,6 @@ per sample give each sample its own y-axis inverse (B small matrices inverted on
 from __future__ import annotations
 
 import enum
-import functools
 from typing import NamedTuple
 
 import jax
@@ -968,8 +967,7 @@ def _accelerated(state: _State, solve, analyse, measure, penalise, target_s, cfg
 
     fit_weights = jnp.concatenate([jnp.full((2 * n,), ANDERSON_MULTIPLIER_WEIGHT, dtype), jnp.ones((2 * n,), dtype)])
 
-    def step(s: _AcceleratedState, slot=None) -> _AcceleratedState:
-        """One evaluation of the map; ``slot``: the memory slot it writes (``s.iteration % window`` when None)."""
+    def step(s: _AcceleratedState) -> _AcceleratedState:
         coeffs = solve(target_s + s.lam + s.pull)
         pull, d_obs, d_acc, residuals = analyse(coeffs, s.d_obs, s.d_acc, with_residuals=window > 0,
                                                 aggregate_obstacles=True)
@@ -986,7 +984,7 @@ def _accelerated(state: _State, solve, analyse, measure, penalise, target_s, cfg
 
         memory = s.memory
         if window > 0:
-            memory = anderson.remember(memory, s.iteration % window if slot is None else slot, accept & (s.iteration > 0), accept,
+            memory = anderson.remember(memory, s.iteration % window, accept & (s.iteration > 0), accept,
                                        residual - s.residual, image - s.image)
         image, residual = pick(image, s.image, 0), pick(residual, s.residual, 0)
         change = jnp.sqrt(jnp.sum((coeffs - s.coeffs) ** 2, axis=(0, 2)))
@@ -1008,23 +1006,10 @@ def _accelerated(state: _State, solve, analyse, measure, penalise, target_s, cfg
         state.lam, state.pull, state.d_obs, state.d_acc, jnp.zeros((B,), bool), jnp.zeros((B, dim), dtype),
         jnp.zeros((B, dim), dtype), jnp.full((B,), jnp.inf, dtype), anderson.empty(window, B, dim, dtype), state.coeffs,
         state.lam, state.iteration, state.error)
-    def running(s: _AcceleratedState):
-        return (s.iteration < cfg.max_iterations) & (s.error > cfg.tolerance)
-
-    def window_of_steps(s: _AcceleratedState) -> _AcceleratedState:
-        """``window`` iterations, each while the loop's condition holds: the memory slot of each is known when
-        compiling (the iterations count from 0), so it is written by a static update; a slot chosen at run time (a
-        dynamic update of the (window, B, 4n) memory) cost about 1 ms of a 250-row projection's 7.5 on the CPU."""
-        for slot in range(window):
-            s = jax.lax.cond(running(s), functools.partial(step, slot=slot), lambda s: s, s)
-        return s
-
     if unroll:
         final, _ = jax.lax.scan(lambda s, _: (step(s), None), start, None, length=cfg.max_iterations)
-    elif window > 0:
-        final = jax.lax.while_loop(running, window_of_steps, start)
     else:
-        final = jax.lax.while_loop(running, step, start)
+        final = jax.lax.while_loop(lambda s: (s.iteration < cfg.max_iterations) & (s.error > cfg.tolerance), step, start)
     residuals = measure(final.coeffs, final.d_obs)
     status = jnp.where(final.error <= cfg.tolerance, ProjectionStatus.CONVERGED, ProjectionStatus.MAX_ITERATIONS)
     return ProjectionResult(_flat(final.coeffs), _flat(final.multipliers), residuals, final.iteration, status, final.error)

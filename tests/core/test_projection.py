@@ -284,10 +284,9 @@ def test_unrolled_equals_early_stopping_loop(dense_batch, course_max, rtol, atol
     np.testing.assert_allclose(loop.coeffs, scan.coeffs, rtol=rtol, atol=atol)
 
 
-def test_anderson_loop_a_window_at_a_time_equals_the_unrolled_one(dense_batch):
-    """The early-stopping loop runs Anderson's iterations a window at a time, each writing a memory slot fixed when
-    compiling; the unrolled loop writes slot ``iteration % window`` chosen at run time: the same iterations, also
-    when the count is not a multiple of the window (10 of 3: the last window's last two steps are skipped)."""
+def test_anderson_early_stopping_loop_equals_the_unrolled_one(dense_batch):
+    """Anderson's memory written slot by slot in the early-stopping loop and in the unrolled one: the same
+    iterations, also when the count is not a multiple of the window (10 of 3)."""
     problem, target, b_x, b_y = dense_batch
     cfg = ProjectionConfig(max_iterations=10, tolerance=0.0, anderson_window=3)
     loop = jax.jit(lambda t: project(MODEL, problem, t, b_x, b_y, cfg))(target)
