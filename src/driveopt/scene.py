@@ -44,9 +44,9 @@ RANGES = {
 MAX_LANES = 64  # [-] lanes of a road
 CURVATURE_CELL = 2.5  # [m] length of a cell of Road.curvature_ahead
 CURVATURE_CELLS = 80  # [-] cells of Road.curvature_ahead: 200 m, what 40 m/s covers in a 5 s horizon
-# [-] the least (1 - k y) taken for a car at offset y [m] beside a reference line of curvature k [1/m], whose speed is
-# (1 - k y) times its rate along the line: near a curve's centre the true factor would free a plan's rate without
-# bound, so the bound on the car's speed is kept from below there (conservative)
+# [-] the least (1 - k (y - y0)) taken for a car at y [m] beside a line at y0 of curvature k [1/m], whose speed is that
+# factor times its rate along the line: near a curve's centre the true factor would free a plan's rate without bound,
+# so the bound on the car's speed is kept from below there (conservative)
 PATH_SCALE_MIN = 0.5
 
 
