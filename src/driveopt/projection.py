@@ -150,6 +150,8 @@ class _Operators(NamedTuple):
     course: jnp.ndarray  # (2, P) cosine and sine of the course-angle bound at each velocity row (:func:`course_bounds`)
     curve_recovery: jnp.ndarray  # (2, P) weight of the curve's speed and [m/s] share of the current speed in the speed
     # bound of each velocity row (:func:`curve_speed_recovery`)
+    acceleration_recovery: jnp.ndarray  # (2, P) weight of a_max and [m/s^2] share of the current acceleration in the
+    # bound of each acceleration row (:func:`acceleration_recovery`)
     direction: jnp.ndarray  # () [-] the ego's direction of travel along x: 1 forwards, -1 reversing
     obstacle_floor: jnp.ndarray  # (N, K) lowest ellipse ratio allowed per obstacle and node (:func:`obstacle_floor`)
     inverse_axes: jnp.ndarray  # (2, N, K) [1/m] 1 / the ellipses' longitudinal and lateral semi-axes per node
@@ -239,6 +241,16 @@ def curve_speed_recovery(t, problem: PlanningProblem, cfg: ProjectionConfig) -> 
     every curve's speed (and on a straight road, where ``v_c`` is unbounded) the bound is ``v_c`` exactly."""
     weight = recovery_weight(t, cfg)
     return jnp.stack([1.0 - weight, weight * jnp.hypot(problem.init_x[1], problem.init_y[1])])
+
+
+def acceleration_recovery(t, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
+    """(2, len(t)) ``(1 - w, w |a0|)`` at the times ``t`` [s] (``w``: :func:`recovery_weight`, ``|a0|`` [m/s^2] the
+    current acceleration's magnitude): with ``cfg.acceleration_recovery`` an acceleration row's bound is
+    ``max(a_max, (1 - w) a_max + w |a0|)``. Every plan starts at the car's acceleration; braking at the car's limit on a
+    bend puts it above ``a_max`` (capped at the same limit in closed loop), and without the recovery every plan's first
+    rows are infeasible until the car has slowed: upstream's lane-keeping-v0 braked from 17.9 to 4.5 m/s so."""
+    weight = recovery_weight(t, cfg)
+    return jnp.stack([1.0 - weight, weight * jnp.hypot(problem.init_x[2], problem.init_y[2])])
 
 
 def obstacle_floor(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
@@ -352,9 +364,9 @@ def _shift_left(a):
 
 
 def _derivative_operators(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig, where: str) -> dict:
-    """The fields ``forward``, ``back``, ``free_nodes``, ``course`` and ``curve_recovery`` of :class:`_Operators` with the velocity and
-    acceleration rows at the K nodes (``where`` "nodes"), or at the control points of the velocity and of the
-    acceleration on ``cfg.derivative_pieces`` pieces of the horizon (``where`` "control_points",
+    """The fields ``forward``, ``back``, ``free_nodes``, ``course``, ``curve_recovery`` and ``acceleration_recovery`` of
+    :class:`_Operators` with the velocity and acceleration rows at the K nodes (``where`` "nodes"), or at the control
+    points of the velocity and of the acceleration on ``cfg.derivative_pieces`` pieces of the horizon (``where`` "control_points",
     :func:`~driveopt.basis.derivative_control_points`). A control point stands for the time of its abscissa (the course
     bound is taken there); the first is the value at t = 0, fixed where node 0's is."""
     W = jnp.asarray(model.W)
@@ -375,7 +387,8 @@ def _derivative_operators(model: TrajectoryModel, problem: PlanningProblem, cfg:
     free = (free[0], free_v, free_a)
     return dict(forward=jnp.concatenate([W, Wd, Wdd]).T,
                 back=jnp.concatenate([a * f[:, None] for a, f in zip((W, Wd, Wdd), free)]), free_nodes=free,
-                course=jnp.stack([jnp.cos(course), jnp.sin(course)]), curve_recovery=curve_speed_recovery(t, problem, cfg))
+                course=jnp.stack([jnp.cos(course), jnp.sin(course)]), curve_recovery=curve_speed_recovery(t, problem, cfg),
+                acceleration_recovery=acceleration_recovery(t, problem, cfg))
 
 
 def obstacle_row_nodes(t, cfg: ProjectionConfig) -> np.ndarray:
@@ -713,6 +726,8 @@ def _analysis_step(
     d_vel = jnp.minimum(jnp.maximum(along, v_lo), v_hi)
     vel_x, vel_y = _pair(d_vel * dir_x, d_vel * dir_y, one)
     a_hi = jnp.full_like(acc, cfg.a_max)
+    if cfg.acceleration_recovery and cfg.recovery_time > 0:  # a car beyond the bound comes back within it in time
+        a_hi = jnp.maximum(a_hi, ops.acceleration_recovery[0] * cfg.a_max + ops.acceleration_recovery[1])
     if cfg.kappa_max > 0:
         inv_sin = _fast_rsqrt(jnp.maximum(sin_va, _EPS))
         a_hi = jnp.where(turning, jnp.minimum(a_hi, cfg.kappa_max * (vel_x * vel_x + vel_y * vel_y) * inv_sin * inv_sin), a_hi)

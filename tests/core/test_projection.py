@@ -793,6 +793,24 @@ def test_the_centripetal_bound_holds_the_cars_own_lateral_acceleration_beside_th
         assert 0.9 < inner.max() < 1.0 * 1.1
 
 
+@pytest.mark.parametrize("where", ["nodes", "control_points"])
+def test_with_acceleration_recovery_a_car_braking_beyond_the_bound_plans_its_way_back_within_it(where):
+    """Braking at 5.8 m/s^2 with a 5 m/s^2 bound (the closed loop caps the bound at the car's limit, and a plan starts
+    at the car's acceleration): every plan's first rows exceed the bound, the projection cannot remove that, and the
+    plan stays infeasible; with ``acceleration_recovery`` the bound starts at 5.8 and narrows to 5 by the recovery
+    time, so the plan is feasible and within 5 m/s^2 from then on. Off, it is the plain bound."""
+    scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=15.0, ax=-5.8), road=Road(num_lanes=4))
+    problem, target, b_x, b_y = setup(scene, [[10.0] * 4 + [4.0] * 4])
+    cfg = dataclasses.replace(LOOSE, a_max=5.0, recovery_time=3.0, derivative_bounds=where)
+    stuck = project(MODEL, problem, target, b_x, b_y, cfg)
+    assert float(stuck.residuals.acceleration[0]) > 0.5
+    out = project(MODEL, problem, target, b_x, b_y, dataclasses.replace(cfg, acceleration_recovery=True))
+    assert float(out.residuals.acceleration[0]) < 0.05
+    acceleration = np.hypot(np.asarray(evaluate(MODEL, out.coeffs).ax)[0], np.asarray(evaluate(MODEL, out.coeffs).ay)[0])
+    assert acceleration[np.asarray(MODEL.t) >= cfg.recovery_time].max() < 5.0 * 1.01
+    check_boundary(problem, out.coeffs)
+
+
 def test_road_curvature_at_reads_the_cell_of_each_position():
     cells = jnp.arange(CURVATURE_CELLS, dtype=jnp.float32) * 1e-3
     x = jnp.array([-3.0, 0.0, CURVATURE_CELL * 0.99, CURVATURE_CELL * 1.01, CURVATURE_CELL * 10.5, 1e4])
