@@ -390,10 +390,10 @@ class RoadFrame:
              per_node: bool = False, d: float | None = None) -> Road:
         """The planner's :class:`Road` at ``s`` [m]: the ego road's lanes that continue over the next ``lane_preview``
         [m] (a lane that ends, or leads only off the route, is left out; only the lane nearest ``d`` [m], the ego's,
-        where a road within the preview has a gap between its lanes: :data:`LANE_GAP`), and the curvature of largest magnitude over
-        [s - behind, s + curvature_preview] (signed; the plan's bound at every node); ``per_node``: over [s - behind, s], and
-        the curvature ahead in the cells that start within ``curvature_preview`` (:meth:`curvature_cells`; zero in
-        the others, and none at all where it is straight). The curvature's origin is the ``d`` of the line of the
+        where a road within the preview has a gap between its lanes: :data:`LANE_GAP`), and the curvature of largest
+        magnitude over [s - behind, s + curvature_preview] (signed; the plan's bound at every node); ``per_node``: over
+        [s - behind, s], and the curvature ahead in the cells that start within ``curvature_preview``
+        (:meth:`curvature_cells`; zero in the others, and none at all where it is straight). The curvature's origin is the ``d`` of the line of the
         sharpest curve within the preview (every cell's, with ``per_node``: exact while the route's pieces share
         their reference lines, as a racetrack's do)."""
         ego = self.ego_band(s)
