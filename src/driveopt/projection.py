@@ -149,9 +149,9 @@ class _Operators(NamedTuple):
     lane_bounds: jnp.ndarray  # (2, K) upper-row and lower-row bounds e of the row at each node (node 0: unused); (2, B, K) per sample
     course: jnp.ndarray  # (2, P) cosine and sine of the course-angle bound at each velocity row (:func:`course_bounds`)
     curve_recovery: jnp.ndarray  # (2, P) weight of the curve's speed and [m/s] share of the current speed in the speed
-    # bound of each velocity row (:func:`curve_speed_recovery`)
+    # bound of each velocity row (:func:`recovery_from`)
     acceleration_recovery: jnp.ndarray  # (2, P) weight of a_max and [m/s^2] share of the current acceleration in the
-    # bound of each acceleration row (:func:`acceleration_recovery`)
+    # bound of each acceleration row (:func:`recovery_from`)
     direction: jnp.ndarray  # () [-] the ego's direction of travel along x: 1 forwards, -1 reversing
     obstacle_floor: jnp.ndarray  # (N, K) lowest ellipse ratio allowed per obstacle and node (:func:`obstacle_floor`)
     inverse_axes: jnp.ndarray  # (2, N, K) [1/m] 1 / the ellipses' longitudinal and lateral semi-axes per node
@@ -231,26 +231,21 @@ def course_bounds(model: TrajectoryModel, problem: PlanningProblem, cfg: Project
     return cfg.course_max + excess * recovery_weight(t, cfg)
 
 
-def curve_speed_recovery(t, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
-    """(2, len(t)) ``(1 - w, w v0)`` at the times ``t`` [s], with ``w`` falling linearly from 1 at t = 0 to 0 at
-    ``recovery_time`` and ``v0`` [m/s] the current speed: a velocity row's bound from the centripetal bound is
-    ``max(v_c, (1 - w) v_c + w v0)`` for a curve's speed ``v_c``. A car already faster than that (a curve has come
-    into the preview, or grown sharper) is bounded from its current speed down to the curve's by ``recovery_time``,
-    as the lane and course bounds recover; without it no plan is feasible from the first row, and the fallback's
-    braking took upstream's racetrack 1.7 m/s below the curve's speed at every sharper curve. Where ``v0`` is below
-    every curve's speed (and on a straight road, where ``v_c`` is unbounded) the bound is ``v_c`` exactly."""
-    weight = recovery_weight(t, cfg)
-    return jnp.stack([1.0 - weight, weight * jnp.hypot(problem.init_x[1], problem.init_y[1])])
+def recovery_from(t, current, cfg: ProjectionConfig) -> jnp.ndarray:
+    """(2, len(t)) ``(1 - w, w current)`` at the times ``t`` [s], ``w`` (:func:`recovery_weight`) falling from 1 at t = 0
+    to 0 at ``recovery_time``: a row's bound ``b`` becomes ``max(b, (1 - w) b + w current)``, so a car already beyond
+    the bound is held to it from its ``current`` value down to the bound by ``recovery_time``, as the lane, course and
+    obstacle bounds recover. Where ``current`` is within the bound the bound is ``b`` exactly.
 
-
-def acceleration_recovery(t, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
-    """(2, len(t)) ``(1 - w, w |a0|)`` at the times ``t`` [s] (``w``: :func:`recovery_weight`, ``|a0|`` [m/s^2] the
-    current acceleration's magnitude): with ``cfg.acceleration_recovery`` an acceleration row's bound is
-    ``max(a_max, (1 - w) a_max + w |a0|)``. Every plan starts at the car's acceleration; braking at the car's limit on a
-    bend puts it above ``a_max`` (capped at the same limit in closed loop), and without the recovery every plan's first
-    rows are infeasible until the car has slowed: upstream's lane-keeping-v0 braked from 17.9 to 4.5 m/s so."""
+    Used for the speed bound from the centripetal bound (``current``: the car's speed [m/s]): a car faster than a
+    curve's speed (a curve has come into the preview, or grown sharper) otherwise finds no plan feasible from the first
+    row, and the fallback's braking took upstream's racetrack 1.7 m/s below the curve's speed at every sharper curve.
+    And, with ``cfg.acceleration_recovery``, for the acceleration bound (``current``: the car's acceleration's
+    magnitude [m/s^2]): every plan starts at the car's acceleration, braking at the car's limit on a bend puts it above
+    ``a_max`` (capped at the same limit in closed loop), and without it every plan's first rows were infeasible until
+    the car had slowed (upstream's lane-keeping-v0: from 17.9 to 4.5 m/s)."""
     weight = recovery_weight(t, cfg)
-    return jnp.stack([1.0 - weight, weight * jnp.hypot(problem.init_x[2], problem.init_y[2])])
+    return jnp.stack([1.0 - weight, weight * current])
 
 
 def obstacle_floor(model: TrajectoryModel, problem: PlanningProblem, cfg: ProjectionConfig) -> jnp.ndarray:
@@ -387,8 +382,9 @@ def _derivative_operators(model: TrajectoryModel, problem: PlanningProblem, cfg:
     free = (free[0], free_v, free_a)
     return dict(forward=jnp.concatenate([W, Wd, Wdd]).T,
                 back=jnp.concatenate([a * f[:, None] for a, f in zip((W, Wd, Wdd), free)]), free_nodes=free,
-                course=jnp.stack([jnp.cos(course), jnp.sin(course)]), curve_recovery=curve_speed_recovery(t, problem, cfg),
-                acceleration_recovery=acceleration_recovery(t, problem, cfg))
+                course=jnp.stack([jnp.cos(course), jnp.sin(course)]),
+                curve_recovery=recovery_from(t, jnp.hypot(problem.init_x[1], problem.init_y[1]), cfg),
+                acceleration_recovery=recovery_from(t, jnp.hypot(problem.init_x[2], problem.init_y[2]), cfg))
 
 
 def obstacle_row_nodes(t, cfg: ProjectionConfig) -> np.ndarray:
@@ -705,7 +701,7 @@ def _analysis_step(
     road_k = road_curvature_at(problem.road_curvature, x_rows)
     path_scale = jnp.maximum(1.0 - road_k * (y_rows - problem.road_origin), PATH_SCALE_MIN)
     v_curve = cfg.centripetal_max ** 0.5 * _fast_rsqrt(jnp.maximum(uvx * uvx * jnp.abs(road_k) * path_scale, _EPS))
-    if cfg.recovery_time > 0:  # a car faster than a curve's speed comes down to it (curve_speed_recovery)
+    if cfg.recovery_time > 0:  # a car faster than a curve's speed comes down to it (recovery_from)
         v_curve = jnp.maximum(v_curve, ops.curve_recovery[0] * v_curve + ops.curve_recovery[1])
     v_hi = jnp.minimum(cfg.v_max, v_curve)
     # Course bound: a velocity turned further from the direction of travel (s = +-1 along x) than the bound goes to

@@ -261,10 +261,6 @@ class RoadFrame:
             return first, first.lo
         return last, last.hi
 
-    def curvature_at(self, s: float) -> float:
-        """[1/m] signed curvature of the reference line at ``s``."""
-        return self.curve_at(s)[0]
-
     def curve_at(self, s: float) -> tuple[float, float]:
         """([1/m] signed curvature of the reference line at ``s``, [m] the ``d`` of the piece's line it is of)."""
         piece, longitudinal = self.piece_at(s)
