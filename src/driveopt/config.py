@@ -123,7 +123,7 @@ class ProjectionConfig:
     # ``course_max``, must be back within them by then (0: never relaxed)
     acceleration_recovery: bool = False  # the acceleration bound, too, starts at the car's acceleration where that is
     # above it and narrows to ``a_max`` by ``recovery_time``: after braking at the car's limit on a bend every plan starts
-    # above the bound (docs/controller.md); off until checked in closed loop on every road
+    # above the bound (docs/controller.md); on in the registered ``bilevel`` (``driveopt.registry.REALTIME_PROJECTION``)
     course_max: float = 0.35  # [rad] bound on the angle between the velocity and the direction of travel along the road (0: no
     # bound, P1)
     course_min_speed: float = 1.0  # [m/s] the course bound applies where the speed exceeds this (below it a stopping

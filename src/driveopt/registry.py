@@ -58,10 +58,12 @@ def _row(name: str, family: str, description: str, build: Callable[[str, str], "
 REALTIME_SAMPLES = 150  # [-] bilevel's samples per sampler iteration: its planning time in closed loop on the 2-core CPU
 # machine (dense four-lane traffic, one process) was 60 ms median, 77 ms p95 at 150 samples, within the 0.1 s control
 # period, and 107 / 129 ms at 250, with the 20-iteration projection (docs/results/speed.md); P1's batch of 1000 is `--samples 1000`.
-REALTIME_PROJECTION = {"max_iterations": 12, "anderson_window": 4, "derivative_bounds": "control_points"}  # bilevel's
-# projection: 12 iterations [-] accelerated over a window of 4 [-], the speed and acceleration bounds at the control
-# points of 4 pieces (projection.derivative_pieces); 1.9x fewer operations than 20 plain iterations at 250 x 5, 23-37 %
-# less time per call, and in closed loop as safe and as quick (docs/results/speed.md#the-real-time-projection)
+REALTIME_PROJECTION = {"max_iterations": 12, "anderson_window": 4, "derivative_bounds": "control_points",
+                       "acceleration_recovery": True}  # bilevel's projection: 12 iterations [-] accelerated over a
+# window of 4 [-], the speed and acceleration bounds at the control points of 4 pieces (projection.derivative_pieces);
+# 1.9x fewer operations than 20 plain iterations at 250 x 5, 23-37 % less time per call, and in closed loop as safe and
+# as quick (docs/results/speed.md#the-real-time-projection); the acceleration bound recovers from a car braking beyond
+# it on a bend as the other bounds do (docs/controller.md)
 
 
 # The factories: each imports what its spec needs when it is built.
