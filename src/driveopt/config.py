@@ -112,9 +112,10 @@ class ProjectionConfig:
     v_max: float = 30.0  # [m/s] speed upper bound
     a_max: float = 18.0  # [m/s^2] acceleration-magnitude bound (the closed loop caps it at what the car can do)
     kappa_max: float = 0.23  # [1/m] path-curvature bound, not applied below 1 m/s (0 disables it)
-    centripetal_max: float = 6.0  # [m/s^2] bound on the lateral acceleration the road's curvature k gives the car,
-    # x'^2 |k| (1 - k (y - y0)) at y beside the line y0 it is the curvature of: a curve's speed (at 4 upstream's
-    # racetrack was driven 16 % below IDM's speed and roundabout-v0's exit never reached in 11 s: docs/controller.md)
+    centripetal_max: float = 7.0  # [m/s^2] bound on the lateral acceleration the road's curvature k gives the car,
+    # x'^2 |k| (1 - k (y - y0)) at y beside the line y0 it is the curvature of: a curve's speed (upstream's IDM turns
+    # at up to 6.67 on its racetrack; at 6 roundabout-v0's exit was reached in 13 of 20 episodes within its 11 s, at 7
+    # in 17: docs/controller.md)
     barrier: bool = False  # P2's discrete-time barrier forms for obstacles and lanes
     gamma_obs: float = 1.0  # [-] in (0, 1]: obstacle barrier parameter with ``barrier`` (1: the plain bound d >= 1; P2 trains
     # with 0.98); a safety filter's per-sample values replace it

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from driveopt.config import ProjectionConfig
 from driveopt.sim.route_goal import RouteChange
 
 from benchmarks.studies import upstream_roads
@@ -116,7 +117,7 @@ def test_the_curve_turn_study_records_each_step_of_a_racetrack_episode_and_refus
     out = tmp_path / "turns.json"
     assert study.main(["--out", str(out), "--envs", "racetrack-v0", "--episodes", "1", "--duration", "0.4"]) == 0
     (record,) = json.loads(out.read_text())["episodes"]
-    assert record["env"] == "racetrack-v0" and record["steps"] == 2 and record["bound"] == 6.0
+    assert record["env"] == "racetrack-v0" and record["steps"] == 2 and record["bound"] == ProjectionConfig.centripetal_max
     assert record["max_turn"] >= 0.0 and 0 <= record["steps_above_bound"] <= 2
     with pytest.raises(SystemExit):
         study.main(["--out", str(out), "--duration", "0"])

@@ -240,6 +240,12 @@ def test_a_plan_with_runtime_fields_is_the_plan_compiled_with_them_and_shares_on
         got, expected = np.asarray(got), np.asarray(expected)
         if np.issubdtype(expected.dtype, np.floating):
             np.testing.assert_allclose(got, expected, rtol=0, atol=_rounding(expected), err_msg=jax.tree_util.keystr(path))
+        elif path[-1].name == "elite_index":  # rows ranked equal to float32 rounding may come in either order
+            snapshot = getattr(result, path[0].name)
+            rank = np.asarray(snapshot.cost) + np.asarray(snapshot.residual)
+            swapped = got != expected
+            assert sorted(got) == sorted(expected)
+            np.testing.assert_allclose(rank[got[swapped]], rank[expected[swapped]], rtol=0, atol=_rounding(rank[expected]))
         else:
             np.testing.assert_array_equal(got, expected, err_msg=jax.tree_util.keystr(path))
 

@@ -49,6 +49,7 @@ from driveopt.observation import ObservationError
 from driveopt.scene import CURVATURE_CELL, PATH_SCALE_MIN, EgoState, EllipseMargin, Neighbour, ProblemError, Scene
 from driveopt.sim.control import EgoKinematics
 from driveopt.sim.crossing import crossing_neighbour, lane_leaving_neighbour, may_cross
+from driveopt.sim.lane_graph import route_roads
 from driveopt.sim.road_frame import Motion, RoadFrame, ego_frame, vehicle_motion, wrap_angle
 from driveopt.sim.route_goal import RouteChange, find_split, lanes_to_change, missed, split_goal
 
@@ -71,10 +72,14 @@ class RoadPreview:
     route_change: RouteChange = RouteChange()  # the pace of a route's lane change before a split
     crossing_horizon: float = 15.0  # [s] crossing traffic is predicted along its lanes this far ahead
     crossing_step: float = 0.5  # [s] ... at poses this far apart
+    dead_end_time: float = 8.0  # [s] a dead end (the route's last road, no road after it) within this time at the
+    # current speed stands as a wall across its lanes, beyond the plan's horizon
+    dead_end_distance: float = 30.0  # [m] ... or within this distance, whichever is further
 
     def __post_init__(self) -> None:
         for name in ("lateral_acceleration", "deceleration", "lane_time", "lane_distance", "curvature_time",
-                     "curvature_distance", "speed_distance", "crossing_horizon", "crossing_step"):
+                     "curvature_distance", "speed_distance", "crossing_horizon", "crossing_step", "dead_end_time",
+                     "dead_end_distance"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= float(value) < 1e4:
                 raise ValueError(f"RoadPreview.{name} must be a number in [0, 10000), got {value!r}")
@@ -123,6 +128,27 @@ def curve_speed(frame: RoadFrame, s: float, d: float, v_des: float, preview: Roa
     return rate
 
 
+DEAD_END_WALL = 1.0  # [m] length of each lane's standing box just beyond a dead end
+
+
+def dead_end_walls(frame: RoadFrame, s: float, speed: float, preview: RoadPreview,
+                   destination: tuple[str, str] | None) -> list[Neighbour]:
+    """A standing box across each lane of a dead end (:attr:`RoadFrame.dead_end`) on the route's ``destination`` road
+    or past it, within the preview's reach of ``s`` [m] at ``speed`` [m/s], its rear on the road's end, so that every
+    plan stops on the road: the task ends at the destination and nothing leads on. Without them the frame runs on past
+    the end, and a car that had reached its destination drove off the end of the map (upstream's roundabout-generic-v0
+    exit road, within the 17 s episode), which upstream counts as off the road. Without a destination the road is
+    taken to go on as the env has it: upstream's merge-v0 ends its episode 10 m before its road ends, and a wall at
+    every dead end slowed the car there from 20.55 to 18.71 m/s (docs/controller.md)."""
+    band = frame.dead_end
+    if (band is None or destination not in frame.roads
+            or frame.roads.index(band.road) < frame.roads.index(destination)
+            or not s - DEAD_END_WALL < band.s_to <= s + max(preview.dead_end_distance, speed * preview.dead_end_time)):
+        return []
+    return [Neighbour(x=band.s_to + 0.5 * DEAD_END_WALL, y=band.first_center + k * band.lane_width, length=DEAD_END_WALL,
+                      width=band.lane_width, yaw=0.0) for k in range(band.num_lanes)]
+
+
 def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
           ) -> tuple[Scene, Motion, RoadFrame, Goal | None]:
     """(scene, the ego's motion, the frame, the route's goal or None) of the current simulator state; ``task``: its
@@ -169,6 +195,7 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
             neighbours.append(
                 Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width, yaw=m.heading, accel=accel)
             )
+        neighbours += dead_end_walls(frame, me.x, ahead, preview, (route_roads(route) or (None,))[-1])
         if period is None:
             period = 1.0 / float(sim.config.get("policy_frequency", math.inf))
         v_des = curve_speed(frame, me.x, me.y, float(task.v_des), preview, period)

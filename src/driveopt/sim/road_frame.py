@@ -221,11 +221,19 @@ class RoadFrame:
     """The Frenet frame of the ego's route at one moment (see the module docstring)."""
 
     def __init__(self, pieces: list[Piece], ego_road: tuple[str, str], roads: tuple[tuple[str, str], ...],
-                 ego_s: float) -> None:
+                 ego_s: float, dead_end: tuple[str, str] | None = None) -> None:
         self.pieces = pieces
         self.ego_road = ego_road
         self.roads = roads  # every road the frame follows, in order
         self.ego_s = ego_s  # [m] about where the ego is (tells the passes of a loop apart)
+        self.dead_end_road = dead_end  # the frame's last road when no road continues it (its lanes end there)
+
+    @property
+    def dead_end(self) -> Band | None:
+        """The band of the frame's last road where that road is a dead end (no road continues it: the car must stop
+        before ``s_to``); None where the road goes on (a loop, or beyond the frame's reach)."""
+        bands = [b for p in self.pieces for b in p.bands if b.road == self.dead_end_road]
+        return max(bands, key=lambda b: b.s_to) if bands else None
 
     # ------------------------------------------------------------------ world -> frame
     def locate(self, position: np.ndarray, near_s: float | None = None) -> tuple[float, float, Piece, float, float] | None:
@@ -374,7 +382,7 @@ class RoadFrame:
 
         for piece in pieces:
             piece.bands = [b._replace(s_from=moved(b.s_from), s_to=moved(b.s_to)) for b in piece.bands]
-        return RoadFrame(pieces, self.ego_road, self.roads, moved(self.ego_s))
+        return RoadFrame(pieces, self.ego_road, self.roads, moved(self.ego_s), self.dead_end_road)
 
     # ------------------------------------------------------------------ the planner's road
     def ego_band(self, s: float) -> Band:
@@ -489,6 +497,7 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
 
     # Forwards. A road the route enters part-way along (lane-keeping-v0's sine road) starts on the frame there.
     road, road_ref, left = ego_road, ref, ahead - (float(ref.length) - ego_longitudinal)
+    dead_end = None
     for _ in range(_MAX_PIECES):
         following = next_road(network, road, planned)
         last = pieces[-1]
@@ -503,6 +512,7 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
                                      "followed in a Frenet frame along the route; driveopt drives roads whose lanes "
                                      "continue one another (straight, curved, merging, oncoming)")
             last.open_hi = last.straight
+            dead_end = road
             break
         if left <= 0.0:
             break
@@ -592,7 +602,7 @@ def build_frame(network: Any, ego_road: tuple[str, str], route: Sequence[Any] | 
     else:
         pieces[0].open_lo = pieces[0].straight
 
-    return RoadFrame(_corners(_merge_arcs(pieces)), ego_road, tuple(roads), s0 + ego_longitudinal)
+    return RoadFrame(_corners(_merge_arcs(pieces)), ego_road, tuple(roads), s0 + ego_longitudinal, dead_end)
 
 
 def _continues(piece: Piece, nxt: Piece) -> bool:
