@@ -72,8 +72,8 @@ class RoadPreview:
     route_change: RouteChange = RouteChange()  # the pace of a route's lane change before a split
     crossing_horizon: float = 15.0  # [s] crossing traffic is predicted along its lanes this far ahead
     crossing_step: float = 0.5  # [s] ... at poses this far apart
-    dead_end_time: float = 8.0  # [s] a dead end (the route's last road, no road after it) within this time at the
-    # current speed stands as a wall across its lanes, beyond the plan's horizon
+    dead_end_time: float = 8.0  # [s] a dead end (a road with no road after it) on the route's destination road or
+    # past it, within this time at the current speed, stands as a wall across its lanes (:func:`dead_end_walls`)
     dead_end_distance: float = 30.0  # [m] ... or within this distance, whichever is further
 
     def __post_init__(self) -> None:
