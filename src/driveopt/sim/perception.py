@@ -195,7 +195,8 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
             neighbours.append(
                 Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width, yaw=m.heading, accel=accel)
             )
-        neighbours += dead_end_walls(frame, me.x, ahead, preview, (route_roads(route) or (None,))[-1])
+        planned = route_roads(route)
+        neighbours += dead_end_walls(frame, me.x, ahead, preview, planned[-1] if planned else None)
         if period is None:
             period = 1.0 / float(sim.config.get("policy_frequency", math.inf))
         v_des = curve_speed(frame, me.x, me.y, float(task.v_des), preview, period)

@@ -397,9 +397,9 @@ class RoadFrame:
         where a road within the preview has a gap between its lanes: :data:`LANE_GAP`), and the curvature of largest
         magnitude over [s - behind, s + curvature_preview] (signed; the plan's bound at every node); ``per_node``: over
         [s - behind, s], and the curvature ahead in the cells that start within ``curvature_preview``
-        (:meth:`curvature_cells`; zero in the others, and none at all where it is straight). The curvature's origin is the ``d`` of the line of the
-        sharpest curve within the preview (every cell's, with ``per_node``: exact while the route's pieces share
-        their reference lines, as a racetrack's do)."""
+        (:meth:`curvature_cells`; zero in the others, and none at all where it is straight). The curvature's origin is
+        the ``d`` of the line of the sharpest curve within the preview (every cell's, with ``per_node``: exact while
+        the route's pieces share their reference lines, as a racetrack's do)."""
         ego = self.ego_band(s)
         k_lo, k_hi = 0, ego.num_lanes - 1
         gapped = ego.lane_gap > LANE_GAP
