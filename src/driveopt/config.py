@@ -198,7 +198,7 @@ class ProjectionConfig:
 
 @dataclass(frozen=True)
 class CostConfig:
-    """Weights of the upper-level driving cost terms (each term is a mean over the nodes)."""
+    """Weights of the upper-level driving cost terms (each a mean over the nodes) and the nodes' weights."""
 
     speed: float = 1.0  # [1/(m/s)^2] weight of (|v| - v_des)^2
     lateral_acceleration: float = 0.2  # [1/(m/s^2)^2] weight of y''^2
@@ -209,6 +209,10 @@ class CostConfig:
     route: float = 10.0  # [1/lane] weight of the lane changes still between y(t)'s lane and the band a route's split draws
     # it towards (PlanningProblem.pull_band; the term is 0 without one), counted from the nearest lane, so a plan stuck
     # between two lanes gains nothing over the nearer one
+    time_constant: float = 0.0  # [s] every term weighs the node at time t by exp(-t / this) (weighted means; 0: every
+    # node alike, P1). A plan is made again long before its end, so what it gives up later costs less than the same
+    # given up now: a plan closing on a slower car far ahead keeps its speed and slows when near, where plain means
+    # have it slow a little from the start (the least squared shortfall spreads a deficit of distance evenly)
 
     def __post_init__(self) -> None:
         check_types(self, "cost")

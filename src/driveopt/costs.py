@@ -25,8 +25,19 @@ def outside_band(band: jnp.ndarray, y: jnp.ndarray) -> jnp.ndarray:
     return jnp.maximum(band[0] - y, 0.0) + jnp.maximum(y - band[1], 0.0)
 
 
-def cost_terms(traj: Trajectory, problem: PlanningProblem, previous_y: jnp.ndarray | None = None) -> dict[str, jnp.ndarray]:
-    """Unweighted cost terms, each (...,): means over the nodes.
+def time_weighted_mean(values: jnp.ndarray, t: jnp.ndarray, time_constant: float) -> jnp.ndarray:
+    """(...,) mean of ``values`` (..., K) over the nodes at times ``t`` [s], node t weighed exp(-t / time_constant)
+    [s]; 0: the plain mean."""
+    if time_constant == 0.0:
+        return jnp.mean(values, axis=-1)
+    weights = jnp.exp(-(t - t[..., :1]) / time_constant)
+    return jnp.sum(weights * values, axis=-1) / jnp.sum(weights, axis=-1)
+
+
+def cost_terms(traj: Trajectory, problem: PlanningProblem, previous_y: jnp.ndarray | None = None,
+               time_constant: float = 0.0) -> dict[str, jnp.ndarray]:
+    """Unweighted cost terms, each (...,): means over the nodes, node t weighed exp(-t / ``time_constant``) [s]
+    (:attr:`CostConfig.time_constant`; 0: the plain mean).
 
     previous_y: (K,) or per row (..., K) [m] lateral positions of the previous replan's plan at these nodes' times; the
     ``consistency`` term is zero without it.
@@ -34,17 +45,22 @@ def cost_terms(traj: Trajectory, problem: PlanningProblem, previous_y: jnp.ndarr
     lane_offset = traj.y - nearest_lane_center(problem, traj.y)
     # Curvature is only meaningful when moving; cap its influence at crawling speeds.
     curvature = jnp.clip(traj.curvature, -1.0, 1.0)
-    return {
-        "speed": jnp.mean((traj.speed - problem.v_des) ** 2, axis=-1),
-        "lateral_acceleration": jnp.mean(traj.ay**2, axis=-1),
-        "heading": jnp.mean(traj.heading**2, axis=-1),
-        "curvature": jnp.mean(curvature**2, axis=-1),
-        "lane_centering": jnp.mean(lane_offset**2, axis=-1),
-        "consistency": jnp.zeros(traj.y.shape[:-1]) if previous_y is None else jnp.mean((traj.y - previous_y) ** 2, axis=-1),
+    per_node = {
+        "speed": (traj.speed - problem.v_des) ** 2,
+        "lateral_acceleration": traj.ay**2,
+        "heading": traj.heading**2,
+        "curvature": curvature**2,
+        "lane_centering": lane_offset**2,
         # in whole lanes (the nearest lane's): a plan part way to the next lane gains nothing from it, so it costs more
         # than one centred in either
-        "route": jnp.mean(jnp.round(outside_band(problem.pull_band, traj.y) / problem.lane_width), axis=-1),
+        "route": jnp.round(outside_band(problem.pull_band, traj.y) / problem.lane_width),
     }
+    if previous_y is not None:
+        per_node["consistency"] = (traj.y - previous_y) ** 2
+    terms = {name: time_weighted_mean(value, traj.t, time_constant) for name, value in per_node.items()}
+    if previous_y is None:
+        terms["consistency"] = jnp.zeros(traj.y.shape[:-1])
+    return {name: terms[name] for name in COST_TERMS}
 
 
 def weighted_cost(terms: dict[str, jnp.ndarray], weights: CostConfig) -> jnp.ndarray:

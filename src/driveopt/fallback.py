@@ -322,7 +322,7 @@ class Fallback:
         coeffs = fit_positions(model, every.x, every.y, jnp.broadcast_to(b_x, (n, b_x.shape[-1])),
                                jnp.broadcast_to(b_y, (n, b_y.shape[-1])))
         families = jnp.stack(list(constraint_residuals(model, problem, coeffs, cfg.projection)))  # (4, stops)
-        terms = cost_terms(every, problem)
+        terms = cost_terms(every, problem, time_constant=cfg.cost.time_constant)
         cost = ranking.driving_cost(every, problem, terms, cfg.cost)
         total = jnp.sum(families, axis=0)
         feasible = total <= cfg.sampler.residual_tolerance

@@ -251,7 +251,8 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     traj = evaluate(model, proj.coeffs)
     # without a previous plan every row is its own reference: consistency exactly 0 (selecting the reference, not the
     # term, leaves the arithmetic of a present plan's term as it was)
-    terms = cost_terms(traj, problem, lateral if previous is None else jnp.where(previous.present, lateral, traj.y))
+    terms = cost_terms(traj, problem, lateral if previous is None else jnp.where(previous.present, lateral, traj.y),
+                       cfg.cost.time_constant)
     cost = ranking.driving_cost(traj, problem, terms, cfg.cost)
     residual = proj.residuals.total
     score = ranking.score(cost, residual)
