@@ -40,6 +40,8 @@ def test_the_goal_exists_only_with_a_route_and_narrows_the_far_lanes_first(exit_
     assert goal.x == (475.0, 500.0) and goal.widen == pytest.approx(4.0 / 37.5)
     assert goal.speed == pytest.approx((0.0, 300.0 / (6 * 1.5)))  # 6 lanes to change in 300 m, 1.5 s each
     assert split_goal(split, 175.0, 24.0, 25.0).speed is None  # in the lane: no speed advice
+    near = split_goal(split, 460.0, 16.0, 25.0)  # 2 lanes to change in the 15 m left before the band: not below 8 m/s
+    assert near.speed == pytest.approx((0.0, RouteChange().min_speed)) and RouteChange().min_speed == 8.0
 
 
 def test_a_split_out_of_reach_is_missed_and_one_within_reach_is_not():
