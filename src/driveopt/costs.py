@@ -58,8 +58,7 @@ def cost_terms(traj: Trajectory, problem: PlanningProblem, previous_y: jnp.ndarr
     if previous_y is not None:
         per_node["consistency"] = (traj.y - previous_y) ** 2
     terms = {name: time_weighted_mean(value, traj.t, time_constant) for name, value in per_node.items()}
-    if previous_y is None:
-        terms["consistency"] = jnp.zeros(traj.y.shape[:-1])
+    terms.setdefault("consistency", jnp.zeros(traj.y.shape[:-1]))
     return {name: terms[name] for name in COST_TERMS}
 
 

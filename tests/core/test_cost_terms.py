@@ -40,4 +40,3 @@ def test_a_discounted_cost_keeps_the_speed_now_and_slows_later(small_config, slo
     first = {tau: float(np.mean(np.asarray(traj.speed)[np.asarray(traj.t) <= 3.0])) for tau, traj in plans.items()}
     assert first[0.0] < 9.6, first  # the plain mean spreads the shortfall over the horizon: it slows from the start
     assert first[3.0] > first[0.0] + 0.2, first  # discounted: it keeps more of its speed now and slows later
-
