@@ -64,9 +64,6 @@ REALTIME_PROJECTION = {"max_iterations": 12, "anderson_window": 4, "derivative_b
 # 1.9x fewer operations than 20 plain iterations at 250 x 5, 23-37 % less time per call, and in closed loop as safe and
 # as quick (docs/results/speed.md#the-real-time-projection); the acceleration bound recovers from a car braking beyond
 # it on a bend as the other bounds do (docs/controller.md)
-REALTIME_COST = {"consistency": 0.02}  # [1/m^2] bilevel's plan consistency, a fifth of the configuration's: at 0.1 the
-# pull to the previous plan kept the car behind slow traffic on curved roads (racetrack-oval-v0 9.83 m/s against IDM's
-# 9.90; 9.91 at 0.02), and on the P1 roads and highway-v0 at 0.02 it was as safe and as quick (docs/controller.md)
 
 
 # The factories: each imports what its spec needs when it is built.
@@ -113,7 +110,7 @@ def _learned_prior(kind: str, *options):
 def _bilevel(name: str, description: str):
     from driveopt.config import PlannerConfig
 
-    config = PlannerConfig().with_samples(REALTIME_SAMPLES).replace(projection=REALTIME_PROJECTION, cost=REALTIME_COST)
+    config = PlannerConfig().with_samples(REALTIME_SAMPLES).replace(projection=REALTIME_PROJECTION)
     return _optimiser(name, description, config, warm_start=True)
 
 
