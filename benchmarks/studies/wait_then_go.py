@@ -7,7 +7,7 @@ and then going, with the env's own traffic (which reacts to it as it reacts to t
 For each seed and each wait w = 0, step, 2 step, ... the episode is driven by a scripted car on the route's lanes
 (the ego's route, else the env's destination: :func:`arrival_ceiling.route_roads`): it follows the lanes by pure
 pursuit, tracked at every simulation step (:mod:`driveopt.sim.step_hook`, as the controller tracks its plans), and
-sets its speed by IDM (highway-env's gap and time headway, ``--acceleration`` [m/s^2] at most, braking at most 5
+sets its speed by IDM (highway-env's: centre-to-centre distance, its standstill distance and time headway, ``--acceleration`` [m/s^2] at most, braking at most 5
 m/s^2) towards the lanes' speed limit lowered where a curve within 15 m needs it (``--lateral`` [m/s^2], the planner's
 centripetal bound), behind the nearest car ahead on its lanes heading along them or just ahead of it heading its
 way, and, until w seconds have
@@ -143,13 +143,14 @@ class WaitThenGo:
             across = -relative[0] * math.sin(ego.heading) + relative[1] * math.cos(ego.heading)
             same_way = abs(math.atan2(math.sin(float(other.heading) - ego.heading), math.cos(float(other.heading) - ego.heading)))
             if so > s and lateral < ON_PATH and abs(turn) < math.pi / 4:  # ahead on the path
-                gaps.append((so - s - 0.5 * (self.length + float(other.LENGTH)), float(other.speed)))
+                gaps.append((so - s, float(other.speed)))
             elif 0.0 < along < LEADER_REACH and abs(across) < ON_PATH and same_way < math.pi / 4:  # ahead of the car
-                gaps.append((along - 0.5 * (self.length + float(other.LENGTH)), float(other.speed)))
-        if self.clock() < self.wait and s < path.wait_s - 0.5 * self.length:
-            gaps.append((path.wait_s - 0.5 * self.length - s, 0.0))
+                gaps.append((along, float(other.speed)))
+        line = path.wait_s - 0.5 * self.length  # [m] where the car's centre stands with its front at the entry
+        if self.clock() < self.wait and s < line:  # a standing car whose centre lies IDM's standstill distance beyond
+            gaps.append((line - s + self.gap0, 0.0))
         acceleration = self.a_max * (1.0 - (speed / max(v0, 0.1)) ** 4)
-        if gaps:
+        if gaps:  # (centre-to-centre distance [m], the car's speed [m/s]), as highway-env's IDM measures it
             gap, other_speed = min(gaps)
             wanted = self.gap0 + speed * self.headway + speed * (speed - other_speed) / (2.0 * math.sqrt(self.a_max * 3.0))
             acceleration -= self.a_max * (max(wanted, 0.0) / max(gap, 0.1)) ** 2
