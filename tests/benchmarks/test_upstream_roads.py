@@ -119,6 +119,8 @@ def test_the_curve_turn_study_records_each_step_of_a_racetrack_episode_and_refus
     (record,) = json.loads(out.read_text())["episodes"]
     assert record["env"] == "racetrack-v0" and record["steps"] == 2 and record["bound"] == ProjectionConfig.centripetal_max
     assert record["max_turn"] >= 0.0 and 0 <= record["steps_above_bound"] <= 2
+    assert 0 <= record["steps_over_speed_limit"] <= 2
+    assert (record["steps_over_speed_limit"] > 0) == (record["max_over_speed_limit"] > study.OVER_LIMIT)
     with pytest.raises(SystemExit):
         study.main(["--out", str(out), "--duration", "0"])
 
