@@ -48,7 +48,7 @@ ON_PATH = 2.0  # [m] a car within this lateral distance of the path, heading alo
 MAX_BRAKING = 5.0  # [m/s^2] highway-env's ContinuousAction range
 
 
-class Path_(object):
+class RoutePath:
     """The route's lanes as a polyline: positions (P, 2) [m], headings (P,) [rad], arc lengths (P,) [m], curvature
     (P,) [1/m], speed limits (P,) [m/s]; the wait line's arc length [m]."""
 
@@ -104,7 +104,7 @@ class Path_(object):
 class WaitThenGo:
     """The scripted car's command at each simulation step (a step hook, and the env's action at each policy step)."""
 
-    def __init__(self, sim, path: Path_, wait: float, acceleration: float, lateral: float) -> None:
+    def __init__(self, sim, path: RoutePath, wait: float, acceleration: float, lateral: float) -> None:
         from highway_env.vehicle.behavior import IDMVehicle
 
         self.sim, self.path, self.wait, self.a_max, self.lateral = sim, path, wait, acceleration, lateral
@@ -182,7 +182,7 @@ def drive(env, seed: int, wait: float, acceleration: float, lateral: float, traf
         restore_traffic_constants(traffic)
     env.reset(seed=seed)
     sim = env.unwrapped
-    path = Path_(sim)
+    path = RoutePath(sim)
     driver = WaitThenGo(sim, path, wait, acceleration, lateral)
     step_hook.install(sim.vehicle, driver)
     roads = [list(road) for road in path.roads]

@@ -21,7 +21,7 @@ def _empty_intersection(seed: int = 0):
 
 def _drive(env, wait: float, seconds: int) -> tuple[wait_then_go.WaitThenGo, list[float], bool]:
     sim = env.unwrapped
-    driver = wait_then_go.WaitThenGo(sim, wait_then_go.Path_(sim), wait, 4.5, 7.0)
+    driver = wait_then_go.WaitThenGo(sim, wait_then_go.RoutePath(sim), wait, 4.5, 7.0)
     step_hook.install(sim.vehicle, driver)
     offsets, on_road = [], True
     for _ in range(seconds):
