@@ -15,7 +15,8 @@ passed, behind a standing car at the junction's entry: the start of the first ro
 also join (intersection-v0: the junction's inner lane; roundabout-v0: the entry lane onto the ring). Cars crossing
 its lanes are not looked at: a wait either clears them or the episode collides. An episode counts as finishable when
 some wait arrives as the upstream table counts arrivals (``upstream_roads.arrived``) with no collision; the earliest
-such wait is reported. This bounds what a planner that waits once at the entry can reach with these envs' traffic: not
+such wait is reported. With ``--inside F`` the car stops a second time, F along the route's road through the
+junction, until a second wait w2 >= w (every pair on the grid). This bounds what a planner that waits once at the entry can reach with these envs' traffic: not
 a bound on every driver (one that waits inside the junction as well, or creeps, may do better), but one measured
 with the traffic's own reactions rather than predicted.
 """
@@ -93,6 +94,7 @@ class RoutePath:
                 incoming[end] = incoming.get(end, 0) + 1
         first_joined = next((k for k, road in enumerate(self.roads) if incoming.get(road[1], 0) > 1), 0)
         self.wait_s = starts[first_joined]  # [m] the junction's entry along the path
+        self.junction_length = float(lanes[first_joined][1].length)  # [m] the route's road through the junction
 
     def locate(self, position: np.ndarray) -> tuple[float, float, float]:
         """(arc length [m], lateral distance [m], path heading [rad]) of the path's sample nearest ``position``."""
@@ -104,10 +106,12 @@ class RoutePath:
 class WaitThenGo:
     """The scripted car's command at each simulation step (a step hook, and the env's action at each policy step)."""
 
-    def __init__(self, sim, path: RoutePath, wait: float, acceleration: float, lateral: float) -> None:
+    def __init__(self, sim, path: RoutePath, wait: float, acceleration: float, lateral: float,
+                 inside: tuple[float, float] | None = None) -> None:
         from highway_env.vehicle.behavior import IDMVehicle
 
         self.sim, self.path, self.wait, self.a_max, self.lateral = sim, path, wait, acceleration, lateral
+        self.inside = inside  # (arc length [m], wait [s]) of a second stop, inside the junction, or None
         self.gap0, self.headway = IDMVehicle.DISTANCE_WANTED, IDMVehicle.TIME_WANTED
         self.length = float(sim.vehicle.LENGTH)
 
@@ -146,9 +150,14 @@ class WaitThenGo:
                 gaps.append((so - s, float(other.speed)))
             elif 0.0 < along < LEADER_REACH and abs(across) < ON_PATH and same_way < math.pi / 4:  # ahead of the car
                 gaps.append((along, float(other.speed)))
-        line = path.wait_s - 0.5 * self.length  # [m] where the car's centre stands with its front at the entry
-        if self.clock() < self.wait and s < line:  # a standing car whose centre lies IDM's standstill distance beyond
-            gaps.append((line - s + self.gap0, 0.0))
+        stops = [(path.wait_s - 0.5 * self.length, self.wait)]  # [m] where the car's centre stands, its front at the
+        # entry, until [s]; then where it stands inside the junction
+        if self.inside is not None:
+            stops.append((self.inside[0] - 0.5 * self.length, self.inside[1]))
+        for line, until in stops:  # a standing car whose centre lies IDM's standstill distance beyond
+            if self.clock() < until and s < line:
+                gaps.append((line - s + self.gap0, 0.0))
+                break
         acceleration = self.a_max * (1.0 - (speed / max(v0, 0.1)) ** 4)
         if gaps:  # (centre-to-centre distance [m], the car's speed [m/s]), as highway-env's IDM measures it
             gap, other_speed = min(gaps)
@@ -172,9 +181,12 @@ class WaitThenGo:
                          2.0 * (np.clip(steering, low_s, high_s) - low_s) / (high_s - low_s) - 1.0], dtype=np.float32)
 
 
-def drive(env, seed: int, wait: float, acceleration: float, lateral: float, traffic=None) -> dict:
-    """One episode of ``env`` at ``seed`` driven by :class:`WaitThenGo` waiting ``wait`` [s], with upstream's traffic
-    constants ``traffic`` restored first (``driveopt.sim.traffic``; intersection-v0 changes them for the process)."""
+def drive(env, seed: int, wait: float, acceleration: float, lateral: float, traffic=None,
+          inside: tuple[float, float] | None = None) -> dict:
+    """One episode of ``env`` at ``seed`` driven by :class:`WaitThenGo` waiting ``wait`` [s] at the entry and, with
+    ``inside`` = (fraction, wait [s]), again that fraction along the route's road through the junction, with
+    upstream's traffic constants ``traffic`` restored first (``driveopt.sim.traffic``; intersection-v0 changes them for
+    the process)."""
     from driveopt.sim import step_hook
     from driveopt.sim.traffic import restore_traffic_constants
 
@@ -183,7 +195,8 @@ def drive(env, seed: int, wait: float, acceleration: float, lateral: float, traf
     env.reset(seed=seed)
     sim = env.unwrapped
     path = RoutePath(sim)
-    driver = WaitThenGo(sim, path, wait, acceleration, lateral)
+    stop = None if inside is None else (path.wait_s + inside[0] * path.junction_length, inside[1])
+    driver = WaitThenGo(sim, path, wait, acceleration, lateral, stop)
     step_hook.install(sim.vehicle, driver)
     roads = [list(road) for road in path.roads]
     reached = collided = False
@@ -195,7 +208,8 @@ def drive(env, seed: int, wait: float, acceleration: float, lateral: float, traf
         if terminated or truncated or collided:
             break
     arrival = bool(arrived(sim, roads, info, reached)) and not collided
-    return {"wait": wait, "arrived": arrival, "collided": collided, "time": driver.clock()}
+    return {"wait": wait, **({} if inside is None else {"inside_wait": inside[1]}), "arrived": arrival,
+            "collided": collided, "time": driver.clock()}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -206,9 +220,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--waits-step", type=float, default=0.25, help="[s] between the waits tried")
     parser.add_argument("--acceleration", type=float, default=4.5, help="[m/s^2] at most (the planner's a_max)")
     parser.add_argument("--lateral", type=float, default=7.0, help="[m/s^2] centripetal bound (the planner's)")
+    parser.add_argument("--inside", type=float, default=None, metavar="FRACTION",
+                        help="also stop this fraction along the route's road through the junction (0-1), for every "
+                             "wait there from the entry's wait on")
     args = parser.parse_args(argv)
     if args.episodes < 1 or not args.waits_step > 0 or not args.acceleration > 0 or not args.lateral > 0:
         parser.error("--episodes, --waits-step, --acceleration and --lateral must be positive")
+    if args.inside is not None and not 0.0 < args.inside < 1.0:
+        parser.error("--inside must be a fraction in (0, 1)")
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     from driveopt.cli import stop_cleanly_on_signals
     from driveopt.files import write_json
@@ -228,9 +247,11 @@ def main(argv: list[str] | None = None) -> int:
         for seed in range(args.episodes):
             start = time.perf_counter()
             tried, earliest = 0, None
-            for wait in waits:
+            plans = [(w, None) for w in waits] if args.inside is None else \
+                [(w, (args.inside, float(w2))) for w in waits for w2 in waits if w2 >= w]
+            for wait, inside in plans:
                 tried += 1
-                episode = drive(env, seed, float(wait), args.acceleration, args.lateral, traffic)
+                episode = drive(env, seed, float(wait), args.acceleration, args.lateral, traffic, inside)
                 if episode["arrived"]:
                     earliest = episode
                     break
@@ -240,9 +261,10 @@ def main(argv: list[str] | None = None) -> int:
             results[env_id] = {"duration_s": duration, "episodes": episodes,
                                "finishable": sum(e["finishable"] for e in episodes)}
             write_json(args.out, {"command": command, "acceleration": args.acceleration, "lateral": args.lateral,
-                                  "waits_step": args.waits_step, "results": results})
+                                  "waits_step": args.waits_step, "inside": args.inside, "results": results})
         env.close()
-        print(f"{env_id}: {results[env_id]['finishable']} of {len(episodes)} finishable by waiting once", flush=True)
+        print(f"{env_id}: {results[env_id]['finishable']} of {len(episodes)} finishable by waiting "
+              + ("once" if args.inside is None else "at the entry and inside"), flush=True)
     return 0
 
 

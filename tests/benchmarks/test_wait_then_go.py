@@ -59,9 +59,26 @@ def test_the_car_stands_at_the_junctions_entry_until_its_wait_has_passed():
         env.close()
 
 
-@pytest.mark.parametrize("args", [["--episodes", "0"], ["--waits-step", "0"], ["--acceleration", "-1"],
+@pytest.mark.parametrize("args", [["--episodes", "0"], ["--waits-step", "0"], ["--acceleration", "-1"], ["--inside", "1.5"],
                                   ["--envs", "highway-v0"]])
 def test_bad_arguments_are_refused(tmp_path, args):
     with pytest.raises(SystemExit) as exc:
         wait_then_go.main(["--out", str(tmp_path / "o.json"), *args])
     assert exc.value.code == 2
+
+
+def test_a_second_stop_holds_the_car_inside_the_junction_until_its_wait():
+    env = _empty_intersection()
+    try:
+        sim = env.unwrapped
+        path = wait_then_go.RoutePath(sim)
+        stop = path.wait_s + 0.5 * path.junction_length  # [m] half way through the left turn
+        driver = wait_then_go.WaitThenGo(sim, path, 0.0, 4.5, 7.0, (stop, 7.0))
+        step_hook.install(sim.vehicle, driver)
+        for _ in range(6):
+            env.step(driver.action())
+        s = path.locate(np.asarray(sim.vehicle.position, dtype=float))[0] + 0.5 * sim.vehicle.LENGTH
+        assert sim.vehicle.speed < 1.5 and stop - 3.0 < s <= stop + 0.5  # [m] its front at the stop
+        assert not sim.vehicle.crashed and sim.vehicle.on_road
+    finally:
+        env.close()
