@@ -2,23 +2,23 @@
 and then going, with the env's own traffic (which reacts to it as it reacts to the planner's car):
 
     python benchmarks/studies/wait_then_go.py --out OUT.json [--envs intersection-v0 roundabout-v0] [--episodes 20]
-        [--waits-step 0.25] [--acceleration 4.5] [--lateral 7]
+        [--waits-step 0.25] [--acceleration 4.5] [--lateral 7] [--inside FRACTION]
 
 For each seed and each wait w = 0, step, 2 step, ... the episode is driven by a scripted car on the route's lanes
-(the ego's route, else the env's destination: :func:`arrival_ceiling.route_roads`): it follows the lanes by pure
+(the ego's route, else the env's destination: :func:`arrival_ceiling.route_roads`). It follows the lanes by pure
 pursuit, tracked at every simulation step (:mod:`driveopt.sim.step_hook`, as the controller tracks its plans), and
-sets its speed by IDM (highway-env's: centre-to-centre distance, its standstill distance and time headway, ``--acceleration`` [m/s^2] at most, braking at most 5
-m/s^2) towards the lanes' speed limit lowered where a curve within 15 m needs it (``--lateral`` [m/s^2], the planner's
-centripetal bound), behind the nearest car ahead on its lanes heading along them or just ahead of it heading its
-way, and, until w seconds have
-passed, behind a standing car at the junction's entry: the start of the first road of the route whose end other roads
-also join (intersection-v0: the junction's inner lane; roundabout-v0: the entry lane onto the ring). Cars crossing
-its lanes are not looked at: a wait either clears them or the episode collides. An episode counts as finishable when
-some wait arrives as the upstream table counts arrivals (``upstream_roads.arrived``) with no collision; the earliest
-such wait is reported. With ``--inside F`` the car stops a second time, F along the route's road through the
-junction, until a second wait w2 >= w (every pair on the grid). This bounds what a planner that waits once at the entry can reach with these envs' traffic: not
-a bound on every driver (one that waits inside the junction as well, or creeps, may do better), but one measured
-with the traffic's own reactions rather than predicted.
+sets its speed by IDM (highway-env's centre-to-centre distance, standstill distance and time headway;
+``--acceleration`` [m/s^2] at most, braking at most 5 m/s^2) towards the lanes' speed limit, lowered where a curve
+within 15 m needs it (``--lateral`` [m/s^2], the planner's centripetal bound), behind the nearest car ahead on its
+lanes heading along them or just ahead of it heading its way, and, until w seconds have passed, behind a standing
+car at the junction's entry: the start of the first road of the route whose end other roads also join
+(intersection-v0: the turn through the junction; roundabout-v0: the entry lane onto the ring). Cars crossing its
+lanes are not looked at: a wait either clears them or the episode collides. With ``--inside F`` the car stops a
+second time, F along that road, until a second wait w2 >= w (every pair on the grid). An episode counts as
+finishable when some wait arrives as the upstream table counts arrivals (``upstream_roads.arrived``) with no
+collision; the earliest such wait is reported. This bounds what a driver that waits at those places can reach with
+these envs' traffic: not a bound on every driver (one that creeps, or takes closer gaps than IDM's, may do better),
+but one measured with the traffic's own reactions rather than predicted.
 """
 
 from __future__ import annotations
@@ -145,7 +145,8 @@ class WaitThenGo:
             relative = np.asarray(other.position, dtype=float) - position
             along = relative[0] * math.cos(ego.heading) + relative[1] * math.sin(ego.heading)
             across = -relative[0] * math.sin(ego.heading) + relative[1] * math.cos(ego.heading)
-            same_way = abs(math.atan2(math.sin(float(other.heading) - ego.heading), math.cos(float(other.heading) - ego.heading)))
+            same_way = abs(math.atan2(math.sin(float(other.heading) - ego.heading),
+                                      math.cos(float(other.heading) - ego.heading)))
             if so > s and lateral < ON_PATH and abs(turn) < math.pi / 4:  # ahead on the path
                 gaps.append((so - s, float(other.speed)))
             elif 0.0 < along < LEADER_REACH and abs(across) < ON_PATH and same_way < math.pi / 4:  # ahead of the car
@@ -161,7 +162,8 @@ class WaitThenGo:
         acceleration = self.a_max * (1.0 - (speed / max(v0, 0.1)) ** 4)
         if gaps:  # (centre-to-centre distance [m], the car's speed [m/s]), as highway-env's IDM measures it
             gap, other_speed = min(gaps)
-            wanted = self.gap0 + speed * self.headway + speed * (speed - other_speed) / (2.0 * math.sqrt(self.a_max * 3.0))
+            wanted = (self.gap0 + speed * self.headway
+                      + speed * (speed - other_speed) / (2.0 * math.sqrt(self.a_max * 3.0)))
             acceleration -= self.a_max * (max(wanted, 0.0) / max(gap, 0.1)) ** 2
         if speed <= 0.0 and acceleration < 0.0:
             acceleration = 0.0
@@ -255,9 +257,11 @@ def main(argv: list[str] | None = None) -> int:
                 if episode["arrived"]:
                     earliest = episode
                     break
-            episodes.append({"seed": seed, "finishable": earliest is not None, "earliest": earliest, "waits_tried": tried})
+            episodes.append({"seed": seed, "finishable": earliest is not None, "earliest": earliest,
+                             "waits_tried": tried})
             print(f"{env_id} seed {seed}: " + (f"arrives waiting {earliest['wait']:g} s (at {earliest['time']:.1f} s)"
-                  if earliest else f"no wait of {tried} arrives") + f" [{time.perf_counter() - start:.0f} s]", flush=True)
+                  if earliest else f"no wait of {tried} arrives") + f" [{time.perf_counter() - start:.0f} s]",
+                  flush=True)
             results[env_id] = {"duration_s": duration, "episodes": episodes,
                                "finishable": sum(e["finishable"] for e in episodes)}
             write_json(args.out, {"command": command, "acceleration": args.acceleration, "lateral": args.lateral,

@@ -59,7 +59,8 @@ def test_the_car_stands_at_the_junctions_entry_until_its_wait_has_passed():
         env.close()
 
 
-@pytest.mark.parametrize("args", [["--episodes", "0"], ["--waits-step", "0"], ["--acceleration", "-1"], ["--inside", "1.5"],
+@pytest.mark.parametrize("args", [["--episodes", "0"], ["--waits-step", "0"], ["--acceleration", "-1"],
+                                  ["--inside", "1.5"],
                                   ["--envs", "highway-v0"]])
 def test_bad_arguments_are_refused(tmp_path, args):
     with pytest.raises(SystemExit) as exc:
