@@ -8,8 +8,8 @@ For each seed and each wait w = 0, step, 2 step, ... the episode is driven by a 
 (the ego's route, else the env's destination: :func:`arrival_ceiling.route_roads`). It follows the lanes by pure
 pursuit, tracked at every simulation step (:mod:`driveopt.sim.step_hook`, as the controller tracks its plans), and
 sets its speed by IDM (highway-env's centre-to-centre distance, standstill distance and time headway;
-``--acceleration`` [m/s^2] at most, braking at most 5 m/s^2) towards the lanes' speed limit, lowered where a curve
-within 15 m needs it (``--lateral`` [m/s^2], the planner's centripetal bound), behind the nearest car ahead on its
+``--acceleration`` [m/s^2] at most, braking at most as ContinuousAction allows, 5 m/s^2) towards the lanes' speed
+limit, lowered where a curve within 15 m needs it (``--lateral`` [m/s^2], the planner's centripetal bound), behind the nearest car ahead on its
 lanes heading along them or just ahead of it heading its way, and, until w seconds have passed, behind a standing
 car at the junction's entry: the start of the first road of the route whose end other roads also join
 (intersection-v0: the turn through the junction; roundabout-v0: the entry lane onto the ring). Cars crossing its
@@ -32,10 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
+from driveopt.sim.lane_graph import wrap_angle
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from arrival_ceiling import route_roads  # noqa: E402
-from upstream_roads import arrived, make_env  # noqa: E402
+from upstream_roads import arrived, clock, make_env  # noqa: E402
 
 JUNCTION_ENVS = ("intersection-v0", "roundabout-v0")
 STEP = 0.5  # [m] spacing of the path's samples
@@ -46,7 +48,6 @@ LEADER_REACH = 25.0  # [m] a car this close ahead of the car's own heading, with
 # is followed too (one going straight on ahead of a car turning off the same entry)
 CHORD = 5.0  # [m] the path's curvature is read over chords twice this long
 ON_PATH = 2.0  # [m] a car within this lateral distance of the path, heading along it (within 45 degrees), is ahead
-MAX_BRAKING = 5.0  # [m/s^2] highway-env's ContinuousAction range
 
 
 class RoutePath:
@@ -89,7 +90,7 @@ class RoutePath:
         self.limit = np.asarray(limits, dtype=float)
         self.roads = [road for road, _ in lanes]
         incoming: dict[str, int] = {}
-        for origin, ends in network.graph.items():
+        for ends in network.graph.values():
             for end in ends:
                 incoming[end] = incoming.get(end, 0) + 1
         first_joined = next((k for k, road in enumerate(self.roads) if incoming.get(road[1], 0) > 1), 0)
@@ -108,15 +109,13 @@ class WaitThenGo:
 
     def __init__(self, sim, path: RoutePath, wait: float, acceleration: float, lateral: float,
                  inside: tuple[float, float] | None = None) -> None:
+        from driveopt.sim.control import BicycleModel
         from highway_env.vehicle.behavior import IDMVehicle
 
         self.sim, self.path, self.wait, self.a_max, self.lateral = sim, path, wait, acceleration, lateral
         self.inside = inside  # (arc length [m], wait [s]) of a second stop, inside the junction, or None
         self.gap0, self.headway = IDMVehicle.DISTANCE_WANTED, IDMVehicle.TIME_WANTED
-        self.length = float(sim.vehicle.LENGTH)
-
-    def clock(self) -> float:
-        return self.sim.steps / self.sim.config["simulation_frequency"]
+        self.model = BicycleModel.from_env(sim)  # the car's length and ContinuousAction's ranges
 
     def command(self) -> tuple[float, float]:
         """(acceleration [m/s^2], steering angle [rad]) for the ego now."""
@@ -124,13 +123,11 @@ class WaitThenGo:
         position, speed = np.asarray(ego.position, dtype=float), float(ego.speed)
         s, _, _ = path.locate(position)
         # steering: pure pursuit of the path's point a look-ahead further on
-        target = np.interp(s + max(MIN_LOOKAHEAD, LOOKAHEAD_TIME * speed), path.s, np.arange(len(path.s)))
-        point = path.xy[min(int(round(target)), len(path.s) - 1)]
-        to_point = point - position
-        alpha = math.atan2(to_point[1], to_point[0]) - float(ego.heading)
-        alpha = math.atan2(math.sin(alpha), math.cos(alpha))
+        target = int(round((s + max(MIN_LOOKAHEAD, LOOKAHEAD_TIME * speed)) / STEP))
+        to_point = path.xy[min(target, len(path.s) - 1)] - position
+        alpha = wrap_angle(math.atan2(to_point[1], to_point[0]) - float(ego.heading))
         distance = max(float(np.linalg.norm(to_point)), 1e-3)
-        steering = math.atan(2.0 * self.length * math.sin(alpha) / distance)
+        steering = math.atan(2.0 * self.model.length * math.sin(alpha) / distance)
         # speed: IDM to the limit, lowered for the curves ahead, behind the car ahead and the wait line
         ahead = (path.s >= s) & (path.s <= s + CURVE_PREVIEW)
         kappa = float(np.max(path.curvature[ahead], initial=0.0))
@@ -141,22 +138,22 @@ class WaitThenGo:
             if other is ego:
                 continue
             so, lateral, heading = path.locate(np.asarray(other.position, dtype=float))
-            turn = math.atan2(math.sin(float(other.heading) - heading), math.cos(float(other.heading) - heading))
+            turn = abs(wrap_angle(float(other.heading) - heading))  # [rad] against the path
             relative = np.asarray(other.position, dtype=float) - position
             along = relative[0] * math.cos(ego.heading) + relative[1] * math.sin(ego.heading)
             across = -relative[0] * math.sin(ego.heading) + relative[1] * math.cos(ego.heading)
-            same_way = abs(math.atan2(math.sin(float(other.heading) - ego.heading),
-                                      math.cos(float(other.heading) - ego.heading)))
-            if so > s and lateral < ON_PATH and abs(turn) < math.pi / 4:  # ahead on the path
+            same_way = abs(wrap_angle(float(other.heading) - float(ego.heading)))  # [rad] against the car
+            if so > s and lateral < ON_PATH and turn < math.pi / 4:  # ahead on the path
                 gaps.append((so - s, float(other.speed)))
             elif 0.0 < along < LEADER_REACH and abs(across) < ON_PATH and same_way < math.pi / 4:  # ahead of the car
                 gaps.append((along, float(other.speed)))
-        stops = [(path.wait_s - 0.5 * self.length, self.wait)]  # [m] where the car's centre stands, its front at the
+        half = 0.5 * self.model.length  # [m]
+        stops = [(path.wait_s - half, self.wait)]  # [m] where the car's centre stands, its front at the
         # entry, until [s]; then where it stands inside the junction
         if self.inside is not None:
-            stops.append((self.inside[0] - 0.5 * self.length, self.inside[1]))
+            stops.append((self.inside[0] - half, self.inside[1]))
         for line, until in stops:  # a standing car whose centre lies IDM's standstill distance beyond
-            if self.clock() < until and s < line:
+            if clock(self.sim) < until and s < line:
                 gaps.append((line - s + self.gap0, 0.0))
                 break
         acceleration = self.a_max * (1.0 - (speed / max(v0, 0.1)) ** 4)
@@ -167,7 +164,7 @@ class WaitThenGo:
             acceleration -= self.a_max * (max(wanted, 0.0) / max(gap, 0.1)) ** 2
         if speed <= 0.0 and acceleration < 0.0:
             acceleration = 0.0
-        return float(np.clip(acceleration, -MAX_BRAKING, self.a_max)), steering
+        return float(np.clip(acceleration, self.model.acceleration_range[0], self.a_max)), steering
 
     def on_step(self, vehicle) -> None:
         acceleration, steering = self.command()
@@ -175,12 +172,9 @@ class WaitThenGo:
 
     def action(self) -> np.ndarray:
         """The command as the env's normalised ContinuousAction."""
-        acceleration, steering = self.command()
-        action_type = self.sim.action_type
-        low_a, high_a = action_type.acceleration_range
-        low_s, high_s = action_type.steering_range
-        return np.array([2.0 * (acceleration - low_a) / (high_a - low_a) - 1.0,
-                         2.0 * (np.clip(steering, low_s, high_s) - low_s) / (high_s - low_s) - 1.0], dtype=np.float32)
+        from driveopt.sim.control import to_action
+
+        return to_action(*self.command(), self.model)
 
 
 def drive(env, seed: int, wait: float, acceleration: float, lateral: float, traffic=None,
@@ -211,7 +205,7 @@ def drive(env, seed: int, wait: float, acceleration: float, lateral: float, traf
             break
     arrival = bool(arrived(sim, roads, info, reached)) and not collided
     return {"wait": wait, **({} if inside is None else {"inside_wait": inside[1]}), "arrived": arrival,
-            "collided": collided, "time": driver.clock()}
+            "collided": collided, "time": clock(sim)}
 
 
 def main(argv: list[str] | None = None) -> int:
