@@ -9,12 +9,12 @@ For each seed and each wait w = 0, step, 2 step, ... the episode is driven by a 
 pursuit, tracked at every simulation step (:mod:`driveopt.sim.step_hook`, as the controller tracks its plans), and
 sets its speed by IDM (highway-env's centre-to-centre distance, standstill distance and time headway;
 ``--acceleration`` [m/s^2] at most, braking at most as ContinuousAction allows, 5 m/s^2) towards the lanes' speed
-limit, lowered where a curve within 15 m needs it (``--lateral`` [m/s^2], the planner's centripetal bound), behind the nearest car ahead on its
-lanes heading along them or just ahead of it heading its way, and, until w seconds have passed, behind a standing
-car at the junction's entry: the start of the first road of the route whose end other roads also join
-(intersection-v0: the turn through the junction; roundabout-v0: the entry lane onto the ring). Cars crossing its
-lanes are not looked at: a wait either clears them or the episode collides. With ``--inside F`` the car stops a
-second time, F along that road, until a second wait w2 >= w (every pair on the grid). An episode counts as
+limit, lowered where a curve within 15 m needs it (``--lateral`` [m/s^2], the planner's centripetal bound), behind
+the nearest car ahead on its lanes heading along them or just ahead of it heading its way, and, until w seconds have
+passed, behind a standing car at the junction's entry: the start of the first road of the route whose end other roads
+also join (intersection-v0: the turn through the junction; roundabout-v0: the entry lane onto the ring). Cars
+crossing its lanes are not looked at: a wait either clears them or the episode collides. With ``--inside F`` the car
+stops a second time, F along that road, until a second wait w2 >= w (every pair on the grid). An episode counts as
 finishable when some wait arrives as the upstream table counts arrivals (``upstream_roads.arrived``) with no
 collision; the earliest such wait is reported. This bounds what a driver that waits at those places can reach with
 these envs' traffic: not a bound on every driver (one that creeps, or takes closer gaps than IDM's, may do better),
