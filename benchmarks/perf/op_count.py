@@ -9,6 +9,8 @@ projection settings changed (``--set FIELD=VALUE``, repeatable; nothing is timed
 
     python benchmarks/perf/op_count.py --set derivative_bounds=control_points [--samples 250] [--json OUT]
 
+With ``--set early_iterations=K`` every sampler iteration but the last counts a run of K iterations.
+
 Counting rule (one operation = one scalar result of one primitive):
 - a matrix product (``dot_general``) counts a multiply and an add per term: 2 x (output elements) x (contracted size);
 - a reduction counts one per input element; a sort n log2 n per sorted row;
@@ -135,11 +137,15 @@ def projection_counts(samples: int, iterations: int, projection_iterations: int,
     problem = build_problem(load_scene(PROBLEM), cfg.basis)
     setpoints = jnp.concatenate([jnp.full((samples, 4), 16.0), jnp.full((samples, 4), 6.0)], axis=1)  # shapes only
     rows, coeffs, b_x, b_y = _setpoint_qp(problem, setpoints, cfg, Fallback())
-    per_run = projection_operations(problem, coeffs, b_x, b_y, cfg)
-    longer = projection_operations(problem, coeffs, b_x, b_y, cfg.replace(projection={"max_iterations": projection_iterations + 1}))
+    per_run = projection_operations(problem, coeffs, b_x, b_y, cfg.replace(projection={"early_iterations": 0}))
+    longer = projection_operations(problem, coeffs, b_x, b_y, cfg.replace(
+        projection={"max_iterations": projection_iterations + 1, "early_iterations": 0}))
+    early = cfg.projection.early_iterations  # the runs of every sampler iteration but the last, where > 0
+    per_early_run = per_run if early == 0 else projection_operations(
+        problem, coeffs, b_x, b_y, cfg.replace(projection={"max_iterations": early, "early_iterations": 0}))
     batch_rows = int(rows.shape[0])
     return {"settings": settings, "batch_rows": batch_rows, "per_run": per_run,
-            "per_call": {kind: n * iterations for kind, n in per_run.items()},
+            "per_call": {kind: n + per_early_run.get(kind, 0) * (iterations - 1) for kind, n in per_run.items()},
             # one more iteration's operations (the loop's body) over the rows; the rest of a run is its set-up (the KKT
             # inverses, the first evaluation) and the residuals of its result
             "per_row_and_iteration": {kind: (longer.get(kind, 0) - n) / batch_rows for kind, n in per_run.items()}}

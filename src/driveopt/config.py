@@ -103,6 +103,10 @@ class ProjectionConfig:
     max_iterations: int = 20  # [-] alternating-minimisation iterations; 0: no projection, every sample is ranked as drawn
     # (P2 Fig. 9's "no filter" ablation); the registered ``bilevel`` runs 12 with ``anderson_window`` 4 and
     # ``derivative_bounds`` "control_points" (``driveopt.registry.REALTIME_PROJECTION``; docs/results/speed.md)
+    early_iterations: int = 0  # [-] in [0, max_iterations]: > 0, every sampler iteration but the last projects with this
+    # many iterations and only the last with ``max_iterations`` (the earlier batches mainly steer the sampling
+    # distribution, their best rows still compete for the pick; docs/results/speed.md); 0: ``max_iterations`` in every
+    # sampler iteration
     tolerance: float = 1e-3  # [m] early stop when no coefficient of any sample moved more than this in the last iteration
     rho_obstacle: float = 1.0  # [-] penalty weight of the obstacle rows
     rho_velocity: float = 10.0  # [-] penalty weight of the velocity rows
@@ -174,6 +178,8 @@ class ProjectionConfig:
                 "projection.obstacle_stride > 1 needs projection.barrier = false and nearest_obstacles = 0 (the barrier "
                 "follows every node; the nearest obstacles are chosen per node)")
         require(0 <= self.max_iterations <= 10_000, f"projection.max_iterations must be in [0, 10000], got {self.max_iterations}")
+        require(0 <= self.early_iterations <= self.max_iterations, f"projection.early_iterations must be in [0, "
+                f"max_iterations = {self.max_iterations}], got {self.early_iterations}")
         require(self.tolerance >= 0, "projection.tolerance must be >= 0")
         for name in ("rho_obstacle", "rho_velocity", "rho_acceleration", "rho_lane"):
             value = getattr(self, name)
@@ -332,11 +338,14 @@ def obstacle_factor(obstacles: int) -> float:
 
 
 def planning_work(config: PlannerConfig, obstacles: int = REFERENCE_OBSTACLES) -> float:
-    """[sample-node-iterations] the work of one planning call: every sampler iteration projects every sample, each
-    projection iteration touching every node (an unprojected batch, max_iterations 0, still costs one pass), against
+    """[sample-node-iterations] the work of one planning call: every sampler iteration projects every sample (with
+    ``projection.early_iterations`` iterations but in the last, where that is > 0), each projection iteration touching
+    every node (an unprojected batch, max_iterations 0, still costs one pass), against
     ``obstacles`` (in units of a call against REFERENCE_OBSTACLES, :func:`obstacle_factor`)."""
-    return (float(config.sampler.num_samples) * config.sampler.num_iterations
-            * max(config.projection.max_iterations, 1) * config.basis.num_nodes * obstacle_factor(obstacles))
+    projection = config.projection
+    early = projection.early_iterations or projection.max_iterations
+    iterations = (config.sampler.num_iterations - 1) * max(early, 1) + max(projection.max_iterations, 1)
+    return float(config.sampler.num_samples) * iterations * config.basis.num_nodes * obstacle_factor(obstacles)
 
 
 def check_obstacles(obstacles: int) -> None:

@@ -204,20 +204,23 @@ def setpoint_batch(model, problem: PlanningProblem, cfg: PlannerConfig, setpoint
 
 
 def project_batch(model, problem: PlanningProblem, cfg: PlannerConfig, qp_coeffs: jnp.ndarray, b_x, b_y,
-                  safety_filter: SafetyFilter | None = None, unroll: bool = False) -> ProjectionResult:
+                  safety_filter: SafetyFilter | None = None, unroll: bool = False,
+                  iterations: jax.Array | None = None) -> ProjectionResult:
     """The projection of a batch of set-point-QP solutions (B, 2n) as the planner runs it: set up by
     ``safety_filter`` when given (FilterError for outputs of the wrong shape), as configured otherwise; with
-    ``projection.max_iterations = 0`` the batch comes back unprojected and the filter is not consulted."""
+    ``projection.max_iterations = 0`` the batch comes back unprojected and the filter is not consulted.
+    iterations: a traced count of at most ``projection.max_iterations`` (None: that many)."""
     if safety_filter is None or cfg.projection.max_iterations == 0:
-        return project(model, problem, qp_coeffs, b_x, b_y, cfg.projection, unroll=unroll)
+        return project(model, problem, qp_coeffs, b_x, b_y, cfg.projection, unroll=unroll, iterations=iterations)
     init = check_filter_init(safety_filter.initialise(problem, qp_coeffs), qp_coeffs.shape)
     return project(model, problem, qp_coeffs, b_x, b_y, cfg.projection, gamma_obs=init.gamma_obs, gamma_lane=init.gamma_lane,
-                   init_coeffs=init.coeffs, init_multipliers=init.multipliers, unroll=unroll)
+                   init_coeffs=init.coeffs, init_multipliers=init.multipliers, unroll=unroll, iterations=iterations)
 
 
 def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: PreviousPlan | None, safety_filter, unroll: bool,
-               method: Method):
-    """QP + projection + ranking for one batch of set-points (the appended rows: see the module docstring).
+               method: Method, iterations: jax.Array | None):
+    """QP + projection + ranking for one batch of set-points (the appended rows: see the module docstring), projected
+    with ``iterations`` (None: ``projection.max_iterations``).
 
     Returns (pick, snapshot, score, stats): the best row, the batch, every row's cost + residual, and
     the iteration's History entries.
@@ -244,7 +247,8 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     # Unrolled (to be differentiated) every row is projected: row sharing's loops run for a number of chunks that the
     # data decide, which reverse mode cannot differentiate; the rows' results are the same either way.
     sharing = EveryRow() if unroll else method.row_sharing
-    proj = sharing.project(lambda c, bx, by: project_batch(model, problem, cfg, c, bx, by, safety_filter, unroll),
+    proj = sharing.project(lambda c, bx, by: project_batch(model, problem, cfg, c, bx, by, safety_filter, unroll,
+                                                                 iterations),
                            qp_coeffs, b_x, b_y)
     lateral = None if previous is None else previous.lateral
 
@@ -327,27 +331,32 @@ def solve(
         warm_start = jnp.where(warm_start.present, warm_start.mean, default_mean(problem))
     proposal = prior.propose(problem, key_prior, s.num_samples, warm_start)
 
-    def iteration(setpoints):
-        return _iteration(model, problem, config, setpoints, previous, safety_filter, unroll, method)
+    def iteration(setpoints, last):
+        """Every sampler iteration but the last projects with ``projection.early_iterations`` where that is > 0."""
+        early = config.projection.early_iterations
+        iterations = None if early == 0 else jnp.where(last, config.projection.max_iterations, early)
+        return _iteration(model, problem, config, setpoints, previous, safety_filter, unroll, method, iterations)
 
     def adapt(mean, cov, snapshot, score):
         elites = snapshot.setpoints[snapshot.elite_index]
         return cem_update(mean, cov, elites, score[snapshot.elite_index], s)
 
-    best, first, score, stats = iteration(proposal.samples)
+    best, first, score, stats = iteration(proposal.samples, s.num_iterations == 1)
     mean, cov = adapt(proposal.mean, proposal.cov, first, score)
 
-    def body(carry, iteration_key):
+    def body(carry, inputs):
         mean, cov, best, _ = carry
+        iteration_key, index = inputs
         setpoints = clip_setpoints(sample_gaussian(iteration_key, mean, cov, s.num_samples), problem, config.projection.v_max)
-        cand, snapshot, score, stats = iteration(setpoints)
+        cand, snapshot, score, stats = iteration(setpoints, index == s.num_iterations - 2)
         best = _better(best, cand)
         mean, cov = adapt(mean, cov, snapshot, score)
         stats = stats._replace(best_score=best.score, best_feasible=best.feasible)
         return (mean, cov, best, snapshot), stats
 
     keys = jax.random.split(key_loop, s.num_iterations - 1)
-    (mean, cov, best, last), rest = jax.lax.scan(body, (mean, cov, best, first), keys)
+    indices = jnp.arange(s.num_iterations - 1)
+    (mean, cov, best, last), rest = jax.lax.scan(body, (mean, cov, best, first), (keys, indices))
     history = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([jnp.atleast_1d(a), b]), stats, rest)
     status = jnp.where(
         ~_all_finite(best.coeffs, best.residuals, best.terms, mean),

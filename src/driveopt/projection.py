@@ -827,6 +827,7 @@ def project(
     init_coeffs: jnp.ndarray | None = None,
     init_multipliers: jnp.ndarray | None = None,
     unroll: bool = False,
+    iterations: jax.Array | None = None,
 ) -> ProjectionResult:
     """Project the batch ``target`` (B, 2n) onto the constraint set.
 
@@ -836,6 +837,8 @@ def project(
     init_coeffs, init_multipliers: optional (B, 2n) warm start (P2 learns them); default target, 0.
     unroll: run exactly ``cfg.max_iterations`` steps with lax.scan (differentiable) instead of
     stopping early.
+    iterations: the iterations to run, a traced count of at most ``cfg.max_iterations`` (one compiled loop runs
+    different counts; unrolled, the steps past it leave the state as it is); None: ``cfg.max_iterations``.
     With ``cfg.max_iterations = 0`` the result is ``target`` itself (the initialisation is not used).
     """
     B = target.shape[0]
@@ -903,13 +906,8 @@ def project(
     state = _State(coeffs0, lam0, pull0, d_obs0, d_acc0, jnp.asarray(0), jnp.asarray(jnp.inf, target.dtype))
 
     if cfg.anderson_window > 0 or cfg.relaxation != 1.0:
-        return _accelerated(state, solve, analyse, measure, penalise, target_s, cfg, unroll)
-    if unroll:
-        state, _ = jax.lax.scan(lambda s, _: (step(s), None), state, None, length=cfg.max_iterations)
-    else:
-        state = jax.lax.while_loop(
-            lambda s: (s.iteration < cfg.max_iterations) & (s.error > cfg.tolerance), step, state
-        )
+        return _accelerated(state, solve, analyse, measure, penalise, target_s, cfg, unroll, iterations)
+    state = _loop(step, state, cfg, unroll, iterations)
     residuals = measure(state.coeffs, state.d_obs)
     status = jnp.where(state.error <= cfg.tolerance, ProjectionStatus.CONVERGED, ProjectionStatus.MAX_ITERATIONS)
     return ProjectionResult(_flat(state.coeffs), _flat(state.lam), residuals, state.iteration, status, state.error)
@@ -953,8 +951,22 @@ def _unrows(rows: jnp.ndarray, n: int) -> tuple[jnp.ndarray, jnp.ndarray]:
     return jnp.stack(parts[:2]), jnp.stack(parts[2:])
 
 
+def _loop(step, state, cfg: ProjectionConfig, unroll: bool, iterations):
+    """``state`` after ``iterations`` (None: ``cfg.max_iterations``) applications of ``step``, fewer where no coefficient
+    moves more than ``cfg.tolerance`` unless unrolled."""
+    limit = cfg.max_iterations if iterations is None else iterations
+    if not unroll:
+        return jax.lax.while_loop(lambda s: (s.iteration < limit) & (s.error > cfg.tolerance), step, state)
+    if iterations is None:
+        return jax.lax.scan(lambda s, _: (step(s), None), state, None, length=cfg.max_iterations)[0]
+
+    def masked(s, _):
+        return jax.tree_util.tree_map(lambda new, old: jnp.where(s.iteration < limit, new, old), step(s), s), None
+    return jax.lax.scan(masked, state, None, length=cfg.max_iterations)[0]
+
+
 def _accelerated(state: _State, solve, analyse, measure, penalise, target_s, cfg: ProjectionConfig,
-                 unroll: bool) -> ProjectionResult:
+                 unroll: bool, iterations) -> ProjectionResult:
     """The alternating minimisation x <- G(x) on x = (lam, pull), over-relaxed (x <- x + ``relaxation`` (G(x) - x)) and
     Anderson-accelerated (:mod:`driveopt.anderson`, window ``anderson_window``), per sample with a safeguard: an
     extrapolated point is evaluated, and kept only where the constraint residual of its trajectory (``Residuals.total``,
@@ -1017,10 +1029,7 @@ def _accelerated(state: _State, solve, analyse, measure, penalise, target_s, cfg
         state.lam, state.pull, state.d_obs, state.d_acc, jnp.zeros((B,), bool), jnp.zeros((B, dim), dtype),
         jnp.zeros((B, dim), dtype), jnp.full((B,), jnp.inf, dtype), anderson.empty(window, B, dim, dtype), state.coeffs,
         state.lam, state.iteration, state.error)
-    if unroll:
-        final, _ = jax.lax.scan(lambda s, _: (step(s), None), start, None, length=cfg.max_iterations)
-    else:
-        final = jax.lax.while_loop(lambda s: (s.iteration < cfg.max_iterations) & (s.error > cfg.tolerance), step, start)
+    final = _loop(step, start, cfg, unroll, iterations)
     residuals = measure(final.coeffs, final.d_obs)
     status = jnp.where(final.error <= cfg.tolerance, ProjectionStatus.CONVERGED, ProjectionStatus.MAX_ITERATIONS)
     return ProjectionResult(_flat(final.coeffs), _flat(final.multipliers), residuals, final.iteration, status, final.error)

@@ -295,6 +295,24 @@ def test_anderson_early_stopping_loop_equals_the_unrolled_one(dense_batch):
     np.testing.assert_allclose(loop.coeffs, scan.coeffs, rtol=1e-5, atol=1e-4)
 
 
+@pytest.mark.parametrize("unroll", [False, True], ids=["loop", "unrolled"])
+@pytest.mark.parametrize("window", [0, 4], ids=["plain", "anderson"])
+def test_a_traced_iteration_count_runs_as_many_iterations_as_that_static_count(dense_batch, unroll, window):
+    """One compiled projection of at most 12 iterations told to run 5 gives what a projection compiled for 5 gives (to
+    1e-3: a node whose velocity sits on the course bound switches branch on float-order differences between two
+    compiled loops, as in test_projection's loop against its unrolled form)."""
+    problem, target, b_x, b_y = dense_batch
+    cfg = ProjectionConfig(max_iterations=12, tolerance=0.0, anderson_window=window)
+    traced = jax.jit(lambda t, k: project(MODEL, problem, t, b_x, b_y, cfg, unroll=unroll, iterations=k))(target, 5)
+    static = jax.jit(lambda t: project(MODEL, problem, t, b_x, b_y, dataclasses.replace(cfg, max_iterations=5),
+                                       unroll=unroll))(target)
+    full = jax.jit(lambda t: project(MODEL, problem, t, b_x, b_y, cfg, unroll=unroll))(target)
+    assert int(traced.iterations) == int(static.iterations) == 5 and int(full.iterations) == 12
+    np.testing.assert_allclose(traced.coeffs, static.coeffs, rtol=1e-3, atol=1e-2)
+    np.testing.assert_allclose(traced.residuals.total, static.residuals.total, rtol=1e-3, atol=1e-2)
+    assert not np.allclose(np.asarray(traced.coeffs), np.asarray(full.coeffs), atol=1e-1)
+
+
 def test_early_stop_on_a_feasible_batch():
     problem, target, b_x, b_y = setup(empty_scene(), [[12.0] * 4 + [4.0] * 4] * 4)
     out = project(MODEL, problem, target, b_x, b_y, ProjectionConfig(max_iterations=50, tolerance=1e-3))
