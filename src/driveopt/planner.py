@@ -247,9 +247,10 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     # Unrolled (to be differentiated) every row is projected: row sharing's loops run for a number of chunks that the
     # data decide, which reverse mode cannot differentiate; the rows' results are the same either way.
     sharing = EveryRow() if unroll else method.row_sharing
-    proj = sharing.project(lambda c, bx, by: project_batch(model, problem, cfg, c, bx, by, safety_filter, unroll,
-                                                                 iterations),
-                           qp_coeffs, b_x, b_y)
+    def project_rows(c, bx, by):
+        return project_batch(model, problem, cfg, c, bx, by, safety_filter, unroll, iterations)
+
+    proj = sharing.project(project_rows, qp_coeffs, b_x, b_y)
     lateral = None if previous is None else previous.lateral
 
     traj = evaluate(model, proj.coeffs)
