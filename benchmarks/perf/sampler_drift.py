@@ -3,10 +3,11 @@ recorded closed-loop states of the tests:
 
     python benchmarks/perf/sampler_drift.py --set early_iterations=6 [--keys 4] [--states N] [--json OUT]
 
-At each state ``bilevel``'s planner (its 150 samples and real-time projection) plans under ``--keys`` keys with its own
-configuration and with the ``--set`` projection fields changed. Recorded per side, averaged over states and keys
-[m/s]: the mean speed set-point of the first batch's elites, of its feasible rows, how many rows of it are feasible,
-the final sampling mean's speed and the pick's speed (each the mean of the four set-points).
+At each state the registered ``bilevel``'s planner (its 150 samples and real-time projection) plans under ``--keys``
+keys with its own configuration and with the ``--set`` projection fields changed. Recorded per side, averaged over
+states and keys: the mean speed set-point [m/s] of the first batch's elites and of its feasible rows, how many rows of
+it are feasible, the share of the first update's weight (P1 eq. 6) its infeasible elites hold, the final sampling
+mean's speed and the pick's speed [m/s] (each speed the mean of the four set-points).
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ if __package__ in (None, ""):  # run as a file: the repository root on the path,
     sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 STATES = Path(__file__).resolve().parents[2] / "tests" / "core" / "closed-loop-states.npz"
-FIELDS = ("first_elites_speed", "first_feasible_speed", "first_feasible_rows", "final_mean_speed", "pick_speed")
+FIELDS = ("first_elites_speed", "first_feasible_speed", "first_feasible_rows", "first_infeasible_elite_weight",
+          "final_mean_speed", "pick_speed")
 
 
 def side_figures(problem, config, keys: int, offset: int) -> dict[str, float]:
@@ -28,16 +30,20 @@ def side_figures(problem, config, keys: int, offset: int) -> dict[str, float]:
     import numpy as np
 
     from driveopt import plan
+    from driveopt.method import DRIVEOPT_METHOD
+    from driveopt.sampler import elite_weights
 
     rows = []
     for k in range(keys):
         result = plan(problem, config, key=jax.random.PRNGKey(offset + k))
         first = result.first
-        setpoints, residual = np.asarray(first.setpoints), np.asarray(first.residual)
+        setpoints, residual, elites = np.asarray(first.setpoints), np.asarray(first.residual), np.asarray(first.elite_index)
         feasible = residual <= config.sampler.residual_tolerance
-        rows.append((setpoints[np.asarray(first.elite_index), :4].mean(),
-                     setpoints[feasible, :4].mean() if feasible.any() else np.nan, feasible.sum(),
-                     np.asarray(result.mean)[:4].mean(), np.asarray(result.setpoints)[:4].mean()))
+        score = DRIVEOPT_METHOD.ranking.score(np.asarray(first.cost)[elites], residual[elites])
+        weights = np.asarray(elite_weights(score, config.sampler.temperature))
+        rows.append((setpoints[elites, :4].mean(), setpoints[feasible, :4].mean() if feasible.any() else np.nan,
+                     feasible.sum(), weights[~feasible[elites]].sum(), np.asarray(result.mean)[:4].mean(),
+                     np.asarray(result.setpoints)[:4].mean()))
     return dict(zip(FIELDS, np.nanmean(np.asarray(rows, float), axis=0).tolist()))
 
 
@@ -59,12 +65,11 @@ def main(argv=None) -> int:
     import jax.numpy as jnp
     import numpy as np
 
-    from driveopt import PlannerConfig
     from driveopt.errors import DriveoptError
     from driveopt.files import write_json
-    from driveopt.registry import REALTIME_PROJECTION, REALTIME_SAMPLES
+    from driveopt.registry import get_optimiser
 
-    own = PlannerConfig().replace(sampler={"num_samples": REALTIME_SAMPLES}, projection=REALTIME_PROJECTION)
+    own = get_optimiser("bilevel").config
     try:
         sides = {"own": own, "changed": own.replace(projection=dict(args.set))}
     except DriveoptError as exc:  # an unknown field or a bad value

@@ -68,13 +68,17 @@ def select_lowest(values: jnp.ndarray, count: int) -> jnp.ndarray:
     return jax.lax.top_k(-values, count)[1]
 
 
+def elite_weights(elite_costs: jnp.ndarray, temperature: float) -> jnp.ndarray:
+    """The elites' weights in P1 eq. 6, exp(-(c - min c) / temperature) normalised (the minimum subtracted first)."""
+    weights = jnp.exp(-(elite_costs - jnp.min(elite_costs)) / temperature)
+    return weights / jnp.sum(weights)
+
+
 def cem_update(
     mean: jnp.ndarray, cov: jnp.ndarray, elites: jnp.ndarray, elite_costs: jnp.ndarray, cfg: SamplerConfig
 ) -> tuple[jnp.ndarray, jnp.ndarray]:
-    """P1 eq. 6 with weights exp(-(c - min c) / temperature) (the minimum is subtracted first)."""
-    shifted = elite_costs - jnp.min(elite_costs)
-    weights = jnp.exp(-shifted / cfg.temperature)
-    weights = weights / jnp.sum(weights)
+    """P1 eq. 6 with :func:`elite_weights`."""
+    weights = elite_weights(elite_costs, cfg.temperature)
     new_mean = (1.0 - cfg.learning_rate) * mean + cfg.learning_rate * weights @ elites
     centred = elites - new_mean
     spread = (weights[:, None] * centred).T @ centred

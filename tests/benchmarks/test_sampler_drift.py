@@ -20,6 +20,7 @@ def test_records_both_sides_per_state_and_a_summary(tmp_path):
         assert set(figures) == set(sampler_drift.FIELDS)
         assert 0 <= figures["pick_speed"] <= 30 and 0 <= figures["final_mean_speed"] <= 30
         assert 0 <= figures["first_feasible_rows"] <= 150 and math.isfinite(figures["first_elites_speed"])
+        assert 0 <= figures["first_infeasible_elite_weight"] <= 1
 
 
 @pytest.mark.parametrize("argv", [["--set", "early_iterations=6", "--keys", "0"], ["--keys", "2"],

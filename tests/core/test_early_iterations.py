@@ -9,7 +9,7 @@ import pytest
 
 from driveopt import ConfigError, PlannerConfig, PlanStatus, build_problem, load_scene, plan
 from driveopt.config import ProjectionConfig, planning_work
-from driveopt.registry import REALTIME_PROJECTION, REALTIME_SAMPLES
+from driveopt.registry import get_optimiser
 
 
 def test_off_by_default_and_at_most_max_iterations():
@@ -41,7 +41,7 @@ def test_six_early_iterations_pick_plans_as_feasible_as_twelve_on_recorded_state
     SUCCESS pick is within the sampler's residual tolerance, 0.05, either way)."""
     from benchmarks.perf.settings_offline import load_states  # the writer of the file reads it
 
-    base = PlannerConfig().replace(sampler={"num_samples": REALTIME_SAMPLES}, projection=REALTIME_PROJECTION)
+    base = get_optimiser("bilevel").config
     early = base.replace(projection={"early_iterations": 6})
     success, residual = {"base": 0, "early": 0}, {"base": [], "early": []}
     for index, (_, problem) in enumerate(load_states(_STATES)):
