@@ -140,8 +140,8 @@ def projection_counts(samples: int, iterations: int, projection_iterations: int,
     per_run = projection_operations(problem, coeffs, b_x, b_y, cfg.replace(projection={"early_iterations": 0}))
     longer = projection_operations(problem, coeffs, b_x, b_y, cfg.replace(
         projection={"max_iterations": projection_iterations + 1, "early_iterations": 0}))
-    early = cfg.projection.early_iterations  # the runs of every sampler iteration but the last, where > 0
-    per_early_run = per_run if early == 0 else projection_operations(
+    early = cfg.projection.earlier_iterations  # the runs of every sampler iteration but the last
+    per_early_run = per_run if early == cfg.projection.max_iterations else projection_operations(
         problem, coeffs, b_x, b_y, cfg.replace(projection={"max_iterations": early, "early_iterations": 0}))
     batch_rows = int(rows.shape[0])
     return {"settings": settings, "batch_rows": batch_rows, "per_run": per_run,

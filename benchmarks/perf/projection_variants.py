@@ -51,7 +51,8 @@ if __package__ in (None, ""):  # run as a file: the repository root on the path,
 
 from benchmarks.perf.call_profile import machine  # noqa: E402
 
-REALTIME = dataclasses.replace(ProjectionConfig(), **REALTIME_PROJECTION, tolerance=0.0)
+REALTIME = dataclasses.replace(ProjectionConfig(), **{**REALTIME_PROJECTION, "early_iterations": 0}, tolerance=0.0)  # one
+# projection of its max_iterations: early_iterations counts those of the sampler's earlier iterations
 VARIANTS = {  # name: (neighbour slots of the problem, projection configuration)
     "realtime": (10, REALTIME),
     "batch-nearest-4": (10, dataclasses.replace(REALTIME, nearest_obstacles=4, nearest_choice="batch")),

@@ -14,7 +14,8 @@ out = sys.argv[1]
 others = {k: v for k, v in REALTIME_PROJECTION.items() if k != "max_iterations"}
 json.dump({"projection": others}, open(f"{out}/rt-latency.json", "w"))  # latency.py sets the iterations
 json.dump({"projection": REALTIME_PROJECTION}, open(f"{out}/rt.json", "w"))
-json.dump({"projection": {"max_iterations": 20, "anderson_window": 0, "derivative_bounds": "nodes"}}, open(f"{out}/plain.json", "w"))
+json.dump({"projection": {"max_iterations": 20, "anderson_window": 0, "derivative_bounds": "nodes", "early_iterations": 0}},
+          open(f"{out}/plain.json", "w"))
 open(f"{out}/rt-iterations", "w").write(str(REALTIME_PROJECTION["max_iterations"]))
 PY
 RT=$(cat "$T/rt-iterations")

@@ -3,14 +3,14 @@ it drive as safely and as quickly?
 
     python benchmarks/studies/setting_ab.py --config C.json --out DIR [--planner bilevel] [--samples N]
         [--scenarios four-lane-d3.0 two-lane-d2.5] [--episodes 50] [--seed 42]
-        [--upstream highway-v0] [--upstream-episodes 20] [--workers 2]
+        [--upstream highway-v0] [--upstream-episodes 20] [--upstream-seed 0] [--workers 2]
 
 ``driveopt bench`` drives ``--planner`` on each scenario with its own configuration (``DIR/own``) and with the
 overrides of ``--config`` (a JSON file of nested sections, as for ``driveopt bench --config``; ``DIR/changed``), on
 the same traffic seeds; ``benchmarks/studies/upstream_roads.py`` drives each ``--upstream`` env through
-``driveopt.Controller`` both ways (``DIR/upstream-own``, ``DIR/upstream-changed``, resets ``0 .. --upstream-episodes -
-1``). Every part resumes where it stopped. Then each road's pairs are judged by the rule a setting must pass before it
-becomes a default:
+``driveopt.Controller`` both ways (``DIR/upstream-own``, ``DIR/upstream-changed``; ``--upstream-episodes`` resets
+from ``--upstream-seed`` on: from 20, resets no earlier change was tuned on). Every part resumes where it stopped.
+Then each road's pairs are judged by the rule a setting must pass before it becomes a default:
 
 - collisions no worse: the changed side collided in at most ``ceil(pairs / 50)`` more episodes than its own side, and
   exact McNemar on the discordant pairs does not find it worse (two-sided p >= 0.05 where it collided more);
@@ -82,7 +82,7 @@ def bench_pairs(out: Path, scenario: str, planner: str) -> list[tuple[dict, dict
     return [(own[key], changed[key]) for key in sorted(own.keys() & changed.keys())]
 
 
-def upstream_pairs(out: Path, env: str, planner: str, episodes: int) -> list[tuple[dict, dict]]:
+def upstream_pairs(out: Path, env: str, planner: str, episodes: int, first: int = 0) -> list[tuple[dict, dict]]:
     def records(side):
         path = out / f"upstream-{side}" / "episodes.jsonl"
         lines = path.read_text().splitlines() if path.exists() else []
@@ -90,7 +90,7 @@ def upstream_pairs(out: Path, env: str, planner: str, episodes: int) -> list[tup
                 and "refused" not in r}
 
     own, changed = records("own"), records("changed")
-    return [(own[s], changed[s]) for s in range(episodes) if s in own and s in changed]  # upstream_roads' resets 0, 1, ...
+    return [(own[s], changed[s]) for s in range(first, first + episodes) if s in own and s in changed]  # upstream_roads' resets
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -104,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=42, help="bench traffic seed")
     parser.add_argument("--upstream", nargs="*", default=["highway-v0"], choices=list(upstream_roads.ENVS))
     parser.add_argument("--upstream-episodes", type=positive_int, default=20)
+    parser.add_argument("--upstream-seed", type=int, default=0, help="the upstream envs' first reset seed")
     parser.add_argument("--workers", type=positive_int, default=2, help="parallel bench episodes")
     args = parser.parse_args(argv)
     from driveopt.errors import DriveoptError
@@ -126,10 +127,10 @@ def main(argv: list[str] | None = None) -> int:
     for side, extra in sides:
         if args.upstream:
             upstream_roads.main(["--out", str(args.out / f"upstream-{side}"), "--envs", *args.upstream, "--planners",
-                                 args.planner, "--episodes", str(args.upstream_episodes), "--samples", str(samples),
-                                 *extra])
+                                 args.planner, "--episodes", str(args.upstream_episodes), "--seed",
+                                 str(args.upstream_seed), "--samples", str(samples), *extra])
     roads = {name: judge(bench_pairs(args.out, name, args.planner)) for name in args.scenarios}
-    roads.update({name: judge(upstream_pairs(args.out, name, args.planner, args.upstream_episodes))
+    roads.update({name: judge(upstream_pairs(args.out, name, args.planner, args.upstream_episodes, args.upstream_seed))
                   for name in args.upstream})
     verdict = {"command": "python benchmarks/studies/setting_ab.py " + " ".join(argv if argv is not None else sys.argv[1:]),
                "planner": args.planner, "samples": samples, "config": overrides, "roads": roads,

@@ -101,12 +101,13 @@ class ProjectionConfig:
     """Batch projection onto the constraint set (DESIGN §2.3)."""
 
     max_iterations: int = 20  # [-] alternating-minimisation iterations; 0: no projection, every sample is ranked as drawn
-    # (P2 Fig. 9's "no filter" ablation); the registered ``bilevel`` runs 12 with ``anderson_window`` 4 and
-    # ``derivative_bounds`` "control_points" (``driveopt.registry.REALTIME_PROJECTION``; docs/results/speed.md)
-    early_iterations: int = 0  # [-] in [0, max_iterations]: > 0, every sampler iteration but the last projects with this
-    # many iterations and only the last with ``max_iterations`` (the earlier batches mainly steer the sampling
-    # distribution, their best rows still compete for the pick; docs/results/speed.md); 0: ``max_iterations`` in every
-    # sampler iteration
+    # (P2 Fig. 9's "no filter" ablation); the registered ``bilevel`` runs 12 with ``anderson_window`` 4,
+    # ``derivative_bounds`` "control_points" and ``early_iterations`` 7 (``driveopt.registry.REALTIME_PROJECTION``;
+    # docs/results/speed.md)
+    early_iterations: int = 0  # [-] > 0: every sampler iteration but the last projects with this many iterations (at
+    # most ``max_iterations``: a larger count changes nothing) and only the last with ``max_iterations`` (the earlier
+    # batches mainly steer the sampling distribution, their best rows still compete for the pick;
+    # docs/results/speed.md); 0: ``max_iterations`` in every sampler iteration
     tolerance: float = 1e-3  # [m] early stop when no coefficient of any sample moved more than this in the last iteration
     rho_obstacle: float = 1.0  # [-] penalty weight of the obstacle rows
     rho_velocity: float = 10.0  # [-] penalty weight of the velocity rows
@@ -159,6 +160,11 @@ class ProjectionConfig:
     # (docs/results/speed.md); 1: every node (the default). Residuals count every node
     obstacle_dense_time: float = 3.0  # [s] with ``obstacle_stride`` > 1, every node up to this time carries obstacle rows
 
+    @property
+    def earlier_iterations(self) -> int:
+        """[-] the projection iterations of every sampler iteration but the last."""
+        return min(self.early_iterations, self.max_iterations) if self.early_iterations else self.max_iterations
+
     def __post_init__(self) -> None:
         check_types(self, "projection")
         require(self.derivative_bounds in DERIVATIVE_BOUNDS, f"projection.derivative_bounds must be one of "
@@ -178,8 +184,8 @@ class ProjectionConfig:
                 "projection.obstacle_stride > 1 needs projection.barrier = false and nearest_obstacles = 0 (the barrier "
                 "follows every node; the nearest obstacles are chosen per node)")
         require(0 <= self.max_iterations <= 10_000, f"projection.max_iterations must be in [0, 10000], got {self.max_iterations}")
-        require(0 <= self.early_iterations <= self.max_iterations, f"projection.early_iterations must be in [0, "
-                f"max_iterations = {self.max_iterations}], got {self.early_iterations}")
+        require(0 <= self.early_iterations <= 10_000, f"projection.early_iterations must be in [0, 10000], got "
+                f"{self.early_iterations}")
         require(self.tolerance >= 0, "projection.tolerance must be >= 0")
         for name in ("rho_obstacle", "rho_velocity", "rho_acceleration", "rho_lane"):
             value = getattr(self, name)
@@ -343,8 +349,7 @@ def planning_work(config: PlannerConfig, obstacles: int = REFERENCE_OBSTACLES) -
     every node (an unprojected batch, max_iterations 0, still costs one pass), against
     ``obstacles`` (in units of a call against REFERENCE_OBSTACLES, :func:`obstacle_factor`)."""
     projection = config.projection
-    early = projection.early_iterations or projection.max_iterations
-    iterations = (config.sampler.num_iterations - 1) * max(early, 1) + max(projection.max_iterations, 1)
+    iterations = (config.sampler.num_iterations - 1) * max(projection.earlier_iterations, 1) + max(projection.max_iterations, 1)
     return float(config.sampler.num_samples) * iterations * config.basis.num_nodes * obstacle_factor(obstacles)
 
 

@@ -333,9 +333,9 @@ def solve(
     proposal = prior.propose(problem, key_prior, s.num_samples, warm_start)
 
     def iteration(setpoints, last):
-        """Every sampler iteration but the last projects with ``projection.early_iterations`` where that is > 0."""
-        early = config.projection.early_iterations
-        iterations = None if early == 0 else jnp.where(last, config.projection.max_iterations, early)
+        """Every sampler iteration but the last projects with ``projection.earlier_iterations``."""
+        early, full = config.projection.earlier_iterations, config.projection.max_iterations
+        iterations = None if early == full else jnp.where(last, full, early)
         return _iteration(model, problem, config, setpoints, previous, safety_filter, unroll, method, iterations)
 
     def adapt(mean, cov, snapshot, score):

@@ -25,7 +25,7 @@ def test_records_both_sides_per_state_and_a_summary(tmp_path):
 
 @pytest.mark.parametrize("argv", [["--set", "early_iterations=6", "--keys", "0"], ["--keys", "2"],
                                   ["--set", "early_iterations=6", "--states", "0"], ["--set", "no_such_field=1"],
-                                  ["--set", "early_iterations=30"]])
+                                  ["--set", "early_iterations=-1"]])
 def test_bad_arguments_exit_with_a_message(argv, capsys):
     with pytest.raises(SystemExit) as exit_:
         sampler_drift.main(argv)

@@ -49,3 +49,15 @@ def test_a_bad_override_is_refused_before_any_driving(tmp_path, capsys):
         setting_ab.main(["--config", str(config), "--out", str(tmp_path / "out")])
     assert stop.value.code == 2 and "derivative_bounds" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_upstream_pairs_take_the_resets_from_the_first_seed_on(tmp_path):
+    for side in ("own", "changed"):
+        folder = tmp_path / f"upstream-{side}"
+        folder.mkdir()
+        rows = [{"env": "roundabout-v0", "planner": "bilevel", "seed": s, **episode(speed=float(s))} for s in range(45)]
+        rows.append({"env": "roundabout-v0", "planner": "bilevel", "seed": 21, "refused": "no lanes"})
+        (folder / "episodes.jsonl").write_text("\n".join(json.dumps(r) for r in rows if side == "own" or r["seed"] != 22))
+    pairs = setting_ab.upstream_pairs(tmp_path, "roundabout-v0", "bilevel", 20, first=20)
+    assert [own["seed"] for own, _ in pairs] == [20, 21] + list(range(23, 40))  # 22 missing on one side, refusals left out
+    assert all(own["seed"] == changed["seed"] for own, changed in pairs)
