@@ -13,7 +13,7 @@ from driveopt.config import BasisConfig
 from driveopt.prediction import PathNeighbour
 from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, Road as PlannerRoad, Scene
-from driveopt.sim.crossing import LANE_SHIFT, crossing_neighbour, lane_leaving_neighbour, may_cross
+from driveopt.sim.crossing import LANE_SHIFT, crossing_neighbour, lane_leaving_neighbour, may_cross, wreck_neighbour
 from driveopt.sim.road_frame import build_frame
 
 
@@ -240,3 +240,32 @@ def test_crossing_cars_share_the_slots_by_closest_approach_and_phases_beside_the
     # without crossing traffic the slots are the relevant neighbours, each whole, as before
     plain = Scene(ego=scene.ego, road=road, neighbours=(Neighbour(x=20.0, y=0.0, vx=5.0),), v_des=10.0)
     assert [(n, nodes_) for n, nodes_ in obstacle_slots(plain, nodes, 10)] == [(plain.neighbours[0], None)]
+
+
+def test_a_wreck_slides_to_a_stop_along_its_heading_as_highway_env_brakes_it():
+    """A crashed car at 10 m/s crossing the route: highway-env brakes it at -speed with its wheels straight, so it
+    slides 10 m along its heading and stands; predicted so (not on along its lane at 10 m/s), it is an obstacle on the
+    route's lanes only if its slide reaches them, and wherever it stands from then on."""
+    frame, car = _route_frame(), _crossing_car()
+    times = np.arange(0.0, 15.01, 0.5)
+    dt = 0.01  # the slide as the simulator integrates it (its 15 Hz steps, finer here)
+    simulated = [np.array(car.position)]
+    position, speed = np.array(car.position, dtype=float), 10.0
+    for _ in range(int(round(15.0 / dt))):
+        position = position + speed * dt * np.array([np.cos(car.heading), np.sin(car.heading)])
+        speed -= speed * dt
+        simulated.append(position)
+    car.crashed = True
+    neighbour = wreck_neighbour(car, frame, times, ego_x=50.0)
+    assert isinstance(neighbour, PathNeighbour)
+    slid = np.asarray(neighbour.path_y) - neighbour.path_y[0]  # across the route: it drives along +y
+    expected = np.array([simulated[int(round(t / dt))][1] for t in times]) - simulated[0][1]
+    assert np.allclose(slid, expected, atol=0.1)  # Euler at 0.01 s against the exact slide
+    assert slid[-1] == pytest.approx(10.0, abs=0.05) and np.allclose(neighbour.path_x, 100.0, atol=1e-6)
+    # 40 m before the route's lanes, its 10 m slide never reaches them: never on the lanes' band
+    problem = build_problem(Scene(ego=EgoState(x=50.0, y=0.0, vx=10.0), road=PlannerRoad(num_lanes=2, lane_width=4.0),
+                                  neighbours=(neighbour,), v_des=10.0), BasisConfig())
+    oy, b = np.asarray(problem.obstacle_y[0]), float(problem.obstacle_b[0])
+    assert np.all(oy + b < -2.0 + 1e-6) or float(problem.obstacle_mask[0]) == 0.0
+    car.crashed = False  # the same car, not crashed, crosses the lanes at 4 s
+    assert crossing_neighbour(car, frame, times, ego_x=50.0).path_y[8] == pytest.approx(0.0, abs=0.5)

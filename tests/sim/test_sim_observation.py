@@ -18,7 +18,7 @@ from driveopt.observation import (
     observation_vector,
     split_observation,
 )
-from driveopt.prediction import ellipse_semi_axes
+from driveopt.prediction import PathNeighbour, ellipse_semi_axes
 from driveopt.problem import build_problem
 from driveopt.scene import EgoState, Neighbour, Road, Scene
 from driveopt.sim.env import step_env
@@ -238,3 +238,21 @@ def test_uneven_lanes_are_rejected():
     network.add_lane("a", "b", StraightLane([0, 5], [100, 5], width=4.0))
     with pytest.raises(RoadFrameError, match="not adjacent"):
         build_frame(network, ("a", "b"))
+
+
+def test_a_crashed_car_is_perceived_sliding_to_a_stop():
+    """highway-env brakes a crashed car to a stop along its heading: the scene predicts it so (the slide of its speed
+    x 1 s), not driving on in its lane at its speed as the other cars."""
+    scenario = get_scenario("four-lane-d3.0")
+    env = reset_env(scenario, seed=7)
+    sim = env.unwrapped
+    others = [v for v in sim.road.vehicles if v is not sim.vehicle]
+    wreck = min(others, key=lambda v: abs(v.position[0] - sim.vehicle.position[0] - 20.0))
+    wreck.crashed = True
+    scene = scene_from_env(env, scenario)
+    paths = [n for n in scene.neighbours if isinstance(n, PathNeighbour)]
+    assert len(paths) == 1 and len(scene.neighbours) == len(others)
+    lane0 = sim.road.network.get_lane(("0", "1", 0))
+    s, _ = lane0.local_coordinates(wreck.position)
+    assert paths[0].path_x[0] == pytest.approx(s, abs=1e-6)
+    assert paths[0].path_x[-1] - paths[0].path_x[0] == pytest.approx(wreck.speed * np.cos(wreck.heading), rel=0.01)

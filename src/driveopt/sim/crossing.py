@@ -19,6 +19,9 @@ them across the frame's lanes (:func:`lane_leaving_neighbour`: a roundabout's in
 from the outer one). Beside the frame counts too: a
 car turning towards the route from beyond the frame's lateral reach may have no node on the frame while it turns (at
 8 m/s a 0.5 s node step is 4 m), and the usual prediction would carry its heading now straight across the lanes.
+A crashed vehicle, wherever it is, slides to a stop along its heading as highway-env brakes it
+(:func:`wreck_neighbour`): traffic's own collisions at junctions leave wrecks spinning into the route's lanes, which
+the prediction along their lanes at their speed put elsewhere.
 """
 
 from __future__ import annotations
@@ -37,6 +40,8 @@ MAX_OFFSET = 200.0  # [m] a pose beside the frame is kept within this lateral of
 LANE_SHIFT = 2.0  # [m] half a lane: a routed vehicle on the frame's roads whose lanes move it further across the
 # frame's is predicted along them (:func:`lane_leaving_neighbour`)
 YIELD_GAP = 1.0  # [m] a routed vehicle with the ego on its lanes ahead is predicted to stop this far behind it (bumpers)
+WRECK_TIME_CONSTANT = 1.0  # [s] highway-env brakes a crashed vehicle at -speed [m/s^2] with its wheels straight: its
+# speed decays as exp(-t / this), and it slides speed x this [m] along its heading before it stands
 
 
 def _along_route(vehicle: Any, times: np.ndarray, ego: Any = None) -> tuple[np.ndarray, np.ndarray]:
@@ -91,12 +96,15 @@ def _ego_along(lanes: list[Any], position: np.ndarray, start: float, reach: floa
 
 def _poses(vehicle: Any, times: np.ndarray, ego: Any = None) -> tuple[np.ndarray, np.ndarray]:
     """(positions (K, 2) [m], headings (K,) [rad]) of ``vehicle`` at ``times`` [s] from now, world coordinates
-    (routed: along its lanes, stopping behind ``ego`` on them, :func:`_along_route`)."""
-    if getattr(vehicle, "route", None) and getattr(vehicle, "lane_index", None) is not None:
+    (crashed: sliding to a stop along its heading, :data:`WRECK_TIME_CONSTANT`; routed: along its lanes, stopping
+    behind ``ego`` on them, :func:`_along_route`; else its velocity held)."""
+    crashed = bool(getattr(vehicle, "crashed", False))
+    if not crashed and getattr(vehicle, "route", None) and getattr(vehicle, "lane_index", None) is not None:
         return _along_route(vehicle, times, ego)
-    heading, speed = float(vehicle.heading), float(vehicle.speed)
+    heading, speed, t = float(vehicle.heading), float(vehicle.speed), np.asarray(times, dtype=float)
+    travelled = speed * WRECK_TIME_CONSTANT * -np.expm1(-t / WRECK_TIME_CONSTANT) if crashed else speed * t
     direction = np.array([math.cos(heading), math.sin(heading)])
-    return np.asarray(vehicle.position, dtype=float) + speed * np.asarray(times)[:, None] * direction, np.full(len(times), heading)
+    return np.asarray(vehicle.position, dtype=float) + travelled[:, None] * direction, np.full(len(t), heading)
 
 
 def _frame_pose(frame: RoadFrame, position: np.ndarray, ego_x: float) -> tuple[float, float, Any, float, bool] | None:
@@ -163,6 +171,14 @@ def crossing_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x:
     xs, ys, yaws, enters, turned, _ = _path(vehicle, frame, times, ego_x, ego)
     if enters and not turned:  # joining at a shallow angle: the usual prediction
         return None
+    return _path_neighbour(vehicle, times, xs, ys, yaws)
+
+
+def wreck_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x: float) -> PathNeighbour:
+    """A crashed ``vehicle`` as a :class:`PathNeighbour` over ``times`` [s]: sliding to a stop along its heading
+    (:data:`WRECK_TIME_CONSTANT`), wherever it is, where its lanes would carry it on at its speed."""
+    times = np.asarray(times, dtype=float)
+    xs, ys, yaws, _, _, _ = _path(vehicle, frame, times, ego_x)
     return _path_neighbour(vehicle, times, xs, ys, yaws)
 
 

@@ -48,7 +48,7 @@ from driveopt.goal import Goal
 from driveopt.observation import ObservationError
 from driveopt.scene import CURVATURE_CELL, PATH_SCALE_MIN, EgoState, EllipseMargin, Neighbour, ProblemError, Scene
 from driveopt.sim.control import EgoKinematics
-from driveopt.sim.crossing import crossing_neighbour, lane_leaving_neighbour, may_cross
+from driveopt.sim.crossing import crossing_neighbour, lane_leaving_neighbour, may_cross, wreck_neighbour
 from driveopt.sim.lane_graph import route_roads
 from driveopt.sim.road_frame import Motion, RoadFrame, ego_frame, vehicle_motion, wrap_angle
 from driveopt.sim.route_goal import RouteChange, find_split, lanes_to_change, missed, split_goal
@@ -182,6 +182,9 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
         others += [o for o in sim.road.objects if getattr(o, "collidable", True)]
         times = np.arange(0.0, preview.crossing_horizon + 1e-9, preview.crossing_step)
         for other in others:
+            if getattr(other, "crashed", False) and hasattr(other, "route"):  # a vehicle's wreck: sliding to a stop
+                neighbours.append(wreck_neighbour(other, frame, times, me.x))
+                continue
             if hasattr(other, "route"):  # another road's vehicle, or one whose lanes leave its own: along them
                 along = crossing_neighbour if may_cross(other, frame) else lane_leaving_neighbour
                 crossing = along(other, frame, times, me.x, ego_vehicle)
