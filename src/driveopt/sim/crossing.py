@@ -20,8 +20,8 @@ from the outer one). Beside the frame counts too: a
 car turning towards the route from beyond the frame's lateral reach may have no node on the frame while it turns (at
 8 m/s a 0.5 s node step is 4 m), and the usual prediction would carry its heading now straight across the lanes.
 A crashed vehicle, wherever it is, slides to a stop along its heading as highway-env brakes it
-(:func:`wreck_neighbour`): traffic's own collisions at junctions leave wrecks spinning into the route's lanes, which
-the prediction along their lanes at their speed put elsewhere.
+(:func:`wreck_neighbour`): traffic's own collisions at junctions send wrecks sliding into the route's lanes, where
+a prediction along their lanes at their speed does not put them.
 """
 
 from __future__ import annotations
@@ -175,8 +175,8 @@ def crossing_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x:
 
 
 def wreck_neighbour(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x: float) -> PathNeighbour:
-    """A crashed ``vehicle`` as a :class:`PathNeighbour` over ``times`` [s]: sliding to a stop along its heading
-    (:data:`WRECK_TIME_CONSTANT`), wherever it is, where its lanes would carry it on at its speed."""
+    """A crashed ``vehicle`` as a :class:`PathNeighbour` over ``times`` [s], wherever it is: sliding to a stop along
+    its heading (:data:`WRECK_TIME_CONSTANT`), not on along its lanes at its speed."""
     times = np.asarray(times, dtype=float)
     xs, ys, yaws, _, _, _ = _path(vehicle, frame, times, ego_x)
     return _path_neighbour(vehicle, times, xs, ys, yaws)
