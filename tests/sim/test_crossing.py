@@ -262,10 +262,12 @@ def test_a_wreck_slides_to_a_stop_along_its_heading_as_highway_env_brakes_it():
     expected = np.array([simulated[int(round(t / dt))][1] for t in times]) - simulated[0][1]
     assert np.allclose(slid, expected, atol=0.1)  # Euler at 0.01 s against the exact slide
     assert slid[-1] == pytest.approx(10.0, abs=0.05) and np.allclose(neighbour.path_x, 100.0, atol=1e-6)
-    # 40 m before the route's lanes, its 10 m slide never reaches them: never on the lanes' band
-    problem = build_problem(Scene(ego=EgoState(x=50.0, y=0.0, vx=10.0), road=PlannerRoad(num_lanes=2, lane_width=4.0),
-                                  neighbours=(neighbour,), v_des=10.0), BasisConfig())
-    oy, b = np.asarray(problem.obstacle_y[0]), float(problem.obstacle_b[0])
-    assert np.all(oy + b < -2.0 + 1e-6) or float(problem.obstacle_mask[0]) == 0.0
-    car.crashed = False  # the same car, not crashed, crosses the lanes at 4 s
-    assert crossing_neighbour(car, frame, times, ego_x=50.0).path_y[8] == pytest.approx(0.0, abs=0.5)
+    def obstacle_mask(path_neighbour):
+        scene = Scene(ego=EgoState(x=50.0, y=0.0, vx=10.0), road=PlannerRoad(num_lanes=2, lane_width=4.0),
+                      neighbours=(path_neighbour,), v_des=10.0)
+        return float(build_problem(scene, BasisConfig()).obstacle_mask[0])
+
+    assert obstacle_mask(neighbour) == 0.0  # 40 m before the route's lanes, its 10 m slide never reaches them
+    car.crashed = False  # the same car, not crashed, crosses the lanes at 4 s: an obstacle
+    moving = crossing_neighbour(car, frame, times, ego_x=50.0)
+    assert moving.path_y[8] == pytest.approx(0.0, abs=0.5) and obstacle_mask(moving) == 1.0
