@@ -7,7 +7,8 @@ it drive as safely and as quickly?
 
 ``driveopt bench`` drives ``--planner`` on each scenario with its own configuration (``DIR/own``) and with the
 overrides of ``--config`` (a JSON file of nested sections, as for ``driveopt bench --config``; ``DIR/changed``), on
-the same traffic seeds; ``benchmarks/studies/upstream_roads.py`` drives each ``--upstream`` env through
+the same traffic seeds (a config that sets ``sampler.num_samples`` drives the changed side at that count);
+``benchmarks/studies/upstream_roads.py`` drives each ``--upstream`` env through
 ``driveopt.Controller`` both ways (``DIR/upstream-own``, ``DIR/upstream-changed``; ``--upstream-episodes`` resets
 from ``--upstream-seed`` on: from 20, resets no earlier change was tuned on). Every part resumes where it stopped.
 Then each road's pairs are judged by the rule a setting must pass before it becomes a default:
@@ -117,23 +118,25 @@ def main(argv: list[str] | None = None) -> int:
     except (DriveoptError, OSError, ValueError, TypeError) as exc:
         parser.error(str(exc))
     samples = args.samples if args.samples is not None else spec.config.sampler.num_samples
+    changed_samples = (overrides.get("sampler") or {}).get("num_samples", samples)  # a change of the sample count
     common = ["--planners", args.planner, "--seeds", str(args.seed), "--episodes", str(args.episodes),
-              "--samples", str(samples), "--workers", str(args.workers)]
-    sides = (("own", []), ("changed", ["--config", str(args.config.resolve())]))
-    for side, extra in sides:
+              "--workers", str(args.workers)]
+    sides = (("own", samples, []), ("changed", changed_samples, ["--config", str(args.config.resolve())]))
+    for side, count, extra in sides:
         if args.scenarios:
             subprocess.run([sys.executable, "-m", "driveopt.cli", "bench", "--scenarios", *args.scenarios, *common,
-                            *extra, "--out", str(args.out / side)], check=True)
-    for side, extra in sides:
+                            "--samples", str(count), *extra, "--out", str(args.out / side)], check=True)
+    for side, count, extra in sides:
         if args.upstream:
             upstream_roads.main(["--out", str(args.out / f"upstream-{side}"), "--envs", *args.upstream, "--planners",
                                  args.planner, "--episodes", str(args.upstream_episodes), "--seed",
-                                 str(args.upstream_seed), "--samples", str(samples), *extra])
+                                 str(args.upstream_seed), "--samples", str(count), *extra])
     roads = {name: judge(bench_pairs(args.out, name, args.planner)) for name in args.scenarios}
     roads.update({name: judge(upstream_pairs(args.out, name, args.planner, args.upstream_episodes, args.upstream_seed))
                   for name in args.upstream})
     verdict = {"command": "python benchmarks/studies/setting_ab.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-               "planner": args.planner, "samples": samples, "config": overrides, "roads": roads,
+               "planner": args.planner, "samples": samples, "changed_samples": changed_samples, "config": overrides,
+               "roads": roads,
                "passed": all(road["passed"] for road in roads.values())}
     write_json(args.out / "verdict.json", verdict)
     for name, road in roads.items():

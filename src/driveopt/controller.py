@@ -37,7 +37,7 @@ import gymnasium
 import numpy as np
 
 from driveopt.config import PlannerConfig
-from driveopt.drivers.base import Decision, DriverSpec, check_given_weights
+from driveopt.drivers.base import Decision, DriverSpec, check_given_weights, with_samples_and_config
 from driveopt.errors import DriveoptError
 from driveopt.registry import get_planner
 from driveopt.scene import EllipseMargin, ProblemError
@@ -196,10 +196,10 @@ class Controller:
             if not spec.is_optimiser:
                 raise ControllerError(f"planner '{spec.name}' does not plan with the optimiser: it takes no config")
             spec = dataclasses.replace(spec, config=config)
-        elif config is not None:
-            spec = spec.with_overrides(**dict(config))
         if samples is not None and (isinstance(samples, bool) or not isinstance(samples, int) or samples < 1):
             raise ControllerError(f"samples must be a positive integer, got {samples!r}")
+        if config is not None and not isinstance(config, PlannerConfig):
+            spec = with_samples_and_config(spec, samples, dict(config))
         if v_des is not None and not (isinstance(v_des, (int, float)) and math.isfinite(v_des) and 0.0 < v_des <= 60.0):
             raise ControllerError(f"v_des must be a speed in (0, 60] m/s, got {v_des!r}")
         if route is not None and (isinstance(route, str) or not all(isinstance(node, str) for node in route)):

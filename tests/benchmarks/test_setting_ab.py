@@ -61,3 +61,21 @@ def test_upstream_pairs_take_the_resets_from_the_first_seed_on(tmp_path):
     pairs = setting_ab.upstream_pairs(tmp_path, "roundabout-v0", "bilevel", 20, first=20)
     assert [own["seed"] for own, _ in pairs] == [20, 21] + list(range(23, 40))  # 22 missing on one side, refusals left out
     assert all(own["seed"] == changed["seed"] for own, changed in pairs)
+
+
+def test_a_changed_sample_count_drives_the_changed_side_at_that_count(tmp_path, monkeypatch):
+    config = tmp_path / "c.json"
+    config.write_text(json.dumps({"sampler": {"num_samples": 250}}))
+    bench, upstream = [], []
+    monkeypatch.setattr(setting_ab.subprocess, "run", lambda argv, check: bench.append(argv))
+    monkeypatch.setattr(setting_ab.upstream_roads, "main", lambda argv: upstream.append(argv))
+    monkeypatch.setattr(setting_ab, "bench_pairs", lambda *args: [(episode(), episode())] * 50)
+    monkeypatch.setattr(setting_ab, "upstream_pairs", lambda *args: [(episode(), episode())] * 20)
+    assert setting_ab.main(["--config", str(config), "--out", str(tmp_path / "out"), "--samples", "150"]) == 0
+
+    def samples(argv):
+        return argv[argv.index("--samples") + 1]
+
+    assert [samples(argv) for argv in bench] == [samples(argv) for argv in upstream] == ["150", "250"]
+    verdict = json.loads((tmp_path / "out" / "verdict.json").read_text())
+    assert (verdict["samples"], verdict["changed_samples"], verdict["passed"]) == (150, 250, True)

@@ -232,6 +232,9 @@ def test_bad_inputs_on_the_command_line_are_one_line_errors(tmp_path, capsys):
     assert "cost.speed" in _one_line_error(capsys, ["plan", "--config", str(cfg)])
     cfg.write_text(json.dumps({"projection": {"rho_obstacle": 1e400}}))  # parses to inf
     assert "finite" in _one_line_error(capsys, ["plan", "--config", str(cfg)])
+    cfg.write_text(json.dumps({"sampler": {"num_samples": 250}}))  # and --samples another count: neither is dropped
+    for command in ("plan", "drive"):
+        assert "disagree" in _one_line_error(capsys, [command, "--samples", "150", "--config", str(cfg)])
     problem = tmp_path / "p.json"
     problem.write_text(json.dumps({"ego": {"x": 0, "y": 1e30, "vx": 15}}))
     assert "ego.y must be within" in _one_line_error(capsys, ["plan", "--problem", str(problem)])

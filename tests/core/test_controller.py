@@ -361,10 +361,16 @@ def test_roundabout_rewards_accept_array_actions():
     ({"plan_frequency": 5, "track_within_period": False}, "needs track_within_period=True"),
     ({"time_gap": -0.5}, "time_gap"), ({"time_gap": True}, "time_gap"), ({"time_gap": "1"}, "time_gap"),
     ({"planner": "idm", "time_gap": 1.0}, "idm keeps its own time gap"),
+    ({"samples": 150, "config": {"sampler": {"num_samples": 250}}}, "150 samples and the config's sampler.num_samples"),
 ])
 def test_bad_settings_raise_one_clear_error(settings, message):
     with pytest.raises(driveopt.DriveoptError, match=message):
         driveopt.Controller(**settings)
+
+
+def test_samples_and_a_config_that_names_the_same_count_agree():
+    controller = driveopt.Controller(samples=250, config={"sampler": {"num_samples": 250}, "cost": {"consistency": 1.0}})
+    assert controller.spec.config.sampler.num_samples == 250 and controller.spec.config.cost.consistency == 1.0
 
 
 def test_act_before_reset_and_unknown_route_nodes_raise():

@@ -43,7 +43,7 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from driveopt.drivers.base import check_given_weights
+    from driveopt.drivers.base import check_given_weights, with_samples_and_config
     from driveopt.experiments.rollout import Rollout
     from driveopt.registry import get_planner
     from driveopt.sim.scenarios import resolve_scenario
@@ -56,8 +56,8 @@ def run(args: argparse.Namespace) -> int:
         scenario = scenario.replace(duration=args.duration)
     spec = get_planner(args.planner)
     check_given_weights(spec, args.weights, args.filter_weights)  # a path that is no file, weights it takes no use of
-    spec = spec.with_samples(args.samples).with_weights(args.weights)
-    spec = spec.with_overrides(**config_overrides(args.config, args.filter_weights)).with_replan_every(args.replan_every)
+    spec = with_samples_and_config(spec.with_weights(args.weights), args.samples,
+                                   config_overrides(args.config, args.filter_weights)).with_replan_every(args.replan_every)
     check_given_weights(spec, filter_weights=getattr(spec, "filter_weights", None))  # or the --config file's
     spec = spec.with_latency(args.latency)
     spec.check(scenario)  # missing, unusable or wrong-road weights: the error comes before the progress bar

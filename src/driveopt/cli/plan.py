@@ -39,14 +39,14 @@ def register(sub) -> None:
 def _spec(args: argparse.Namespace):
     """The planner's spec with the config file, --samples, --iterations and --projection-iterations applied; WeightsError
     for weights that are not a file or that the planner takes no use of."""
-    from driveopt.drivers.base import check_given_weights
+    from driveopt.drivers.base import check_given_weights, with_samples_and_config
     from driveopt.registry import get_optimiser
 
     spec = get_optimiser(args.planner)
     check_given_weights(spec, args.weights, args.filter_weights)
-    spec = spec.with_weights(args.weights).with_overrides(**config_overrides(args.config, args.filter_weights))
+    spec = with_samples_and_config(spec.with_weights(args.weights), args.samples,
+                                   config_overrides(args.config, args.filter_weights))
     check_given_weights(spec, filter_weights=spec.filter_weights)  # or the --config file's safety_filter section
-    spec = spec.with_samples(args.samples)
     if args.iterations is not None:
         spec = spec.with_overrides(sampler={"num_iterations": args.iterations})
     if args.projection_iterations is not None:

@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any, NamedTuple, Protocol
+from typing import Any, Mapping, NamedTuple, Protocol
 
 import numpy as np
 
+from driveopt.checks import ConfigError
 from driveopt.errors import DriveoptError
 from driveopt.planner import PlanResult
 from driveopt.problem import PlanningProblem
@@ -105,6 +106,17 @@ class DriverSpec:
 
     def with_latency(self, latency: Any) -> "DriverSpec":
         return self
+
+
+def with_samples_and_config(spec: DriverSpec, samples: int | None, overrides: Mapping[str, Any]) -> DriverSpec:
+    """``spec`` at ``samples`` per sampler iteration (None: its own) with the config ``overrides`` (nested sections)
+    applied after; ConfigError where the overrides' ``sampler.num_samples`` names another count than ``samples``, so
+    that neither is silently dropped."""
+    sampler = overrides.get("sampler")
+    given = sampler.get("num_samples") if isinstance(sampler, Mapping) else None
+    if samples is not None and given is not None and given != samples:
+        raise ConfigError(f"{samples} samples and the config's sampler.num_samples = {given!r} disagree: give one of them")
+    return spec.with_samples(samples).with_overrides(**overrides)
 
 
 class WeightsError(DriveoptError):

@@ -9,7 +9,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from driveopt.drivers.base import DriverSpec
+from driveopt.drivers.base import DriverSpec, with_samples_and_config
 from driveopt.experiments.runner import cpu_model, usable_cpus
 from driveopt.registry import get_planner
 from driveopt.solve_export import source_digest
@@ -28,6 +28,7 @@ def provenance() -> dict[str, Any]:
 def planner_spec(name: str, options: dict[str, Any]) -> DriverSpec:
     """The registered planner ``name`` with the bench options (samples, weights, config, replan_every, latency) applied."""
     samples = options.get("samples")
-    spec = get_planner(name).with_samples(int(samples) if samples else None).with_weights(options.get("weights"))
-    spec = spec.with_overrides(**options.get("config", {})).with_replan_every(options.get("replan_every"))
+    spec = with_samples_and_config(get_planner(name).with_weights(options.get("weights")),
+                                   int(samples) if samples else None, options.get("config", {}))
+    spec = spec.with_replan_every(options.get("replan_every"))
     return spec.with_latency(options.get("latency"))
