@@ -237,8 +237,8 @@ class CostConfig:
 class SamplerConfig:
     """Bi-level cross-entropy sampler (P1 Alg. 1, eq. 6)."""
 
-    num_samples: int = 1000  # [-] n-bar, samples per iteration (P1); the registered ``bilevel`` plans 150
-    # (real time: docs/results/speed.md); the results' ``bilevel`` runs use ``--samples 250``
+    num_samples: int = 1000  # [-] n-bar, samples per iteration (P1); the registered ``bilevel`` plans 250
+    # (real time: docs/results/speed.md), as the results' ``bilevel`` runs do
     num_iterations: int = 5  # [-] N, sampler iterations
     num_constraint_elites: int = 100  # [-] n, lowest-residual samples kept
     num_elites: int = 40  # [-] q, lowest (cost + residual) samples of those

@@ -153,7 +153,8 @@ class Controller:
     """A registered planner (``driveopt planners``) as a controller of the user's env; see the module docstring.
 
     ``planner``: a registered name or a :class:`~driveopt.drivers.base.DriverSpec`; ``samples``: samples per sampler
-    iteration (default: the planner's own; ``bilevel``: 150, real time on two CPU cores); ``config``: a
+    iteration (default: the planner's own; ``bilevel``: 250, real time on two CPU cores; ``config``'s
+    ``sampler.num_samples``, where given, must agree); ``config``: a
     :class:`~driveopt.config.PlannerConfig`, or overrides as nested sections (``{"cost": {"consistency": 1.0}}``);
     ``v_des`` [m/s]: desired speed (default: the speed limit of the ego's lane at ``reset``); ``route``: node names of
     the env's lane graph to follow (e.g. ``["0", "1", "2", "3"]`` drives exit-v0 straight on; default: the ego's own
@@ -176,7 +177,7 @@ class Controller:
     ellipse of a car following its lane is longer by this time at the ego's speed; default 0: the ellipse alone), so
     that a plan does not cut in just ahead of or behind a car whose braking the constant-speed prediction misses;
     ``verbose``: ``reset`` writes one line on stderr when it compiles the planner and how long that took
-    (``driveopt: compiling bilevel (150 samples) for highway-v0 ... 9.1 s``: the process's first reset of a planner
+    (``driveopt: compiling bilevel (250 samples) for highway-v0 ... 9.1 s``: the process's first reset of a planner
     and sample count; a later reset only when it took over 2 s, i.e. compiled anew; False: silent).
     """
 

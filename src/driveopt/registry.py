@@ -55,9 +55,10 @@ def _row(name: str, family: str, description: str, build: Callable[[str, str], "
     return PlannerRow(name, family, description, functools.partial(build, name, description))
 
 
-REALTIME_SAMPLES = 150  # [-] bilevel's samples per sampler iteration: its planning time in closed loop on the 2-core CPU
-# machine (dense four-lane traffic, one process) was 60 ms median, 77 ms p95 at 150 samples, within the 0.1 s control
-# period, and 107 / 129 ms at 250, with the 20-iteration projection (docs/results/speed.md); P1's batch of 1000 is `--samples 1000`.
+REALTIME_SAMPLES = 250  # [-] bilevel's samples per sampler iteration, the results tables' count: with its real-time
+# projection it plans in 13.4 ms median, 15.3 ms p95 in closed loop on the 2-core CPU (dense four-lane traffic, its AMD
+# EPYC variant), well within the 0.1 s control period on the slower variants too, and drove as safely and within 2 % as
+# quickly as at 150 in paired episodes (docs/results/speed.md#the-real-time-default); P1's batch of 1000 is `--samples 1000`.
 REALTIME_PROJECTION = {"max_iterations": 12, "anderson_window": 4, "derivative_bounds": "control_points",
                        "acceleration_recovery": True, "early_iterations": 7}  # bilevel's projection: 12 iterations [-]
 # accelerated over a window of 4 [-], the speed and acceleration bounds at the control points of 4 pieces
@@ -258,7 +259,7 @@ _RL = ("one of five behaviours every 1 s, tracked by upstream's set-point contro
        "lane count, or --weights)")
 
 PLANNER_ROWS: tuple[PlannerRow, ...] = (
-    _row("bilevel", DRIVEOPT, "P1 bi-level optimiser: Gaussian start, 150 samples x 5 CEM iterations x 12 accelerated "
+    _row("bilevel", DRIVEOPT, "P1 bi-level optimiser: Gaussian start, 250 samples x 5 CEM iterations x 12 accelerated "
          "projection iterations, 7 before the last CEM iteration (real time on 2 CPU cores; P1: 1000 samples x 20 "
          "iterations)", _bilevel),
     _row("bilevel-p1", DRIVEOPT, "P1's Gaussian start exactly: independent set-points, no warm start (Fig. 9's baseline)",
