@@ -199,14 +199,14 @@ class Controller:
             spec = dataclasses.replace(spec, config=config)
         if samples is not None and (isinstance(samples, bool) or not isinstance(samples, int) or samples < 1):
             raise ControllerError(f"samples must be a positive integer, got {samples!r}")
-        if config is not None and not isinstance(config, PlannerConfig):
-            spec = with_samples_and_config(spec, samples, dict(config))
+        overrides = {} if config is None or isinstance(config, PlannerConfig) else dict(config)
+        spec = with_samples_and_config(spec, samples, overrides)
         if v_des is not None and not (isinstance(v_des, (int, float)) and math.isfinite(v_des) and 0.0 < v_des <= 60.0):
             raise ControllerError(f"v_des must be a speed in (0, 60] m/s, got {v_des!r}")
         if route is not None and (isinstance(route, str) or not all(isinstance(node, str) for node in route)):
             raise ControllerError(f"route must be a sequence of node names of the env's lane graph, got {route!r}")
         check_given_weights(spec, weights, getattr(spec, "filter_weights", None))
-        self.spec = spec.with_samples(samples).with_weights(weights).with_latency(latency)
+        self.spec = spec.with_weights(weights).with_latency(latency)
         self.v_des = None if v_des is None else float(v_des)
         self.route = None if route is None else tuple(route)
         for name, value in (("track_within_period", track_within_period), ("verbose", verbose)):

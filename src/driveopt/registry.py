@@ -57,8 +57,9 @@ def _row(name: str, family: str, description: str, build: Callable[[str, str], "
 
 REALTIME_SAMPLES = 250  # [-] bilevel's samples per sampler iteration, the results tables' count: with its real-time
 # projection it plans in 13.4 ms median, 15.3 ms p95 in closed loop on the 2-core CPU (dense four-lane traffic, its AMD
-# EPYC variant), well within the 0.1 s control period on the slower variants too, and drove as safely and within 2 % as
-# quickly as at 150 in paired episodes (docs/results/speed.md#the-real-time-default); P1's batch of 1000 is `--samples 1000`.
+# EPYC variant; on the slower variants about 65-75 ms p95 is estimated, not measured), within the 0.1 s control period,
+# and drove as safely and within 2 % as quickly as at 150 in paired episodes
+# (docs/results/speed.md#the-real-time-default); P1's batch of 1000 is `--samples 1000`.
 REALTIME_PROJECTION = {"max_iterations": 12, "anderson_window": 4, "derivative_bounds": "control_points",
                        "acceleration_recovery": True, "early_iterations": 7}  # bilevel's projection: 12 iterations [-]
 # accelerated over a window of 4 [-], the speed and acceleration bounds at the control points of 4 pieces

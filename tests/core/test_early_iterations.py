@@ -41,7 +41,7 @@ def test_bilevels_seven_early_iterations_pick_plans_as_feasible_as_twelve_on_rec
     sampler iterations) on the 16 recorded closed-loop states against the same with 12 in all, the same key: as many
     calls end in SUCCESS but at most one, and the picks' residuals pooled stay within 1.5x + 0.001 at the median and
     within 0.025 of the other's p90 (measured: SUCCESS 16 and 16, median 0.00047 against 0.00055, p90 0.026 against
-    0.026; at 150 samples 0.00044 against 0.00049, 0.0042 against 0.016)."""
+    0.026)."""
     from benchmarks.perf.settings_offline import load_states  # the writer of the file reads it
 
     early = get_optimiser("bilevel").config
