@@ -68,6 +68,11 @@ REALTIME_PROJECTION = {"max_iterations": 12, "anderson_window": 4, "derivative_b
 # (docs/results/speed.md#the-real-time-projection); the acceleration bound recovers from a car braking beyond it on a
 # bend as the other bounds do (docs/controller.md)
 
+P2_PASS_PROJECTION = {"max_iterations": 100, "anderson_window": 0}  # driveopt's P2 pipelines' filter: P2's 100 plain
+# iterations [-] (50 accelerated over a window of 4 took 27-38 % off a call and drove vqvae-filter as safely and within
+# 2 % as quickly: docs/results/speed.md#p2s-one-pass-accelerated-measured-not-a-default; vqvae and cvae-filter, which
+# P2's comparisons set beside it, are not yet judged); the *-faithful pipelines keep P2's (driveopt.faithful.P2_MATHS)
+
 
 # The factories: each imports what its spec needs when it is built.
 
@@ -90,8 +95,9 @@ def _single_iteration(samples: int, **sections):
 
 
 def _p2_pass():
-    """P2's one pass: 1000 samples, the 150 lowest residuals, the barrier projection of 100 iterations."""
-    return _config(sampler={"num_iterations": 1, "num_constraint_elites": 150}, projection={"max_iterations": 100, "barrier": True})
+    """P2's one pass: 1000 samples, the 150 lowest residuals, the barrier projection (:data:`P2_PASS_PROJECTION`)."""
+    return _config(sampler={"num_iterations": 1, "num_constraint_elites": 150},
+                   projection={**P2_PASS_PROJECTION, "barrier": True})
 
 
 def _distinct_rows():

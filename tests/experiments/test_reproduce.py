@@ -327,6 +327,20 @@ def test_every_figure_of_both_papers_is_declared_with_registered_planners():
                and c.baseline.config == (("projection.max_iterations", 0),) for c in fig9.claims)
 
 
+def test_p2s_iteration_sweep_names_driveopts_iterations_and_runs_the_faithful_at_p2s_own():
+    """driveopt's P2 pipelines accelerate fewer filter iterations by default, so Fig. 8a's points name theirs (100 is
+    100, not the planner's own); the faithful pipeline's own count is P2's 100, which its arms keep unnamed; Fig. 8b
+    sweeps samples at each pipeline's own iterations."""
+    (fig8a,) = figures_of("p2", ["fig8a"])
+    for arm in {arm for claim in fig8a.claims for arm in (claim.arm, claim.baseline)}:
+        iterations = dict(arm.config).get("projection.max_iterations")
+        assert iterations in ((10, 25, 50, None) if arm.planner.endswith("-faithful") else (10, 25, 50, 100)), arm.label
+    assert {dict(c.arm.config)["projection.max_iterations"] for c in fig8a.claims if c.arm.planner == "vqvae-filter"} == {
+        10, 25, 50, 100}
+    (fig8b,) = figures_of("p2", ["fig8b"])
+    assert all(not arm.config for claim in fig8b.claims for arm in (claim.arm, claim.baseline))
+
+
 def test_the_faithful_arms_replan_with_one_period_like_driveopts():
     """The bi-level optimiser and its baselines plan with the same period in every comparison: no arm overrides it,
     and every registered planner an arm names plans every policy period."""
