@@ -221,8 +221,6 @@ class CostConfig:
     route: float = 10.0  # [1/lane] weight of the lane changes still between y(t)'s lane and the band a route's split draws
     # it towards (PlanningProblem.pull_band; the term is 0 without one), counted from the nearest lane, so a plan stuck
     # between two lanes gains nothing over the nearer one
-    world_speed: float = 0.0  # [1/(m/s)^2] weight of (|v| - v_des)^2 measured on the road rather than along the
-    # frame's reference line (they differ on a curved road beside that line: docs/controller.md); 0: the rate alone
     time_constant: float = 0.0  # [s] every term weighs the node at time t by exp(-t / this) (weighted means; 0: every
     # node alike, P1). A plan is made again long before its end, so what it gives up later costs less than the same
     # given up now: a plan closing on a slower car far ahead keeps its speed and slows when near, where plain means

@@ -8,11 +8,10 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from driveopt.config import CostConfig
-from driveopt.problem import PlanningProblem, path_scale
+from driveopt.problem import PlanningProblem
 from driveopt.trajectory import Trajectory
 
-COST_TERMS = ("speed", "lateral_acceleration", "heading", "curvature", "lane_centering", "consistency", "route",
-              "world_speed")
+COST_TERMS = ("speed", "lateral_acceleration", "heading", "curvature", "lane_centering", "consistency", "route")
 
 
 def nearest_lane_center(problem: PlanningProblem, y: jnp.ndarray) -> jnp.ndarray:
@@ -56,12 +55,6 @@ def cost_terms(traj: Trajectory, problem: PlanningProblem, previous_y: jnp.ndarr
         # than one centred in either
         "route": jnp.round(outside_band(problem.pull_band, traj.y) / problem.lane_width),
     }
-    # The speed the car moves at on the road, against the desired one there: on a curved road a plan's rate along the
-    # frame's reference line is 1 - k (y - y0) times slower or faster than the car (the desired rate is that of the
-    # plan's start, so a plan that keeps its rate from a straight into a curve, inside the reference line, slows)
-    scale = path_scale(problem, traj.x, traj.y)
-    world_speed = jnp.sqrt((traj.vx * scale) ** 2 + traj.vy**2)
-    per_node["world_speed"] = (world_speed - problem.v_des * scale[..., :1]) ** 2
     if previous_y is not None:
         per_node["consistency"] = (traj.y - previous_y) ** 2
     terms = {name: time_weighted_mean(value, traj.t, time_constant) for name, value in per_node.items()}

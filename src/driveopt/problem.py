@@ -27,7 +27,7 @@ from driveopt.prediction import (
     obstacle_slots,
     predict_neighbour,
 )
-from driveopt.scene import CURVATURE_CELL, CURVATURE_CELLS, PATH_SCALE_MIN, EgoState, ProblemError, Scene
+from driveopt.scene import CURVATURE_CELLS, EgoState, ProblemError, Scene
 
 NO_PULL = (-1e4, 1e4)  # [m] PlanningProblem.pull_band without a band to draw plans towards: wider than any road
 
@@ -188,17 +188,3 @@ def check_problem(problem: PlanningProblem, basis: BasisConfig = BasisConfig()) 
         raise ProblemError("obstacle ellipse semi-axes must be > 0")
     if np.any(np.asarray(problem.ellipse_growth) < 0):
         raise ProblemError("problem.ellipse_growth must be >= 0")
-
-
-def road_curvature_at(cells: jnp.ndarray, x: jnp.ndarray) -> jnp.ndarray:
-    """[1/m] the road's signed curvature at positions ``x`` [m] (any shape): the value of the CURVATURE_CELL-long cell
-    of ``cells`` (C,) each lies in, the first cell for positions behind x = 0 and the last beyond the table."""
-    index = jnp.clip(jnp.floor(x * (1.0 / CURVATURE_CELL)), 0, cells.shape[0] - 1).astype(jnp.int32)
-    return cells[index]
-
-
-def path_scale(problem: PlanningProblem, x: jnp.ndarray, y: jnp.ndarray) -> jnp.ndarray:
-    """[-] how much faster than its rate along the frame's reference line a point at (``x``, ``y``) [m] moves there:
-    ``1 - k (y - y0)``, k the road's curvature at ``x`` and y0 the line's (:attr:`PlanningProblem.road_origin`), at
-    least PATH_SCALE_MIN; 1 on a straight road."""
-    return jnp.maximum(1.0 - road_curvature_at(problem.road_curvature, x) * (y - problem.road_origin), PATH_SCALE_MIN)

@@ -50,9 +50,9 @@ import numpy as np
 from driveopt import anderson
 from driveopt.basis import derivative_control_points
 from driveopt.config import ProjectionConfig
-from driveopt.problem import PlanningProblem, ellipse_axes, road_curvature_at, travel_direction
+from driveopt.problem import PlanningProblem, ellipse_axes, travel_direction
 from driveopt.qp import TrajectoryModel, split
-from driveopt.scene import PATH_SCALE_MIN
+from driveopt.scene import CURVATURE_CELL, PATH_SCALE_MIN
 from driveopt.xla import float32_products
 
 _EPS = 1e-6
@@ -566,6 +566,13 @@ def _pair(x, y, one):
     read from it. Exact for finite x and y (an infinite part would make the other NaN); every pair here is bounded."""
     packed = jax.lax.complex(x, y) / one
     return jnp.real(packed), jnp.imag(packed)
+
+
+def road_curvature_at(cells: jnp.ndarray, x: jnp.ndarray) -> jnp.ndarray:
+    """[1/m] the road's signed curvature at positions ``x`` [m] (any shape): the value of the CURVATURE_CELL-long cell
+    of ``cells`` (C,) each lies in, the first cell for positions behind x = 0 and the last beyond the table."""
+    index = jnp.clip(jnp.floor(x * (1.0 / CURVATURE_CELL)), 0, cells.shape[0] - 1).astype(jnp.int32)
+    return cells[index]
 
 
 def _row_nodes(rows: int, nodes: int) -> np.ndarray:

@@ -40,35 +40,3 @@ def test_a_discounted_cost_keeps_the_speed_now_and_slows_later(small_config, slo
     first = {tau: float(np.mean(np.asarray(traj.speed)[np.asarray(traj.t) <= 3.0])) for tau, traj in plans.items()}
     assert first[0.0] < 9.6, first  # the plain mean spreads the shortfall over the horizon: it slows from the start
     assert first[3.0] > first[0.0] + 0.2, first  # discounted: it keeps more of its speed now and slows later
-
-
-def test_the_world_speed_term_measures_the_speed_on_the_road():
-    """On a curve a plan's rate along the reference line is not the car's speed: 2 m inside the line of a 0.04 1/m
-    curve a car moves 0.92 times its rate. The world_speed term compares the speed on the road with the desired speed
-    at the plan's start (v_des is that point's rate); on a straight road it is the speed term."""
-    from driveopt.costs import cost_terms
-    from driveopt.scene import CURVATURE_CELL, CURVATURE_CELLS
-    from driveopt.trajectory import Trajectory
-
-    t = jnp.linspace(0.0, 5.0, 51)
-    straight_cells = 3  # the curve starts 3 cells ahead
-    curve = Road(num_lanes=2, curvature_origin=-2.0,
-                 curvature_ahead=(0.0,) * straight_cells + (0.04,) * (CURVATURE_CELLS - straight_cells))
-
-    def terms(road: Road, rate) -> tuple[dict, np.ndarray]:
-        problem = build_problem(Scene(ego=EgoState(x=0.0, y=0.0, vx=10.0), road=road, v_des=10.0))
-        zeros = jnp.zeros_like(t)
-        rate = jnp.broadcast_to(jnp.asarray(rate, jnp.float32), t.shape)
-        x = jnp.concatenate([zeros[:1], jnp.cumsum(rate[:-1]) * (t[1] - t[0])])
-        traj = Trajectory(t, x, zeros, rate, zeros, zeros, zeros, rate, zeros, zeros, zeros)
-        return {name: float(value) for name, value in cost_terms(traj, problem).items()}, np.asarray(x)
-
-    straight, _ = terms(Road(num_lanes=2), 9.0)
-    assert straight["world_speed"] == pytest.approx(straight["speed"]) == pytest.approx(1.0)
-    held, x = terms(curve, 10.0)  # the desired rate on the straight, held into the curve
-    on_curve = np.mean(x >= straight_cells * CURVATURE_CELL)
-    assert 0.2 < on_curve < 1.0
-    assert held["speed"] == 0.0 and held["world_speed"] == pytest.approx(on_curve * 0.8 ** 2, rel=1e-3)
-    rate = np.where(x >= straight_cells * CURVATURE_CELL, 10.0 / 0.92, 10.0)  # 10 m/s on the road throughout
-    kept, _ = terms(curve, rate)
-    assert kept["world_speed"] == pytest.approx(0.0, abs=1e-8) and kept["speed"] > 0.5

@@ -10,8 +10,9 @@ import pytest
 
 from driveopt.basis import basis_at, derivative_control_points
 from driveopt.config import ProjectionConfig, QPConfig
-from driveopt.problem import build_problem, road_curvature_at
+from driveopt.problem import build_problem
 from driveopt.projection import (
+    road_curvature_at,
     _fast_rsqrt,
     _fast_sqrt,
     _operators,
