@@ -152,3 +152,73 @@ def test_the_closed_loop_is_driveopts_by_default_and_the_papers_in_one_value():
     assert (PAPERS_LOOP.braking_time, PAPERS_LOOP.selection_time) == (0.0, 0.0)
     with pytest.raises(ConfigError, match="replan_every"):
         ClosedLoop(replan_every=0)
+
+
+# ---------------------------------------------------------------------------------------------- frames that jump
+
+
+def _carrying_driver(warm, previous):
+    """bilevel's driver holding a carried warm start and previous plan made in the frame ``"old"``."""
+    from driveopt.drivers.optimiser import OptimiserDriver
+
+    driver = OptimiserDriver(get_planner("bilevel"))
+    driver.config, driver.carries_plan = driver.spec.config, True
+    driver.warm, driver.previous, driver._carried_frame = warm, previous, "old"
+    return driver
+
+
+def _frame(d_of_car):
+    """A frame that puts the car at lateral coordinate ``d_of_car`` [m] (None: it does not reach the car)."""
+    return SimpleNamespace(ego_s=0.0, locate=lambda position, near_s=None: None if d_of_car is None else (5.0, d_of_car))
+
+
+def test_a_carried_plan_moves_with_the_jump_of_the_frames_lateral_origin():
+    """On racetrack-v0 the frame along the next piece measures d from another line (the car's d jumped from 0.15 to
+    120.11 m): the carried lateral set-points and positions move by that jump, the speeds stay, and a frame that does
+    not jump leaves them as they were; one that no longer reaches the car drops them."""
+    from driveopt.planner import PreviousPlan
+
+    warm = np.array([10, 10, 11, 11, 0.0, 0.5, 4.0, 4.0], np.float32)
+    previous = PreviousPlan(warm.copy(), np.linspace(0.15, 4.0, 100, dtype=np.float32), np.True_)
+    env = SimpleNamespace(unwrapped=SimpleNamespace(vehicle=SimpleNamespace(position=np.zeros(2))))
+
+    def perception(frame, ego_y):
+        return SimpleNamespace(frame=frame, scene=SimpleNamespace(ego=SimpleNamespace(y=ego_y)))
+
+    driver = _carrying_driver(warm, previous)
+    driver._carried_frame = _frame(0.15)
+    new = _frame(120.11)
+    driver._carry_into(env, perception(new, 120.11))
+    assert np.allclose(driver.warm, [10, 10, 11, 11, 119.96, 120.46, 123.96, 123.96])
+    assert np.allclose(driver.previous.setpoints, driver.warm)
+    assert np.allclose(driver.previous.lateral, previous.lateral + 119.96)
+    assert driver._carried_frame is new
+    driver._carry_into(env, perception(_frame(120.11), 120.11))  # the next frame along the same piece: no jump
+    assert np.allclose(driver.warm[4:], [119.96, 120.46, 123.96, 123.96])
+
+    driver = _carrying_driver(warm, previous)
+    driver._carried_frame = _frame(None)
+    driver._carry_into(env, perception(_frame(3.0), 3.0))
+    assert driver.warm is None and not bool(driver.previous.present)
+
+
+@pytest.mark.slow  # compiles the planner for another road: about 25 s
+def test_racetrack_plans_keep_their_speed_where_the_frame_jumps():
+    """racetrack-v0 seed 0: at 6.8 s the car's d jumps from 0.15 to 120.11 m. The plans made right after the jump
+    keep the car's speed (with the old frame's lateral set-points carried as they were, the first plan after the jump
+    braked to 7.8 m/s, and the one after the jump at 12.6 s to 4.9 m/s)."""
+    import driveopt
+
+    env = driveopt.gym_make("racetrack-v0", config={"action": {"type": "ContinuousAction"}})
+    env.reset(seed=0)
+    ctrl = driveopt.Controller("bilevel", verbose=False)
+    ctrl.reset(env, seed=0)
+    previous_y, jumps = None, 0
+    for _ in range(40):  # 8 s at 5 Hz
+        env.step(ctrl.act(env))
+        scene = ctrl.driver._perception.scene
+        if previous_y is not None and abs(scene.ego.y - previous_y) > 50.0:
+            jumps += 1
+            assert float(np.min(np.asarray(ctrl.planned.result.trajectory.vx))) > 9.0
+        previous_y = scene.ego.y
+    assert jumps == 1

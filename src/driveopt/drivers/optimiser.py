@@ -56,6 +56,7 @@ from driveopt.multi_plan import Call
 from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, plan, previous_plan
 from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
 from driveopt.problem import build_problem
+from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM
 from driveopt.sim.contact import guard
 from driveopt.sim.control import (BicycleModel, Command, EgoKinematics, brake_at_least, ego_kinematics, predict,
                                   sample_trajectory, track)
@@ -65,6 +66,8 @@ from driveopt.sim.scenarios import Scenario
 from driveopt.sim.world_plan import to_world
 
 SAFETY_FACTOR = 0.9  # [-] plans use at most this fraction of the simulator's acceleration and curvature
+FRAME_SHIFT_TOLERANCE = 1e-4  # [m] a change of the car's lateral coordinate between two frames above this is a jump
+# of the frame's lateral origin (frames along the same roads give the same d to float precision)
 MIN_PLANNING_CURVATURE = 0.02  # [1/m] path curvature a plan must keep on top of the road's (a 50 m radius)
 
 PriorFactory = Callable[[PlannerConfig, int, "str | None"], Any]  # (config, lanes, weights file) -> prior
@@ -145,6 +148,11 @@ class ClosedLoop:
 
 DRIVEOPT_LOOP = ClosedLoop()  # driveopt's: the safe trajectory executed, braking-aware and approach-ranked, guarded
 PAPERS_LOOP = ClosedLoop.papers(replan_every=1)  # as the papers' authors ran their planners: a plan every period
+
+
+def _present(previous: PreviousPlan | None) -> bool:
+    """Whether a previous plan is carried (not None, nor the absent placeholder)."""
+    return previous is not None and bool(previous.present)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -323,6 +331,7 @@ class OptimiserDriver:
         # loop (the result is discarded).
         self.warm = None
         self.previous = PreviousPlan.absent(self.config.basis.num_nodes) if self.carries_plan else None
+        self._carried_frame = None  # the frame the carried warm start and previous plan are in
         self._first_scene, self._first_goal = first.scene, first.goal
         self.compile_seconds = 0.0
         if warm_up:
@@ -394,6 +403,7 @@ class OptimiserDriver:
         problem = self._problem(scene, perception.goal)
         self.key, sub = jax.random.split(self.key)
         self._request = (scene, problem, ahead)
+        self._carry_into(env, perception)
         return Call(problem, sub, self.warm, self.previous, scene.ego.x)
 
     def shared(self) -> Shared:
@@ -511,7 +521,33 @@ class OptimiserDriver:
             self.expected = call.periods
         gap = max(self.spec.loop.replan_every, call.delivered_after) + self._ahead() - call.ahead
         self.warm, self.previous = self._carried(call.result, gap * self.period)
+        self._carried_frame = call.frame
         return call
+
+    def _carry_into(self, env: Any, perception: Perception) -> None:
+        """Put the carried warm start and previous plan in the lateral coordinate of ``perception``'s frame. A frame
+        along the next road of the route may measure ``d`` from another line (on racetrack-v0 the car's ``d`` jumps by
+        210 m between two pieces), and the old frame's lateral set-points and positions would pull every sample
+        towards a place that far away (the consistency cost outweighing the rest): they move by the jump of the car's
+        own ``d``. Where the old frame no longer reaches the car they are dropped."""
+        old, new = self._carried_frame, perception.frame
+        self._carried_frame = new
+        if old is None or new is None or old is new or (self.warm is None and not _present(self.previous)):
+            return
+        located = old.locate(np.asarray(env.unwrapped.vehicle.position, dtype=float), near_s=old.ego_s)
+        if located is None:
+            self.warm = None
+            self.previous = PreviousPlan.absent(self.config.basis.num_nodes) if self.carries_plan else None
+            return
+        shift = np.float32(perception.scene.ego.y - located[1])  # [m]
+        if abs(shift) <= FRAME_SHIFT_TOLERANCE:
+            return
+        lateral = shift * (np.arange(SETPOINT_DIM) >= NUM_SEGMENTS)  # p = (v_1..v_4, y_1..y_4)
+        if self.warm is not None:
+            self.warm = np.asarray(self.warm) + lateral
+        if _present(self.previous):
+            self.previous = self.previous._replace(setpoints=np.asarray(self.previous.setpoints) + lateral,
+                                                   lateral=np.asarray(self.previous.lateral) + shift)
 
     def _command(self, result: PlanResult, followed: Any, elapsed: float, tracking, env: Any,
                  perception: Perception | None = None) -> tuple[Command, bool]:
