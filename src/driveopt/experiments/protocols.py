@@ -470,8 +470,8 @@ NO_FILTER_NOTES = {STRENGTHENED: "no filter: feasibility-first ranking (rejectio
 def _p2_arm(planner: str, version: str = STRENGTHENED, samples: int = P2_SAMPLES, iterations: int | None = None,
             note: str = "") -> Arm:
     """driveopt's pipeline ``planner`` (STRENGTHENED) or its faithful version (FAITHFUL: ``<planner>-faithful``, its
-    note adding P2's ranking); ``iterations``: filter iterations (None: the planner's own, driveopt's 50 accelerated or
-    the faithful pipeline's 100 plain)."""
+    note adding P2's ranking); ``iterations``: filter iterations (None: the planner's own, driveopt's
+    ``registry.P2_PASS_PROJECTION`` or the faithful pipeline's P2's 100 plain)."""
     if version == FAITHFUL:
         planner, note = f"{planner}-faithful", "; ".join(part for part in (note, FAITHFUL_P2_NOTE) if part)
     config = () if iterations is None else (("projection.max_iterations", iterations),)
@@ -545,8 +545,8 @@ def _p2_figure7() -> FigureProtocol:
 def _p2_budget(figure: str, title: str, points: tuple[tuple[int, int | None], ...], reduced: tuple[int, int | None],
                paper: str, effect: PaperEffect) -> FigureProtocol:
     """Fig. 8a/8b: (samples, filter iterations) points, the last P2's full budget; None: each pipeline's own iterations
-    (driveopt's 50 accelerated, the faithful pipeline's 100 plain: a sweep of iterations names driveopt's at every
-    point, 100 included). The reduced budget against the full one (driveopt's pipeline and the faithful one;
+    (driveopt's may be fewer, accelerated, than the faithful pipeline's P2's 100 plain: a sweep of iterations names
+    driveopt's at every point, 100 included). The reduced budget against the full one (driveopt's pipeline and the faithful one;
     ``effect``: the collision level P2 states at the reduced budget), and driveopt's learned filter against its plain
     one at each point (collisions, speed, plan time). Primary: the faithful pipeline's level at the reduced budget,
     the text's number as P2's pipeline reached it."""
