@@ -13,7 +13,7 @@ from driveopt.cli import main
 from driveopt.planner import PlanStatus, plan
 from driveopt.priors.cvae import CVAEPrior, shipped_weights
 from driveopt.problem import build_problem
-from driveopt.registry import P2_PASS_PROJECTION, get_optimiser, list_planners
+from driveopt.registry import get_optimiser, list_planners
 from driveopt.row_sharing import DistinctRows, EveryRow
 from driveopt.scene import load_scene
 
@@ -40,8 +40,7 @@ def test_cvae_filter_differs_from_vqvae_only_in_the_prior(shipped_prior):
     assert cvae_filter.config == vqvae.config
     sampler, projection = cvae_filter.config.sampler, cvae_filter.config.projection
     assert (sampler.num_samples, sampler.num_iterations, sampler.num_constraint_elites) == (1000, 1, 150)
-    assert projection.barrier and {"max_iterations": projection.max_iterations,
-                                  "anderson_window": projection.anderson_window} == P2_PASS_PROJECTION
+    assert projection.barrier  # its iterations: tests/core/test_registry.py
     same = dataclasses.replace(cvae_filter, name=vqvae.name, description=vqvae.description, make_prior=vqvae.make_prior,
                                method=vqvae.method)
     assert same == vqvae  # warm start, fallback, prediction, replanning: all vqvae's

@@ -35,7 +35,7 @@ from driveopt.planner import PlanStatus, RowKind, Snapshot, plan
 from driveopt.priors.vqvae import VQVAEPrior, load_prior, prior_for
 from driveopt.problem import build_problem
 from driveopt.qp import make_model, qp_layer
-from driveopt.registry import P2_PASS_PROJECTION, get_optimiser
+from driveopt.registry import get_optimiser
 from driveopt.scene import load_scene
 from driveopt.training.cvae import make_batch
 from driveopt.training.harness import training_rows
@@ -371,9 +371,7 @@ def test_vqvae_planners_without_weights_warn_and_plan():
         assert not isinstance(prior, VQVAEPrior)
     spec = get_optimiser("vqvae")
     assert spec.config.sampler.num_iterations == 1 and spec.config.sampler.num_samples == 1000
-    projection = spec.config.projection
-    assert projection.barrier and {"max_iterations": projection.max_iterations,
-                                  "anderson_window": projection.anderson_window} == P2_PASS_PROJECTION
+    assert spec.config.projection.barrier  # its iterations: tests/core/test_registry.py
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         fallback = spec.prior(3)  # the Gaussian start

@@ -532,7 +532,7 @@ class OptimiserDriver:
         own ``d``. Where the old frame no longer reaches the car they are dropped."""
         old, new = self._carried_frame, perception.frame
         self._carried_frame = new
-        if old is None or new is None or old is new or (self.warm is None and not _present(self.previous)):
+        if old is None or new is None or (self.warm is None and not _present(self.previous)):
             return
         located = old.locate(np.asarray(env.unwrapped.vehicle.position, dtype=float), near_s=old.ego_s)
         if located is None:
