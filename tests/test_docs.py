@@ -72,3 +72,8 @@ def test_the_docs_map_lists_every_page():
     listed = {(index.parent / t.split("#", 1)[0]).resolve() for _, t in links(index.read_text(encoding="utf-8"))}
     missing = [str(p.relative_to(ROOT)) for p in PAGES[1:] if p != index and p.resolve() not in listed]
     assert not missing, f"docs/README.md does not list {missing}"
+
+
+def test_the_controller_guide_shows_the_upstream_table_as_its_command_wrote_it():
+    table = (ROOT / "benchmarks/results/upstream-roads/table.md").read_text().strip()
+    assert table in (ROOT / "docs/controller.md").read_text()
