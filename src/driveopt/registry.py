@@ -70,8 +70,9 @@ REALTIME_PROJECTION = {"max_iterations": 12, "anderson_window": 4, "derivative_b
 
 P2_PASS_PROJECTION = {"max_iterations": 100, "anderson_window": 0}  # driveopt's P2 pipelines' filter: P2's 100 plain
 # iterations [-] (50 accelerated over a window of 4 took 27-38 % off a call and drove vqvae-filter as safely and within
-# 2 % as quickly, and vqvae too: docs/results/speed.md#p2s-one-pass-accelerated-measured-not-a-default; cvae-filter,
-# which P2's comparisons set beside them, is not yet judged); the *-faithful pipelines keep P2's (driveopt.faithful.P2_MATHS)
+# 2 % as quickly, and vqvae too, but cvae-filter, which P2's comparisons set beside them, drove highway-v0 11.5 %
+# slower: docs/results/speed.md#p2s-one-pass-accelerated-measured-not-a-default); the *-faithful pipelines keep P2's
+# (driveopt.faithful.P2_MATHS)
 
 
 # The factories: each imports what its spec needs when it is built.
