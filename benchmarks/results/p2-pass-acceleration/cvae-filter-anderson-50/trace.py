@@ -14,6 +14,6 @@ for step in range(20):
     p = c.planned
     if p is not None and p.result is not None:
         r = p.result; res = np.asarray(r.first.residual)
-        print(f"t={sim.time:4.1f} v={sim.vehicle.speed:5.2f} v_des={p.scene.v_des:5.2f} {r.status.name} sp_v={np.round(r.setpoints[:4],1)} y={np.round(r.setpoints[4:],1)} feasible={(res < 0.05).sum()} min_res={res.min():.3f} speed_cost={r.costs.get('speed', float('nan')):.2f}")
+        print(f"t={sim.time:4.1f} v={sim.vehicle.speed:5.2f} v_des={p.scene.v_des:5.2f} {r.status.name} sp_v={np.round(r.setpoints[:4],1)} y={np.round(r.setpoints[4:],1)} feasible={(res < c.driver.config.sampler.residual_tolerance).sum()} min_res={res.min():.3f} speed_cost={r.costs.get('speed', float('nan')):.2f}")
     _, _, term, trunc, _ = env.step(a)
     if term or trunc: break
