@@ -54,9 +54,10 @@ class Method:
                 require(False, f"method.{name} must be hashable (a frozen dataclass), got {value!r}")
 
     def as_papers(self, ranking: Ranking) -> "Method":
-        """This method with the papers' rules: ``ranking``, no stop rows in the batches, and a fallback without
-        straightening or sideways stops (:data:`PAPERS_FALLBACK`); the row sharing, which changes no rule, is kept."""
-        return dataclasses.replace(self, ranking=ranking, fallback=PAPERS_FALLBACK)
+        """This method with the papers' rules: ``ranking``, no stop rows in the batches, a fallback without
+        straightening or sideways stops (:data:`PAPERS_FALLBACK`) and a carried plan's row re-solved from its
+        set-points (P1's); the row sharing, which changes no rule, is kept."""
+        return dataclasses.replace(self, ranking=ranking, fallback=PAPERS_FALLBACK, carried_row=ResolvedSetpoints())
 
 
 DRIVEOPT_METHOD = Method()  # driveopt's: feasible rows first, the stops in every batch, every row projected
