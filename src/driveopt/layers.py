@@ -23,9 +23,9 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("observation", "qp", "anderson"),  # the learned components' features; the set-point QP; fixed-point acceleration
     ("problem", "trajectory"),  # the planner's arrays; a trajectory read out of its coefficients
     ("projection", "costs", "sampler", "filtering", "sim"),  # the numerics; the SafetyFilter contract; highway-env
-    ("ranking", "row_sharing", "carried_row", "rl"),  # the planner's strategies; P1's RL baselines
+    ("ranking", "row_sharing", "rl"),  # the planner's strategies; P1's RL baselines
     ("fallback",),
-    ("method",),  # ranking, fallback, row sharing and the carried row as one value
+    ("method",),  # ranking, fallback and row sharing as one value
     ("planner",),  # solve() and plan()
     ("multi_plan",),  # many problems in one compiled call (episodes in lock-step)
     ("learned", "data"),  # networks and checkpoints; demonstrations

@@ -5,7 +5,7 @@ whether its repeated rows are projected once, as one value.
     plan(problem, config, key=key, method=Method(ranking=CostPlusResidual(1e-5)))
 
 The configuration (:class:`driveopt.config.PlannerConfig`) is the maths every method shares; a :class:`Method` says
-where driveopt's planner and the papers' differ in the rules, with four strategies:
+where driveopt's planner and the papers' differ in the rules, with three strategies:
 
 - ``ranking`` (:mod:`driveopt.ranking`): driveopt's :class:`~driveopt.ranking.FeasibilityFirst`, or the papers'
   cost + residual (:class:`~driveopt.ranking.CostPlusResidual`, :class:`~driveopt.ranking.P1AuthorsRanking`);
@@ -13,9 +13,7 @@ where driveopt's planner and the papers' differ in the rules, with four strategi
   chosen, and whether the comfortable and the emergency stop ride in every batch (``in_batch``; P1: the samples
   alone);
 - ``row_sharing`` (:mod:`driveopt.row_sharing`): every row projected, or each distinct row once (P2's pipelines,
-  whose discrete prior repeats rows);
-- ``carried_row`` (:mod:`driveopt.carried_row`): the previous plan's row as its set-points re-solved from the current
-  state (P1's, the default) or as the plan itself moved on to this call.
+  whose discrete prior repeats rows).
 
 A method is a frozen dataclass of frozen dataclasses: :func:`driveopt.planner.solve` takes it as one static argument,
 so each distinct method is one compilation, and equal methods share it.
@@ -26,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from driveopt.carried_row import CarriedRow, ResolvedSetpoints
 from driveopt.checks import require
 from driveopt.fallback import Fallback
 from driveopt.ranking import FeasibilityFirst, Ranking
@@ -36,17 +33,15 @@ from driveopt.row_sharing import EveryRow, RowSharing
 @dataclass(frozen=True)
 class Method:
     """How the planner ranks a batch (``ranking``), what rides in it and what it offers when nothing is feasible
-    (``fallback``), whether it projects repeated rows once (``row_sharing``) and what the previous plan's row is
-    (``carried_row``); driveopt's by default."""
+    (``fallback``), and whether it projects repeated rows once (``row_sharing``); driveopt's by default."""
 
     ranking: Ranking = FeasibilityFirst()  # how a batch's rows are ranked (the papers: CostPlusResidual)
     fallback: Fallback = Fallback()  # the stops weighed when nothing is feasible, and whether two ride in every batch
     row_sharing: RowSharing = EveryRow()  # whether repeated rows are projected once (P2's pipelines: DistinctRows)
-    carried_row: CarriedRow = ResolvedSetpoints()  # the previous plan's row (or ShiftedPlan: the plan moved on)
 
     def __post_init__(self) -> None:
         require(isinstance(self.fallback, Fallback), f"method.fallback must be a Fallback, got {self.fallback!r}")
-        for name in ("ranking", "row_sharing", "carried_row"):
+        for name in ("ranking", "row_sharing"):
             value = getattr(self, name)
             try:
                 hash(value)
@@ -54,10 +49,9 @@ class Method:
                 require(False, f"method.{name} must be hashable (a frozen dataclass), got {value!r}")
 
     def as_papers(self, ranking: Ranking) -> "Method":
-        """This method with the papers' rules: ``ranking``, no stop rows in the batches, a fallback without
-        straightening or sideways stops (:data:`PAPERS_FALLBACK`) and a carried plan's row re-solved from its
-        set-points (P1's); the row sharing, which changes no rule, is kept."""
-        return dataclasses.replace(self, ranking=ranking, fallback=PAPERS_FALLBACK, carried_row=ResolvedSetpoints())
+        """This method with the papers' rules: ``ranking``, no stop rows in the batches, and a fallback without
+        straightening or sideways stops (:data:`PAPERS_FALLBACK`); the row sharing, which changes no rule, is kept."""
+        return dataclasses.replace(self, ranking=ranking, fallback=PAPERS_FALLBACK)
 
 
 DRIVEOPT_METHOD = Method()  # driveopt's: feasible rows first, the stops in every batch, every row projected

@@ -125,8 +125,7 @@ def plan_many(
         (call,) = calls
         return [plan(call.problem, config, key=call.key, prior=prior, warm_start=call.warm_start, previous=call.previous,
                      safety_filter=safety_filter, method=method, x_offset=call.x_offset)]
-    checked = [check_call(c.problem, config, c.key, c.warm_start, c.previous, c.x_offset, method)
-               for c in calls]
+    checked = [check_call(c.problem, config, c.key, c.warm_start, c.previous, c.x_offset) for c in calls]
     if len({c.previous is None for c in checked}) > 1:
         raise ProblemError("either every call carries a previous plan (PreviousPlan.absent() for none yet) or none does")
     if len({int(np.shape(c.problem.obstacle_x)[0]) for c in checked}) > 1:

@@ -14,16 +14,16 @@ reverse-mode differentiation needs). :func:`plan` validates the input, runs the 
 Per sampler iteration: draw set-points (the prior's proposal first, then the adapted Gaussian),
 solve the set-point QP for the batch, project the batch onto the constraints, rank, and update the
 Gaussian with P1 eq. 6 over the elite set. The planner's ``method`` (:class:`driveopt.method.Method`, one frozen
-dataclass passed as one static argument) decides what differs between driveopt's planner and the papers', with four
+dataclass passed as one static argument) decides what differs between driveopt's planner and the papers', with three
 strategies: ``method.ranking`` (:mod:`driveopt.ranking`: feasible rows first, or P1's cost + residual),
 ``method.fallback`` (:class:`driveopt.fallback.Fallback`: the stops weighed when nothing is feasible and how one is
-chosen, and with ``in_batch`` the comfortable and emergency stops ride in every batch, without it the samples alone),
-``method.row_sharing`` (:mod:`driveopt.row_sharing`: whether a batch's repeated rows, a discrete prior's samples,
-are projected once) and ``method.carried_row`` (:mod:`driveopt.carried_row`: the previous plan's row).
+chosen, and with ``in_batch`` the comfortable and emergency stops ride in every batch, without it the samples alone)
+and ``method.row_sharing`` (:mod:`driveopt.row_sharing`: whether a batch's repeated rows, a discrete prior's samples,
+are projected once).
 
 Rows appended to a batch (their :class:`RowKind` is in ``Snapshot.kind``) are ranked like any sample:
-the previous replan's plan when given (``method.carried_row``), and the fallback's stops when ``in_batch``. The chosen
-trajectory is the best candidate over all iterations by the ranking's key. The status is SUCCESS only when it is
+the previous replan's set-points when given, and the fallback's stops when ``in_batch``. The chosen trajectory is
+the best candidate over all iterations by the ranking's key. The status is SUCCESS only when it is
 feasible; otherwise it is INFEASIBLE, the chosen candidate is reported, and ``result.fallback`` offers
 the stop that ``method.fallback`` chooses (computed whether or not the stops ride in the batch).
 
@@ -51,7 +51,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from driveopt.basis import basis_at
 from driveopt.config import PlannerConfig, check_planning_size, split_runtime, with_runtime
 from driveopt.costs import COST_TERMS, cost_terms
 from driveopt.fallback import Fallback, braking_coeffs, stop_setpoints
@@ -98,7 +97,7 @@ class RowKind(enum.IntEnum):
     """What a row of a sampler batch is (``Snapshot.kind``)."""
 
     SAMPLE = 0  # drawn from the prior or the adapted Gaussian
-    PREVIOUS_PLAN = 1  # the previous replan's plan (only when ``previous`` is given; ``method.carried_row``)
+    PREVIOUS_PLAN = 1  # the previous replan's set-points (only when ``previous`` is given)
     COMFORTABLE_STOP = 2  # brake at ``Fallback.deceleration`` towards the nearest lane centre
     EMERGENCY_STOP = 3  # brake at ``projection.a_max`` holding the current lateral position
     PLACEHOLDER = 4  # stands in for an absent previous plan (``PreviousPlan.absent``): a copy of the first sample, never ranked
@@ -135,17 +134,11 @@ class PreviousPlan(NamedTuple):
 
     ``present`` False (:meth:`absent`) stands for "no previous plan" with the same array structure as a real one, so
     a closed loop's first call and its later calls are one compilation: the row it adds to the batch is a copy of the
-    first sample that is never ranked or counted, and the ``consistency`` term is zero, as without one.
-
-    ``coeffs`` is the plan's own trajectory moved on to this call, which the method's ``carried_row``
-    :class:`~driveopt.carried_row.ShiftedPlan` makes the row (:func:`previous_plan` computes it; None where only the
-    set-points are known, which the default row, :class:`~driveopt.carried_row.ResolvedSetpoints`, does with)."""
+    first sample that is never ranked or counted, and the ``consistency`` term is zero, as without one."""
 
     setpoints: jnp.ndarray  # (8,) its set-points (re-solved from the current state as a candidate)
     lateral: jnp.ndarray  # (K,) [m] its lateral positions at this call's node times
     present: Any = True  # () bool: False for the placeholder of an absent plan
-    coeffs: Any = None  # (2n,) its Bernstein coefficients at this call's node times (x [m] from where the plan had the
-    # car at this call's start, y [m] the road's lateral coordinate), or None
 
     @classmethod
     def absent(cls, num_nodes: int) -> "PreviousPlan":
@@ -167,23 +160,11 @@ class WarmStart(NamedTuple):
 
 def previous_plan(result: "PlanResult", elapsed: float) -> PreviousPlan:
     """The executed plan of ``result`` (``safe_trajectory``) shifted by ``elapsed`` [s] to the next call's
-    nodes: its lateral positions held at their last value beyond the horizon, and its coefficients fitted (least
-    squares on the nodes) to the trajectory moved on, continued beyond the horizon at its last velocity along the
-    road and its last lateral position, with x measured from where the plan has the car ``elapsed`` after its start."""
+    nodes; held at its last value beyond the horizon."""
     traj = result.safe_trajectory
     t = np.asarray(traj.t)
     lateral = np.interp(t + elapsed, t, np.asarray(traj.y)).astype(np.float32)
-    later = t.astype(np.float64) + elapsed
-    x = np.interp(later, t, np.asarray(traj.x, np.float64)) + np.maximum(later - t[-1], 0.0) * float(traj.vx[-1])
-    fit = _node_fit(np.asarray(result.coeffs).shape[0] // 2 - 1, float(t[-1]), t.shape[0])
-    coeffs = np.concatenate([fit @ (x - x[0]), fit @ lateral.astype(np.float64)]).astype(np.float32)
-    return PreviousPlan(np.asarray(result.setpoints, dtype=np.float32), lateral, np.True_, coeffs)
-
-
-@functools.lru_cache(maxsize=8)
-def _node_fit(order: int, horizon: float, num_nodes: int) -> np.ndarray:
-    """(order+1, K) least-squares fit of one axis's Bernstein coefficients to its values at the K uniform nodes."""
-    return np.linalg.pinv(basis_at(order, horizon, np.linspace(0.0, horizon, num_nodes)).W)
+    return PreviousPlan(np.asarray(result.setpoints, dtype=np.float32), lateral, np.True_)
 
 
 class Solution(NamedTuple):
@@ -263,8 +244,6 @@ def _iteration(model, problem, cfg: PlannerConfig, setpoints, previous: Previous
     row = (lambda b, i: b if b.ndim == 1 else b[i])  # noqa: E731  (boundary rows are per sample only for goals)
     for i, (decel, target) in zip(range(-len(stops), 0), stops):
         qp_coeffs = qp_coeffs.at[i].set(braking_coeffs(model, problem, decel, row(b_x, i), row(b_y, i), target))
-    if previous is not None:
-        qp_coeffs = qp_coeffs.at[num_samples].set(method.carried_row.row(qp_coeffs[num_samples], previous))
     # Unrolled (to be differentiated) every row is projected: row sharing's loops run for a number of chunks that the
     # data decide, which reverse mode cannot differentiate; the rows' results are the same either way.
     sharing = EveryRow() if unroll else method.row_sharing
@@ -499,7 +478,7 @@ def plan(
     x_offset: [m] added to x of the returned trajectories (the ego's road-frame x): a finite real number within the
         scene's position range (``driveopt.scene.RANGES["x"]``), as the command line's problem files require.
     """
-    checked = check_call(problem, config, key, warm_start, previous, x_offset, method)
+    checked = check_call(problem, config, key, warm_start, previous, x_offset)
     if prior is None:
         prior = GaussianPrior.from_config(config.sampler, config.projection.v_max)
     compiled_config, runtime = split_runtime(config)
@@ -522,9 +501,9 @@ class CheckedCall(NamedTuple):
 
 def check_call(problem: PlanningProblem, config: PlannerConfig, key: jax.Array,
                warm_start: np.ndarray | WarmStart | None = None, previous: PreviousPlan | None = None,
-               x_offset: float = 0.0, method: Method = DRIVEOPT_METHOD) -> CheckedCall:
+               x_offset: float = 0.0) -> CheckedCall:
     """The input of :func:`plan` checked and in the form :func:`solve` compiles once for (ProblemError, ConfigError:
-    see :func:`plan`); ``method``: the method it is planned with."""
+    see :func:`plan`)."""
     check_problem(problem, config.basis)
     check_planning_size(config, int(np.shape(problem.obstacle_x)[0]))  # before anything is compiled
     _check_key(key)
@@ -538,18 +517,10 @@ def check_call(problem: PlanningProblem, config: PlannerConfig, key: jax.Array,
     placeholder = False
     if previous is not None:
         present = _flag(previous.present, "previous.present")
-        num_coeffs = 2 * (config.basis.order + 1)
-        if previous.coeffs is None and present and method.carried_row.needs_trajectory:
-            raise ProblemError(f"method.carried_row {type(method.carried_row).__name__} needs the previous plan's "
-                               "coefficients (PreviousPlan.coeffs): make the plan with previous_plan(result, elapsed)")
-        coeffs = np.zeros(num_coeffs) if previous.coeffs is None else previous.coeffs  # then never read
-        arrays = [np.asarray(a, dtype=np.float32) for a in (previous.setpoints, previous.lateral, coeffs)]
-        previous = PreviousPlan(arrays[0], arrays[1], present, arrays[2])
-        shapes = tuple(a.shape for a in arrays)
-        expected = ((SETPOINT_DIM,), (config.basis.num_nodes,), (num_coeffs,))
-        if shapes != expected or not all(np.all(np.isfinite(a)) for a in arrays):
-            raise ProblemError("previous plan must be finite with shapes (set-points, lateral, coeffs) "
-                               f"{expected}, got {shapes}")
+        previous = PreviousPlan(*(np.asarray(a, dtype=np.float32) for a in previous[:2]), present)
+        shapes = (previous.setpoints.shape, previous.lateral.shape)
+        if shapes != ((SETPOINT_DIM,), (config.basis.num_nodes,)) or not all(np.all(np.isfinite(a)) for a in previous[:2]):
+            raise ProblemError(f"previous plan must be finite with shapes (8,) and ({config.basis.num_nodes},), got {shapes}")
         placeholder = not present
     return CheckedCall(problem, key, warm_start, previous, placeholder, x_offset)
 

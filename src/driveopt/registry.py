@@ -101,14 +101,12 @@ def _p2_pass():
                    projection={**P2_PASS_PROJECTION, "barrier": True})
 
 
-def _p2_method(distinct_rows: bool = False):
-    """driveopt's method for P2's one pass: the previous plan's row the plan itself moved on (``ShiftedPlan``, which
-    stays feasible within the pass's iterations), each distinct row projected once where the prior repeats samples."""
-    from driveopt.carried_row import ShiftedPlan
+def _distinct_rows():
+    """driveopt's method projecting each distinct row once (a discrete prior's repeated samples)."""
     from driveopt.method import Method
-    from driveopt.row_sharing import DistinctRows, EveryRow
+    from driveopt.row_sharing import DistinctRows
 
-    return Method(row_sharing=DistinctRows() if distinct_rows else EveryRow(), carried_row=ShiftedPlan())
+    return Method(row_sharing=DistinctRows())
 
 
 def _learned_prior(kind: str, *options):
@@ -139,13 +137,13 @@ def _cvae(mix: float, warm_start: bool):
 
 
 def _vqvae(name: str, description: str):
-    return _optimiser(name, description, _p2_pass(), _learned_prior("vqvae"), method=_p2_method(distinct_rows=True),
+    return _optimiser(name, description, _p2_pass(), _learned_prior("vqvae"), method=_distinct_rows(),
                       learned_prior=True)
 
 
 def _vqvae_filter(name: str, description: str):
     return _optimiser(name, description, _p2_pass(), _learned_prior("vqvae"), learned_filter=True,
-                      method=_p2_method(distinct_rows=True), learned_prior=True)
+                      method=_distinct_rows(), learned_prior=True)
 
 
 def _vqvae_cem(name: str, description: str):
@@ -153,8 +151,7 @@ def _vqvae_cem(name: str, description: str):
 
 
 def _cvae_filter(name: str, description: str):
-    return _optimiser(name, description, _p2_pass(), _learned_prior("cvae", 0.0), method=_p2_method(),
-                      learned_prior=True)
+    return _optimiser(name, description, _p2_pass(), _learned_prior("cvae", 0.0), learned_prior=True)
 
 
 def _cvae_multipliers(name: str, description: str):

@@ -6,7 +6,6 @@ import dataclasses
 import jax
 import pytest
 
-from driveopt.carried_row import ResolvedSetpoints, ShiftedPlan
 from driveopt.checks import ConfigError
 from driveopt.fallback import HOLD, LANE_CENTRE, Fallback
 from driveopt.method import DRIVEOPT_METHOD, PAPERS_FALLBACK, Method, papers_method
@@ -20,21 +19,18 @@ from driveopt.scene import load_scene
 
 def test_the_default_method_is_driveopts():
     """Feasible rows first, the comfortable and emergency stops in every batch and weighed as the fallback (straightening,
-    sideways stops), every row projected, a carried plan's set-points re-solved."""
-    assert Method() == DRIVEOPT_METHOD == Method(FeasibilityFirst(1.0), Fallback(3.0, True, True, True), EveryRow(),
-                                                 ResolvedSetpoints())
+    sideways stops), every row projected."""
+    assert Method() == DRIVEOPT_METHOD == Method(FeasibilityFirst(1.0), Fallback(3.0, True, True, True), EveryRow())
     assert DRIVEOPT_METHOD.fallback.in_batch and DRIVEOPT_METHOD.fallback.batch_stops(5.0) == ((3.0, LANE_CENTRE), (5.0, HOLD))
 
 
-def test_the_papers_method_swaps_ranking_fallback_and_carried_row_and_keeps_the_row_sharing():
+def test_the_papers_method_swaps_ranking_and_fallback_and_keeps_the_row_sharing():
     p1 = papers_method(CostPlusResidual(1e-5))
     assert p1 == Method(CostPlusResidual(1e-5), Fallback(straightens=False, evasion=False, in_batch=False), EveryRow())
     assert p1.fallback == PAPERS_FALLBACK and PAPERS_FALLBACK.batch_stops(5.0) == ()
     shared = Method(row_sharing=DistinctRows())
     assert shared.as_papers(P1AuthorsRanking()) == Method(P1AuthorsRanking(), PAPERS_FALLBACK, DistinctRows())
     assert papers_method(CostPlusResidual(), DistinctRows()) == shared.as_papers(CostPlusResidual())
-    shifted = Method(row_sharing=DistinctRows(), carried_row=ShiftedPlan())
-    assert shifted.as_papers(CostPlusResidual()) == shared.as_papers(CostPlusResidual())
 
 
 def test_methods_are_values_a_jit_can_key_on():

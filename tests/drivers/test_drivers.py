@@ -175,13 +175,11 @@ def _frame(d_of_car):
 def test_a_carried_plan_moves_with_the_jump_of_the_frames_lateral_origin():
     """On racetrack-v0 the frame along the next piece measures d from another line (the car's d jumped from 0.15 to
     120.11 m): the carried lateral set-points and positions move by that jump, the speeds stay, and a frame that does
-    not jump leaves them as they were; one that no longer reaches the car drops them. The carried coefficients' y
-    half moves with them, their x half stays."""
+    not jump leaves them as they were; one that no longer reaches the car drops them."""
     from driveopt.planner import PreviousPlan
 
     warm = np.array([10, 10, 11, 11, 0.0, 0.5, 4.0, 4.0], np.float32)
-    coeffs = np.concatenate([np.linspace(0.0, 150.0, 11), np.linspace(0.15, 4.0, 11)]).astype(np.float32)
-    previous = PreviousPlan(warm.copy(), np.linspace(0.15, 4.0, 100, dtype=np.float32), np.True_, coeffs)
+    previous = PreviousPlan(warm.copy(), np.linspace(0.15, 4.0, 100, dtype=np.float32), np.True_)
     env = SimpleNamespace(unwrapped=SimpleNamespace(vehicle=SimpleNamespace(position=np.zeros(2))))
 
     def perception(frame, ego_y):
@@ -194,7 +192,6 @@ def test_a_carried_plan_moves_with_the_jump_of_the_frames_lateral_origin():
     assert np.allclose(driver.warm, [10, 10, 11, 11, 119.96, 120.46, 123.96, 123.96])
     assert np.allclose(driver.previous.setpoints, driver.warm)
     assert np.allclose(driver.previous.lateral, previous.lateral + 119.96)
-    assert np.allclose(driver.previous.coeffs, np.concatenate([coeffs[:11], coeffs[11:] + 119.96]))
     assert driver._carried_frame is new
     driver._carry_into(env, perception(_frame(120.11), 120.11))  # the next frame along the same piece: no jump
     assert np.allclose(driver.warm[4:], [119.96, 120.46, 123.96, 123.96])

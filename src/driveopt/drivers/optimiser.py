@@ -546,11 +546,8 @@ class OptimiserDriver:
         if self.warm is not None:
             self.warm = np.asarray(self.warm) + lateral
         if _present(self.previous):
-            coeffs = self.previous.coeffs
-            if coeffs is not None:  # (x..., y...): y moves by the shift at every node
-                coeffs = np.asarray(coeffs) + shift * (np.arange(coeffs.shape[0]) >= coeffs.shape[0] // 2)
             self.previous = self.previous._replace(setpoints=np.asarray(self.previous.setpoints) + lateral,
-                                                   lateral=np.asarray(self.previous.lateral) + shift, coeffs=coeffs)
+                                                   lateral=np.asarray(self.previous.lateral) + shift)
 
     def _command(self, result: PlanResult, followed: Any, elapsed: float, tracking, env: Any,
                  perception: Perception | None = None) -> tuple[Command, bool]:
