@@ -1,14 +1,15 @@
 #!/bin/bash
-# The closed-loop A/Bs of P2's one pass at 80 plain iterations with the speed and acceleration bounds at control points
-# (config.json) against P2's 100 plain iterations, for vqvae-filter, vqvae and cvae-filter: own sides from the records
-# beside this folder, changed sides resumed from the records in it. Writes OUT/<planner>/verdict.json for each.
-#     bash benchmarks/results/p2-pass-acceleration/plain-80-control-points/resume.sh OUT
+# The closed-loop A/Bs of a candidate P2 one pass (CANDIDATE/config.json) against P2's 100 plain iterations, for
+# vqvae-filter, vqvae and cvae-filter: own sides from the accelerated pass's records in this folder, changed sides
+# resumed from CANDIDATE/<planner>/. Writes OUT/<planner>/verdict.json for each.
+#     bash benchmarks/results/p2-pass-acceleration/resume_ab.sh benchmarks/results/p2-pass-acceleration/plain-70 OUT
 set -e
-here=$(cd "$(dirname "$0")" && pwd)
-out=${1:?usage: resume.sh OUT}
+base=$(cd "$(dirname "$0")" && pwd)
+here=$(cd "${1:?usage: resume_ab.sh CANDIDATE OUT}" && pwd)
+out=${2:?usage: resume_ab.sh CANDIDATE OUT}
 for pair in vqvae-filter:anderson-50 vqvae:vqvae-anderson-50 cvae-filter:cvae-filter-anderson-50; do
   planner=${pair%%:*}
-  own=$here/../${pair##*:}
+  own=$base/${pair##*:}
   mkdir -p "$out/$planner"
   for side in own upstream-own; do
     [ -d "$out/$planner/$side" ] || cp -r "$own/$side" "$out/$planner/"
