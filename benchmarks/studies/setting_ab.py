@@ -17,6 +17,12 @@ Then each road's pairs are judged by the rule a setting must pass before it beco
   exact McNemar on the discordant pairs does not find it worse (two-sided p >= 0.05 where it collided more);
 - speed within 2 %: the mean speed over the pairs where neither side collided is at least 0.98 of the own side's.
 
+A side that already holds records when the run starts (stopped earlier, or copied from another run) is resumed only
+if its records repeat on this machine: the first road's first episode is driven again into a scratch folder and must
+end as recorded (collision, off-road, steps and mean speed to the last digit). Episodes of the same code need not
+repeat across machines (upstream ``highway-v0``'s did not on two of the same make), and an A/B whose sides ran on
+two machines would measure the machines too.
+
 ``DIR/verdict.json`` holds per road: pairs, collisions each way, discordant pairs, the McNemar p-value, off-road
 episodes, mean speeds, median plan time [ms] each way, and whether it passed; and overall whether every road passed.
 """
@@ -28,7 +34,9 @@ import json
 import math
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -94,6 +102,63 @@ def upstream_pairs(out: Path, env: str, planner: str, episodes: int, first: int 
     return [(own[s], changed[s]) for s in range(first, first + episodes) if s in own and s in changed]  # upstream_roads' resets
 
 
+REPEATED_FIELDS = ("collided", "off_road", "steps", "mean_speed")
+
+
+def first_record(folder: Path, road: str, planner: str, first_seed: int, upstream: bool) -> dict | None:
+    """The record of ``road``'s first episode of ``planner`` in the side folder ``folder`` (bench: episode 0 of the
+    seed; upstream: the reset ``first_seed``), None when it holds none."""
+    path = folder / "episodes.jsonl"
+    if not path.exists():
+        return None
+    for record in map(json.loads, path.read_text().splitlines()):
+        if upstream and (record.get("env"), record.get("planner"), record.get("seed")) == (road, planner, first_seed) \
+                and "refused" not in record:
+            return record
+        if not upstream and (record.get("scenario"), record.get("planner"), record.get("seed"), record.get("episode")) \
+                == (road, planner, first_seed, 0):
+            return record
+    return None
+
+
+def differences(recorded: dict, driven: dict) -> list[str]:
+    """The fields of :data:`REPEATED_FIELDS` where an episode driven again ends otherwise than recorded."""
+    return [f"{name} {recorded.get(name)!r} recorded, {driven.get(name)!r} now" for name in REPEATED_FIELDS
+            if recorded.get(name) != driven.get(name)]
+
+
+class Part(NamedTuple):
+    """One side's folder of bench or upstream episodes and how to drive them: ``drive(out, samples, extra, roads,
+    episodes)``; ``first_seed``: the bench seed or the first upstream reset."""
+
+    folder: str
+    samples: int
+    extra: list[str]
+    drive: Callable[[Path, int, list[str], list[str], int], None]
+    roads: list[str]
+    episodes: int
+    first_seed: int
+    upstream: bool
+
+
+def refuse_unless_repeated(out: Path, planner: str, part: Part) -> None:
+    """SystemExit unless ``part``'s folder holds no record of its first road's first episode or that episode, driven
+    again here into a scratch folder, ends as recorded (:func:`differences`)."""
+    road = part.roads[0]
+    recorded = first_record(out / part.folder, road, planner, part.first_seed, part.upstream)
+    if recorded is None:
+        return
+    with tempfile.TemporaryDirectory() as scratch:
+        part.drive(Path(scratch) / "again", part.samples, part.extra, [road], 1)
+        driven = first_record(Path(scratch) / "again", road, planner, part.first_seed, part.upstream)
+    changed = differences(recorded, driven or {})
+    if changed:
+        raise SystemExit(f"setting_ab: {out / part.folder}'s records do not repeat on this machine ({road}'s first "
+                         f"episode driven again: {'; '.join(changed)}); drive both sides on one machine (move the "
+                         "folder away)")
+    print(f"{out / part.folder}: {road}'s first episode repeats on this machine", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", type=Path, required=True, help="the changed side's overrides (JSON file)")
@@ -119,18 +184,26 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(exc))
     samples = args.samples if args.samples is not None else spec.config.sampler.num_samples
     changed_samples = (overrides.get("sampler") or {}).get("num_samples", samples)  # a change of the sample count
-    common = ["--planners", args.planner, "--seeds", str(args.seed), "--episodes", str(args.episodes),
-              "--workers", str(args.workers)]
+    common = ["--planners", args.planner, "--seeds", str(args.seed)]
     sides = (("own", samples, []), ("changed", changed_samples, ["--config", str(args.config.resolve())]))
-    for side, count, extra in sides:
-        if args.scenarios:
-            subprocess.run([sys.executable, "-m", "driveopt.cli", "bench", "--scenarios", *args.scenarios, *common,
-                            "--samples", str(count), *extra, "--out", str(args.out / side)], check=True)
-    for side, count, extra in sides:
-        if args.upstream:
-            upstream_roads.main(["--out", str(args.out / f"upstream-{side}"), "--envs", *args.upstream, "--planners",
-                                 args.planner, "--episodes", str(args.upstream_episodes), "--seed",
-                                 str(args.upstream_seed), "--samples", str(count), *extra])
+
+    def drive_bench(out: Path, count: int, extra: list[str], scenarios: list[str], episodes: int) -> None:
+        subprocess.run([sys.executable, "-m", "driveopt.cli", "bench", "--scenarios", *scenarios, *common,
+                        "--episodes", str(episodes), "--workers", str(args.workers), "--samples", str(count), *extra,
+                        "--out", str(out)], check=True)
+
+    def drive_upstream(out: Path, count: int, extra: list[str], envs: list[str], episodes: int) -> None:
+        upstream_roads.main(["--out", str(out), "--envs", *envs, "--planners", args.planner, "--episodes",
+                             str(episodes), "--seed", str(args.upstream_seed), "--samples", str(count), *extra])
+
+    parts = [Part(side, count, extra, drive_bench, args.scenarios, args.episodes, args.seed, False)
+             for side, count, extra in sides if args.scenarios]
+    parts += [Part(f"upstream-{side}", count, extra, drive_upstream, args.upstream, args.upstream_episodes,
+                   args.upstream_seed, True) for side, count, extra in sides if args.upstream]
+    for part in parts:
+        refuse_unless_repeated(args.out, args.planner, part)
+    for part in parts:
+        part.drive(args.out / part.folder, part.samples, part.extra, part.roads, part.episodes)
     roads = {name: judge(bench_pairs(args.out, name, args.planner)) for name in args.scenarios}
     roads.update({name: judge(upstream_pairs(args.out, name, args.planner, args.upstream_episodes, args.upstream_seed))
                   for name in args.upstream})

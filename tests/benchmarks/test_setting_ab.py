@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -79,3 +80,53 @@ def test_a_changed_sample_count_drives_the_changed_side_at_that_count(tmp_path, 
     assert [samples(argv) for argv in bench] == [samples(argv) for argv in upstream] == ["150", "250"]
     verdict = json.loads((tmp_path / "out" / "verdict.json").read_text())
     assert (verdict["samples"], verdict["changed_samples"], verdict["passed"]) == (150, 250, True)
+
+
+def bench_record(speed: float, episode_index: int = 0) -> dict:
+    return {"scenario": "four-lane-d3.0", "planner": "bilevel", "seed": 42, "episode": episode_index, "steps": 500,
+            **episode(speed=speed)}
+
+
+@pytest.mark.parametrize("speed_now, repeats", [(8.160419810104369, True), (8.160419810104371, False)])
+def test_a_resumed_side_is_driven_again_and_refused_unless_it_repeats(tmp_path, monkeypatch, capsys, speed_now, repeats):
+    config = tmp_path / "c.json"
+    config.write_text(json.dumps({"projection": {"max_iterations": 12}}))
+    own = tmp_path / "out" / "own"
+    own.mkdir(parents=True)
+    (own / "episodes.jsonl").write_text(json.dumps(bench_record(8.160419810104369)) + "\n"
+                                        + json.dumps(bench_record(7.0, 1)) + "\n")
+    driven = []
+
+    def bench(argv, check):  # the scratch run writes what "this machine" drives; the sides' runs are recorded only
+        out = Path(argv[argv.index("--out") + 1])
+        driven.append((out, argv[argv.index("--episodes") + 1], argv[argv.index("--scenarios") + 1:argv.index("--planners")]))
+        if out.name == "again":
+            out.mkdir()
+            (out / "episodes.jsonl").write_text(json.dumps(bench_record(speed_now)) + "\n")
+
+    monkeypatch.setattr(setting_ab.subprocess, "run", bench)
+    monkeypatch.setattr(setting_ab, "bench_pairs", lambda *args: [(episode(), episode())] * 50)
+    argv = ["--config", str(config), "--out", str(tmp_path / "out"), "--upstream"]
+    if repeats:
+        assert setting_ab.main(argv) == 0
+        assert [(out.name, n, roads) for out, n, roads in driven] == [
+            ("again", "1", ["four-lane-d3.0"]), ("own", "50", ["four-lane-d3.0", "two-lane-d2.5"]),
+            ("changed", "50", ["four-lane-d3.0", "two-lane-d2.5"])]  # the changed side held nothing: not driven again
+    else:
+        with pytest.raises(SystemExit) as stop:
+            setting_ab.main(argv)
+        assert "do not repeat on this machine" in str(stop.value) and "mean_speed 8.160419810104369 recorded" in str(stop.value)
+        assert [out.name for out, _, _ in driven] == ["again"]  # refused before either side drives on
+
+
+def test_only_the_first_episode_of_the_first_road_is_compared(tmp_path):
+    folder = tmp_path / "upstream-own"
+    folder.mkdir()
+    rows = [{"env": "highway-v0", "planner": "bilevel", "seed": 0, "refused": "no lanes"},
+            {"env": "highway-v0", "planner": "bilevel", "seed": 20, "steps": 20, **episode(speed=3.0)},
+            {"env": "highway-v0", "planner": "idm", "seed": 20, "steps": 20, **episode(speed=4.0)}]
+    (folder / "episodes.jsonl").write_text("\n".join(json.dumps(r) for r in rows))
+    assert setting_ab.first_record(folder, "highway-v0", "bilevel", 20, upstream=True)["mean_speed"] == 3.0
+    assert setting_ab.first_record(folder, "highway-v0", "bilevel", 0, upstream=True) is None
+    assert setting_ab.first_record(tmp_path / "none", "highway-v0", "bilevel", 20, upstream=True) is None
+    assert setting_ab.differences(rows[1], {**rows[1], "steps": 19}) == ["steps 20 recorded, 19 now"]
