@@ -241,6 +241,12 @@ def file_digest(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
+def json_digest(data: Any) -> str:
+    """The first 16 hex digits of the SHA-256 of ``data`` as compact JSON with sorted keys (finite numbers only)."""
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
 def pytree_digest(tree: Any) -> str:
     """The first 16 hex digits of the SHA-256 over the shapes, dtypes and bytes of a pytree's array leaves (loaded
     weights), in leaf order."""

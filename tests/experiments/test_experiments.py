@@ -349,6 +349,29 @@ def test_resuming_after_the_shipped_weights_changed_is_refused(tmp_path, monkeyp
     assert len(load_records(tmp_path / "out" / "episodes.jsonl")) == 4
 
 
+def test_resuming_after_a_planners_default_configuration_changed_is_refused(tmp_path, monkeypatch):
+    """A folder records the digest of each planner's configuration, its defaults included: a default changed since
+    (same options) must not mix two planners in one table; a folder written before configurations were named is
+    resumed and names them from then on."""
+    from driveopt import registry
+
+    spec = BenchSpec(scenarios=("four-lane-d3.0",), planners=("bilevel", "idm"), seeds=(42,), episodes=2)
+    run_bench(spec, tmp_path / "out", workers=1, episode_fn=fake_episode, progress=False)
+    folder_spec = json.loads((tmp_path / "out" / "spec.json").read_text())
+    assert list(folder_spec["configs"]) == ["bilevel"]  # idm plans with no configuration
+    (tmp_path / "out" / "spec.json").write_text(json.dumps({k: v for k, v in folder_spec.items() if k != "configs"}))
+    run_bench(spec, tmp_path / "out", workers=1, episode_fn=fake_episode, progress=False)  # an older folder: resumed
+    assert json.loads((tmp_path / "out" / "spec.json").read_text())["configs"] == folder_spec["configs"]
+
+    built = registry._built  # the registered planners, as if bilevel's default projection had changed since
+    changed = built("bilevel").with_overrides(projection={"max_iterations": 13})
+    monkeypatch.setattr(registry, "_built", lambda name: changed if name == "bilevel" else built(name))
+    more = BenchSpec(spec.scenarios, spec.planners, spec.seeds, episodes=3)
+    with pytest.raises(StoreError, match="bilevel driven with another planner configuration"):
+        run_bench(more, tmp_path / "out", workers=1, episode_fn=fake_episode, progress=False)
+    assert len(load_records(tmp_path / "out" / "episodes.jsonl")) == 4
+
+
 def test_an_episode_list_runs_only_those_episodes_and_a_full_run_adds_the_rest(tmp_path):
     chosen = dataclasses.replace(SPEC, episode_list=(2, 0))
     rows = run_bench(chosen, tmp_path, workers=1, episode_fn=fake_episode, progress=False)

@@ -89,6 +89,11 @@ class DriverSpec:
         so that a bench folder can refuse to mix episodes of two sets of weights; None when it uses none."""
         return None
 
+    def config_digest(self) -> str | None:
+        """A digest of the configuration this planner plans with, its defaults included, so that a bench folder can
+        refuse to mix episodes planned before and after a default changed; None when it has none."""
+        return None
+
     def with_samples(self, samples: int | None) -> "DriverSpec":
         return self
 

@@ -45,12 +45,12 @@ import jax
 import numpy as np
 
 from driveopt.checks import check_count, check_types
-from driveopt.config import PlannerConfig
+from driveopt.config import PlannerConfig, to_dict
 from driveopt.drivers.base import Decision, DriverSpec
 from driveopt.drivers.commands import EXACT_TRACKING, ExactTracking, FirstNodesMean
 from driveopt.drivers.latency import Latency, Synchronous, parse_latency
 from driveopt.fallback import Fallback
-from driveopt.files import pytree_digest
+from driveopt.files import json_digest, pytree_digest
 from driveopt.method import DRIVEOPT_METHOD, Method
 from driveopt.multi_plan import Call
 from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, plan, previous_plan
@@ -229,6 +229,10 @@ class OptimiserSpec(DriverSpec):
         learned = [part for part in (self.make_prior and self.prior(scenario.lanes), self.safety_filter(scenario.lanes))
                    if part is not None]
         return pytree_digest(learned) if learned else None
+
+    def config_digest(self) -> str:
+        """Digest of :attr:`config` (every field, defaults included)."""
+        return json_digest(to_dict(self.config))
 
     def with_overrides(self, **sections: Any) -> "OptimiserSpec":
         """Copy with config sections updated, e.g. ``sampler={"num_samples": 250}``; a ``safety_filter`` section

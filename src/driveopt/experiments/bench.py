@@ -48,7 +48,7 @@ from driveopt.experiments.store import (
     JobKey,
     StoreError,
     append_record,
-    clashing_weights,
+    clashing,
     key_of,
     load_folder,
     merged_spec,
@@ -142,6 +142,13 @@ class BenchSpec:
                 if digest is not None:
                     digests[f"{name}/{scenario_name}"] = digest
         return digests
+
+
+    def config_digests(self) -> dict[str, str]:
+        """``{planner: digest}`` of the configuration each planner plans with, the bench options applied
+        (``DriverSpec.config_digest``); planners without one (``idm``, RL policies) are left out."""
+        digests = {name: planner_spec(name, self.options).config_digest() for name in self.planners}
+        return {name: digest for name, digest in digests.items() if digest is not None}
 
 
 def check_seeds(seeds: tuple[int, ...], episodes: int) -> None:
@@ -283,24 +290,25 @@ def write_summaries(rows: list[dict[str, Any]], out: Path) -> None:
 
 
 def _claim(path: Path, spec: BenchSpec, recorded: dict[str, Any] | None) -> dict[tuple[str, str], str]:
-    """Add ``spec`` and the digests of the learned weights it drives with to the folder's spec.json
-    (:func:`driveopt.experiments.store.merged_spec`); StoreError when
-    the folder holds episodes (``recorded``: their spec.json) run with other options (samples, duration, weights,
-    config) or, for a planner and scenario it recorded, other weights (e.g. shipped weights replaced since): resuming
-    must not mix two settings in one table. A folder without episodes is free, whatever its spec.json says.
+    """Add ``spec`` and the digests of the learned weights and configurations it drives with to the folder's spec.json
+    (:func:`driveopt.experiments.store.merged_spec`); StoreError when the folder holds episodes (``recorded``: their
+    spec.json) run with other options (samples, duration, weights, config), or, for a planner (and scenario) it
+    recorded, other weights (e.g. shipped weights replaced since) or another configuration (a default changed since):
+    resuming must not mix two settings in one table. A folder without episodes is free, whatever its spec.json says.
 
     Returns the settings digest (:func:`driveopt.experiments.store.settings_digest`) of each (scenario, planner)."""
-    run = json.loads(json_text({**asdict(spec), "weights": spec.weights_digests()}))
+    run = json.loads(json_text({**asdict(spec), "weights": spec.weights_digests(), "configs": spec.config_digests()}))
     options = run["options"]
     if recorded is not None:
         if recorded["options"] != options:
             raise StoreError(f"{path.parent} holds episodes run with options {recorded['options']}, not {spec.options}; "
                              "use another output folder")
-        changed = clashing_weights(recorded, run)
-        if changed:
-            raise StoreError(f"{path.parent} holds episodes of {', '.join(changed)} driven with other learned weights "
-                             f"(digest {recorded['weights'][changed[0]]}, now {run['weights'][changed[0]]}); use another "
-                             "output folder")
+        for name, what in (("weights", "with other learned weights (e.g. shipped weights replaced since)"),
+                           ("configs", "with another planner configuration (its defaults changed since)")):
+            changed = clashing(recorded, run, name)
+            if changed:
+                raise StoreError(f"{path.parent} holds episodes of {', '.join(changed)} driven {what}: digest "
+                                 f"{recorded[name][changed[0]]}, now {run[name][changed[0]]}; use another output folder")
     folder = merged_spec(recorded, run)
     write_json(path, folder)
     return {(scenario, planner): settings_digest(options, folder["weights"].get(f"{planner}/{scenario}"))

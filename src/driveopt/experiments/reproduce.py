@@ -43,11 +43,12 @@ from driveopt.experiments.protocols import (
 )
 from driveopt.experiments.runner import EpisodeFn, check_backend
 from driveopt.experiments.store import (
+    DIGESTS,
     RECORDS_FILE,
     SPEC_FILE,
     StoreError,
     append_record,
-    clashing_weights,
+    clashing,
     key_of,
     load_folder,
     merged_spec,
@@ -112,10 +113,12 @@ def merge_figure_folders(out: Path) -> list[str]:
             if new_spec is not None:
                 if new_spec["options"] != old_spec["options"]:
                     raise StoreError(f"{old_folder} and {new_folder} hold episodes of other options; merge them by hand")
-                clash = clashing_weights(old_spec, new_spec)
-                if clash:
-                    raise StoreError(f"{old_folder} and {new_folder} hold episodes of {', '.join(clash)} driven with other "
-                                     "learned weights; merge them by hand")
+                for name in DIGESTS:
+                    clash = clashing(old_spec, new_spec, name)
+                    if clash:
+                        raise StoreError(f"{old_folder} and {new_folder} hold episodes of {', '.join(clash)} driven with "
+                                         f"other {'learned weights' if name == 'weights' else 'configurations'}; merge "
+                                         "them by hand")
             new_folder.mkdir(exist_ok=True)
             write_json(new_folder / SPEC_FILE, merged_spec(new_spec, old_spec))
             have = {key_of(r) for r in new_records}

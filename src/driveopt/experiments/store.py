@@ -16,7 +16,6 @@ say how they were run.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import numbers
@@ -26,7 +25,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from driveopt.errors import DriveoptError
-from driveopt.files import atomic_write, json_text, refuse_constant
+from driveopt.files import atomic_write, json_digest, json_text, refuse_constant
 from driveopt.jsonfile import MAX_DEPTH, nesting_depth
 
 SCHEMA_VERSION = 1
@@ -179,8 +178,7 @@ def load_records(path: str | Path) -> list[dict[str, Any]]:
 def settings_digest(options: dict[str, Any], weights: str | None) -> str:
     """16 hex digits naming the settings an episode ran with: the bench ``options`` and the digest of the learned
     weights its planner drove with on its scenario (None: none)."""
-    text = json.dumps({"options": options, "weights": weights}, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+    return json_digest({"options": options, "weights": weights})
 
 
 def expected_settings(spec: dict[str, Any], scenario: str, planner: str) -> str:
@@ -201,21 +199,26 @@ def read_spec(path: str | Path) -> dict[str, Any] | None:
         return None
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise StoreError(f"{path} is unreadable ({str(exc).splitlines()[0]}); remove it or use another output folder") from None
-    if not (isinstance(spec, dict) and isinstance(spec.get("options"), dict) and isinstance(spec.get("weights", {}), dict)):
-        raise StoreError(f"{path} is not a bench spec (an object with 'options' and 'weights'); remove it or use another "
-                         "output folder")
-    return {**spec, "weights": spec.get("weights", {})}
+    if not (isinstance(spec, dict) and isinstance(spec.get("options"), dict)
+            and all(isinstance(spec.get(name, {}), dict) for name in DIGESTS)):
+        raise StoreError(f"{path} is not a bench spec (an object with 'options', 'weights' and 'configs'); remove it or "
+                         "use another output folder")
+    return {**spec, **{name: spec.get(name, {}) for name in DIGESTS}}
 
 
-def clashing_weights(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
-    """The ``planner/scenario`` keys whose learned-weights digest differs between two spec.json contents."""
-    return sorted(key for key in set(old["weights"]) & set(new["weights"]) if old["weights"][key] != new["weights"][key])
+DIGESTS = ("weights", "configs")  # spec.json's digests: the learned weights of each ``planner/scenario``, the
+# configuration of each planner (folders written before the configurations were named have none: nothing to compare)
+
+
+def clashing(old: dict[str, Any], new: dict[str, Any], name: str) -> list[str]:
+    """The keys whose digest under ``name`` (one of :data:`DIGESTS`) differs between two spec.json contents."""
+    return sorted(key for key in set(old[name]) & set(new[name]) if old[name][key] != new[name][key])
 
 
 def merged_spec(old: dict[str, Any] | None, new: dict[str, Any]) -> dict[str, Any]:
     """What a folder's ``spec.json`` says once a run of ``new`` (a spec.json's contents) joins the episodes of ``old``
     (None: none): the folder's scenarios, planners and seeds (``old``'s first), the larger episode count, the episode
-    list of both (empty: every episode) and the weights of both (``new``'s digest where both name one). Several runs
+    list of both (empty: every episode) and the digests of both (``new``'s where both name one). Several runs
     share a folder (``driveopt reproduce`` runs each arm once for every figure that compares it), so the file names
     what all of them asked for, not only the last one. The options must agree (the caller's check)."""
     if old is None:
@@ -227,7 +230,8 @@ def merged_spec(old: dict[str, Any] | None, new: dict[str, Any]) -> dict[str, An
     full = not (old.get("episode_list") and new.get("episode_list"))
     return {**old, **new, "scenarios": union("scenarios"), "planners": union("planners"), "seeds": union("seeds"),
             "episodes": max(old.get("episodes", 0), new.get("episodes", 0)),
-            "episode_list": [] if full else sorted(union("episode_list")), "weights": {**old["weights"], **new["weights"]}}
+            "episode_list": [] if full else sorted(union("episode_list")),
+            **{name: {**old.get(name, {}), **new.get(name, {})} for name in DIGESTS}}
 
 
 def load_folder(location: str | Path) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
