@@ -302,13 +302,28 @@ def main(argv: list[str] | None = None) -> int:
 
     gap = {"time_gap": args.time_gap} if args.time_gap else {}  # recorded only when given, as the config
 
+    from driveopt.errors import DriveoptError
+    from driveopt.registry import get_planner
+
+    try:  # each optimiser's configuration, its defaults included: a record planned before a default changed is another run's
+        digests = {planner: get_planner(planner).with_samples(args.samples).with_overrides(**(config or {})).config_digest()
+                   for planner in {*args.planners, *(r["planner"] for r in records)}}
+    except DriveoptError as exc:
+        parser.error(str(exc))
+
     def settings_of(env_id: str, planner: str) -> dict:  # what a record of this run holds: the optimisers' tracking
         tracked = planner != "idm" and not args.hold_actions and holds[env_id]  # (one step a period: nothing to track)
         replanned = {"plan_frequency": replans[env_id]} if tracked and replans[env_id] else {}
         own = {**settings, **gap} if planner != "idm" else settings
+        own = {**own, "planner_config": digests[planner]} if digests[planner] else own
         return {**own, "tracked_within_period": True, **replanned} if tracked else own
 
-    done = {(r["env"], r["planner"], r["seed"]) for r in records if r.get("settings") == settings_of(r["env"], r["planner"])}
+    def this_runs(record: dict) -> bool:  # a record of these settings (one written before the configuration was
+        expected, recorded = settings_of(record["env"], record["planner"]), record.get("settings")  # named: all but it)
+        return recorded == expected or (isinstance(recorded, dict) and "planner_config" not in recorded
+                                        and recorded == {k: v for k, v in expected.items() if k != "planner_config"})
+
+    done = {(r["env"], r["planner"], r["seed"]) for r in records if this_runs(r)}
     with path.open("a") as out:
         for env_id in args.envs:
             for planner in args.planners:
@@ -328,7 +343,7 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"{env_id} {planner} seed {seed}: " + ("refused" if "refused" in record else
                           f"collided {record['collided']}, off-road {record['off_road']}, {record['mean_speed']:.1f} m/s"),
                           flush=True)
-    chosen = [r for r in records if r.get("settings") == settings_of(r["env"], r["planner"])]
+    chosen = [r for r in records if this_runs(r)]
     summary = {"command": "python benchmarks/studies/upstream_roads.py " + " ".join(argv if argv is not None else os.sys.argv[1:]),
                "settings": {**settings, **gap, "tracked_within_period": not args.hold_actions,
                             **({} if args.hold_actions else {"plan_frequency": args.plan_frequency or "controller's default"})},

@@ -23,9 +23,13 @@ def test_a_config_drives_the_episode_and_is_recorded_with_it(tmp_path):
                                 "--samples", "8", "--duration", "2", "--config", str(config), "--time-gap", "0.3"]) == 0
     (record,) = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
     assert "refused" not in record and record["steps"] >= 1
+    digest = record["settings"].pop("planner_config")  # the configuration the overrides make, defaults included
     assert record["settings"] == {"samples": 8, "duration": 2.0, "traffic": "upstream's constants",
                                   "config": {"projection": {"max_iterations": 3}}, "time_gap": 0.3,
                                   "tracked_within_period": True, "plan_frequency": 5.0}
+    from driveopt.registry import get_optimiser
+
+    assert digest == get_optimiser("bilevel").with_samples(8).with_overrides(projection={"max_iterations": 3}).config_digest()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["settings"]["config"] == {"projection": {"max_iterations": 3}} and summary["settings"]["time_gap"] == 0.3
     assert (out / "table.md").read_text().startswith("| upstream env | `bilevel`, 8 samples")
@@ -139,3 +143,29 @@ def test_a_routed_row_drives_its_env_along_the_given_route_and_counts_its_end(tm
     assert lines[2].startswith("| `exit-v0` |") and lines[3].startswith(f"| `{row}` |")  # the env's rows first
     with pytest.raises(SystemExit):
         upstream_roads.main(["--out", str(tmp_path), "--envs", "exit-v0, sideways"])
+
+
+def test_a_record_planned_before_a_default_changed_is_driven_again_and_left_out(tmp_path, monkeypatch):
+    """Each optimiser record names its configuration's digest, defaults included: a record of another configuration
+    (a default changed since) is not this run's; one written before the digest was recorded is matched without it."""
+    driven = []
+
+    def episode(env_id, planner, seed, *args):
+        driven.append(seed)
+        return {"env": env_id, "planner": planner, "seed": seed, "collided": False, "off_road": False, "arrived": None,
+                "mean_speed": 10.0 + seed, "time": 2.0, "steps": 2, "statuses": {}, "plan_ms_median": 1.0}
+
+    monkeypatch.setattr(upstream_roads, "run_episode", episode)
+    out = tmp_path / "out"
+    argv = ["--out", str(out), "--envs", "highway-v0", "--planners", "bilevel", "--episodes", "3", "--duration", "2"]
+    assert upstream_roads.main(argv) == 0 and driven == [0, 1, 2]
+    records = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+    assert all(len(r["settings"]["planner_config"]) == 16 for r in records)
+    older = {k: v for k, v in records[0]["settings"].items() if k != "planner_config"}
+    records[0]["settings"] = older  # written before configurations were named: still this run's
+    records[1]["settings"] = {**records[1]["settings"], "planner_config": "0123456789abcdef"}  # another default
+    (out / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    driven.clear()
+    assert upstream_roads.main(argv) == 0 and driven == [1]
+    summary = json.loads((out / "summary.json").read_text())["results"]["highway-v0"]["bilevel"]
+    assert summary["episodes"] == 3 and summary["mean_speed"] == pytest.approx(11.0)  # seeds 0, 1 (again) and 2
