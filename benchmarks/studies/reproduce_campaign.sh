@@ -34,6 +34,9 @@
 set -euo pipefail
 
 CODE=b45dbdc
+# Its protocols name vqvae-filter's P2 arms without the filter pass P2's comparisons share, which today's name (its own
+# default became faster): its episodes of those arms would go to folders the reports no longer read. Move CODE to a
+# commit that names the pass (a driveopt closed-loop-ab first: the P2 planners must plan as here) before P2 runs again.
 
 main() {
     repo=$(cd "$(dirname "$0")/../.." && pwd)

@@ -65,9 +65,11 @@ P1_MATHS = {"sampler": {"structured_fraction": 0.0}, "qp": {"initial_lateral_acc
 FAITHFUL_MATHS = {**P1_MATHS, "qp": {"initial_lateral_acceleration": False}}
 P2_FILTER_ITERATIONS = 100  # [-] the iterations of P2's filter in its one pass, unaccelerated
 P2_MATHS = {**P1_MATHS, "qp": {"initial_lateral_acceleration": True},
-            "projection": {**P1_MATHS["projection"], "max_iterations": P2_FILTER_ITERATIONS, "anderson_window": 0}}
+            "projection": {**P1_MATHS["projection"], "max_iterations": P2_FILTER_ITERATIONS, "anderson_window": 0,
+                           "derivative_bounds": "nodes"}}
 # P2's pipelines: both initial accelerations imposed, at zero (P2_LOOP), as their authors' DOptimizerJax.py does, and
-# their filter's iterations unaccelerated (driveopt's accelerates fewer: driveopt.registry.P2_PASS_PROJECTION)
+# their filter's iterations unaccelerated, its bounds at the nodes, as driveopt's vqvae and cvae-filter run them
+# (driveopt.registry.P2_PASS_PROJECTION; vqvae-filter accelerates fewer: VQVAE_FILTER_PROJECTION)
 # The *-faithful planners' maths: P1's, except that a plan's lateral acceleration at its start is left free as in
 # driveopt's. Imposing the car's (the authors' code does, in a loop that replans every 0.04 s and tracks at 100 Hz)
 # made every plan of driveopt's 10 Hz loop start with the turn the car was in: the faithful MPC-Bi-Level turned further

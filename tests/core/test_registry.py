@@ -32,7 +32,8 @@ from driveopt.qp import boundary_values, make_model, solve_setpoint_qp
 from driveopt.drivers.commands import P2_AUTHORS_COMMAND
 from driveopt.ranking import CostPlusResidual, FeasibilityFirst, P1AuthorsRanking, P2AuthorsRanking
 from driveopt.row_sharing import EveryRow
-from driveopt.registry import P2_PASS_PROJECTION, REALTIME_SAMPLES, get_optimiser, get_planner, list_planners, planner_rows
+from driveopt.registry import (P2_PASS_PROJECTION, REALTIME_SAMPLES, VQVAE_FILTER_PROJECTION, get_optimiser,
+                               get_planner, list_planners, planner_rows)
 from driveopt.scene import load_scene
 from driveopt.trajectory import evaluate
 
@@ -461,10 +462,11 @@ def test_p2_faithful_pipelines_keep_samples_prior_and_filter_and_take_p2s_rankin
     strong, spec = get_optimiser(name), get_optimiser(f"{name}-faithful")
     assert spec.config == strong.config.replace(**faithful.P2_MATHS) and spec.config.qp.initial_lateral_acceleration
     assert spec.config.sampler.num_constraint_elites == 150
-    # P2's filter: 100 plain iterations, whatever driveopt's pipeline runs
-    assert (spec.config.projection.max_iterations, spec.config.projection.anderson_window) == (100, 0)
-    projection = strong.config.projection
-    assert {"max_iterations": projection.max_iterations, "anderson_window": projection.anderson_window} == P2_PASS_PROJECTION
+    # P2's filter: 100 plain iterations at the nodes, whatever driveopt's pipeline runs
+    faithful_pass = spec.config.projection
+    assert (faithful_pass.max_iterations, faithful_pass.anderson_window, faithful_pass.derivative_bounds) == (100, 0, "nodes")
+    own_pass = VQVAE_FILTER_PROJECTION if name == "vqvae-filter" else P2_PASS_PROJECTION  # vqvae-filter's is faster
+    assert {field: getattr(strong.config.projection, field) for field in P2_PASS_PROJECTION} == own_pass
     assert spec.make_prior is strong.make_prior and spec.learned_filter == strong.learned_filter
     assert spec.method.ranking == P2AuthorsRanking() and strong.method.ranking == FeasibilityFirst()
     assert spec.loop.command is P2_AUTHORS_COMMAND and not spec.loop.measured_start

@@ -327,18 +327,37 @@ def test_every_figure_of_both_papers_is_declared_with_registered_planners():
                and c.baseline.config == (("projection.max_iterations", 0),) for c in fig9.claims)
 
 
-def test_p2s_iteration_sweep_names_driveopts_iterations_and_runs_the_faithful_at_p2s_own():
-    """driveopt's P2 pipelines accelerate fewer filter iterations by default, so Fig. 8a's points name theirs (100 is
-    100, not the planner's own); the faithful pipeline's own count is P2's 100, which its arms keep unnamed; Fig. 8b
-    sweeps samples at each pipeline's own iterations."""
-    (fig8a,) = figures_of("p2", ["fig8a"])
-    for arm in {arm for claim in fig8a.claims for arm in (claim.arm, claim.baseline)}:
-        iterations = dict(arm.config).get("projection.max_iterations")
-        assert iterations in ((10, 25, 50, None) if arm.planner.endswith("-faithful") else (10, 25, 50, 100)), arm.label
-    assert {dict(c.arm.config)["projection.max_iterations"] for c in fig8a.claims if c.arm.planner == "vqvae-filter"} == {
-        10, 25, 50, 100}
-    (fig8b,) = figures_of("p2", ["fig8b"])
-    assert all(not arm.config for claim in fig8b.claims for arm in (claim.arm, claim.baseline))
+def test_every_p2_arm_filters_with_the_pass_p2s_comparisons_share():
+    """vqvae-filter runs a faster pass of its own by default; in P2's comparisons every driveopt arm runs the shared
+    pass (registry.P2_PASS_PROJECTION: 100 plain iterations at the nodes, or the sweep's iterations), so the pipelines
+    compared differ only in the prior or the filter; the faithful pipelines run P2's own (the same pass), unnamed.
+    Fig. 8a's points at 100 are Fig. 7's arms; Fig. 8b sweeps samples at 100."""
+    from driveopt.registry import get_optimiser
+
+    def projection(arm):
+        overrides = {key.rpartition(".")[2]: value for key, value in arm.config}
+        return {field: overrides.get(field, getattr(get_optimiser(arm.planner).config.projection, field))
+                for field in ("max_iterations", "anderson_window", "derivative_bounds")}
+
+    fig7, fig8a, fig8b, fig9 = figures_of("p2", ["fig7", "fig8a", "fig8b", "fig9"])
+    for figure in (fig7, fig8a, fig8b, fig9):
+        for claim in figure.claims:
+            if claim.arm.planner.startswith(("vqvae", "cvae-filter")) and claim.baseline.planner.startswith(("vqvae", "cvae")):
+                passes = [projection(arm) for arm in (claim.arm, claim.baseline)]
+                assert {p["anderson_window"] for p in passes} == {0} and {p["derivative_bounds"] for p in passes} == {"nodes"}
+                if (claim.arm.planner, claim.baseline.planner) == ("vqvae-filter", "vqvae"):  # learned against plain filter
+                    assert passes[0] == passes[1], claim.arm.label
+    assert {projection(c.arm)["max_iterations"] for c in fig8a.claims if c.arm.planner == "vqvae-filter"} == {10, 25, 50, 100}
+    def runs(arms):  # the bench folder and planner an arm's episodes are recorded under
+        return {(arm.folder(None), arm.planner) for arm in arms}
+
+    fig7_runs = runs(arm for claim in fig7.claims for arm in (claim.arm, claim.baseline))
+    assert runs(arm for claim in fig8a.claims for arm in (claim.arm, claim.baseline)
+                if projection(arm)["max_iterations"] == 100) <= fig7_runs
+    assert all(arm.planner != "vqvae-filter" or projection(arm)["max_iterations"] == 100
+               for claim in fig8b.claims for arm in (claim.arm, claim.baseline))
+    assert not any(arm.config for claim in fig8b.claims for arm in (claim.arm, claim.baseline)
+                   if arm.planner in ("vqvae", "vqvae-filter-faithful"))
 
 
 def test_the_faithful_arms_replan_with_one_period_like_driveopts():
@@ -390,10 +409,12 @@ CALLS = {"n": 0}
 
 
 def fake_episode(job, options):
-    """The proposed methods never collide and drive 9 m/s; the others collide in even episodes and drive 7 m/s."""
+    """The proposed methods at their full filter budget never collide and drive 9 m/s; the others collide in even
+    episodes and drive 7 m/s."""
     CALLS["n"] += 1
+    iterations = options.get("config", {}).get("projection", {}).get("max_iterations", 100)
     proposed = job.planner in ("bilevel", "bilevel-p1", "cvae", "cvae-faithful", "bilevel-faithful", "vqvae-filter", "vqvae",
-                               "vqvae-filter-faithful") and "max_iterations" not in str(options)
+                               "vqvae-filter-faithful") and iterations == 100
     collided = (not proposed) and job.episode % 2 == 0
     return {"collided": collided, "off_road": False, "mean_speed": 9.0 if proposed else 7.0 + 0.01 * job.episode,
             "plan_ms": [20.0, 21.0], "sim_seconds": 0.01, "plan_seconds": 0.01, "steps": 2, "cpu_model": "fake CPU"}
@@ -511,9 +532,11 @@ def test_chosen_sample_counts_run_alone(tmp_path, cheap_bench):
     CALLS["n"] = 0
     _, results = reproduce("p2", tmp_path, figures=["fig8b"], episodes=1, seeds=(42,), workers=1, episode_fn=fake_episode,
                            only=RunSlice(planners=("vqvae-filter", "vqvae"), samples=(250,)), progress=False)
-    assert CALLS["n"] == 2 and [p.name for p in (tmp_path / "runs").iterdir()] == ["n250"]
+    shared = "max_iterations=100 anderson_window=0 derivative_bounds=nodes"  # the pass P2's comparisons share
+    assert CALLS["n"] == 2 and sorted(p.name for p in (tmp_path / "runs").iterdir()) == [
+        "n250", "n250-maxiterations100-andersonwindow0-derivativeboundsnodes"]
     judged = [(r.arm.label, r.baseline.label, r.metric) for r in results if r.pairs]
-    assert judged == [("vqvae-filter n250", "vqvae n250", metric) for metric in (COLLISIONS, SPEED, PLAN_TIME)]
+    assert judged == [(f"vqvae-filter n250 {shared}", "vqvae n250", metric) for metric in (COLLISIONS, SPEED, PLAN_TIME)]
 
 
 def test_the_learned_filter_question_pools_every_pair_once(tmp_path, cheap_bench):

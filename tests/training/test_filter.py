@@ -207,6 +207,16 @@ def test_malformed_filters_and_filters_for_another_basis_are_refused(trained):
 # ------------------------------------------------------------------------------------------ the loss and training
 
 
+def test_the_filter_trains_through_p2s_plain_map_whatever_pass_the_planner_runs():
+    from driveopt.registry import get_optimiser
+
+    for name in ("vqvae-filter", "vqvae-filter-faithful"):
+        projection = training_config(get_optimiser(name).config, TCFG).projection
+        assert (projection.max_iterations, projection.anderson_window, projection.derivative_bounds) == (
+            TCFG.unroll, 0, "nodes")
+        assert projection.barrier and training_config(get_optimiser(name).config, TCFG).sampler.num_iterations == 1
+
+
 def test_grad_of_the_eq9_loss_is_finite_and_matches_finite_differences(trained, data_file):
     learned = load_filter(trained[0] / "filter.ckpt")
     data = load_demonstrations(data_file)
@@ -385,10 +395,14 @@ def test_train_filter_command_resumes_and_reports_bad_input_in_one_line(data_fil
 
 def test_vqvae_filter_is_p2s_pipeline_and_warns_without_weights():
     assert "vqvae-filter" in list_planners()
+    from driveopt.registry import P2_PASS_PROJECTION
+
     vqvae = get_optimiser("vqvae")
-    assert PLANNER.config == vqvae.config and PLANNER.learned_filter and not vqvae.learned_filter
-    same = dataclasses.replace(PLANNER, name="vqvae", description=vqvae.description, make_prior=vqvae.make_prior, learned_filter=False)
-    assert same == vqvae  # samples, projection, ranking, fallback: all vqvae's
+    assert PLANNER.learned_filter and not vqvae.learned_filter
+    assert PLANNER.config.replace(projection=P2_PASS_PROJECTION) == vqvae.config  # its own pass is faster
+    same = dataclasses.replace(PLANNER, name="vqvae", description=vqvae.description, make_prior=vqvae.make_prior,
+                               learned_filter=False, config=vqvae.config)
+    assert same == vqvae  # samples, the rest of the projection, ranking, fallback: all vqvae's
     with pytest.warns(UserWarning, match="no safety-filter weights shipped for 3-lane roads"):
         assert PLANNER.safety_filter(3) is None  # the plain barrier filter of its configuration
     assert vqvae.safety_filter(4) is None

@@ -469,13 +469,25 @@ NO_FILTER_NOTES = {STRENGTHENED: "no filter: feasibility-first ranking (rejectio
 
 def _p2_arm(planner: str, version: str = STRENGTHENED, samples: int = P2_SAMPLES, iterations: int | None = None,
             note: str = "") -> Arm:
-    """driveopt's pipeline ``planner`` (STRENGTHENED) or its faithful version (FAITHFUL: ``<planner>-faithful``, its
-    note adding P2's ranking); ``iterations``: filter iterations (None: the planner's own, driveopt's
-    ``registry.P2_PASS_PROJECTION`` or the faithful pipeline's P2's 100 plain)."""
+    """driveopt's pipeline ``planner`` (STRENGTHENED) with the pass P2's comparisons share (:func:`_shared_pass`) or its
+    faithful version (FAITHFUL: ``<planner>-faithful``, its note adding P2's ranking, with P2's own pass);
+    ``iterations``: filter iterations (None: the pass's own, P2's 100)."""
     if version == FAITHFUL:
         planner, note = f"{planner}-faithful", "; ".join(part for part in (note, FAITHFUL_P2_NOTE) if part)
-    config = () if iterations is None else (("projection.max_iterations", iterations),)
-    return Arm(planner, version, samples, config=config, note=note)
+        return Arm(planner, version, samples, config=() if iterations is None else
+                   (("projection.max_iterations", iterations),), note=note)
+    return Arm(planner, version, samples, config=_shared_pass(planner, iterations), note=note)
+
+
+def _shared_pass(planner: str, iterations: int | None) -> tuple[tuple[str, Any], ...]:
+    """The overrides that make driveopt's P2 pipeline ``planner`` filter with the pass its comparisons share
+    (``registry.P2_PASS_PROJECTION``, at ``iterations`` where given): its fields where the planner's own pass differs,
+    the iterations first (``vqvae-filter`` runs a faster pass of its own, ``vqvae`` and ``cvae-filter`` the shared one)."""
+    from driveopt.registry import P2_PASS_PROJECTION, get_optimiser
+
+    own = get_optimiser(planner).config.projection
+    wanted = {**P2_PASS_PROJECTION, **({} if iterations is None else {"max_iterations": iterations})}
+    return tuple((f"projection.{field}", value) for field, value in wanted.items() if getattr(own, field) != value)
 
 
 def _p2(planner: str, samples: int = P2_SAMPLES, iterations: int | None = None, note: str = "") -> Arm:
@@ -544,9 +556,8 @@ def _p2_figure7() -> FigureProtocol:
 
 def _p2_budget(figure: str, title: str, points: tuple[tuple[int, int | None], ...], reduced: tuple[int, int | None],
                paper: str, effect: PaperEffect) -> FigureProtocol:
-    """Fig. 8a/8b: (samples, filter iterations) points, the last P2's full budget; None: each pipeline's own iterations
-    (driveopt's may be fewer, accelerated, than the faithful pipeline's P2's 100 plain: a sweep of iterations names
-    driveopt's at every point, 100 included). The reduced budget against the full one (driveopt's pipeline and the faithful one;
+    """Fig. 8a/8b: (samples, filter iterations) points, the last P2's full budget; None: P2's 100 (every arm runs the
+    pass P2's comparisons share, so the points at 100 are Fig. 7's arms). The reduced budget against the full one (driveopt's pipeline and the faithful one;
     ``effect``: the collision level P2 states at the reduced budget), and driveopt's learned filter against its plain
     one at each point (collisions, speed, plan time). Primary: the faithful pipeline's level at the reduced budget,
     the text's number as P2's pipeline reached it."""
