@@ -727,6 +727,19 @@ def _recorded_batches(seed: int):
         yield problem, solve_setpoint_qp(MODEL, jnp.concatenate([speeds, lanes], 1), b_x, b_y), b_x, b_y
 
 
+def _recorded_residuals(reference: ProjectionConfig, changed: ProjectionConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The total residuals of the recorded batches (seed 0, pooled) after each projection; every coefficient of the
+    changed one finite and its equality rows held."""
+    totals: tuple[list, list] = ([], [])
+    for problem, target, b_x, b_y in _recorded_batches(seed=0):
+        totals[0].append(np.asarray(_PROJECT(problem, target, b_x, b_y, reference).residuals.total))
+        out = _PROJECT(problem, target, b_x, b_y, changed)
+        assert np.all(np.isfinite(np.asarray(out.coeffs)))
+        check_boundary(problem, out.coeffs)
+        totals[1].append(np.asarray(out.residuals.total))
+    return np.concatenate(totals[0]), np.concatenate(totals[1])
+
+
 @pytest.mark.parametrize("extra", [{}, pytest.param({"obstacle_stride": 4}, marks=pytest.mark.slow)],
                          ids=["realtime", "obstacle-stride-4"])  # the stride is off by default: its check runs with -m slow
 def test_the_realtime_projection_leaves_recorded_states_residuals_about_as_low_as_twenty_plain_iterations(extra):
@@ -739,15 +752,7 @@ def test_the_realtime_projection_leaves_recorded_states_residuals_about_as_low_a
     from driveopt.registry import REALTIME_PROJECTION
 
     plain = ProjectionConfig()
-    fast = dataclasses.replace(plain, **{**REALTIME_PROJECTION, **extra})
-    totals = {"plain": [], "fast": []}
-    for problem, target, b_x, b_y in _recorded_batches(seed=0):
-        totals["plain"].append(np.asarray(_PROJECT(problem, target, b_x, b_y, plain).residuals.total))
-        out = _PROJECT(problem, target, b_x, b_y, fast)
-        assert np.all(np.isfinite(np.asarray(out.coeffs)))
-        check_boundary(problem, out.coeffs)
-        totals["fast"].append(np.asarray(out.residuals.total))
-    before, after = np.concatenate(totals["plain"]), np.concatenate(totals["fast"])
+    before, after = _recorded_residuals(plain, dataclasses.replace(plain, **{**REALTIME_PROJECTION, **extra}))
     assert after.mean() <= 1.15 * before.mean()
     assert np.median(after) <= 1.1 * np.median(before) + 0.05
     assert np.percentile(after, 90) <= 1.25 * np.percentile(before, 90)
@@ -766,14 +771,7 @@ def test_vqvae_filters_pass_leaves_most_recorded_rows_as_feasible_as_p2s_hundred
     ours, p2s = (get_optimiser(name).config.projection for name in ("vqvae-filter", "vqvae"))
     assert (p2s.max_iterations, ours.max_iterations, ours.anderson_window) == (100, 60, 4) and ours.barrier
     assert dataclasses.replace(ours, max_iterations=100, anderson_window=0, derivative_bounds="nodes") == p2s
-    totals = {"p2": [], "ours": []}
-    for problem, target, b_x, b_y in _recorded_batches(seed=0):
-        totals["p2"].append(np.asarray(_PROJECT(problem, target, b_x, b_y, p2s).residuals.total))
-        out = _PROJECT(problem, target, b_x, b_y, ours)
-        assert np.all(np.isfinite(np.asarray(out.coeffs)))
-        check_boundary(problem, out.coeffs)
-        totals["ours"].append(np.asarray(out.residuals.total))
-    before, after = np.concatenate(totals["p2"]), np.concatenate(totals["ours"])
+    before, after = _recorded_residuals(p2s, ours)
     assert np.mean(after < 0.05) >= 0.8 * np.mean(before < 0.05)
     assert after.mean() <= 1.6 * before.mean()
 
