@@ -73,3 +73,24 @@ def test_a_duration_that_is_not_positive_is_a_usage_error(capsys):
     with pytest.raises(SystemExit) as stop:
         main(["closed-loop-ab", "--baseline-src", str(SRC), "--json", "x.json", "--duration", "0"])
     assert stop.value.code == 2 and "--duration" in capsys.readouterr().err
+
+
+def test_the_current_sides_overrides_reach_its_planners_alone_and_name_its_file(tmp_path, monkeypatch, capsys):
+    from driveopt.experiments import closed_loop_ab, rollout
+
+    class Episode:
+        speeds, lateral, statuses, compile_seconds = [1.0], [0.0], {"SUCCESS": 1}, 0.0
+
+    planned = []
+    monkeypatch.setattr(rollout, "run_episode", lambda scenario, spec, seed, duration: planned.append(spec) or Episode())
+    config = {"projection": {"max_iterations": 5}}
+    files = closed_loop_ab.side_files(tmp_path / "ab.json", config)
+    assert files["baseline"].name == "ab.baseline.json" and files["current"].name.startswith("ab.current-")
+    assert closed_loop_ab.side_files(tmp_path / "ab.json", {"projection": {"max_iterations": 6}})["current"] != files["current"]
+    closed_loop_ab.run_side(["bilevel:two-lane-d1.0"], 5, 0.5, files["current"], log=lambda line: None, config=config)
+    closed_loop_ab.run_side(["bilevel:two-lane-d1.0"], 5, 0.5, files["baseline"], log=lambda line: None)
+    assert [spec.config.projection.max_iterations for spec in planned] == [5, 12]
+    (tmp_path / "c.json").write_text(json.dumps(config))
+    assert main(["closed-loop-ab", "--baseline-src", str(SRC), "--json", str(tmp_path / "x.json"), "--runs",
+                 "idm:two-lane-d1.0", "--current-config", str(tmp_path / "c.json")]) == 2
+    assert "idm plans with no configuration" in capsys.readouterr().err

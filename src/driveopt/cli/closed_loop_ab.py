@@ -4,7 +4,8 @@ Runs the same episodes (``--runs``, each ``planner:scenario``, ``--seed``, ``--d
 ``--baseline-src`` (the ``src`` folder of another checkout, e.g. a ``git worktree`` at the old commit) and under this
 driveopt, each side in its own process (:mod:`driveopt.experiments.closed_loop_ab`), and writes to ``--json`` whether
 each run's speeds, lateral positions and statuses are identical, the first step where they differ and both sides'
-compile times. Each side's episodes are kept beside ``--json`` as they finish: rerun the same command to resume.
+compile times; ``--current-config`` overrides this tree's side alone (a default changed since, named as it was).
+Each side's episodes are kept beside ``--json`` as they finish: rerun the same command to resume.
 Exit status 1 when any run differs.
 """
 
@@ -13,7 +14,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from driveopt.cli.common import UsageError, seed, writable_file
+from driveopt.cli.common import UsageError, config_overrides, seed, writable_file
 from driveopt.cli.parser import duration
 
 
@@ -27,10 +28,13 @@ def register(sub) -> None:
                    help=f"episodes to compare (default: {' '.join(RUNS)})")
     p.add_argument("--seed", type=seed, default=5, help="traffic and sampling seed of every run (default 5)")
     p.add_argument("--duration", type=duration, default=8.0, help="[s] of each episode (default 8)")
+    p.add_argument("--current-config", metavar="JSON", help="planner-config overrides (JSON file) of this tree's side "
+                   "alone, e.g. a default changed since named as it was at the baseline")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from driveopt.errors import DriveoptError
     from driveopt.experiments.closed_loop_ab import SideFailed, compare_trees, split_run
     from driveopt.registry import get_planner
     from driveopt.sim.scenarios import get_scenario
@@ -39,17 +43,25 @@ def run(args: argparse.Namespace) -> int:
     if not (baseline / "driveopt" / "__init__.py").is_file():
         raise UsageError(f"--baseline-src {baseline}: no driveopt package there (give the tree's src folder)")
     writable_file(args.json, "--json", (".json",))
+    overrides = config_overrides(args.current_config) if args.current_config else None
     for run_name in args.runs:
         try:
             planner, scenario = split_run(run_name)
         except ValueError as exc:
             raise UsageError(f"--runs: {exc}") from None
-        get_planner(planner)  # unknown names: one line now, not a traceback in a side's process
+        spec = get_planner(planner)  # unknown names: one line now, not a traceback in a side's process
         get_scenario(scenario)
+        if overrides:
+            if not spec.is_optimiser:
+                raise UsageError(f"--current-config: {planner} plans with no configuration to override")
+            try:
+                spec.with_overrides(**overrides)
+            except DriveoptError as exc:
+                raise UsageError(f"--current-config: {exc}") from None
     out = Path(args.json)
     try:
         rows = compare_trees(baseline, out, args.runs, seed=args.seed, duration=args.duration,
-                             log=lambda line: print(line, flush=True))
+                             current_config=overrides, log=lambda line: print(line, flush=True))
     except SideFailed as exc:
         raise UsageError(f"{exc}; its output above says why") from None
     except KeyboardInterrupt:

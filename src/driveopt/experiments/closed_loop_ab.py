@@ -18,6 +18,7 @@ it holds: an interrupted comparison resumes.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import subprocess
@@ -40,9 +41,14 @@ def split_run(run: str) -> tuple[str, str]:
     return parts[0], parts[1]
 
 
-def side_files(out: Path) -> dict[str, Path]:
-    """Where each side keeps its episodes: ``NAME.baseline.json`` and ``NAME.current.json`` beside ``out``."""
-    return {side: out.with_name(f"{out.stem}.{side}.json") for side in SIDES}
+def side_files(out: Path, current_config: dict | None = None) -> dict[str, Path]:
+    """Where each side keeps its episodes: ``NAME.baseline.json`` and ``NAME.current.json`` beside ``out`` (with
+    ``current_config``: ``NAME.current-DIGEST.json``, so that a rerun with other overrides resumes none of them)."""
+    files = {side: out.with_name(f"{out.stem}.{side}.json") for side in SIDES}
+    if current_config:
+        text = json.dumps(current_config, sort_keys=True, separators=(",", ":"))
+        files["current"] = out.with_name(f"{out.stem}.current-{hashlib.sha256(text.encode()).hexdigest()[:16]}.json")
+    return files
 
 
 def this_tree() -> Path:
@@ -51,9 +57,11 @@ def this_tree() -> Path:
     return Path(__file__).resolve().parents[2]
 
 
-def run_side(runs: Sequence[str], seed: int, duration: float, path: Path, log: Callable[[str], None] = print) -> None:
+def run_side(runs: Sequence[str], seed: int, duration: float, path: Path, log: Callable[[str], None] = print,
+             config: dict | None = None) -> None:
     """Run each ``planner:scenario`` episode not yet in ``path`` in this process (the code of the driveopt first on
-    the path) and add it there, the file rewritten after every run."""
+    the path), each planner with the planner-config overrides ``config`` where given, and add it there, the file
+    rewritten after every run."""
     try:
         from driveopt.experiments.rollout import run_episode
     except ModuleNotFoundError:  # a tree whose episode loop lives in sim/
@@ -65,7 +73,8 @@ def run_side(runs: Sequence[str], seed: int, duration: float, path: Path, log: C
         if run in done:
             continue
         planner, scenario = split_run(run)
-        episode = run_episode(scenario, get_planner(planner), seed=seed, duration=duration)
+        spec = get_planner(planner)
+        episode = run_episode(scenario, spec.with_overrides(**config) if config else spec, seed=seed, duration=duration)
         done[run] = {"speeds": [float(v) for v in episode.speeds], "lateral": [float(v) for v in episode.lateral],
                      "statuses": dict(episode.statuses), "compile_seconds": episode.compile_seconds}
         partial = path.with_name(path.name + ".partial")  # whole or not at all: a stopped side keeps its file
@@ -99,25 +108,27 @@ class SideFailed(RuntimeError):
 
 
 def compare_trees(baseline_src: Path, out: Path, runs: Sequence[str] = RUNS, *, seed: int = 5, duration: float = 8.0,
-                  log: Callable[[str], None] = print) -> dict:
+                  current_config: dict | None = None, log: Callable[[str], None] = print) -> dict:
     """Run ``runs`` under ``baseline_src`` and under this tree, each side in its own process, and write the comparison
-    (:func:`compare`, with the settings) to ``out``; returns its rows. Both sides resume from their files beside
+    (:func:`compare`, with the settings) to ``out``; returns its rows. ``current_config``: planner-config overrides of
+    this tree's side alone (a default changed since, named here as it was). Both sides resume from their files beside
     ``out``. ValueError for a malformed run; :class:`SideFailed` when a side's process fails."""
     for run in runs:
         split_run(run)
     out.parent.mkdir(parents=True, exist_ok=True)
-    files = side_files(out)
-    settings = json.dumps({"runs": list(runs), "seed": seed, "duration": duration})
+    files = side_files(out, current_config)
     for side, src in (("baseline", baseline_src.resolve()), ("current", this_tree())):
         log(f"{side}: {src}")
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(src), os.environ.get("PYTHONPATH")]))}
+        settings = json.dumps({"runs": list(runs), "seed": seed, "duration": duration,
+                               "config": current_config if side == "current" else None})
         status = subprocess.run([sys.executable, __file__, settings, str(files[side])], env=env).returncode
         if status != 0:
             raise SideFailed(f"the {side} side ({src}) stopped with status {status}")
     results = {side: json.loads(path.read_text()) for side, path in files.items()}
     rows = compare({run: results["baseline"][run] for run in runs}, {run: results["current"][run] for run in runs})
-    out.write_text(json.dumps({"seed": seed, "duration": duration, "baseline_src": str(baseline_src), "runs": rows},
-                              indent=1))
+    out.write_text(json.dumps({"seed": seed, "duration": duration, "baseline_src": str(baseline_src),
+                               "current_config": current_config, "runs": rows}, indent=1))
     return rows
 
 
@@ -126,6 +137,6 @@ if __name__ == "__main__":  # one side: python closed_loop_ab.py SETTINGS_JSON S
     side_settings = json.loads(sys.argv[1])
     try:
         run_side(side_settings["runs"], side_settings["seed"], side_settings["duration"], Path(sys.argv[2]),
-                 log=lambda line: print(line, flush=True))
+                 log=lambda line: print(line, flush=True), config=side_settings.get("config"))
     except KeyboardInterrupt:  # Ctrl-C reaches both processes; the parent reports it
         sys.exit(130)
