@@ -35,8 +35,9 @@ set -euo pipefail
 
 CODE=b45dbdc
 # Its protocols name vqvae-filter's P2 arms without the filter pass P2's comparisons share, which today's name (its own
-# default became faster): its episodes of those arms would go to folders the reports no longer read. Move CODE to a
-# commit that names the pass (a driveopt closed-loop-ab first: the P2 planners must plan as here) before P2 runs again.
+# default became faster): its episodes of those arms would go to folders the reports no longer read. Today's code
+# plans P2's pipelines otherwise than CODE (benchmarks/results/closed-loop-ab/p2-at-b45dbdc/), so moving CODE for P2
+# means running P2's records again (docs/reproduction/README.md).
 
 main() {
     repo=$(cd "$(dirname "$0")/../.." && pwd)
