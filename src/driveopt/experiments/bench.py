@@ -143,7 +143,6 @@ class BenchSpec:
                     digests[f"{name}/{scenario_name}"] = digest
         return digests
 
-
     def config_digests(self) -> dict[str, str]:
         """``{planner: digest}`` of the configuration each planner plans with, the bench options applied
         (``DriverSpec.config_digest``); planners without one (``idm``, RL policies) are left out."""

@@ -152,7 +152,7 @@ def _validation_terms(params, norm, problems, setpoints, cfg, config):
 def training_config(config: PlannerConfig, tcfg: TrainConfig) -> PlannerConfig:
     """``config`` with ``tcfg.samples`` per batch, one sampler pass and ``tcfg.unroll`` projection iterations of P2's
     map: plain, the bounds at the nodes (the filter learns the map's parameters and start; a planner may accelerate
-    the map and bound at the control points, as driveopt's P2 pipelines do, and the shipped filters were trained so)."""
+    the map and bound at the control points, as vqvae-filter does, and the shipped filters were trained so)."""
     return config.with_samples(tcfg.samples).replace(
         sampler={"num_iterations": 1},
         projection={"max_iterations": tcfg.unroll, "anderson_window": 0, "derivative_bounds": "nodes"})
