@@ -348,6 +348,7 @@ def test_every_p2_arm_filters_with_the_pass_p2s_comparisons_share():
                 if (claim.arm.planner, claim.baseline.planner) == ("vqvae-filter", "vqvae"):  # learned against plain filter
                     assert passes[0] == passes[1], claim.arm.label
     assert {projection(c.arm)["max_iterations"] for c in fig8a.claims if c.arm.planner == "vqvae-filter"} == {10, 25, 50, 100}
+
     def runs(arms):  # the bench folder and planner an arm's episodes are recorded under
         return {(arm.folder(None), arm.planner) for arm in arms}
 

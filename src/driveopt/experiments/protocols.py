@@ -444,7 +444,6 @@ def p1_figures() -> tuple[FigureProtocol, ...]:
 
 # ---------------------------------------------------------------------------------------------------------- P2
 P2_SAMPLES = 1000  # [-] P2's batch
-P2_ITERATIONS = 100  # [-] filter iterations of P2's pipeline
 BASELINE_NOTE = "P2's baseline [5]: a CVAE trained through the projection that predicts its multipliers"
 FAITHFUL_BASELINE_NOTE = f"{BASELINE_NOTE}; as [5]'s authors ran it (least residual + speed error, executed whatever its residual)"
 CVAE_BESIDE_NOTE = "P1's CVAE through P2's one-pass filter (beside P2's baseline [5], cvae-multipliers)"
@@ -469,20 +468,19 @@ NO_FILTER_NOTES = {STRENGTHENED: "no filter: feasibility-first ranking (rejectio
 
 def _p2_arm(planner: str, version: str = STRENGTHENED, samples: int = P2_SAMPLES, iterations: int | None = None,
             note: str = "") -> Arm:
-    """driveopt's pipeline ``planner`` (STRENGTHENED) with the pass P2's comparisons share (:func:`_shared_pass`) or its
-    faithful version (FAITHFUL: ``<planner>-faithful``, its note adding P2's ranking, with P2's own pass);
-    ``iterations``: filter iterations (None: the pass's own, P2's 100)."""
+    """driveopt's pipeline ``planner`` (STRENGTHENED) or its faithful version (FAITHFUL: ``<planner>-faithful``, its
+    note adding P2's ranking), filtering with the pass P2's comparisons share (:func:`_shared_pass`); ``iterations``:
+    filter iterations (None: the pass's own, P2's 100)."""
     if version == FAITHFUL:
         planner, note = f"{planner}-faithful", "; ".join(part for part in (note, FAITHFUL_P2_NOTE) if part)
-        return Arm(planner, version, samples, config=() if iterations is None else
-                   (("projection.max_iterations", iterations),), note=note)
     return Arm(planner, version, samples, config=_shared_pass(planner, iterations), note=note)
 
 
 def _shared_pass(planner: str, iterations: int | None) -> tuple[tuple[str, Any], ...]:
-    """The overrides that make driveopt's P2 pipeline ``planner`` filter with the pass its comparisons share
+    """The overrides that make the P2 pipeline ``planner`` filter with the pass P2's comparisons share
     (``registry.P2_PASS_PROJECTION``, at ``iterations`` where given): its fields where the planner's own pass differs,
-    the iterations first (``vqvae-filter`` runs a faster pass of its own, ``vqvae`` and ``cvae-filter`` the shared one)."""
+    the iterations first (``vqvae-filter`` runs a faster pass of its own; ``vqvae``, ``cvae-filter`` and the faithful
+    pipelines the shared one, so only other iterations are named for them)."""
     from driveopt.registry import P2_PASS_PROJECTION, get_optimiser
 
     own = get_optimiser(planner).config.projection
@@ -567,7 +565,7 @@ def _p2_budget(figure: str, title: str, points: tuple[tuple[int, int | None], ..
         return _p2("vqvae-filter", n, k)
 
     def faithful(n: int, k: int | None) -> Arm:
-        return _p2_arm("vqvae-filter", FAITHFUL, n, None if k == P2_ITERATIONS else k)
+        return _p2_arm("vqvae-filter", FAITHFUL, n, k)
 
     claims = [Claim(scenario, pipeline(*reduced), pipeline(*points[-1]), COLLISIONS, NO_WORSE, paper, effect=effect)
               for pipeline in (learned, faithful)]
