@@ -116,3 +116,41 @@ def test_every_frame_along_the_route_has_the_same_corners(env_id):
     np.testing.assert_allclose(laterals, np.broadcast_to(laterals[0], np.shape(laterals)), atol=1e-6)
     assert np.ptp(laterals[0]) > 0.5, "the exit lane's centre swings across the corner's reference line"
     env.close()
+
+
+def test_a_car_on_a_corner_is_framed_on_the_route_where_the_closest_lane_leaves_it():
+    """On the corners the closest lane is partly the ring's lane on past the exit (or before the entry), off the
+    route; a frame built from it went round the ring and left the route there, and every plan was infeasible until
+    the car was on the exit's lanes (roundabout-v0, traced at seed 0). A car anywhere on a corner's lanes is framed
+    on the route."""
+    from types import SimpleNamespace
+
+    from driveopt.sim.lane_graph import route_roads
+
+    env = driveopt.gym_make("roundabout-v0", config={"action": {"type": "ContinuousAction"}})
+    env.reset(seed=0)
+    controller = driveopt.Controller("idm")
+    controller.reset(env, seed=0)
+    route = controller.task.route
+    network = env.unwrapped.road.network
+    frame, _ = ego_frame(env.unwrapped, route)
+
+    def outer_lane(frame):  # [m] the frame's lateral of the ring's outer lane, which the entry and exit continue
+        ring = next(b for p in frame.pieces for b in p.bands if b.road == ("se", "ex"))
+        return ring.first_center + (ring.num_lanes - 1) * ring.lane_width
+
+    off_route = 0
+    for piece in (p for p in frame.pieces if isinstance(p.lane, CornerLane)):
+        for s in np.arange(piece.s_start + piece.lo, piece.s_start + piece.hi, 0.5):
+            x, y, heading, _, _ = frame.to_world(np.array([s]), np.array([outer_lane(frame)]))
+            position = np.array([x[0], y[0]])
+            closest = network.get_closest_lane_index(position, float(heading[0]))
+            off_route += tuple(closest[:2]) not in route_roads(route)
+            car = SimpleNamespace(lane_index=closest, position=position, heading=float(heading[0]), speed=8.0,
+                                  LENGTH=5.0, WIDTH=2.0, action={"acceleration": 0.0, "steering": 0.0}, route=None)
+            framed, me = ego_frame(SimpleNamespace(unwrapped=SimpleNamespace(
+                vehicle=car, road=SimpleNamespace(network=network))), route)
+            assert framed.ego_road in route_roads(route), (s, closest, framed.ego_road)
+            assert abs(me.y - outer_lane(framed)) < 0.5, (s, me.y)
+    assert off_route > 0, "some points of the corners lie closest to a lane off the route"
+    env.close()

@@ -714,12 +714,14 @@ def frame_rates(heading: float, speed: float, beta: float, a_t: float, a_n: floa
     return s_dot, v_n, (a_along + turn_rate * v_n + kappa * v_n * s_dot) / scale, a_across - turn_rate * v_t, course
 
 
-def _on_lanes(network: Any, road: tuple[str, str], position: np.ndarray, before: float = 0.0) -> bool:
+def _on_lanes(network: Any, road: tuple[str, str], position: np.ndarray, before: float = 0.0,
+              past: float = 0.0) -> bool:
     """Whether ``position`` lies on one of ``road``'s driving lanes (within its length, or up to ``before`` [m] short of
-    its start, and half its width)."""
+    its start or ``past`` [m] beyond its end, and half its width)."""
     for _, lane in driving_lanes(network, road):
         longitudinal, lateral = lane.local_coordinates(position)
-        if -before <= longitudinal <= float(lane.length) and abs(lateral) <= 0.5 * float(lane.width_at(longitudinal)):
+        if (-before <= longitudinal <= float(lane.length) + past
+                and abs(lateral) <= 0.5 * float(lane.width_at(longitudinal))):
             return True
     return False
 
@@ -730,7 +732,10 @@ def _ego_road(network: Any, ego: Any, planned: Sequence[tuple[str, str]]) -> tup
     node first, or short of its start by up to :data:`BRANCH_DISTANCE`: where a junction's branches start together,
     as an intersection's turns and straight on, the closest lane may be another branch than the one the car follows,
     and a roundabout's exit starts a few metres past the ring's lane the car leaves by), else of any road (upstream's
-    closest lane can be a sine lane far away, as roundabout-v0's entry when the car is on the far side of the ring)."""
+    closest lane can be a sine lane far away, as roundabout-v0's entry when the car is on the far side of the ring).
+    A car that left a road of the route by up to :data:`BRANCH_DISTANCE` past its end, or is that short of the start
+    of the next, stays on the route: on a roundabout's corner (:data:`CORNER_LENGTH`) the closest lane is the ring's
+    lane on past the exit, or the ring's lane before the entry, and a frame along that lane leaves the route there."""
     road = (ego.lane_index[0], ego.lane_index[1])
     position = np.asarray(ego.position, dtype=float)
     on_road = _on_lanes(network, road, position)
@@ -741,6 +746,9 @@ def _ego_road(network: Any, ego: Any, planned: Sequence[tuple[str, str]]) -> tup
     everywhere = [] if on_road else [(frm, to) for frm, tos in network.graph.items() for to in tos]
     for candidate in same_node:
         if _on_lanes(network, candidate, position, before=BRANCH_DISTANCE):
+            return candidate
+    for candidate in planned:
+        if _on_lanes(network, candidate, position, before=BRANCH_DISTANCE, past=BRANCH_DISTANCE):
             return candidate
     for candidate in others + everywhere:
         if _on_lanes(network, candidate, position):
