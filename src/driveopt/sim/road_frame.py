@@ -727,32 +727,30 @@ def _on_lanes(network: Any, road: tuple[str, str], position: np.ndarray, before:
 
 
 def _ego_road(network: Any, ego: Any, planned: Sequence[tuple[str, str]]) -> tuple[str, str]:
-    """The road the frame starts from: the ego's lane's road (the simulator's closest lane), unless the ego is not on
-    that road's lanes, or that road is off the route, and it is on the lanes of a road of the route (from the same
-    node first, or short of its start by up to :data:`BRANCH_DISTANCE`: where a junction's branches start together,
-    as an intersection's turns and straight on, the closest lane may be another branch than the one the car follows,
-    and a roundabout's exit starts a few metres past the ring's lane the car leaves by), else of any road (upstream's
-    closest lane can be a sine lane far away, as roundabout-v0's entry when the car is on the far side of the ring).
-    A car that left a road of the route by up to :data:`BRANCH_DISTANCE` past its end, or is that short of the start
-    of the next, stays on the route: on a roundabout's corner (:data:`CORNER_LENGTH`) the closest lane is the ring's
-    lane on past the exit, or the ring's lane before the entry, and a frame along that lane leaves the route there."""
+    """The road the frame starts from: the ego's lane's road (the simulator's closest lane) where the ego is on its
+    lanes and it is on the route (or there is none). Else a road of the route whose lanes the ego is on: from the same
+    node first, up to :data:`BRANCH_DISTANCE` short of its start (where a junction's branches start together, as an
+    intersection's turns and straight on, the closest lane may be another branch than the one the car follows, and a
+    roundabout's exit starts a few metres past the ring's lane the car leaves by); then any, up to that short of its
+    start or past its end (on a roundabout's corner, :data:`CORNER_LENGTH`, the closest lane is the ring's lane on past
+    the exit or before the entry, and a frame along it leaves the route there). Else, off the closest lane's road, any
+    road whose lanes the ego is on (upstream's closest lane can be a sine lane far away, as roundabout-v0's entry when
+    the car is on the far side of the ring); else the closest lane's road."""
     road = (ego.lane_index[0], ego.lane_index[1])
     position = np.asarray(ego.position, dtype=float)
     on_road = _on_lanes(network, road, position)
     if on_road and (not planned or road in planned):
         return road
-    same_node = [branch for branch in planned if branch[0] == road[0]]
-    others = [branch for branch in planned if branch[0] != road[0]]
-    everywhere = [] if on_road else [(frm, to) for frm, tos in network.graph.items() for to in tos]
-    for candidate in same_node:
+    for candidate in (branch for branch in planned if branch[0] == road[0]):
         if _on_lanes(network, candidate, position, before=BRANCH_DISTANCE):
             return candidate
     for candidate in planned:
         if _on_lanes(network, candidate, position, before=BRANCH_DISTANCE, past=BRANCH_DISTANCE):
             return candidate
-    for candidate in others + everywhere:
-        if _on_lanes(network, candidate, position):
-            return candidate
+    if not on_road:
+        for candidate in ((frm, to) for frm, tos in network.graph.items() for to in tos):
+            if _on_lanes(network, candidate, position):
+                return candidate
     return road
 
 
