@@ -54,16 +54,18 @@ def save_states(path: Path, problems: list) -> None:
 
 def load_states(path: Path) -> list:
     """The (scenario, PlanningProblem) pairs :func:`save_states` wrote; a file from before the road's curvature became a
-    table of cells (one number per problem) gets that number's magnitude in every cell, one from before a route's
-    pull band existed gets none (NO_PULL), and one from before the curvature's origin the line y = 0."""
+    table of cells (one number per problem) gets that number's magnitude in every cell, and one from before a field
+    existed that field's value then (``recorded_before``)."""
     from driveopt.problem import NO_PULL, PlanningProblem
     from driveopt.scene import CURVATURE_CELLS
 
+    recorded_before = {"pull_band": NO_PULL,  # a route's pull band: none
+                       "road_origin": 0.0,  # the curvature's origin: the line y = 0
+                       "slowing": 0.0}  # the speed reference's slowing: v_des from the first node
+
     def field_of(data, i: int, field: str) -> np.ndarray:
-        if field == "pull_band" and f"{i}.{field}" not in data:  # recorded before the route's pull existed
-            return np.asarray(NO_PULL, dtype=np.float32)
-        if field == "road_origin" and f"{i}.{field}" not in data:  # recorded before the curvature had an origin
-            return np.float32(0.0)
+        if f"{i}.{field}" not in data and field in recorded_before:
+            return np.asarray(recorded_before[field], dtype=np.float32)
         value = data[f"{i}.{field}"]
         if field == "road_curvature" and value.ndim == 0:
             return np.full(CURVATURE_CELLS, abs(value), dtype=value.dtype)

@@ -34,10 +34,19 @@ def time_weighted_mean(values: jnp.ndarray, t: jnp.ndarray, time_constant: float
     return jnp.sum(weights * values, axis=-1) / jnp.sum(weights, axis=-1)
 
 
+def speed_reference(traj: Trajectory, problem: PlanningProblem) -> jnp.ndarray:
+    """[m/s] the speed each node of a plan is asked for: ``problem.v_des``, or for a plan that starts faster, its start
+    speed less ``problem.slowing`` [m/s^2] times the time since its start, down to ``v_des`` (slowing 0: ``v_des``
+    throughout, exactly)."""
+    v0, t = traj.speed[..., :1], traj.t - traj.t[..., :1]
+    above = jnp.maximum(v0 - problem.slowing * t - problem.v_des, 0.0)
+    return problem.v_des + jnp.where(problem.slowing > 0.0, above, 0.0)
+
+
 def cost_terms(traj: Trajectory, problem: PlanningProblem, previous_y: jnp.ndarray | None = None,
                time_constant: float = 0.0) -> dict[str, jnp.ndarray]:
     """Unweighted cost terms, each (...,): means over the nodes, node t weighed exp(-t / ``time_constant``) [s]
-    (:attr:`CostConfig.time_constant`; 0: the plain mean).
+    (:attr:`CostConfig.time_constant`; 0: the plain mean); the speed term's reference: :func:`speed_reference`.
 
     previous_y: (K,) or per row (..., K) [m] lateral positions of the previous replan's plan at these nodes' times; the
     ``consistency`` term is zero without it.
@@ -46,7 +55,7 @@ def cost_terms(traj: Trajectory, problem: PlanningProblem, previous_y: jnp.ndarr
     # Curvature is only meaningful when moving; cap its influence at crawling speeds.
     curvature = jnp.clip(traj.curvature, -1.0, 1.0)
     per_node = {
-        "speed": (traj.speed - problem.v_des) ** 2,
+        "speed": (traj.speed - speed_reference(traj, problem)) ** 2,
         "lateral_acceleration": traj.ay**2,
         "heading": traj.heading**2,
         "curvature": curvature**2,

@@ -162,6 +162,7 @@ def test_a_missing_problem_file_says_no_such_file_and_an_unknown_name_lists_the_
         ({"ego": EGO, "neighbours": [{"x": 1}]}, "'neighbours[0]' is missing ['y']"),
         ({"ego": EGO, "neighbours": [{"x": 1, "y": 1e9}]}, "neighbours[0]: neighbour.y must be within"),
         ({"ego": EGO, "ellipse_margin": {"lateal": 1}}, "in 'ellipse_margin'; valid: ['lateral', 'longitudinal', 'time_gap']"),
+        ({"ego": EGO, "slowing": -1.0}, "slowing must be within"),
     ],
 )
 def test_a_misspelt_or_missing_key_is_a_problem_error_listing_the_valid_keys(data, needle):
@@ -213,6 +214,9 @@ def test_a_roads_curvature_ahead_round_trips_through_a_problem_file_and_bad_ones
     assert again == scene
     assert [round(float(c), 6) for c in build_problem(again).road_curvature] == cells
     assert "curvature_ahead" not in scene_to_dict(load_scene("dense-snapshot"))["road"]  # none given: none written
+    gentle = dataclasses.replace(scene, slowing=1.5)
+    assert scene_from_dict(json.loads(json.dumps(scene_to_dict(gentle)))) == gentle
+    assert float(build_problem(gentle).slowing) == 1.5
     for bad, message in (([0.01] * 3, "list of 80"), ("abc", "list of 80"), ([float("nan")] * CURVATURE_CELLS, "finite")):
         with pytest.raises(ProblemError, match=message):
             Road(curvature_ahead=bad)

@@ -319,7 +319,8 @@ class OptimiserDriver:
         self.scenario = scenario
         self.model = BicycleModel.from_env(env, policy_frequency)
         self._one_step = dataclasses.replace(self.model, steps_per_action=1)  # the car over one simulation step
-        self.preview = RoadPreview(lateral_acceleration=self.spec.config.projection.centripetal_max)
+        self.preview = RoadPreview(lateral_acceleration=self.spec.config.projection.centripetal_max,
+                                   slowing=self.spec.config.cost.slowing)
         hz = env.unwrapped.config["policy_frequency"] if policy_frequency is None else policy_frequency
         self.period = 1.0 / hz  # [s] one policy period: between two calls of act
         first = perceive(env, scenario, self.preview, self.period)
