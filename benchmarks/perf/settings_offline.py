@@ -61,7 +61,7 @@ def load_states(path: Path) -> list:
 
     recorded_before = {"pull_band": NO_PULL,  # a route's pull band: none
                        "road_origin": 0.0,  # the curvature's origin: the line y = 0
-                       "slowing": 0.0}  # the speed reference's slowing: v_des from the first node
+                       "slowing": 0.0, "slowing_from": 0.0}  # the speed reference: v_des from the first node
 
     def field_of(data, i: int, field: str) -> np.ndarray:
         if f"{i}.{field}" not in data and field in recorded_before:

@@ -213,7 +213,7 @@ class CostConfig:
     """Weights of the upper-level driving cost terms (each a mean over the nodes), the nodes' weights, and the speed
     reference's slowing."""
 
-    speed: float = 1.0  # [1/(m/s)^2] weight of (|v| - v_ref)^2, v_ref: v_des, or from a faster start down to it (slowing)
+    speed: float = 1.0  # [1/(m/s)^2] weight of (|v| - v_ref)^2, v_ref: v_des, or coming down to it (slowing)
     lateral_acceleration: float = 0.2  # [1/(m/s^2)^2] weight of y''^2
     heading: float = 20.0  # [1/rad^2] weight of the heading^2 relative to the road
     curvature: float = 10.0  # [m^2] weight of the curvature^2 (steering effort proxy)
@@ -226,10 +226,10 @@ class CostConfig:
     # node alike, P1). A plan is made again long before its end, so what it gives up later costs less than the same
     # given up now: a plan closing on a slower car far ahead keeps its speed and slows when near, where plain means
     # have it slow a little from the start (the least squared shortfall spreads a deficit of distance evenly)
-    slowing: float = 1.5  # [m/s^2] on a road of highway-env, a car faster than its desired speed where no curve ahead
-    # lowers it is asked to slow to it at this deceleration (Scene.slowing: the speed term's reference is the plan's start
-    # speed less this times t, down to v_des; 0: v_des from the first node, P1), not as hard as the plan's bounds allow:
-    # upstream's merge-v0 and two-way-v0 start their car at 30 m/s in 20 m/s lanes
+    slowing: float = 1.5  # [m/s^2] on a road of highway-env, a car that starts faster than its desired speed, where no
+    # curve ahead lowers it, is asked to slow to it at this deceleration from its start speed (Scene.slowing_from; 0:
+    # v_des from the first node, P1), not as hard as the plan's bounds allow: upstream's merge-v0 and two-way-v0 start
+    # their car at 30 m/s in 20 m/s lanes. A car that started at or below its desired speed is asked for it throughout
 
     def __post_init__(self) -> None:
         check_types(self, "cost")

@@ -35,12 +35,11 @@ def time_weighted_mean(values: jnp.ndarray, t: jnp.ndarray, time_constant: float
 
 
 def speed_reference(traj: Trajectory, problem: PlanningProblem) -> jnp.ndarray:
-    """[m/s] the speed each node of a plan is asked for: ``problem.v_des``, or for a plan that starts faster, its start
-    speed less ``problem.slowing`` [m/s^2] times the time since its start, down to ``v_des`` (slowing 0: ``v_des``
-    throughout, exactly)."""
-    v0, t = traj.speed[..., :1], traj.t - traj.t[..., :1]
-    above = jnp.maximum(v0 - problem.slowing * t - problem.v_des, 0.0)
-    return problem.v_des + jnp.where(problem.slowing > 0.0, above, 0.0)
+    """[m/s] the speed each node of a plan is asked for: the plan's start speed, at most ``problem.slowing_from``, less
+    ``problem.slowing`` [m/s^2] times the time since the start, down to ``problem.v_des`` (``slowing_from`` at or below
+    ``v_des``: ``v_des`` throughout, exactly)."""
+    start = jnp.minimum(traj.speed[..., :1], problem.slowing_from)
+    return jnp.maximum(problem.v_des, start - problem.slowing * (traj.t - traj.t[..., :1]))
 
 
 def cost_terms(traj: Trajectory, problem: PlanningProblem, previous_y: jnp.ndarray | None = None,

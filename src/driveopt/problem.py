@@ -49,7 +49,8 @@ class PlanningProblem(NamedTuple):
     # (:attr:`driveopt.scene.Road.curvature_ahead`): the centripetal bound at a node reads the cell of its position
     road_origin: jnp.ndarray  # () [m] y of the line that curvature is of (:attr:`driveopt.scene.Road.curvature_origin`)
     v_des: jnp.ndarray  # () [m/s]
-    slowing: jnp.ndarray  # () [m/s^2] a plan starting faster than v_des is asked to slow to it at this rate (0: at once)
+    slowing: jnp.ndarray  # () [m/s^2] the rate at which the speed asked for comes down from slowing_from to v_des
+    slowing_from: jnp.ndarray  # () [m/s] the most asked for at t = 0 where above v_des (driveopt.costs.speed_reference)
     pull_band: jnp.ndarray  # (2,) [m] (low, high) of the ego centre that the ``route`` cost term draws plans towards:
     # a widened goal's band ahead (:meth:`driveopt.goal.Goal.pull_band`); :data:`NO_PULL` without one (the term is 0)
     obstacle_x: jnp.ndarray  # (N, K) [m] predicted centres
@@ -94,7 +95,7 @@ def build_problem(
     within this time (0: the nearest now, P1); see :func:`driveopt.prediction.relevant_neighbours`.
     goal: where the plan should lead (:class:`driveopt.goal.Goal`): its band narrows ``y_lb, y_ub`` once it is near,
     the band is then the one lane of the lane terms; its speed and time windows set ``v_des`` (one they lower is asked
-    for at once: no ``scene.slowing``); ``time`` [s] is the episode's clock, which the goal's time window reads.
+    for at once: no ``scene.slowing_from``); ``time`` [s] is the episode's clock, which the goal's time window reads.
     None: the scene's bounds and ``v_des``, exactly.
     ConfigError for more than :data:`driveopt.config.MAX_OBSTACLES` unless ``DRIVEOPT_ALLOW_LARGE=1``.
     """
@@ -143,7 +144,8 @@ def build_problem(
         road_curvature=f32(scene.road.curvature_profile),
         road_origin=f32(scene.road.curvature_origin),
         v_des=f32(v_des),
-        slowing=f32(scene.slowing if v_des >= scene.v_des else 0.0),  # a goal that lowers v_des asks for it at once
+        slowing=f32(scene.slowing),
+        slowing_from=f32(scene.slowing_from if v_des >= scene.v_des else 0.0),  # a goal that lowers v_des: at once
         pull_band=f32(pull),
         obstacle_x=f32(ox),
         obstacle_y=f32(oy),
@@ -169,7 +171,8 @@ def check_problem(problem: PlanningProblem, basis: BasisConfig = BasisConfig()) 
     N = np.shape(problem.obstacle_x)[0] if np.ndim(problem.obstacle_x) == 2 else -1
     expected = {
         "init_x": (3,), "init_y": (3,), "y_lb": (), "y_ub": (), "lane_center0": (), "lane_width": (),
-        "num_lanes": (), "road_curvature": (CURVATURE_CELLS,), "road_origin": (), "v_des": (), "slowing": (), "pull_band": (2,),
+        "num_lanes": (), "road_curvature": (CURVATURE_CELLS,), "road_origin": (), "v_des": (), "slowing": (),
+        "slowing_from": (), "pull_band": (2,),
         "obstacle_x": (N, K), "obstacle_y": (N, K),
         "obstacle_a": (N,), "obstacle_b": (N,), "obstacle_mask": (N,), "ellipse_growth": (2, K),
         "ego_heading": (),

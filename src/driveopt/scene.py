@@ -39,7 +39,8 @@ RANGES = {
     "lane_width": (0.5, 100.0, "m"), "first_lane_center": (-1e3, 1e3, "m"), "curvature": (-1.0, 1.0, "1/m"),
     "curvature_origin": (-1e3, 1e3, "m"),
     "longitudinal": (0.0, 100.0, "m"), "lateral": (0.0, 100.0, "m"),
-    "v_des": (0.0, 100.0, "m/s"), "slowing": (0.0, 20.0, "m/s^2"), "edge_margin": (0.0, 100.0, "m"), "time_gap": (0.0, 10.0, "s"),
+    "v_des": (0.0, 100.0, "m/s"), "slowing": (0.0, 20.0, "m/s^2"), "slowing_from": (0.0, 100.0, "m/s"),
+    "edge_margin": (0.0, 100.0, "m"), "time_gap": (0.0, 10.0, "s"),
 }
 MAX_LANES = 64  # [-] lanes of a road
 CURVATURE_CELL = 2.5  # [m] length of a cell of Road.curvature_ahead
@@ -214,8 +215,10 @@ class Scene:
     road: Road = field(default_factory=Road)
     neighbours: tuple[Neighbour, ...] = ()
     v_des: float = 20.0  # [m/s] desired speed
-    slowing: float = 0.0  # [m/s^2] a car faster than v_des is asked to slow to it at this deceleration (0: at once;
-    # driveopt.costs.speed_reference)
+    slowing: float = 0.0  # [m/s^2] the rate at which the speed asked for comes down from slowing_from to v_des
+    slowing_from: float = 0.0  # [m/s] the most asked for now: above v_des where a car faster than v_des is let slow to
+    # it at the rate slowing rather than at once, from its speed (driveopt.costs.speed_reference); at or below v_des:
+    # v_des throughout
     ellipse_margin: EllipseMargin = field(default_factory=EllipseMargin)
     edge_margin: float = 0.0  # [m] extra distance the ego's side keeps from the road edge
     name: str = "custom"
@@ -224,6 +227,7 @@ class Scene:
         object.__setattr__(self, "neighbours", tuple(self.neighbours))
         object.__setattr__(self, "v_des", _number("v_des", self.v_des))
         object.__setattr__(self, "slowing", _number("slowing", self.slowing))
+        object.__setattr__(self, "slowing_from", _number("slowing_from", self.slowing_from))
         object.__setattr__(self, "edge_margin", _number("edge_margin", self.edge_margin))
         if not isinstance(self.name, str):
             raise ProblemError(f"name must be a string, got {self.name!r}")
@@ -246,7 +250,7 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
     return {
         "name": scene.name,
         "v_des": scene.v_des,
-        **({"slowing": scene.slowing} if scene.slowing else {}),
+        **{name: getattr(scene, name) for name in ("slowing", "slowing_from") if getattr(scene, name)},
         "road": {k: v for k, v in asdict(scene.road).items() if k not in ("curvature_ahead", "curvature_origin") or v},
         "ego": asdict(scene.ego),
         "neighbours": [asdict(n) for n in scene.neighbours],
@@ -255,7 +259,8 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
     }
 
 
-_TOP_KEYS = {"name", "description", "v_des", "slowing", "road", "ego", "neighbours", "ellipse_margin", "edge_margin"}
+_TOP_KEYS = {"name", "description", "v_des", "slowing", "slowing_from", "road", "ego", "neighbours", "ellipse_margin",
+             "edge_margin"}
 
 
 def _build(cls: type, values: dict[str, Any], where: str) -> Any:
@@ -308,6 +313,7 @@ def scene_from_dict(data: Any) -> Scene:
         neighbours=tuple(parsed),
         v_des=data.get("v_des", 20.0),
         slowing=data.get("slowing", 0.0),
+        slowing_from=data.get("slowing_from", 0.0),
         ellipse_margin=_section(data, "ellipse_margin", EllipseMargin, required=False),
         edge_margin=data.get("edge_margin", 0.0),
         name=data.get("name", "custom"),

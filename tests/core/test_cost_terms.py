@@ -1,4 +1,4 @@
-"""The cost weighed over the horizon (CostConfig.time_constant) and the speed it asks for (Scene.slowing)."""
+"""The cost weighed over the horizon (CostConfig.time_constant) and the speed it asks for (Scene.slowing, slowing_from)."""
 
 from types import SimpleNamespace
 
@@ -44,27 +44,30 @@ def test_a_discounted_cost_keeps_the_speed_now_and_slows_later(small_config, slo
     assert first[3.0] > first[0.0] + 0.2, first  # discounted: it keeps more of its speed now and slows later
 
 
-def test_the_speed_reference_comes_down_from_a_faster_start_at_the_scenes_slowing(small_config):
+def test_the_speed_reference_comes_down_from_the_plans_start_at_most_slowing_from(small_config):
     t = jnp.linspace(0.0, 15.0, 151) + 4.0  # the reference counts from the plan's first node, wherever its clock starts
-    speed = jnp.stack([jnp.full_like(t, 30.0), jnp.full_like(t, 12.0)])  # one plan starting faster than v_des, one slower
+    speed = jnp.stack([jnp.full_like(t, 30.0), jnp.full_like(t, 26.0)])  # two plans, starting at 30 and 26 m/s
     traj = SimpleNamespace(t=jnp.broadcast_to(t, speed.shape), speed=speed)
     ego = EgoState(x=0.0, y=0.0, vx=30.0)
-    at_once = build_problem(Scene(ego=ego, v_des=20.0), small_config.basis)
-    assert np.all(np.asarray(speed_reference(traj, at_once)) == 20.0)  # slowing 0: v_des itself, exactly
-    reference = np.asarray(speed_reference(traj, build_problem(Scene(ego=ego, v_des=20.0, slowing=1.5), small_config.basis)))
-    assert np.allclose(reference[0], np.maximum(20.0, 30.0 - 1.5 * (np.asarray(t) - 4.0)))
-    assert np.all(reference[1] == 20.0)  # a plan starting slower is asked for v_des throughout
+    for scene in (Scene(ego=ego, v_des=20.0), Scene(ego=ego, v_des=20.0, slowing=1.5, slowing_from=19.0)):
+        # nothing above v_des to come down from: v_des itself, exactly
+        assert np.all(np.asarray(speed_reference(traj, build_problem(scene, small_config.basis))) == 20.0)
+    reference = np.asarray(speed_reference(traj, build_problem(Scene(ego=ego, v_des=20.0, slowing=1.5, slowing_from=28.0),
+                                                               small_config.basis)))
+    since = np.asarray(t) - 4.0
+    assert np.allclose(reference[0], np.maximum(20.0, 28.0 - 1.5 * since))  # at most slowing_from
+    assert np.allclose(reference[1], np.maximum(20.0, 26.0 - 1.5 * since))  # from its own start speed below it
 
 
-def test_a_car_over_its_desired_speed_slows_at_the_scenes_slowing_not_at_once(small_config):
+def test_a_car_asked_to_slow_gently_slows_at_the_scenes_slowing_not_at_once(small_config):
     speeds = {}
-    for slowing in (0.0, 1.5):
+    for slowing_from in (0.0, 30.0):
         scene = Scene(ego=EgoState(x=0.0, y=0.0, vx=30.0), road=Road(num_lanes=1, lane_width=4.0), v_des=20.0,
-                      slowing=slowing)
+                      slowing=1.5, slowing_from=slowing_from)
         result = plan(build_problem(scene, small_config.basis), small_config, key=jax.random.PRNGKey(0))
         assert result.status == PlanStatus.SUCCESS
         traj = result.trajectory
-        speeds[slowing] = float(np.interp(3.0, np.asarray(traj.t), np.asarray(traj.speed)))
-        assert abs(float(traj.speed[-1]) - 20.0) < 1.0, f"slowing {slowing}: ends at {float(traj.speed[-1]):.1f} m/s"
+        speeds[slowing_from] = float(np.interp(3.0, np.asarray(traj.t), np.asarray(traj.speed)))
+        assert abs(float(traj.speed[-1]) - 20.0) < 1.0, f"from {slowing_from}: ends at {float(traj.speed[-1]):.1f} m/s"
     assert speeds[0.0] < 23.0, speeds  # at once: near v_des within 3 s
-    assert speeds[1.5] > 24.5, speeds  # 30 - 1.5 x 3 = 25.5 at the slowing rate
+    assert speeds[30.0] > 24.5, speeds  # 30 - 1.5 x 3 = 25.5 at the slowing rate

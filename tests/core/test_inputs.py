@@ -214,9 +214,9 @@ def test_a_roads_curvature_ahead_round_trips_through_a_problem_file_and_bad_ones
     assert again == scene
     assert [round(float(c), 6) for c in build_problem(again).road_curvature] == cells
     assert "curvature_ahead" not in scene_to_dict(load_scene("dense-snapshot"))["road"]  # none given: none written
-    gentle = dataclasses.replace(scene, slowing=1.5)
+    gentle = dataclasses.replace(scene, slowing=1.5, slowing_from=25.0)
     assert scene_from_dict(json.loads(json.dumps(scene_to_dict(gentle)))) == gentle
-    assert float(build_problem(gentle).slowing) == 1.5
+    assert (float(build_problem(gentle).slowing), float(build_problem(gentle).slowing_from)) == (1.5, 25.0)
     for bad, message in (([0.01] * 3, "list of 80"), ("abc", "list of 80"), ([float("nan")] * CURVATURE_CELLS, "finite")):
         with pytest.raises(ProblemError, match=message):
             Road(curvature_ahead=bad)

@@ -337,7 +337,8 @@ class OptimiserDriver:
         self.warm = None
         self.previous = PreviousPlan.absent(self.config.basis.num_nodes) if self.carries_plan else None
         self._carried_frame = None  # the frame the carried warm start and previous plan are in
-        self._first_scene, self._first_goal = first.scene, first.goal
+        self._slowing_from, self._slowing_at = math.inf, None  # [m/s] the most asked for, [s] when
+        self._first_scene, self._first_goal = self._let_slow(env, first.scene), first.goal
         self.compile_seconds = 0.0
         if warm_up:
             start = time.perf_counter()
@@ -358,6 +359,21 @@ class OptimiserDriver:
         result is discarded, and it leaves the driver as it was."""
         return Call(self._problem(self._first_scene, self._first_goal), jax.random.fold_in(self.key, 1), self.warm,
                     self.previous)
+
+    def _let_slow(self, env: Any, scene: Any) -> Any:
+        """``scene`` with the most a plan is asked for now (:attr:`Scene.slowing_from`): where the scene lets a car slow
+        (``scene.slowing`` > 0), the car's speed at the episode's first scene, less ``slowing`` times the time since,
+        down to the desired speed; elsewhere the desired speed. So a car that starts faster than its desired speed
+        slows at that rate, and one that started at or below it is asked for it whatever it overshoots."""
+        now = float(env.unwrapped.time)
+        if scene.slowing > 0.0:
+            start = math.hypot(scene.ego.vx, scene.ego.vy) if self._slowing_at is None else self._slowing_from
+            since = 0.0 if self._slowing_at is None else now - self._slowing_at
+            self._slowing_from = max(scene.v_des, start - scene.slowing * since)
+        else:
+            self._slowing_from = scene.v_des
+        self._slowing_at = now
+        return dataclasses.replace(scene, slowing_from=self._slowing_from)
 
     def _problem(self, scene: Any, goal: Any = None):
         """The planning problem of ``scene``; ``goal``: the route's lanes at a split ahead (perception's), or None."""
@@ -400,7 +416,8 @@ class OptimiserDriver:
             if self.spec.loop.contact_guard:
                 self._perception = perceive(env, self.scenario, self.preview, self.period)
             return None
-        perception = self._perception = perceive(env, self.scenario, self.preview, self.period)
+        perception = perceive(env, self.scenario, self.preview, self.period)
+        perception = self._perception = perception._replace(scene=self._let_slow(env, perception.scene))
         if self._ahead():  # the plan in effect carries the car until the new one takes effect: command it first
             self._command_now, self._guarded = self._step_command(env, perception)
         ahead = self._ahead() if self._command_now is not None else 0

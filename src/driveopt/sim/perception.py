@@ -69,8 +69,8 @@ class RoadPreview:
     # 1-14 % faster, but 6 collisions in 180 episodes against 3, at ring entries: off.
     curvature_per_node: bool = False
     speed_distance: float = 300.0  # [m] curves within this distance lower the desired speed
-    slowing: float = 0.0  # [m/s^2] a car faster than its desired speed where no curve lowers it slows to it at this
-    # deceleration (Scene.slowing; 0: at once); faster than a curve's speed it brakes at once, as the curve needs
+    slowing: float = 0.0  # [m/s^2] the scene's slowing where no curve lowers the desired speed (a driver lets a car
+    # faster than it slow at this rate: Scene.slowing_from), else 0: faster than a curve's speed, brake at once
     route_change: RouteChange = RouteChange()  # the pace of a route's lane change before a split
     crossing_horizon: float = 15.0  # [s] crossing traffic is predicted along its lanes this far ahead
     crossing_step: float = 0.5  # [s] ... at poses this far apart
@@ -80,8 +80,8 @@ class RoadPreview:
 
     def __post_init__(self) -> None:
         for name in ("lateral_acceleration", "deceleration", "lane_time", "lane_distance", "curvature_time",
-                     "curvature_distance", "speed_distance", "slowing", "crossing_horizon", "crossing_step", "dead_end_time",
-                     "dead_end_distance"):
+                     "curvature_distance", "speed_distance", "slowing", "crossing_horizon", "crossing_step",
+                     "dead_end_time", "dead_end_distance"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= float(value) < 1e4:
                 raise ValueError(f"RoadPreview.{name} must be a number in [0, 10000), got {value!r}")
