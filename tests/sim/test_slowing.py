@@ -38,7 +38,7 @@ def test_the_most_asked_for_comes_down_at_the_slowing_rate_from_the_start_speed(
         return OptimiserDriver._let_slow(driver, env, scene).slowing_from
 
     def fresh():
-        return SimpleNamespace(_slowing_from=float("inf"), _slowing_at=None)
+        return SimpleNamespace(_slowing_from=0.0, _slowing_at=None)
 
     driver = fresh()
     assert most(driver, 0.0, 30.0) == 30.0

@@ -337,7 +337,7 @@ class OptimiserDriver:
         self.warm = None
         self.previous = PreviousPlan.absent(self.config.basis.num_nodes) if self.carries_plan else None
         self._carried_frame = None  # the frame the carried warm start and previous plan are in
-        self._slowing_from, self._slowing_at = math.inf, None  # [m/s] the most asked for, [s] when
+        self._slowing_from, self._slowing_at = 0.0, None  # [m/s] the most asked for, [s] when (None: not yet)
         self._first_scene, self._first_goal = self._let_slow(env, first.scene), first.goal
         self.compile_seconds = 0.0
         if warm_up:
@@ -367,9 +367,9 @@ class OptimiserDriver:
         slows at that rate, and one that started at or below it is asked for it whatever it overshoots."""
         now = float(env.unwrapped.time)
         if scene.slowing > 0.0:
-            start = math.hypot(scene.ego.vx, scene.ego.vy) if self._slowing_at is None else self._slowing_from
-            since = 0.0 if self._slowing_at is None else now - self._slowing_at
-            self._slowing_from = max(scene.v_des, start - scene.slowing * since)
+            start, then = ((math.hypot(scene.ego.vx, scene.ego.vy), now) if self._slowing_at is None
+                           else (self._slowing_from, self._slowing_at))
+            self._slowing_from = max(scene.v_des, start - scene.slowing * (now - then))
         else:
             self._slowing_from = scene.v_des
         self._slowing_at = now

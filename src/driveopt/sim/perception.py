@@ -37,6 +37,7 @@ rate, and slow drifts across lanes).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -205,11 +206,12 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
         if period is None:
             period = 1.0 / float(sim.config.get("policy_frequency", math.inf))
         v_des = curve_speed(frame, me.x, me.y, float(task.v_des), preview, period)
-        # the desired speed with no curve ahead counted: a curve that lowers it is slowed for at once
-        no_curve = v_des >= curve_speed(frame, me.x, me.y, float(task.v_des), RoadPreview(speed_distance=0.0))
+        # a curve ahead that lowers the desired speed (below the one with no curve ahead counted) is slowed for at once
+        lowered = preview.slowing and v_des < curve_speed(frame, me.x, me.y, float(task.v_des),
+                                                          dataclasses.replace(preview, speed_distance=0.0))
         margin = EllipseMargin(time_gap=max(getattr(task, "time_gap", 0.0), route_gap))
         scene = Scene(ego=ego, road=road, neighbours=tuple(neighbours), v_des=v_des,
-                      slowing=preview.slowing if no_curve else 0.0, ellipse_margin=margin, name=task.name)
+                      slowing=0.0 if lowered else preview.slowing, ellipse_margin=margin, name=task.name)
     except ProblemError as exc:
         raise ObservationError(f"simulator state at t = {sim.steps / sim.config['simulation_frequency']:.2f} s: {exc}") from None
     return scene, me, frame, goal
