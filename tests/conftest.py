@@ -55,7 +55,7 @@ SMALL = PlannerConfig().replace(
 # Every runtime field of the configuration (driveopt.config.RUNTIME_FIELDS) at another value than its default.
 RUNTIME_CHANGES = {"projection": {"v_min": 0.5, "a_max": 4.5},
                    "cost": {"speed": 2.0, "lateral_acceleration": 0.1, "heading": 10.0, "curvature": 5.0, "lane_centering": 1.0,
-                            "consistency": 1.0, "route": 5.0}}
+                            "consistency": 1.0, "route": 5.0, "lane_flow": 4.0}}
 
 # End-to-end tests that run only with ``-m slow`` (benchmark-sized: each compiles a planner configuration of its own
 # or trains through one): what each checks is also checked in the default suite by a faster test, named here.

@@ -210,8 +210,8 @@ class ProjectionConfig:
 
 @dataclass(frozen=True)
 class CostConfig:
-    """Weights of the upper-level driving cost terms (each a mean over the nodes), the nodes' weights, and the speed
-    reference's slowing."""
+    """Weights of the upper-level driving cost terms (each a mean over the nodes but ``lane_flow``, read at a plan's
+    end), the nodes' weights, and the speed reference's slowing."""
 
     speed: float = 1.0  # [1/(m/s)^2] weight of (|v| - v_ref)^2, v_ref: v_des, or coming down to it (slowing)
     lateral_acceleration: float = 0.2  # [1/(m/s^2)^2] weight of y''^2
@@ -222,6 +222,8 @@ class CostConfig:
     route: float = 10.0  # [1/lane] weight of the lane changes still between y(t)'s lane and the band a route's split draws
     # it towards (PlanningProblem.pull_band; the term is 0 without one), counted from the nearest lane, so a plan stuck
     # between two lanes gains nothing over the nearer one
+    lane_flow: float = 10.0  # [-] weight of ((v_des - v) / v_des)^2, v the speed of the slowest car ahead in the lane a plan
+    # ends in (driveopt.costs.lane_flow; 0: not used, P1): what the plan will lose after its horizon behind it
     time_constant: float = 0.0  # [s] every term weighs the node at time t by exp(-t / this) (weighted means; 0: every
     # node alike, P1). A plan is made again long before its end, so what it gives up later costs less than the same
     # given up now: a plan closing on a slower car far ahead keeps its speed and slows when near, where plain means
@@ -406,7 +408,8 @@ _SECTIONS = {
 # would differ in the last bits, and a closed loop amplifies that into another episode.
 RUNTIME_FIELDS: dict[str, tuple[str, ...]] = {
     "projection": ("v_min", "a_max"),
-    "cost": ("speed", "lateral_acceleration", "heading", "curvature", "lane_centering", "consistency", "route"),
+    "cost": ("speed", "lateral_acceleration", "heading", "curvature", "lane_centering", "consistency", "route",
+             "lane_flow"),
 }
 
 

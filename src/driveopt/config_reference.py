@@ -121,7 +121,7 @@ def render(source: str | None = None) -> str:
         "frozen and hashable (a static argument of the compiled planner); `--config FILE` (nested JSON sections, e.g.",
         "`{\"cost\": {\"consistency\": 1.0}}`) and `.replace(section={...})` override a planner's own, type- and",
         "range-checked. Defaults follow P1 unless the row says otherwise ([why](design.md)); cost terms are means over",
-        "the nodes. Configurations that differ only in the fields read at run time",
+        "the nodes (`lane_flow` reads a plan's end). Configurations that differ only in the fields read at run time",
         f"({runtime}) share one compilation ([how](design.md#collision-ellipses-and-compilation)).",
         f"A call above {_power(MAX_PLANNING_WORK)} units of work (samples x iterations x projection iterations x nodes,",
         f"~{minutes:.0f} min on the project's 2-core CPU machine) or {_power(MAX_SAMPLE_NODES)} sample-nodes",

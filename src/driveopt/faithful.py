@@ -59,9 +59,10 @@ SHRESTHA_PROJECTION = 75  # [-] [5]'s planning projection iterations (main_diffp
 SHRESTHA_CONSTRAINT_ELITES, SHRESTHA_ELITES = 10, 5  # [-] expert_cvae.py ellite_num_projection, ellite_num
 
 P1_MATHS = {"sampler": {"structured_fraction": 0.0}, "qp": {"initial_lateral_acceleration": True},
-            "cost": {"consistency": 0.0, "slowing": 0.0}, "projection": {"course_max": 0.0, "ego_turn_rate": 0.0}}
+            "cost": {"consistency": 0.0, "slowing": 0.0, "lane_flow": 0.0},
+            "projection": {"course_max": 0.0, "ego_turn_rate": 0.0}}
 # P1's planner maths where driveopt's differs: independent set-points, both initial accelerations imposed, no
-# plan-consistency cost, v_des from a plan's first node, no course bound or per-sample turned box.
+# plan-consistency cost, v_des from a plan's first node, no lane-flow cost, no course bound or per-sample turned box.
 FAITHFUL_MATHS = {**P1_MATHS, "qp": {"initial_lateral_acceleration": False}}
 P2_FILTER_ITERATIONS = 100  # [-] the iterations of P2's filter in its one pass, unaccelerated
 P2_MATHS = {**P1_MATHS, "qp": {"initial_lateral_acceleration": True},

@@ -58,7 +58,7 @@ from driveopt.filtering import SafetyFilter, check_filter_init
 from driveopt.host_copy import to_host
 from driveopt.problem import PlanningProblem, check_problem
 from driveopt.projection import FAMILIES, ProjectionResult, project
-from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, boundary_values, make_model, solve_setpoint_qp
+from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM, boundary_values, make_model, shift_setpoints, solve_setpoint_qp
 from driveopt.method import DRIVEOPT_METHOD, Method
 from driveopt.ranking import Candidate
 from driveopt.row_sharing import EveryRow
@@ -160,11 +160,13 @@ class WarmStart(NamedTuple):
 
 def previous_plan(result: "PlanResult", elapsed: float) -> PreviousPlan:
     """The executed plan of ``result`` (``safe_trajectory``) shifted by ``elapsed`` [s] to the next call's
-    nodes; held at its last value beyond the horizon."""
+    nodes, held at its last value beyond the horizon; its set-points shifted as much (:func:`shift_setpoints`)."""
     traj = result.safe_trajectory
     t = np.asarray(traj.t)
     lateral = np.interp(t + elapsed, t, np.asarray(traj.y)).astype(np.float32)
-    return PreviousPlan(np.asarray(result.setpoints, dtype=np.float32), lateral, np.True_)
+    quarter = (t[-1] - t[0]) / NUM_SEGMENTS
+    setpoints = shift_setpoints(np.asarray(result.setpoints, dtype=np.float32), elapsed / quarter)
+    return PreviousPlan(setpoints, lateral, np.True_)
 
 
 class Solution(NamedTuple):

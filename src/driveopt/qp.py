@@ -27,6 +27,23 @@ NUM_SEGMENTS = 4  # set-points per axis; each holds over a quarter of the horizo
 SETPOINT_DIM = 2 * NUM_SEGMENTS  # p = (v_1..v_4 [m/s], y_1..y_4 [m])
 
 
+def shift_setpoints(setpoints: np.ndarray, quarters: float) -> np.ndarray:
+    """(..., 8) set-points seen ``quarters`` [-] of the horizon's quarters later: each axis's step function (a value held
+    over each quarter, the last one beyond the horizon) moved that much earlier, each quarter's new value its mean over
+    the quarter. A plan handed on to the next call keeps its timing this way (a lane change it makes in 4 s is made
+    in 3.8 s by the call 0.2 s later, not again in 4 s)."""
+    if quarters < 0:
+        raise ValueError(f"quarters must be at least 0, got {quarters:g}")
+    starts = np.arange(NUM_SEGMENTS, dtype=np.float64)
+    ends = np.append(starts[1:], np.inf)  # the last value holds beyond the horizon
+    window_from, window_to = starts + quarters, starts + 1.0 + quarters  # the new quarters on the old time axis
+    overlap = np.maximum(np.minimum(window_to[:, None], ends) - np.maximum(window_from[:, None], starts), 0.0)  # (new, old)
+    setpoints = np.asarray(setpoints)
+    values = setpoints.astype(np.float64).reshape(*setpoints.shape[:-1], 2, NUM_SEGMENTS, 1)
+    shifted = sum(overlap[:, j] * values[..., j, :] for j in range(NUM_SEGMENTS))  # (..., 2, new)
+    return shifted.reshape(setpoints.shape).astype(setpoints.dtype)
+
+
 class TrajectoryModel(NamedTuple):
     """Constant arrays shared by the QP, the projection and the costs (float32 numpy).
 

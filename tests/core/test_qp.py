@@ -7,7 +7,7 @@ import pytest
 
 from driveopt.basis import make_basis
 from driveopt.config import BasisConfig, QPConfig
-from driveopt.qp import boundary_values, make_model, segment_matrix, solve_setpoint_qp, split
+from driveopt.qp import boundary_values, make_model, segment_matrix, shift_setpoints, solve_setpoint_qp, split
 
 
 def reference_solution(qp: QPConfig, p: np.ndarray, init_x, init_y, goal=None) -> np.ndarray:
@@ -126,3 +126,20 @@ def test_free_initial_acceleration_matches_float64_reference():
         c_x, c_y = split(coeffs[j])
         start.append(abs(Wdd0 @ c_x - init_x[2]) + abs(Wdd0 @ c_y - init_y[2]))
     assert float(np.median(start)) > 20.0  # [m/s^2] the PD tracking pulls hard at t = 0, far from the current acceleration
+
+
+def test_shifted_set_points_are_the_step_functions_means_over_the_later_quarters():
+    """Against the step functions sampled finely: each new quarter's value is the mean, over that quarter moved by the
+    shift, of the old values (the last held beyond the horizon); no shift leaves them, a whole quarter moves them one on."""
+    setpoints = np.array([[10.0, 9.0, 7.0, 8.0, 0.0, 0.0, 4.0, 4.0], [1.0, 2.0, 3.0, 4.0, -1.0, 2.0, -3.0, 5.0]], np.float32)
+    np.testing.assert_array_equal(shift_setpoints(setpoints, 0.0), setpoints)
+    np.testing.assert_array_equal(shift_setpoints(setpoints, 1.0)[0], [9.0, 7.0, 8.0, 8.0, 0.0, 4.0, 4.0, 4.0])
+    for quarters in (0.053, 0.5, 1.7, 6.0):
+        fine = (np.arange(400) + 0.5) / 100.0  # 100 samples per quarter, at their middles
+        index = np.minimum(np.floor(fine[:, None] + quarters), 3).astype(int)  # (sample, 1) -> old quarter
+        for row, shifted in zip(setpoints, shift_setpoints(setpoints, quarters)):
+            for axis in (slice(0, 4), slice(4, 8)):
+                means = row[axis][index[:, 0]].reshape(4, 100).mean(axis=1)
+                np.testing.assert_allclose(shifted[axis], means, atol=0.02 * np.ptp(row[axis]) + 1e-6)
+    with pytest.raises(ValueError, match="quarters"):
+        shift_setpoints(setpoints, -0.1)

@@ -106,7 +106,7 @@ def test_baselines_plan_finite_trajectories(name):
 def test_p1_faithful_baselines_differ_only_in_what_p1_did_not_have(name):
     base, p1 = get_optimiser(name), get_optimiser(f"{name}-p1")
     assert p1.config == base.config.replace(sampler={"structured_fraction": 0.0}, qp={"initial_lateral_acceleration": True},
-                                            cost={"consistency": 0.0, "slowing": 0.0},
+                                            cost={"consistency": 0.0, "slowing": 0.0, "lane_flow": 0.0},
                                             projection={"course_max": 0.0, "ego_turn_rate": 0.0})
     assert base.config.projection.course_max > 0 and base.config.projection.ego_turn_rate > 0
     # the papers' method (ranking, no stop rows, a plain fallback) and loop (the contact guard off, ...)
