@@ -136,10 +136,10 @@ def test_shifted_set_points_are_the_step_functions_means_over_the_later_quarters
     np.testing.assert_array_equal(shift_setpoints(setpoints, 1.0)[0], [9.0, 7.0, 8.0, 8.0, 0.0, 4.0, 4.0, 4.0])
     for quarters in (0.053, 0.5, 1.7, 6.0):
         fine = (np.arange(400) + 0.5) / 100.0  # 100 samples per quarter, at their middles
-        index = np.minimum(np.floor(fine[:, None] + quarters), 3).astype(int)  # (sample, 1) -> old quarter
+        old_quarter = np.minimum(np.floor(fine + quarters), 3).astype(int)  # of each sample, the last held beyond
         for row, shifted in zip(setpoints, shift_setpoints(setpoints, quarters)):
             for axis in (slice(0, 4), slice(4, 8)):
-                means = row[axis][index[:, 0]].reshape(4, 100).mean(axis=1)
+                means = row[axis][old_quarter].reshape(4, 100).mean(axis=1)
                 np.testing.assert_allclose(shifted[axis], means, atol=0.02 * np.ptp(row[axis]) + 1e-6)
     with pytest.raises(ValueError, match="quarters"):
         shift_setpoints(setpoints, -0.1)
