@@ -154,8 +154,8 @@ def test_measured_along_the_ego_lane_an_arc_keeps_every_points_d_and_a_lane_keep
 
 def test_where_a_roads_lanes_leave_a_gap_between_them_the_planner_keeps_the_egos_lane():
     """Two 4 m lanes 4.1 m apart from 100 m on (upstream's racetrack-v0 has 8.7 cm between its ("f", "g") lanes,
-    a strip on no lane, which upstream counts as off the road): within the lane preview of it the road is the ego's
-    lane alone; before, and where the lanes are adjacent, both lanes."""
+    a strip on no lane, which upstream counts as off the road): within the lane preview (or the gap preview) of it and
+    along it the road is the ego's lane alone; before, and where the lanes are adjacent, both lanes."""
     net = RoadNetwork()
     for i, spacing in enumerate((4.0, 4.1)):
         for lane in range(2):
@@ -168,6 +168,10 @@ def test_where_a_roads_lanes_leave_a_gap_between_them_the_planner_keeps_the_egos
     assert (near.num_lanes, near.first_lane_center) == (1, 4.0)
     assert frame.road(80.0, 30.0, 10.0, d=0.3).first_lane_center == 0.0
     assert frame.road(80.0, 30.0, 10.0).num_lanes == 2  # without the ego's offset: the lanes as they are
+    # a shorter gap preview: both lanes until the gapped road starts within it, then the ego's lane to its end
+    assert frame.road(80.0, 30.0, 10.0, d=3.6, gap_preview=15.0).num_lanes == 2
+    assert frame.road(88.0, 30.0, 10.0, d=3.6, gap_preview=15.0).num_lanes == 1
+    assert frame.road(150.0, 30.0, 10.0, d=3.6, gap_preview=15.0).num_lanes == 1
 
 
 def test_lanes_that_are_not_parallel_are_named():

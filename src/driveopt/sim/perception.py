@@ -63,6 +63,10 @@ class RoadPreview:
     deceleration: float = 1.5  # [m/s^2] comfortable braking towards a curve's speed
     lane_time: float = 4.0  # [s] lanes ending within this time at the current speed are left out of the road
     lane_distance: float = 30.0  # [m] ... or within this distance, whichever is further
+    lane_gap_time: float = 2.0  # [s] a road whose lanes leave a gap between them (RoadFrame.road), starting within this
+    # time at the current speed, holds the car in the lane nearest it until that road ends (a change under way then
+    # ends there); before, the car may change lanes (held from the whole lane preview, it followed slower cars)
+    lane_gap_distance: float = 10.0  # [m] ... or within this distance, whichever is further
     curvature_time: float = 1.5  # [s] the curvature within this time ahead enters the centripetal bound
     curvature_distance: float = 10.0  # [m] ... or within this distance, whichever is further
     # False: the sharpest curvature within that preview bounds every node of the plan; True: each node within it is
@@ -80,7 +84,8 @@ class RoadPreview:
     dead_end_distance: float = 30.0  # [m] ... or within this distance, whichever is further
 
     def __post_init__(self) -> None:
-        for name in ("lateral_acceleration", "deceleration", "lane_time", "lane_distance", "curvature_time",
+        for name in ("lateral_acceleration", "deceleration", "lane_time", "lane_distance", "lane_gap_time",
+                     "lane_gap_distance", "curvature_time",
                      "curvature_distance", "speed_distance", "slowing", "crossing_horizon", "crossing_step",
                      "dead_end_time", "dead_end_distance"):
             value = getattr(self, name)
@@ -176,7 +181,8 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
             if lanes_to_change(split, me.y) > 0:
                 route_gap = preview.route_change.time_gap
     road = frame.road(me.x, lane_preview, max(preview.curvature_distance, ahead * preview.curvature_time),
-                      behind=0.5 * me.length, per_node=preview.curvature_per_node, d=me.y)
+                      behind=0.5 * me.length, per_node=preview.curvature_per_node, d=me.y,
+                      gap_preview=max(preview.lane_gap_distance, ahead * preview.lane_gap_time))
     try:
         ego = EgoState(x=me.x, y=me.y, vx=me.vx, vy=me.vy, ax=me.ax, ay=me.ay, length=me.length, width=me.width,
                        yaw=me.heading)

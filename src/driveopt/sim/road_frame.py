@@ -391,10 +391,11 @@ class RoadFrame:
         return min(bands, key=lambda b: max(b.s_from - s, s - b.s_to, 0.0))
 
     def road(self, s: float, lane_preview: float, curvature_preview: float, behind: float = 0.0,
-             per_node: bool = False, d: float | None = None) -> Road:
+             per_node: bool = False, d: float | None = None, gap_preview: float | None = None) -> Road:
         """The planner's :class:`Road` at ``s`` [m]: the ego road's lanes that continue over the next ``lane_preview``
         [m] (a lane that ends, or leads only off the route, is left out; only the lane nearest ``d`` [m], the ego's,
-        where a road within the preview has a gap between its lanes: :data:`LANE_GAP`), and the curvature of largest
+        from ``gap_preview`` [m] (default: the lane preview) before a road with a gap between its lanes
+        (:data:`LANE_GAP`) to its end), and the curvature of largest
         magnitude over [s - behind, s + curvature_preview] (signed; the plan's bound at every node); ``per_node``: over
         [s - behind, s], and the curvature ahead in the cells that start within ``curvature_preview``
         (:meth:`curvature_cells`; zero in the others, and none at all where it is straight). The curvature's origin is
@@ -403,11 +404,14 @@ class RoadFrame:
         ego = self.ego_band(s)
         k_lo, k_hi = 0, ego.num_lanes - 1
         gapped = ego.lane_gap > LANE_GAP
+        gap_preview = lane_preview if gap_preview is None else gap_preview
         for piece in self.pieces:
             for band in piece.bands:
-                if band is ego or band.s_to < s or band.s_from > s + lane_preview:
+                if band is ego or band.s_to < s:
                     continue
-                gapped = gapped or band.lane_gap > LANE_GAP
+                gapped = gapped or (band.lane_gap > LANE_GAP and band.s_from <= s + gap_preview)
+                if band.s_from > s + lane_preview:
+                    continue
                 tol = 0.5 * abs(band.lane_width - ego.lane_width) + 0.5
                 inside = [k for k in range(ego.num_lanes)
                           if band.first_center - tol <= ego.first_center + k * ego.lane_width
