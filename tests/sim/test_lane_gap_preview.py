@@ -17,12 +17,11 @@ def test_the_lane_is_held_only_from_the_gap_preview_before_a_road_with_a_gap_bet
         sim = env.unwrapped
         sim.road.vehicles = [sim.vehicle]
         network = sim.road.network
-        gapped = network.get_lane(("f", "g", 1))
         if before > 0:  # on the arc before that road, at its end less ``before``
             lane = network.get_lane(("e", "f", 1))
             s = lane.length - before
-        else:
-            lane, s = gapped, -before
+        else:  # on that road
+            lane, s = network.get_lane(("f", "g", 1)), -before
         sim.vehicle.position = np.asarray(lane.position(s, 0.0), dtype=float)
         sim.vehicle.heading = lane.heading_at(s)
         sim.vehicle.speed = 10.0  # 2 s of the default preview: 20 m
@@ -32,6 +31,6 @@ def test_the_lane_is_held_only_from_the_gap_preview_before_a_road_with_a_gap_bet
         road = perceive(env, Task(v_des=10.0), RoadPreview()).scene.road
         assert road.num_lanes == lanes
         held = perceive(env, Task(v_des=10.0), RoadPreview(lane_gap_time=4.0, lane_gap_distance=30.0)).scene.road
-        assert held.num_lanes == (1 if before < 40.0 else 2)  # held from the whole lane preview: before too
+        assert held.num_lanes == 1  # held from the whole lane preview (40 m): from every one of these places
     finally:
         env.close()
