@@ -206,6 +206,10 @@ def predict_neighbour(
     of it would otherwise be predicted to keep going and the ego would react a second late.
     Acceleration is not extrapolated (a constant-velocity leader is the safer assumption).
     ``braking_time`` 0: constant velocity for every neighbour (P1).
+    A neighbour with a ``lane_center`` moves across the road only until it reaches it (and holds its offset when its
+    lateral rate points away from it): a car keeping its lane on a curve has a lateral rate of a tenth of a metre per
+    second while its steering lags, which over a 15 s horizon would carry it 2 m to its lane's edge, and a plan that
+    keeps the lane behind it would be predicted to pass it inside the lane.
     A :class:`PathNeighbour` is where its path says (not kept on the road: crossing traffic is off it before and after).
     """
     if isinstance(n, PathNeighbour):
@@ -213,11 +217,18 @@ def predict_neighbour(
     speed = math.hypot(n.vx, n.vy)
     decel = -min(n.accel, 0.0)
     if decel == 0.0 or speed < 1e-6 or braking_time <= 0.0:
-        return n.x + n.vx * t, np.clip(n.y + n.vy * t, *y_range)
+        return n.x + n.vx * t, _across(n, n.y + n.vy * t, y_range)
     braking = min(braking_time, speed / decel)
     tau = np.minimum(t, braking)
     distance = speed * tau - 0.5 * decel * tau**2 + (speed - decel * braking) * (t - tau)
-    return n.x + n.vx / speed * distance, np.clip(n.y + n.vy / speed * distance, *y_range)
+    return n.x + n.vx / speed * distance, _across(n, n.y + n.vy / speed * distance, y_range)
+
+
+def _across(n: Neighbour, y: np.ndarray, y_range: tuple[float, float]) -> np.ndarray:
+    """[m] the predicted lateral positions ``y`` of ``n``, ended at its lane centre where it has one, on the road."""
+    if n.lane_center is not None:
+        y = np.clip(y, min(n.y, n.lane_center), max(n.y, n.lane_center))
+    return np.clip(y, *y_range)
 
 
 def is_follower(scene: Scene, n: Neighbour) -> bool:

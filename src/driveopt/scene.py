@@ -37,7 +37,7 @@ RANGES = {
     "ax": (-100.0, 100.0, "m/s^2"), "ay": (-100.0, 100.0, "m/s^2"), "accel": (-100.0, 100.0, "m/s^2"),
     "length": (0.1, 100.0, "m"), "width": (0.1, 100.0, "m"), "yaw": (-100.0, 100.0, "rad"),
     "lane_width": (0.5, 100.0, "m"), "first_lane_center": (-1e3, 1e3, "m"), "curvature": (-1.0, 1.0, "1/m"),
-    "curvature_origin": (-1e3, 1e3, "m"),
+    "curvature_origin": (-1e3, 1e3, "m"), "lane_center": (-1e3, 1e3, "m"),
     "longitudinal": (0.0, 100.0, "m"), "lateral": (0.0, 100.0, "m"),
     "v_des": (0.0, 100.0, "m/s"), "slowing": (0.0, 20.0, "m/s^2"), "slowing_from": (0.0, 100.0, "m/s"),
     "edge_margin": (0.0, 100.0, "m"), "time_gap": (0.0, 10.0, "s"),
@@ -121,12 +121,15 @@ class Neighbour:
     width: float = CAR_WIDTH  # [m]
     yaw: float | None = None  # [rad] body heading relative to the road; None: the velocity's direction
     accel: float = 0.0  # [m/s^2] acceleration along the velocity (< 0: braking); only braking is extrapolated
+    lane_center: float | None = None  # [m] y of the centre of the lane it steers to (a simulated car's target lane):
+    # its predicted lateral motion ends there; None: at its lateral rate throughout (P1)
 
     def __post_init__(self) -> None:
         for f in ("x", "y", "vx", "vy", "length", "width", "accel"):
             object.__setattr__(self, f, _number(f"neighbour.{f}", getattr(self, f)))
-        if self.yaw is not None:
-            object.__setattr__(self, "yaw", _number("neighbour.yaw", self.yaw))
+        for f in ("yaw", "lane_center"):
+            if getattr(self, f) is not None:
+                object.__setattr__(self, f, _number(f"neighbour.{f}", getattr(self, f)))
 
     @property
     def heading(self) -> float:

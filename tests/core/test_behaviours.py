@@ -175,6 +175,24 @@ def test_braking_neighbour_is_predicted_to_keep_braking_and_stop():
         Neighbour(x=0.0, y=0.0, accel=float("nan"))
 
 
+def test_a_neighbour_with_a_lane_centre_moves_across_the_road_only_until_it_reaches_it():
+    """A car changing lanes (lateral rate towards its target lane's centre) stops there; one keeping its lane with a
+    lateral rate away from the centre (its steering lagging in a curve) holds its offset; without a centre, P1's
+    constant lateral rate to the road's edge. Braking or not, the same."""
+    t = np.linspace(0.0, 15.0, 301)
+    road = (-2.0, 14.0)
+    changing = Neighbour(x=0.0, y=0.5, vx=10.0, vy=1.0, lane_center=4.0)
+    np.testing.assert_allclose(predict_neighbour(changing, t, road)[1], np.minimum(0.5 + t, 4.0))
+    drifting = Neighbour(x=0.0, y=3.8, vx=8.0, vy=-0.13, lane_center=4.0)
+    np.testing.assert_allclose(predict_neighbour(drifting, t, road)[1], 3.8)
+    braking = Neighbour(x=0.0, y=3.8, vx=8.0, vy=-0.13, accel=-1.0, lane_center=4.0)
+    np.testing.assert_allclose(predict_neighbour(braking, t, road)[1], 3.8)
+    p1 = Neighbour(x=0.0, y=3.8, vx=8.0, vy=-0.13)
+    np.testing.assert_allclose(predict_neighbour(p1, t, road)[1], 3.8 - 0.13 * t)
+    with pytest.raises(ProblemError, match="lane_center"):
+        Neighbour(x=0.0, y=0.0, lane_center=float("inf"))
+
+
 def test_ego_slows_sooner_behind_a_braking_leader(small_config):
     """One lane; the leader 17 m ahead brakes at 6 m/s^2 (a jam ahead of it): knowing that, the first plan
     already brakes, where a constant-velocity prediction lets the ego hold its speed."""

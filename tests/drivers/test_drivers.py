@@ -135,18 +135,21 @@ def test_the_planners_that_take_weights_are_those_that_read_a_checkpoint():
     assert taking == learned | {f"{name}-faithful" for name in learned - {"cvae-mix", "vqvae-cem"}} | {"dqn", "ppo"}
 
 
-@pytest.mark.parametrize("field", ["executes_infeasible", "braking_prediction", "approach_selection", "contact_guard"])
+@pytest.mark.parametrize("field", ["executes_infeasible", "braking_prediction", "approach_selection", "contact_guard",
+                                   "target_lanes"])
 def test_closed_loop_flags_must_be_bools(field):
     with pytest.raises(ConfigError, match=f"loop.{field}"):
         ClosedLoop(**{field: 1})
 
 
 def test_the_closed_loop_is_driveopts_by_default_and_the_papers_in_one_value():
-    """driveopt's loop executes the safe trajectory, predicts braking, ranks neighbours by approach, guards; the papers'
-    turns all four off, at the given replanning period (P1's -p1 baselines: 5, the faithful planners: 1)."""
+    """driveopt's loop executes the safe trajectory, predicts braking and each car's lateral motion to its target lane,
+    ranks neighbours by approach, guards; the papers' turns all five off, at the given replanning period (P1's -p1
+    baselines: 5, the faithful planners: 1)."""
     assert OptimiserSpec("x", "y").loop == DRIVEOPT_LOOP == ClosedLoop(1, False, True, True, True)
+    assert DRIVEOPT_LOOP.target_lanes
     assert ClosedLoop.papers(5) == ClosedLoop(5, executes_infeasible=True, braking_prediction=False,
-                                              approach_selection=False, contact_guard=False)
+                                              approach_selection=False, contact_guard=False, target_lanes=False)
     assert PAPERS_LOOP == ClosedLoop.papers(1)
     assert (DRIVEOPT_LOOP.braking_time, DRIVEOPT_LOOP.selection_time) == (BRAKING_TIME, SELECTION_TIME)
     assert (PAPERS_LOOP.braking_time, PAPERS_LOOP.selection_time) == (0.0, 0.0)

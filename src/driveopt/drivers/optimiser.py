@@ -9,7 +9,8 @@ planner reports anything but SUCCESS it follows the fallback and brakes at once 
 deceleration. How the loop runs around the planner is the spec's :class:`ClosedLoop` (``spec.loop``): with
 ``executes_infeasible`` (P1) it tracks the chosen plan whatever its residual, and follows the fallback only on
 NUMERICAL_ERROR. Neighbours are predicted braking-aware (:data:`driveopt.prediction.BRAKING_TIME`) unless
-``braking_prediction`` is False (P1: constant velocity), and the neighbours planned against are those that come
+``braking_prediction`` is False (P1: constant velocity), their lateral motion ending at their target lane's centre
+unless ``target_lanes`` is False (P1: at their lateral rate), and the neighbours planned against are those that come
 closest within :data:`driveopt.prediction.SELECTION_TIME` unless ``approach_selection`` is False (P1: the nearest
 now). With ``replan_every`` N > 1 (P1 §V executes five control periods per plan) it
 plans every N-th step and tracks the same plan open-loop in between. With a real-time ``latency``
@@ -123,6 +124,8 @@ class ClosedLoop:
     # car's and braking now would not (driveopt.sim.contact; not for drivers that execute infeasible plans, P1)
     measured_start: bool = True  # a plan starts at the car's measured acceleration (False: at zero, P2's authors)
     command: CommandRule = EXACT_TRACKING  # how the followed plan becomes the period's command (driveopt.drivers.commands)
+    target_lanes: bool = True  # a neighbour's lateral motion is predicted to end at the centre of the lane it steers to
+    # (driveopt.sim.perception.RoadPreview.target_lanes; False: at its lateral rate for the whole horizon, P1)
 
     def __post_init__(self) -> None:
         check_types(self, "loop")
@@ -131,9 +134,9 @@ class ClosedLoop:
     @classmethod
     def papers(cls, replan_every: int) -> "ClosedLoop":
         """The papers' loop: the chosen plan executed whatever its residual, no contact guard, constant-velocity
-        prediction of the nearest neighbours now, a plan every ``replan_every`` policy periods."""
+        prediction (lateral too) of the nearest neighbours now, a plan every ``replan_every`` policy periods."""
         return cls(replan_every=replan_every, executes_infeasible=True, braking_prediction=False,
-                   approach_selection=False, contact_guard=False)
+                   approach_selection=False, contact_guard=False, target_lanes=False)
 
     @property
     def braking_time(self) -> float:
@@ -320,7 +323,7 @@ class OptimiserDriver:
         self.model = BicycleModel.from_env(env, policy_frequency)
         self._one_step = dataclasses.replace(self.model, steps_per_action=1)  # the car over one simulation step
         self.preview = RoadPreview(lateral_acceleration=self.spec.config.projection.centripetal_max,
-                                   slowing=self.spec.config.cost.slowing)
+                                   slowing=self.spec.config.cost.slowing, target_lanes=self.spec.loop.target_lanes)
         hz = env.unwrapped.config["policy_frequency"] if policy_frequency is None else policy_frequency
         self.period = 1.0 / hz  # [s] one policy period: between two calls of act
         first = perceive(env, scenario, self.preview, self.period)

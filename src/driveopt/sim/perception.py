@@ -77,6 +77,8 @@ class RoadPreview:
     slowing: float = 0.0  # [m/s^2] the scene's slowing where no curve lowers the desired speed (a driver lets a car
     # faster than it slow at this rate: Scene.slowing_from), else 0: faster than a curve's speed, brake at once
     route_change: RouteChange = RouteChange()  # the pace of a route's lane change before a split
+    target_lanes: bool = True  # each car's lateral motion is predicted to end at the centre of the lane it steers to
+    # (highway-env's target lane; Neighbour.lane_center); False: at its lateral rate for the whole horizon (P1)
     crossing_horizon: float = 15.0  # [s] crossing traffic is predicted along its lanes this far ahead
     crossing_step: float = 0.5  # [s] ... at poses this far apart
     dead_end_time: float = 8.0  # [s] a dead end (a road with no road after it) on the route's destination road or
@@ -94,8 +96,9 @@ class RoadPreview:
         for name in ("lateral_acceleration", "deceleration", "crossing_step"):
             if getattr(self, name) == 0:
                 raise ValueError(f"RoadPreview.{name} must be > 0")
-        if not isinstance(self.curvature_per_node, bool):
-            raise ValueError(f"RoadPreview.curvature_per_node must be True or False, got {self.curvature_per_node!r}")
+        for name in ("curvature_per_node", "target_lanes"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"RoadPreview.{name} must be True or False, got {getattr(self, name)!r}")
 
 
 class Perception(NamedTuple):
@@ -157,6 +160,18 @@ def dead_end_walls(frame: RoadFrame, s: float, speed: float, preview: RoadPrevie
                       width=band.lane_width, yaw=0.0) for k in range(band.num_lanes)]
 
 
+def target_lane_center(vehicle: Any, frame: RoadFrame, near_s: float) -> float | None:
+    """[m] the frame's d of the centre of the lane ``vehicle`` steers to (highway-env's ``target_lane_index``), beside
+    the vehicle; None for an object without one or where the frame does not reach it."""
+    index = getattr(vehicle, "target_lane_index", None)
+    if index is None:
+        return None
+    lane = vehicle.road.network.get_lane(index)
+    longitudinal, _ = lane.local_coordinates(vehicle.position)
+    found = frame.locate(np.asarray(lane.position(longitudinal, 0.0)), near_s)
+    return None if found is None else float(found[1])
+
+
 def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
           ) -> tuple[Scene, Motion, RoadFrame, Goal | None]:
     """(scene, the ego's motion, the frame, the route's goal or None) of the current simulator state; ``task``: its
@@ -204,9 +219,9 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
             if m is None:  # beyond the frame: the far side of the graph
                 continue
             accel = (m.ax * m.vx + m.ay * m.vy) / m.speed if m.speed > 1e-6 else 0.0  # along the velocity
-            neighbours.append(
-                Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width, yaw=m.heading, accel=accel)
-            )
+            center = target_lane_center(other, frame, m.x) if preview.target_lanes else None
+            neighbours.append(Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width, yaw=m.heading,
+                                        accel=accel, lane_center=center))
         planned = route_roads(route)
         neighbours += dead_end_walls(frame, me.x, ahead, preview, planned[-1] if planned else None)
         if period is None:
