@@ -39,9 +39,8 @@ def shift_setpoints(setpoints: np.ndarray, quarters: float) -> np.ndarray:
     window_from, window_to = starts + quarters, starts + 1.0 + quarters  # the new quarters on the old time axis
     overlap = np.maximum(np.minimum(window_to[:, None], ends) - np.maximum(window_from[:, None], starts), 0.0)  # (new, old)
     setpoints = np.asarray(setpoints)
-    values = setpoints.astype(np.float64).reshape(*setpoints.shape[:-1], 2, NUM_SEGMENTS, 1)
-    shifted = sum(overlap[:, j] * values[..., j, :] for j in range(NUM_SEGMENTS))  # (..., 2, new)
-    return shifted.reshape(setpoints.shape).astype(setpoints.dtype)
+    values = setpoints.astype(np.float64).reshape(*setpoints.shape[:-1], 2, NUM_SEGMENTS)  # (..., axis, old)
+    return (values @ overlap.T).reshape(setpoints.shape).astype(setpoints.dtype)
 
 
 class TrajectoryModel(NamedTuple):
