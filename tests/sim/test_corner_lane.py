@@ -10,7 +10,7 @@ from highway_env.road.lane import CircularLane, StraightLane
 
 import driveopt
 from driveopt.sim.corner_lane import CornerLane, smoothstep
-from driveopt.sim.road_frame import build_frame, ego_frame
+from driveopt.sim.road_frame import build_frame, ego_frame, lane_curvature
 
 
 def _corner() -> tuple[StraightLane, CircularLane, CornerLane]:
@@ -153,4 +153,40 @@ def test_a_car_on_a_corner_is_framed_on_the_route_where_the_closest_lane_leaves_
             assert framed.ego_road in route_roads(route), (s, closest, framed.ego_road)
             assert abs(me.y - outer_lane(framed)) < 0.5, (s, me.y)
     assert off_route > 0, "some points of the corners lie closest to a lane off the route"
+    env.close()
+
+
+def test_its_longitudinal_runs_with_the_arc_length_whatever_its_arms():
+    a, b, _ = _corner()
+    for arms in ((1.0 / 3.0, 1.0 / 3.0), (0.25, 0.5), (0.5, 0.2)):
+        corner = CornerLane(a, 28.0, 0.0, b, -12.0, -2.0, 20.0, arms)
+        for lateral in (-2.0, 0.0, 2.0):  # the ends are each lane's map
+            np.testing.assert_allclose(corner.position(0.0, lateral), a.position(28.0, lateral), atol=1e-9)
+            np.testing.assert_allclose(corner.position(20.0, lateral), b.position(8.0, lateral - 2.0), atol=1e-9)
+        points = np.array([corner.position(x, 0.0) for x in np.linspace(0.0, 20.0, 201)])
+        steps = np.hypot(*np.diff(points, axis=0).T)
+        assert np.ptp(steps) < 1e-3 * steps.mean(), arms
+
+
+@pytest.mark.parametrize("env_id, sharpest", [("roundabout-v0", 0.09), ("roundabout-generic-v0", 0.065)])
+def test_a_roundabouts_corners_turn_gently_and_keep_a_car_near_their_line_on_the_road(env_id, sharpest):
+    """The corners' curvature, which bounds the planner's speed there (the centripetal bound: 9.2 m/s at 0.083 1/m and
+    7 m/s^2), is at most ``sharpest`` [1/m] (0.129 and 0.091 with the ring's reach of 4 m and arms of a third), and a
+    car within 0.9 m of a corner's reference line is on the road as upstream counts it: inside its closest lane."""
+    env = driveopt.gym_make(env_id, config={"action": {"type": "ContinuousAction"}})
+    env.reset(seed=0)
+    controller = driveopt.Controller("idm")
+    controller.reset(env, seed=0)
+    network = env.unwrapped.road.network
+    frame, _ = ego_frame(env.unwrapped, controller.task.route)
+    corners = [p for p in frame.pieces if isinstance(p.lane, CornerLane)]
+    assert len(corners) == 2
+    for piece in corners:
+        for longitudinal in np.linspace(0.0, piece.lane.length, 41):
+            assert abs(lane_curvature(piece.lane, float(longitudinal))) < sharpest
+            heading = piece.lane.heading_at(float(longitudinal))
+            for lateral in (-0.9, 0.0, 0.9):
+                position = piece.lane.position(float(longitudinal), lateral)
+                lane = network.get_lane(network.get_closest_lane_index(position, heading))
+                assert lane.on_lane(position), (longitudinal, lateral)
     env.close()

@@ -6,16 +6,19 @@ one lane's coordinates to the other's at one arc length maps a point off the joi
 its reference line turns by the whole angle at once: a plan that is smooth in the frame is a corner in the world.
 
 :class:`CornerLane` replaces a stretch around such a joint. Its reference line is the cubic Bezier curve
-from a point of the first lane to a point of the second, leaving and arriving along their directions (control points
-a third of the chord along each); its lateral axis turns from the first lane's to the second's with a quintic
-smoothstep. Its map therefore equals each lane's map at its ends for every lateral offset (highway-env's lanes are
-affine in the lateral offset), the reference line's position and heading are continuous there, and the turn is
+from a point of the first lane to a point of the second, leaving and arriving along their directions (its inner
+control points ``arms`` times the chord along each: a third each by default; a longer arm at one end moves the
+turn away from it); its lateral axis turns from the first lane's to the second's with a quintic smoothstep. Its map
+therefore equals each lane's map at its ends for every lateral offset (highway-env's lanes are affine in the lateral
+offset), the reference line's position and heading are continuous there, and the turn is
 spread over the stretch, where the planner's curvature bound sees it. Before its start it is the first lane's map,
 past its end the second's.
 
 It offers what the road frame asks of a highway-env lane: ``position``, ``local_coordinates`` (the nearest of the
-curve's samples, refined by Newton's method), ``heading_at`` and ``length``. Its ``longitudinal`` is the curve's
-parameter times ``length``, about the arc length (as a sine lane's is along its axis, not along its curve).
+curve's samples, refined by Newton's method), ``heading_at`` and ``length``. Its ``longitudinal`` is the fraction
+of the curve's arc length times ``length`` (the curve's parameter, tabulated against its arc length): a constant
+ratio to the arc length, so that the curvature the frame reads per unit of ``longitudinal`` is the curve's own, to
+that ratio (the curve's parameter alone runs unevenly along a curve with unequal arms).
 """
 
 from __future__ import annotations
@@ -28,7 +31,8 @@ import numpy as np
 _STEP = 1e-3  # [m] finite-difference step of the lanes' directions and of Newton's Jacobian
 _TOL = 1e-7  # [m] Newton's method stops when the mapped point is this close
 _MAX_NEWTON = 12  # [-] iterations at most
-_SAMPLES = np.linspace(0.0, 1.0, 41)  # [-] curve parameters of the first guess
+_SAMPLES = np.linspace(0.0, 1.0, 41)  # [-] fractions of the length: the first guesses
+_ARC_SAMPLES = np.linspace(0.0, 1.0, 801)  # [-] curve parameters at which the arc length is tabulated
 
 
 def smoothstep(u: np.ndarray | float) -> np.ndarray | float:
@@ -45,10 +49,11 @@ def _unit(v: np.ndarray) -> np.ndarray:
 class CornerLane:
     """From lane ``a`` at ``a_from`` [m] along it to lane ``b`` at ``b_from + length`` [m] along it: longitudinal
     ``l`` < 0 here is ``a_from + l`` along ``a``, ``l`` > ``length`` is ``b_from + l`` along ``b``; lateral ``y`` here
-    is ``y + a_lateral`` on ``a`` and ``y + b_lateral`` on ``b`` [m]."""
+    is ``y + a_lateral`` on ``a`` and ``y + b_lateral`` on ``b`` [m]; ``arms`` [-]: the Bezier curve's inner control
+    points, as fractions of the chord along ``a``'s direction at the start and ``b``'s at the end."""
 
     def __init__(self, a: Any, a_from: float, a_lateral: float, b: Any, b_from: float, b_lateral: float,
-                 length: float) -> None:
+                 length: float, arms: tuple[float, float] = (1.0 / 3.0, 1.0 / 3.0)) -> None:
         if not length > 0.0:
             raise ValueError(f"a corner lane needs a positive length, got {length!r}")
         self.a, self.a_from, self.a_lateral = a, float(a_from), float(a_lateral)
@@ -56,9 +61,12 @@ class CornerLane:
         self.length = float(length)
         start, start_across, start_along = self._frame_of(a, self.a_from, self.a_lateral)
         end, end_across, end_along = self._frame_of(b, self.b_from + self.length, self.b_lateral)
-        reach = float(np.linalg.norm(end - start)) / 3.0
-        self._controls = np.stack([start, start + reach * start_along, end - reach * end_along, end])
+        chord = float(np.linalg.norm(end - start))
+        self._controls = np.stack([start, start + arms[0] * chord * start_along, end - arms[1] * chord * end_along, end])
         self._across = np.stack([start_across, end_across])
+        points = self._bezier(_ARC_SAMPLES)
+        arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
+        self._arc_fraction = arc / arc[-1]
 
     @staticmethod
     def _frame_of(lane: Any, longitudinal: float, lateral: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -69,14 +77,20 @@ class CornerLane:
         behind = np.asarray(lane.position(longitudinal - _STEP, lateral), dtype=float)
         return point, across, _unit(ahead - behind)
 
-    def _curve(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(reference points, unit lateral axes) at curve parameters ``u`` in [0, 1], each (len(u), 2)."""
+    def _bezier(self, u: np.ndarray) -> np.ndarray:
+        """The curve's points at parameters ``u`` in [0, 1], (len(u), 2)."""
         u = np.asarray(u, dtype=float)[:, None]
         p0, p1, p2, p3 = self._controls
         v = 1.0 - u
-        points = v ** 3 * p0 + 3 * v * v * u * p1 + 3 * v * u * u * p2 + u ** 3 * p3
-        w = smoothstep(u)
-        return points, _unit((1.0 - w) * self._across[0] + w * self._across[1])
+        return v ** 3 * p0 + 3 * v * v * u * p1 + 3 * v * u * u * p2 + u ** 3 * p3
+
+    def _curve(self, fraction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(reference points, unit lateral axes) at ``fraction`` in [0, 1] of the curve's arc length, each
+        (len(fraction), 2)."""
+        fraction = np.asarray(fraction, dtype=float)
+        u = np.interp(fraction, self._arc_fraction, _ARC_SAMPLES)
+        w = smoothstep(fraction)[:, None]
+        return self._bezier(u), _unit((1.0 - w) * self._across[0] + w * self._across[1])
 
     def position(self, longitudinal: float, lateral: float) -> np.ndarray:
         """[m] world position of (``longitudinal``, ``lateral``) [m]."""

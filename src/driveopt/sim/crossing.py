@@ -4,7 +4,10 @@ A highway-env vehicle that drives on a road the frame does not follow (an inters
 entry) may cross the route's lanes. Its future poses follow its route's lanes at its speed held (as the simulator's
 ``ControlledVehicle.predict_trajectory_constant_speed``, :func:`_along_route`), stopping behind the ego where the ego
 stands on them (as upstream's IDM does for the car in front), or, for a vehicle without a route, its velocity held in
-world coordinates. Each pose is mapped into the frame
+world coordinates. Where its lanes meet at an angle (a roundabout's entry) it is steered through the joint by its own
+lateral controller (:func:`_steered`): along the lanes' centres it turned the whole angle at once and crossed the
+ring's outer lane about 0.3 s and 4 m (at 16 m/s) before the real car, so plans passed just behind a car that was
+still crossing. Each pose is mapped into the frame
 (:meth:`driveopt.sim.road_frame.RoadFrame.locate`) with its heading relative to the route there; a pose beside the
 frame keeps its coordinates along it (off the road), one beyond its ends is put far behind the ego. The vehicle
 becomes a :class:`~driveopt.prediction.PathNeighbour`: an obstacle at the nodes where its path is near the route and
@@ -33,12 +36,16 @@ import numpy as np
 
 from driveopt.prediction import PathNeighbour
 from driveopt.sim.lane_graph import wrap_angle
-from driveopt.sim.road_frame import CROSSING_ANGLE, RoadFrame
+from driveopt.sim.road_frame import CORNER_ANGLE, CROSSING_ANGLE, RoadFrame
 
 FAR_BEHIND = 1000.0  # [m] a pose beyond the frame's ends is put this far behind the ego
 MAX_OFFSET = 200.0  # [m] a pose beside the frame is kept within this lateral offset of it
 LANE_SHIFT = 2.0  # [m] half a lane: a routed vehicle on the frame's roads whose lanes move it further across the
 # frame's is predicted along them (:func:`lane_leaving_neighbour`)
+STEER_STEP = 1.0 / 15.0  # [s] a steered prediction's step: upstream's simulation step (15 Hz)
+SETTLE_TIME = 1.5  # [s] ... which runs this long past the last joint at an angle, then the lanes' centres take over
+MIN_STEERED_SPEED = 0.5  # [m/s] a slower vehicle is predicted along its lanes
+KINK_GAP = 0.5  # [m] lanes whose joint leaves this gap meet at a kink too
 YIELD_GAP = 1.0  # [m] a routed vehicle with the ego on its lanes ahead is predicted to stop this far behind it (bumpers)
 WRECK_TIME_CONSTANT = 1.0  # [s] highway-env brakes a crashed vehicle at -speed [m/s^2] with its wheels straight: its
 # speed decays as exp(-t / this), and it slides speed x this [m] along its heading before it stands
@@ -51,7 +58,9 @@ def _along_route(vehicle: Any, times: np.ndarray, ego: Any = None) -> tuple[np.n
     to a one-lane one, as at roundabout-v0's exits): a road of the route that names no lane is followed in the
     vehicle's lane number, or the road's last lane when it has fewer. Where ``ego`` (a vehicle) stands on one of those
     lanes ahead, the vehicle stops behind it (:data:`YIELD_GAP`), as highway-env's IDM stops for the car in front on
-    its lane: a car already in a crossing's path is passed by nothing, so holding or clearing it can be planned."""
+    its lane: a car already in a crossing's path is passed by nothing, so holding or clearing it can be planned.
+    Where two of its lanes meet at an angle (:func:`_last_kink`: a roundabout's entry, 47-59 degrees at roundabout-v0)
+    it steers through the joint as its own controller does (:func:`_steered`), not along the lanes' centres."""
     network = vehicle.road.network
     route = list(vehicle.route or [vehicle.lane_index])
     lane_number = vehicle.lane_index[2]
@@ -63,11 +72,23 @@ def _along_route(vehicle: Any, times: np.ndarray, ego: Any = None) -> tuple[np.n
     lanes = [lane_of(index) for index in route]
     start = float(vehicle.lane.local_coordinates(np.asarray(vehicle.position, dtype=float))[0])
     gap = 0.5 * (float(vehicle.LENGTH) + (float(ego.LENGTH) if ego is not None else 0.0)) + YIELD_GAP  # [m] centres
-    reach = start + float(vehicle.speed) * float(np.max(times, initial=0.0)) + gap
+    speed, times = float(vehicle.speed), np.asarray(times, dtype=float)
+    reach = start + speed * float(np.max(times, initial=0.0)) + gap
     stop = math.inf if ego is None else _ego_along(lanes, np.asarray(ego.position, dtype=float), start, reach) - gap
+    steered_until = -math.inf  # [s] the poses up to this time come from the vehicle's own steering
+    kink = _last_kink(lanes, reach)
+    if kink is not None and speed > MIN_STEERED_SPEED and hasattr(vehicle, "steering_control"):
+        end = min(float(np.max(times, initial=0.0)), max(kink - start, 0.0) / speed + SETTLE_TIME)
+        steered_t, steered_positions, steered_headings, along = _steered(vehicle, lanes, start, stop, end)
+        steered_until = float(steered_t[-1])
+        start = along - speed * steered_until  # the lanes' poses after it continue from where the steering ends
     positions, headings = [], []
-    for t in np.asarray(times, dtype=float):
-        longitudinal, k, lane = min(start + float(vehicle.speed) * t, max(stop, start)), 0, lanes[0]
+    for t in times:
+        if t <= steered_until:  # between the steps' poses
+            positions.append([np.interp(t, steered_t, column) for column in steered_positions.T])
+            headings.append(np.interp(t, steered_t, steered_headings))
+            continue
+        longitudinal, k, lane = min(start + speed * t, max(stop, start)), 0, lanes[0]
         while k < len(lanes) - 1 and longitudinal > float(lane.length):
             longitudinal -= float(lane.length)
             k += 1
@@ -75,6 +96,61 @@ def _along_route(vehicle: Any, times: np.ndarray, ego: Any = None) -> tuple[np.n
         positions.append(lane.position(longitudinal, 0.0))
         headings.append(lane.heading_at(longitudinal))
     return np.asarray(positions, dtype=float).reshape(len(headings), 2), np.asarray(headings, dtype=float)
+
+
+def _last_kink(lanes: list[Any], reach: float) -> float | None:
+    """[m] the distance along ``lanes`` (from the first one's start) of the last joint before ``reach`` [m] where one
+    lane's end and the next one's start differ in heading by more than :data:`~driveopt.sim.road_frame.CORNER_ANGLE`
+    or lie :data:`KINK_GAP` apart; None when there is none."""
+    kink, offset = None, 0.0
+    for before, after in zip(lanes[:-1], lanes[1:]):
+        offset += float(before.length)
+        if offset > reach:
+            break
+        turn = wrap_angle(float(after.heading_at(0.0)) - float(before.heading_at(float(before.length))))
+        gap = float(np.hypot(*(np.asarray(after.position(0.0, 0.0)) - before.position(float(before.length), 0.0))))
+        if abs(turn) > CORNER_ANGLE or gap > KINK_GAP:
+            kink = offset
+    return kink
+
+
+def _steered(vehicle: Any, lanes: list[Any], start: float, stop: float, end: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """(times [s], positions (n, 2) [m], headings [rad], [m] the distance along ``lanes`` at the last time) of
+    ``vehicle`` driven by its own lateral controller (highway-env's ``ControlledVehicle.steering_control`` with the
+    vehicle's gains, its kinematic bicycle, one :data:`STEER_STEP` at a time) along ``lanes`` at its speed held, from
+    its pose now until ``end`` [s]; its target moves to the next lane half a car before a lane's end (the lane's
+    ``after_end``), and it stands once it is ``stop`` [m] along them (upstream's IDM brakes for the car in front).
+    ``start`` [m]: its distance along them now."""
+    position = np.asarray(vehicle.position, dtype=float).copy()
+    heading, speed, half = float(vehicle.heading), float(vehicle.speed), 0.5 * float(vehicle.LENGTH)
+    kp_lateral, kp_heading, pursuit = float(vehicle.KP_LATERAL), float(vehicle.KP_HEADING), float(vehicle.TAU_PURSUIT)
+    max_steering = float(vehicle.MAX_STEERING_ANGLE)
+    k, offset, along = 0, 0.0, start
+    out_t, out_p, out_h = [0.0], [position.copy()], [heading]
+    for n in range(1, int(math.ceil(end / STEER_STEP)) + 1):
+        lane = lanes[k]
+        longitudinal, lateral = lane.local_coordinates(position)
+        if k < len(lanes) - 1 and lane.after_end(position, longitudinal, lateral):
+            offset += float(lane.length)
+            k += 1
+            lane = lanes[k]
+            longitudinal, lateral = lane.local_coordinates(position)
+        along = offset + float(longitudinal)
+        v = min(speed, max(stop - along, 0.0) / STEER_STEP)  # [m/s] it stands at stop
+        if v > 0.0:
+            future = float(lane.heading_at(float(longitudinal) + v * pursuit))
+            heading_ref = future + float(np.clip(math.asin(float(np.clip(-kp_lateral * float(lateral) / v, -1.0, 1.0))),
+                                                 -math.pi / 4, math.pi / 4))
+            rate = kp_heading * wrap_angle(heading_ref - heading)
+            slip = math.asin(float(np.clip(half / v * rate, -1.0, 1.0)))
+            beta = math.atan(0.5 * math.tan(float(np.clip(math.atan(2.0 * math.tan(slip)), -max_steering, max_steering))))
+            position = position + v * STEER_STEP * np.array([math.cos(heading + beta), math.sin(heading + beta)])
+            heading += v * math.sin(beta) / half * STEER_STEP
+        out_t.append(n * STEER_STEP)
+        out_p.append(position.copy())
+        out_h.append(heading)
+    return np.asarray(out_t), np.asarray(out_p), np.asarray(out_h), along
 
 
 def _ego_along(lanes: list[Any], position: np.ndarray, start: float, reach: float) -> float:

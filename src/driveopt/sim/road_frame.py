@@ -72,7 +72,8 @@ _MAX_PIECES = 256  # [-] roads followed at most in each direction
 CORNER_ANGLE = math.radians(10.0)  # [rad] where the route turns more than this from one road's lane to the next's
 # (a roundabout's entry and exit), a corner piece turns the frame from one lane into the other (driveopt.sim.corner_lane)
 CORNER_LENGTH = 16.0  # [m] ... over this long on the entry's or exit's side (all but _MIN_PIECE of a shorter lane) ...
-RING_REACH = 4.0  # [m] ... and this far into the ring
+RING_REACH = 5.0  # [m] ... and this far into the ring, ...
+RING_ARM, ROAD_ARM = 0.5, 0.25  # [-] ... its curve's arms on the ring's side and on the other, fractions of its chord
 _MIN_PIECE = 1.0  # [m] a corner leaves at least this much of the piece it reaches into
 # [m] a road whose adjacent lanes are spaced wider than their width by more than this leaves a strip between them on
 # no lane, which upstream counts as off the road (racetrack-v0's road ("f", "g"): 8.7 cm; a car changing lanes there
@@ -654,9 +655,13 @@ def _corners(pieces: list[Piece]) -> list[Piece]:
     """The pieces with a corner piece (:class:`~driveopt.sim.corner_lane.CornerLane`) at each ring's entry or exit
     where the reference line turns by more than :data:`CORNER_ANGLE`: :data:`CORNER_LENGTH` on the entry's or exit's
     side of the joint and :data:`RING_REACH` into the ring, its reference line the entry's or exit's lane (which
-    :func:`_aligned` put on a ring lane's centre line). A corner swings wide of both lanes; reaching further into the
-    ring would take it off the ring's outer edge (upstream's roundabout-v0: 4 m keeps a car within 0.7 m of it on the
-    road, with a sharpest curvature of 0.12 1/m)."""
+    :func:`_aligned` put on a ring lane's centre line), its curve's arms :data:`RING_ARM` on the ring's side and
+    :data:`ROAD_ARM` on the other, which moves the turn off the ring. A corner swings wide of both lanes; reaching further
+    into the ring would take it off the ring's outer edge. The three constants keep a car within 0.9 m of the corner's
+    reference line on the road (upstream's check: inside its closest lane) at roundabout-v0 and roundabout-generic-v0,
+    with the sharpest curvature found (0.083 and 0.060 1/m against 0.129 and 0.091 with 4 m and arms of a third: the
+    centripetal bound's speed there 9.2 m/s against 7.4 at 7 m/s^2; 6 m of the ring and arms of 0.5 and 0.2 leave
+    0.064 1/m at roundabout-v0, but 0.3 m off the road 0.9 m outside the line, and a car left the road there)."""
     out = [pieces[0]]
     for piece in pieces[1:]:
         last = out[-1]
@@ -666,11 +671,13 @@ def _corners(pieces: list[Piece]) -> list[Piece]:
             continue
         if last.ring:
             before, after, d_shift = _reach(last, RING_REACH), _reach(piece, CORNER_LENGTH), piece.d_shift
+            arms = (RING_ARM, ROAD_ARM)
         else:
             before, after, d_shift = _reach(last, CORNER_LENGTH), _reach(piece, RING_REACH), last.d_shift
+            arms = (ROAD_ARM, RING_ARM)
         start = last.s_start + last.hi - before
         lane = CornerLane(last.lane, start - last.s_start, d_shift - last.d_shift,
-                          piece.lane, start - piece.s_start, d_shift - piece.d_shift, before + after)
+                          piece.lane, start - piece.s_start, d_shift - piece.d_shift, before + after, arms)
         out.append(Piece(lane, start, d_shift, 0.0, before + after, [last.bands[-1], piece.bands[0]]))
         last.hi -= before
         piece.lo += after
