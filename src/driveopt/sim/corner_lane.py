@@ -10,9 +10,8 @@ from a point of the first lane to a point of the second, leaving and arriving al
 control points ``arms`` times the chord along each: a third each by default; a longer arm at one end moves the
 turn away from it); its lateral axis turns from the first lane's to the second's with a quintic smoothstep. Its map
 therefore equals each lane's map at its ends for every lateral offset (highway-env's lanes are affine in the lateral
-offset), the reference line's position and heading are continuous there, and the turn is
-spread over the stretch, where the planner's curvature bound sees it. Before its start it is the first lane's map,
-past its end the second's.
+offset), the reference line's position and heading are continuous there, and the turn is spread over the stretch,
+where the planner's curvature bound sees it. Before its start it is the first lane's map, past its end the second's.
 
 It offers what the road frame asks of a highway-env lane: ``position``, ``local_coordinates`` (the nearest of the
 curve's samples, refined by Newton's method), ``heading_at`` and ``length``. Its ``longitudinal`` is the fraction

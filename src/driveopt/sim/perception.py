@@ -87,9 +87,8 @@ class RoadPreview:
 
     def __post_init__(self) -> None:
         for name in ("lateral_acceleration", "deceleration", "lane_time", "lane_distance", "lane_gap_time",
-                     "lane_gap_distance", "curvature_time",
-                     "curvature_distance", "speed_distance", "slowing", "crossing_horizon", "crossing_step",
-                     "dead_end_time", "dead_end_distance"):
+                     "lane_gap_distance", "curvature_time", "curvature_distance", "speed_distance", "slowing",
+                     "crossing_horizon", "crossing_step", "dead_end_time", "dead_end_distance"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= float(value) < 1e4:
                 raise ValueError(f"RoadPreview.{name} must be a number in [0, 10000), got {value!r}")
