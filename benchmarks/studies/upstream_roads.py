@@ -117,14 +117,14 @@ def run_episode(env_id: str, planner: str, seed: int, samples: int, duration: fl
         reached = False  # the route's last road at a policy step
         start = time.perf_counter()
         for _ in range(steps):
-            try:
+            try:  # the controller replans inside env.step too (within the policy period)
                 action = controller.act(env)
+                if controller.status is not None:
+                    statuses[controller.status.name] += 1
+                    plan_ms.append(1e3 * controller.last.plan_seconds)
+                _, _, terminated, truncated, info = env.step(action)
             except RoadFrameError as exc:
                 return {**record, "refused": str(exc), "time": clock(sim)}
-            if controller.status is not None:
-                statuses[controller.status.name] += 1
-                plan_ms.append(1e3 * controller.last.plan_seconds)
-            _, _, terminated, truncated, info = env.step(action)
             speeds.append(float(sim.vehicle.speed))
             collided |= bool(sim.vehicle.crashed)  # lane-keeping-v0 gives no info
             if not (off_road or sim.vehicle.on_road):  # where it first left the road

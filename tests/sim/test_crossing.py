@@ -149,6 +149,31 @@ def test_a_path_that_crosses_and_then_runs_beside_the_route_is_bounded_phase_by_
     assert b[across] > 4.0, "while it crosses, its ellipse is as wide as the car is long (one box for all would be)"
 
 
+def test_a_car_going_straight_on_past_the_split_the_route_leaves_by_is_left_to_the_usual_prediction():
+    """exit-v0 with the route to the exit: the frame turns into the exit at x = 500 m, a car of lane 3 going straight
+    on leaves it there, and beside the turning frame its heading grows away from the frame's. Counted as crossing, its
+    box was bounded by those headings (about 20 deg: the ellipse 4.2 m across) and a car beside it in the next lane,
+    4 m away, could never pass it; it keeps its lane until it leaves the route, as the usual prediction has it. A car
+    that crosses the frame at an angle while on it is still predicted along its path."""
+    import driveopt
+    from driveopt.sim.road_frame import ego_frame
+
+    env = driveopt.gym_make("exit-v0", config={"action": {"type": "ContinuousAction"}})
+    env.reset(seed=0)
+    sim = env.unwrapped
+    sim.vehicle.position[:] = [440.0, 8.0]
+    sim.vehicle.lane_index = sim.road.network.get_closest_lane_index(sim.vehicle.position, sim.vehicle.heading)
+    frame, me = ego_frame(env, ["0", "1", "2", "exit"])
+    straight_on = IDMVehicle(sim.road, [450.0, 12.0], heading=0.0, speed=15.0, target_lane_index=("1", "2", 3),
+                             route=[("1", "2", 3), ("2", "3", 3)])
+    times = np.arange(0.0, 15.01, 0.5)
+    assert may_cross(straight_on, frame), "routed off the frame's roads"
+    assert crossing_neighbour(straight_on, frame, times, me.x) is None
+    across = IDMVehicle(sim.road, [450.0, 12.0], heading=0.6, speed=15.0, target_lane_index=("1", "2", 3),
+                        route=[("2", "3", 3)])  # turned 34 deg across the lanes now, on the frame
+    assert isinstance(crossing_neighbour(across, frame, times, me.x), PathNeighbour)
+
+
 def test_routes_with_a_road_that_names_no_lane_are_predicted_in_the_lane_that_exists():
     """Upstream's prediction picks the lane of a route road that names none by the lane count of the vehicle's own
     road, and fails where a two-lane road leads to a one-lane one (roundabout-v0's exits)."""
@@ -306,3 +331,9 @@ def test_a_car_whose_lanes_meet_at_an_angle_is_predicted_as_highway_env_steers_i
     lanes = [network.get_lane(("a", "b", 0)), network.get_lane(("b", "c", 0))]
     off_centre = [min(abs(lane.local_coordinates(p)[1]) for lane in lanes) for p in simulated]
     assert max(off_centre) > 1.0, "the lanes' centres would be metres off at the joint"
+    # past the steering (1.5 s beyond the joint) it goes on along the lanes from where the steering left it, at its
+    # speed: no step back at the hand-over
+    later = np.arange(0.0, 6.0, 0.1)
+    positions, _ = _along_route(car(), later)
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    np.testing.assert_allclose(steps, 10.0 * 0.1, rtol=0.05)

@@ -71,6 +71,25 @@ def test_a_missed_split_reads_the_road_straight_on(exit_env):
         sim.vehicle.lane_index = sim.road.network.get_closest_lane_index(sim.vehicle.position, sim.vehicle.heading)
 
 
+@pytest.mark.parametrize("x", [501.6, 505.0])
+def test_a_car_just_past_a_split_it_did_not_take_is_framed_on_the_road_it_is_on(exit_env, x):
+    """A few metres past the end of road ("1", "2"), in lane 1 of ("2", "3"): the route's road ("1", "2") is within
+    reach of its end, but its frame leads on into the exit lane 20 m away; the frame is the road the car is on."""
+    sim = exit_env.unwrapped
+    saved = sim.vehicle.position.copy()
+    try:
+        sim.vehicle.position[:] = [x, 4.0]
+        sim.vehicle.lane_index = sim.road.network.get_closest_lane_index(sim.vehicle.position, sim.vehicle.heading)
+        frame, me = ego_frame(exit_env, EXIT)
+        assert ("2", "3") in frame.roads and ("2", "exit") not in frame.roads
+        assert me.x == pytest.approx(x) and me.y == pytest.approx(4.0)
+        perception = perceive(exit_env, Task(v_des=25.0, route=EXIT))
+        assert perception.goal is None and perception.scene.road.num_lanes >= 6
+    finally:
+        sim.vehicle.position[:] = saved
+        sim.vehicle.lane_index = sim.road.network.get_closest_lane_index(sim.vehicle.position, sim.vehicle.heading)
+
+
 ROUNDABOUT_EXIT = ["ser", "ses", "se", "ex", "ee", "nx", "nxs"]
 
 

@@ -79,7 +79,7 @@ def _along_route(vehicle: Any, times: np.ndarray, ego: Any = None) -> tuple[np.n
     kink = _last_kink(lanes, reach)
     if kink is not None and speed > MIN_STEERED_SPEED and hasattr(vehicle, "steering_control"):
         end = min(float(np.max(times, initial=0.0)), max(kink - start, 0.0) / speed + SETTLE_TIME)
-        steered_t, steered_positions, steered_headings, along = _steered(vehicle, lanes, start, stop, end)
+        steered_t, steered_positions, steered_headings, along = _steered(vehicle, lanes, stop, end)
         steered_until = float(steered_t[-1])
         start = along - speed * steered_until  # the lanes' poses after it continue from where the steering ends
     positions, headings = [], []
@@ -114,21 +114,22 @@ def _last_kink(lanes: list[Any], reach: float) -> float | None:
     return kink
 
 
-def _steered(vehicle: Any, lanes: list[Any], start: float, stop: float, end: float
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def _steered(vehicle: Any, lanes: list[Any], stop: float, end: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """(times [s], positions (n, 2) [m], headings [rad], [m] the distance along ``lanes`` at the last time) of
     ``vehicle`` driven by its own lateral controller (highway-env's ``ControlledVehicle.steering_control`` with the
     vehicle's gains, its kinematic bicycle, one :data:`STEER_STEP` at a time) along ``lanes`` at its speed held, from
     its pose now until ``end`` [s]; its target moves to the next lane half a car before a lane's end (the lane's
-    ``after_end``), and it stands once it is ``stop`` [m] along them (upstream's IDM brakes for the car in front).
-    ``start`` [m]: its distance along them now."""
+    ``after_end``), and it stands once it is ``stop`` [m] along them (upstream's IDM brakes for the car in front);
+    distances along them from the first lane's start, where the vehicle is now."""
     position = np.asarray(vehicle.position, dtype=float).copy()
     heading, speed, half = float(vehicle.heading), float(vehicle.speed), 0.5 * float(vehicle.LENGTH)
     kp_lateral, kp_heading, pursuit = float(vehicle.KP_LATERAL), float(vehicle.KP_HEADING), float(vehicle.TAU_PURSUIT)
     max_steering = float(vehicle.MAX_STEERING_ANGLE)
-    k, offset, along = 0, 0.0, start
-    out_t, out_p, out_h = [0.0], [position.copy()], [heading]
-    for n in range(1, int(math.ceil(end / STEER_STEP)) + 1):
+    k, offset = 0, 0.0  # the lane it follows, [m] the length of the lanes before it
+
+    def locate() -> tuple[Any, float, float]:
+        """(the lane it follows, [m] longitudinal and lateral on it) at ``position``, moving on to the next lane."""
+        nonlocal k, offset
         lane = lanes[k]
         longitudinal, lateral = lane.local_coordinates(position)
         if k < len(lanes) - 1 and lane.after_end(position, longitudinal, lateral):
@@ -136,11 +137,16 @@ def _steered(vehicle: Any, lanes: list[Any], start: float, stop: float, end: flo
             k += 1
             lane = lanes[k]
             longitudinal, lateral = lane.local_coordinates(position)
-        along = offset + float(longitudinal)
+        return lane, float(longitudinal), float(lateral)
+
+    out_t, out_p, out_h = [0.0], [position.copy()], [heading]
+    for n in range(1, int(math.ceil(end / STEER_STEP)) + 1):
+        lane, longitudinal, lateral = locate()
+        along = offset + longitudinal
         v = min(speed, max(stop - along, 0.0) / STEER_STEP)  # [m/s] it stands at stop
         if v > 0.0:
-            future = float(lane.heading_at(float(longitudinal) + v * pursuit))
-            heading_ref = future + float(np.clip(math.asin(float(np.clip(-kp_lateral * float(lateral) / v, -1.0, 1.0))),
+            future = float(lane.heading_at(longitudinal + v * pursuit))
+            heading_ref = future + float(np.clip(math.asin(float(np.clip(-kp_lateral * lateral / v, -1.0, 1.0))),
                                                  -math.pi / 4, math.pi / 4))
             rate = kp_heading * wrap_angle(heading_ref - heading)
             slip = math.asin(float(np.clip(half / v * rate, -1.0, 1.0)))
@@ -150,7 +156,8 @@ def _steered(vehicle: Any, lanes: list[Any], start: float, stop: float, end: flo
         out_t.append(n * STEER_STEP)
         out_p.append(position.copy())
         out_h.append(heading)
-    return np.asarray(out_t), np.asarray(out_p), np.asarray(out_h), along
+    _, longitudinal, _ = locate()
+    return np.asarray(out_t), np.asarray(out_p), np.asarray(out_h), offset + longitudinal
 
 
 def _ego_along(lanes: list[Any], position: np.ndarray, start: float, reach: float) -> float:
@@ -219,6 +226,7 @@ def _path(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x: float, ego: 
     xs, ys, yaws = np.full(len(times), ego_x - FAR_BEHIND), np.zeros(len(times)), np.zeros(len(times))
     enters = turned = False
     placed = []  # [m] offsets of the poses the frame places
+    left = False  # whether the path has been on the frame and left it
     for k, (position, heading) in enumerate(zip(positions, headings)):
         found = _frame_pose(frame, position, ego_x)
         if found is None:
@@ -227,7 +235,10 @@ def _path(vehicle: Any, frame: RoadFrame, times: np.ndarray, ego_x: float, ego: 
         yaw = wrap_angle(float(heading) - float(piece.lane.heading_at(longitudinal)))
         xs[k], ys[k], yaws[k] = s, d, yaw
         enters |= on_frame and any(b.low < d < b.high and b.s_from <= s <= b.s_to for b in piece.bands)
-        turned |= CROSSING_ANGLE < abs(yaw) < math.pi - CROSSING_ANGLE  # on the frame or beside it
+        left |= bool(placed) and not on_frame
+        # on the frame or beside it before reaching it; not once it has left (a car gone straight on past the split
+        # the route leaves by, beside a frame that turns into the exit)
+        turned |= not left and CROSSING_ANGLE < abs(yaw) < math.pi - CROSSING_ANGLE
         if on_frame:
             placed.append(d)
     return xs, ys, yaws, enters, turned, float(np.ptp(placed)) if placed else 0.0

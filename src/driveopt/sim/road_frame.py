@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, NamedTuple, Sequence
+from typing import Any, Iterator, NamedTuple, Sequence
 
 import numpy as np
 
@@ -737,43 +737,56 @@ def _on_lanes(network: Any, road: tuple[str, str], position: np.ndarray, before:
     return False
 
 
-def _ego_road(network: Any, ego: Any, planned: Sequence[tuple[str, str]]) -> tuple[str, str]:
-    """The road the frame starts from: the ego's lane's road (the simulator's closest lane) where the ego is on its
-    lanes and it is on the route (or there is none). Else a road of the route whose lanes the ego is on: from the same
-    node first, up to :data:`BRANCH_DISTANCE` short of its start (where a junction's branches start together, as an
-    intersection's turns and straight on, the closest lane may be another branch than the one the car follows, and a
-    roundabout's exit starts a few metres past the ring's lane the car leaves by); then any, up to that short of its
-    start or past its end (on a roundabout's corner, :data:`CORNER_LENGTH`, the closest lane is the ring's lane on past
-    the exit or before the entry, and a frame along it leaves the route there). Else, off the closest lane's road, any
-    road whose lanes the ego is on (upstream's closest lane can be a sine lane far away, as roundabout-v0's entry when
-    the car is on the far side of the ring); else the closest lane's road."""
+def _ego_roads(network: Any, ego: Any, planned: Sequence[tuple[str, str]]) -> Iterator[tuple[str, str]]:
+    """The roads the frame may start from, best first: the ego's lane's road (the simulator's closest lane) where the
+    ego is on its lanes and it is on the route (or there is none). Then the roads of the route whose lanes the ego is
+    on: from the same node first, up to :data:`BRANCH_DISTANCE` short of its start (where a junction's branches start
+    together, as an intersection's turns and straight on, the closest lane may be another branch than the one the car
+    follows, and a roundabout's exit starts a few metres past the ring's lane the car leaves by); then any, up to that
+    short of its start or past its end (on a roundabout's corner, :data:`CORNER_LENGTH`, the closest lane is the ring's
+    lane on past the exit or before the entry, and a frame along it leaves the route there). Then, off the closest
+    lane's road, any road whose lanes the ego is on (upstream's closest lane can be a sine lane far away, as
+    roundabout-v0's entry when the car is on the far side of the ring); last the closest lane's road (a car just past
+    a split it did not take is on it, beside a route road's end whose frame leads on along the branch it left)."""
     road = (ego.lane_index[0], ego.lane_index[1])
     position = np.asarray(ego.position, dtype=float)
     on_road = _on_lanes(network, road, position)
     if on_road and (not planned or road in planned):
-        return road
-    for candidate in (branch for branch in planned if branch[0] == road[0]):
-        if _on_lanes(network, candidate, position, before=BRANCH_DISTANCE):
-            return candidate
-    for candidate in planned:
-        if _on_lanes(network, candidate, position, before=BRANCH_DISTANCE, past=BRANCH_DISTANCE):
-            return candidate
+        yield road
+    yield from (branch for branch in planned
+                if branch[0] == road[0] and _on_lanes(network, branch, position, before=BRANCH_DISTANCE))
+    yield from (candidate for candidate in planned
+                if _on_lanes(network, candidate, position, before=BRANCH_DISTANCE, past=BRANCH_DISTANCE))
     if not on_road:
-        for candidate in ((frm, to) for frm, tos in network.graph.items() for to in tos):
-            if _on_lanes(network, candidate, position):
-                return candidate
-    return road
+        yield from (candidate for candidate in ((frm, to) for frm, tos in network.graph.items() for to in tos)
+                    if _on_lanes(network, candidate, position))
+    yield road
 
 
 def ego_frame(env: Any, route: Sequence[Any] | None = None) -> tuple[RoadFrame, Motion]:
-    """(the frame along the ego's route, the ego's motion in it); RoadFrameError when the ego is not on it."""
+    """(the frame along the ego's route, the ego's motion in it), from the first road of :func:`_ego_roads` whose
+    frame holds the ego; RoadFrameError (naming the first) when none does."""
     sim = env.unwrapped
     ego = sim.vehicle
     network = sim.road.network
-    lane_index = ego.lane_index
     if route is None:
         route = getattr(ego, "route", None)
-    road = _ego_road(network, ego, route_roads(route))
+    tried: list[tuple[str, str]] = []
+    for road in _ego_roads(network, ego, route_roads(route)):
+        if road not in tried:
+            tried.append(road)
+            held = _frame_holding_ego(network, ego, road, route)
+            if held is not None:
+                return held
+    raise RoadFrameError(f"the ego at {np.round(np.asarray(ego.position, dtype=float), 2).tolist()} is more than "
+                         f"{MAX_EGO_OFFSET} m from the lanes of road {tried[0]!r} (its nearest lane "
+                         f"{ego.lane_index!r}): it is not on the road the frame represents")
+
+
+def _frame_holding_ego(network: Any, ego: Any, road: tuple[str, str], route: Sequence[Any] | None
+                       ) -> tuple[RoadFrame, Motion] | None:
+    """(the frame from ``road`` along ``route``, the ego's motion in it), or None where the ego is more than
+    :data:`MAX_EGO_OFFSET` beside the frame's lanes."""
     ref, _, _ = _road_lanes(network, road)
     longitudinal = float(ref.local_coordinates(np.asarray(ego.position, dtype=float))[0])
     frame = build_frame(network, road, route, ego_longitudinal=longitudinal)
@@ -786,7 +799,5 @@ def ego_frame(env: Any, route: Sequence[Any] | None = None) -> tuple[RoadFrame, 
         me = vehicle_motion(ego, frame, near_s=frame.ego_s)
         band = frame.ego_band(me.x) if me is not None else None
     if band is None or max(band.low - me.y, me.y - band.high) > MAX_EGO_OFFSET:
-        raise RoadFrameError(f"the ego at {np.round(np.asarray(ego.position, dtype=float), 2).tolist()} is more than "
-                             f"{MAX_EGO_OFFSET} m from the lanes of road {road!r} (its nearest lane "
-                             f"{lane_index!r}): it is not on the road the frame represents")
+        return None
     return frame, me
