@@ -131,7 +131,7 @@ def test_a_path_that_crosses_and_then_runs_beside_the_route_is_bounded_phase_by_
     assert len(phases) >= 2 and np.all(masks.sum(axis=0) == 1), "every node in exactly one phase"
     crossing_half, oncoming_half = phases[0][0].half_extents, phases[-1][0].half_extents
     # across the road: about half its length while it crosses, about half its width once oncoming (each phase turns
-    # by at most 20 deg, so its box leans a little)
+    # by at most 10 deg, so its box leans a little)
     assert crossing_half[1] > 2.4 and oncoming_half[1] < 1.8
     scene = Scene(ego=EgoState(x=0.0, y=0.0, vx=10.0), road=PlannerRoad(num_lanes=1, lane_width=4.0),
                   neighbours=(car,), v_des=10.0)
@@ -172,6 +172,21 @@ def test_a_car_going_straight_on_past_the_split_the_route_leaves_by_is_left_to_t
     across = IDMVehicle(sim.road, [450.0, 12.0], heading=0.6, speed=15.0, target_lane_index=("1", "2", 3),
                         route=[("2", "3", 3)])  # turned 34 deg across the lanes now, on the frame
     assert isinstance(crossing_neighbour(across, frame, times, me.x), PathNeighbour)
+
+
+def test_a_turning_cars_phases_lean_at_most_ten_degrees():
+    """A car turning steadily from along the route to across it: the phase in which it still runs along the route
+    leans at most 10 degrees, so its box reaches at most 2.5 sin 10 + 1 cos 0 = 1.43 m across (1.86 m at 20)."""
+    from driveopt.prediction import PHASE_TURN, path_phases
+
+    t = np.arange(0.0, 10.01, 0.5)
+    yaws = np.radians(9.0) * t  # 90 degrees in 10 s
+    car = PathNeighbour(x=30.0, y=4.0, length=5.0, width=2.0, yaw=0.0, t=tuple(t), path_x=tuple(30.0 + 5.0 * t),
+                        path_y=tuple(np.full_like(t, 4.0)), path_yaw=tuple(yaws))
+    phases = path_phases(car, t)
+    assert phases[0][0].half_extents[1] < 1.45
+    for phase, _ in phases:
+        assert np.ptp(phase.path_yaw) <= PHASE_TURN + 1e-9
 
 
 def test_routes_with_a_road_that_names_no_lane_are_predicted_in_the_lane_that_exists():
