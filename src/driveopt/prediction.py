@@ -60,7 +60,7 @@ class PathNeighbour(Neighbour):
 
 
 PHASE_TURN = math.radians(10.0)  # [rad] the most a PathNeighbour turns within one obstacle slot (20 deg before: a
-# turning car's box leant up to 20 deg, 0.5 m wider across the route; intersection-v0 6.67 -> 6.89 m/s at 10 deg)
+# turning car's box leant up to 20 deg, 0.5 m wider across the route; intersection-v0 6.67 -> 6.88 m/s at 10 deg)
 
 
 def path_phases(n: PathNeighbour, t: np.ndarray) -> list[tuple[PathNeighbour, np.ndarray]]:
