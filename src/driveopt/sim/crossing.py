@@ -22,6 +22,8 @@ them across the frame's lanes (:func:`lane_leaving_neighbour`: a roundabout's in
 from the outer one). Beside the frame counts too: a
 car turning towards the route from beyond the frame's lateral reach may have no node on the frame while it turns (at
 8 m/s a 0.5 s node step is 4 m), and the usual prediction would carry its heading now straight across the lanes.
+Beside it once the path has left it does not (a car gone straight on past the split the route leaves by, beside a
+frame that turns into the exit: it keeps its lane until there, a lane follower).
 A crashed vehicle, wherever it is, slides to a stop along its heading as highway-env brakes it
 (:func:`wreck_neighbour`): traffic's own collisions at junctions send wrecks sliding into the route's lanes, where
 a prediction along their lanes at their speed does not put them.
