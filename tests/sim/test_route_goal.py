@@ -72,19 +72,26 @@ def test_a_missed_split_reads_the_road_straight_on(exit_env):
 
 
 @pytest.mark.parametrize("x", [501.6, 505.0])
-def test_a_car_just_past_a_split_it_did_not_take_is_framed_on_the_road_it_is_on(exit_env, x):
-    """A few metres past the end of road ("1", "2"), in lane 1 of ("2", "3"): the route's road ("1", "2") is within
-    reach of its end, but its frame leads on into the exit lane 20 m away; the frame is the road the car is on."""
+@pytest.mark.parametrize("y", [4.0, 12.0, 20.0])
+def test_a_car_just_past_a_split_it_did_not_take_is_framed_on_the_road_it_is_on(exit_env, x, y):
+    """A few metres past the end of road ("1", "2"), in lane 1, 3 or 5 of ("2", "3"): the route's road ("1", "2") is
+    within reach of its end, but its frame leads on into the exit lane only, 4-20 m away; the frame is the road the car
+    is on, whose lanes hold it (in lanes 3 and 5 the route's frame held the car too, and its road, the exit lane alone,
+    made every plan infeasible: the stop swerved towards the exit lane across the lanes between)."""
     sim = exit_env.unwrapped
     saved = sim.vehicle.position.copy()
     try:
-        sim.vehicle.position[:] = [x, 4.0]
+        sim.vehicle.position[:] = [x, y]
         sim.vehicle.lane_index = sim.road.network.get_closest_lane_index(sim.vehicle.position, sim.vehicle.heading)
-        frame, me = ego_frame(exit_env, EXIT)
-        assert ("2", "3") in frame.roads and ("2", "exit") not in frame.roads
-        assert me.x == pytest.approx(x) and me.y == pytest.approx(4.0)
+        if y == 4.0:  # 20 m beside the exit lane: not even the route's road holds it
+            frame, me = ego_frame(exit_env, EXIT)
+            assert ("2", "3") in frame.roads and ("2", "exit") not in frame.roads
+            assert me.x == pytest.approx(x) and me.y == pytest.approx(4.0)
         perception = perceive(exit_env, Task(v_des=25.0, route=EXIT))
         assert perception.goal is None and perception.scene.road.num_lanes >= 6
+        assert ("2", "exit") not in perception.frame.roads
+        low, high = perception.scene.lateral_bounds
+        assert low < perception.scene.ego.y < high
     finally:
         sim.vehicle.position[:] = saved
         sim.vehicle.lane_index = sim.road.network.get_closest_lane_index(sim.vehicle.position, sim.vehicle.heading)

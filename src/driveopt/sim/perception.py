@@ -20,7 +20,9 @@ A route (the task's, or the ego's own) that leaves a road by only some of its la
 :class:`~driveopt.goal.Goal` (:mod:`driveopt.sim.route_goal`): the lanes that continue the route, required by the
 split and widening with the distance still to go, so the lane change is planned while the split is ahead. Until
 the split the road keeps the lanes that go elsewhere (the goal, not the lane preview, leads out of them). A split
-the car can no longer make is given up: the scene is then read along the road straight on, without the route.
+the car can no longer make is given up: the scene is then read along the road straight on, without the route; so
+is one it has just passed outside the route's lanes (the route's road still holds the car a few metres past its end,
+and its frame leads on in the route's lanes alone).
 
 A vehicle on a road the frame does not follow whose own lanes cross the route's (:mod:`driveopt.sim.crossing`)
 is predicted along them and mapped onto the frame node by node (a
@@ -50,7 +52,7 @@ from driveopt.observation import ObservationError
 from driveopt.scene import CURVATURE_CELL, PATH_SCALE_MIN, EgoState, EllipseMargin, Neighbour, ProblemError, Scene
 from driveopt.sim.control import EgoKinematics
 from driveopt.sim.crossing import crossing_neighbour, lane_leaving_neighbour, may_cross, wreck_neighbour
-from driveopt.sim.lane_graph import route_roads
+from driveopt.sim.lane_graph import BRANCH_DISTANCE, route_roads
 from driveopt.sim.road_frame import Motion, RoadFrame, ego_frame, vehicle_motion, wrap_angle
 from driveopt.sim.route_goal import RouteChange, find_split, lanes_to_change, missed, split_goal
 
@@ -186,10 +188,16 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
     lane_preview = max(preview.lane_distance, ahead * preview.lane_time)
     goal, route_gap = None, 0.0  # [s] the time gap the route's lane changes keep (while any remain)
     if route or getattr(ego_vehicle, "route", None):
-        split = find_split(sim.road.network, frame, me.x)
+        # a split up to BRANCH_DISTANCE behind counts too, for a car on a road off the route: the route's road holds
+        # a car that far past its end, and its frame leads on along the route, where that car has no lane
+        off_route = tuple(ego_vehicle.lane_index[:2]) not in route_roads(route or getattr(ego_vehicle, "route", None))
+        split = find_split(sim.road.network, frame, me.x - (BRANCH_DISTANCE if off_route else 0.0))
         if split is not None and missed(split, me.x, me.y, me.speed, preview.route_change):
             frame, me = ego_frame(env, ())  # the split is out of reach: straight on, a lane that still leads somewhere
-        elif split is not None:
+            split = None
+        elif split is not None and split.s < me.x:  # passed in the route's lanes: the next split, if any
+            split = find_split(sim.road.network, frame, me.x)
+        if split is not None:
             goal = split_goal(split, me.x, me.y, me.speed, preview.route_change)
             lane_preview = min(lane_preview, max(goal.x[0] - me.x, 0.0))  # the goal leads out of the other lanes
             if lanes_to_change(split, me.y) > 0:
