@@ -231,12 +231,35 @@ def test_a_routed_car_with_the_ego_on_its_lanes_ahead_is_predicted_to_stop_behin
     for elsewhere in ([56.0, 20.0], [30.0, 0.0]):  # beside its lane; behind it
         ego.position = np.array(elsewhere)
         np.testing.assert_allclose(_along_route(car, times, ego)[0], free)
-    car.speed = 0.5  # creeping 2.5 m in 5 s: it never reaches the ego 7.5 m ahead, but comes within the gap, so it
-    ego.position = np.array([47.5, 0.0])  # stops 1.5 m on, bumpers YIELD_GAP apart
+    car.speed = 0.5  # creeping 2.5 m in 5 s: it never reaches the ego 10.5 m ahead, but comes within the gap, so it
+    ego.position = np.array([40.0 + 0.5 * (car.LENGTH + ego.LENGTH) + YIELD_GAP + 1.5, 0.0])  # stops 1.5 m on
     crept, _ = _along_route(car, times, ego)
-    stop_x = 47.5 - 0.5 * (car.LENGTH + ego.LENGTH) - YIELD_GAP
-    np.testing.assert_allclose(crept[-1], [stop_x, 0.0], atol=1e-9)
-    assert np.all(crept[:, 0] <= stop_x + 1e-9)
+    np.testing.assert_allclose(crept[-1], [41.5, 0.0], atol=1e-9)
+    assert np.all(crept[:, 0] <= 41.5 + 1e-9)
+
+
+@pytest.mark.parametrize("speed", [5.0, 10.0, 16.0])
+def test_the_predicted_stop_behind_a_standing_ego_is_where_upstreams_idm_comes_to(speed):
+    """highway-env's IDM, closing from 60 m at 5-16 m/s on a car standing on its lane, comes to within 4.2-4.5 m
+    (bumpers; it settles at 5 m, its DISTANCE_WANTED less a car's length): the predicted stop, YIELD_GAP behind, is
+    no further from the standing car than the real one comes, and less than a metre nearer."""
+    from driveopt.sim.crossing import YIELD_GAP
+
+    network = RoadNetwork()
+    network.add_lane("a", "b", StraightLane([0.0, 0.0], [500.0, 0.0], width=4.0, speed_limit=20.0))
+    road = Road(network=network)
+    standing = IDMVehicle(road, [200.0, 0.0], heading=0.0, speed=0.0)
+    car = IDMVehicle(road, [140.0, 0.0], heading=0.0, speed=speed, target_speed=speed, target_lane_index=("a", "b", 0),
+                     route=[("a", "b", 0)])
+    car.enable_lane_change = False
+    road.vehicles.extend([standing, car])
+    gaps = []
+    for _ in range(15 * 30):  # 30 s at upstream's 15 Hz
+        car.act()
+        car.step(1.0 / 15.0)
+        gaps.append(standing.position[0] - car.position[0] - 0.5 * (car.LENGTH + standing.LENGTH))
+    assert car.speed == pytest.approx(0.0, abs=0.05) and gaps[-1] == pytest.approx(5.0, abs=0.05)
+    assert min(gaps) - 1.0 < YIELD_GAP <= min(gaps)
 
 
 def _turning_car(x: float, y: float, turn: float) -> PathNeighbour:

@@ -48,7 +48,9 @@ STEER_STEP = 1.0 / 15.0  # [s] a steered prediction's step: upstream's simulatio
 SETTLE_TIME = 1.5  # [s] ... which runs this long past the last joint at an angle, then the lanes' centres take over
 MIN_STEERED_SPEED = 0.5  # [m/s] a slower vehicle is predicted along its lanes
 KINK_GAP = 0.5  # [m] lanes whose joint leaves this gap meet at a kink too
-YIELD_GAP = 1.0  # [m] a routed vehicle with the ego on its lanes ahead is predicted to stop this far behind it (bumpers)
+YIELD_GAP = 4.0  # [m] a routed vehicle with the ego on its lanes ahead is predicted to stop this far behind it (bumpers):
+# upstream's IDM, closing on a standing car at 5-16 m/s, comes to 4.2-4.5 m and settles at 5 (its DISTANCE_WANTED less a
+# car's length); at 1 m a car yielding to the ego stood, as predicted, inside the ego's collision ellipse
 WRECK_TIME_CONSTANT = 1.0  # [s] highway-env brakes a crashed vehicle at -speed [m/s^2] with its wheels straight: its
 # speed decays as exp(-t / this), and it slides speed x this [m] along its heading before it stands
 
