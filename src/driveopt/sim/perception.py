@@ -187,10 +187,11 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
     ahead = max(me.speed, 0.0)
     lane_preview = max(preview.lane_distance, ahead * preview.lane_time)
     goal, route_gap = None, 0.0  # [s] the time gap the route's lane changes keep (while any remain)
-    if route or getattr(ego_vehicle, "route", None):
+    followed = route or getattr(ego_vehicle, "route", None)
+    if followed:
         # a split up to BRANCH_DISTANCE behind counts too, for a car on a road off the route: the route's road holds
         # a car that far past its end, and its frame leads on along the route, where that car has no lane
-        off_route = tuple(ego_vehicle.lane_index[:2]) not in route_roads(route or getattr(ego_vehicle, "route", None))
+        off_route = tuple(ego_vehicle.lane_index[:2]) not in route_roads(followed)
         split = find_split(sim.road.network, frame, me.x - (BRANCH_DISTANCE if off_route else 0.0))
         if split is not None and missed(split, me.x, me.y, me.speed, preview.route_change):
             frame, me = ego_frame(env, ())  # the split is out of reach: straight on, a lane that still leads somewhere
