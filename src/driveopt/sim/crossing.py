@@ -50,7 +50,7 @@ MIN_STEERED_SPEED = 0.5  # [m/s] a slower vehicle is predicted along its lanes
 KINK_GAP = 0.5  # [m] lanes whose joint leaves this gap meet at a kink too
 YIELD_GAP = 4.0  # [m] a routed vehicle with the ego on its lanes ahead is predicted to stop this far behind it (bumpers):
 # upstream's IDM, closing on a standing car at 5-16 m/s, comes to 4.2-4.5 m and settles at 5 (its DISTANCE_WANTED less a
-# car's length); at 1 m a car yielding to the ego stood, as predicted, inside the ego's collision ellipse
+# car's length); predicted nearer, a car waiting for a standing ego stands inside its collision ellipse, every plan infeasible
 WRECK_TIME_CONSTANT = 1.0  # [s] highway-env brakes a crashed vehicle at -speed [m/s^2] with its wheels straight: its
 # speed decays as exp(-t / this), and it slides speed x this [m] along its heading before it stands
 
