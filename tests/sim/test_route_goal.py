@@ -8,7 +8,8 @@ import pytest
 import driveopt
 from driveopt.sim.perception import Task, perceive
 from driveopt.sim.road_frame import ego_frame
-from driveopt.sim.route_goal import RouteChange, Split, find_split, missed, split_goal
+from driveopt.scene import Neighbour
+from driveopt.sim.route_goal import RouteChange, Split, entry_flows, find_split, missed, split_goal
 
 CONTINUOUS = {"action": {"type": "ContinuousAction"}}
 EXIT = ["0", "1", "2", "exit"]
@@ -42,6 +43,41 @@ def test_the_goal_exists_only_with_a_route_and_narrows_the_far_lanes_first(exit_
     assert split_goal(split, 175.0, 24.0, 25.0).speed is None  # in the lane: no speed advice
     near = split_goal(split, 460.0, 16.0, 25.0)  # 2 lanes to change in the 15 m left before the band: not below 8 m/s
     assert near.speed == pytest.approx((0.0, RouteChange().min_speed)) and RouteChange().min_speed == 8.0
+
+
+def test_entry_flows_are_the_mean_speeds_of_the_lanes_still_to_enter_in_the_order_they_are_entered():
+    split = Split(("1", "2"), ("2", "exit"), 500.0, ((22.0, 26.0),), 4.0)  # the exit lane's centre at 24 m
+    cars = [Neighbour(x=300.0, y=16.0, vx=10.0), Neighbour(x=350.0, y=16.3, vx=12.0),  # lane 4: 11 m/s
+            Neighbour(x=310.0, y=20.0, vx=6.0),  # lane 5
+            Neighbour(x=290.0, y=20.0, vx=30.0),  # lane 5, behind the ego by more than its length: not counted
+            Neighbour(x=510.0, y=16.0, vx=30.0),  # past the split: not counted
+            Neighbour(x=320.0, y=8.0, vx=2.0)]  # lane 2, the ego's own side of it: not a lane to enter
+    assert entry_flows(split, 300.0, 12.0, cars) == pytest.approx((11.0, 6.0, None))  # lanes 4, 5, then the exit lane
+    assert entry_flows(split, 300.0, 24.0, cars) == ()  # in the band
+    back = Split(("1", "2"), ("2", "3"), 500.0, ((-2.0, 6.0),), 4.0)  # lanes 0-1, entered from lane 4 downwards
+    assert entry_flows(back, 300.0, 16.0, cars) == pytest.approx((None, 2.0, None))  # lanes 3, 2, then 1
+
+
+def test_the_speed_window_slows_to_the_traffic_of_each_lane_by_where_entering_it_must_begin():
+    split = Split(("1", "2"), ("2", "exit"), 500.0, ((22.0, 26.0),), 4.0)
+    pace = RouteChange()
+    start = 500.0 - 25.0  # settle_distance at 25 m/s
+    plain = split_goal(split, 300.0, 12.0, 25.0, pace)  # 3 lanes to change in 175 m at 1.5 s each: 39 m/s
+    assert plain.speed == pytest.approx((0.0, 175.0 / 4.5))
+    assert split_goal(split, 300.0, 12.0, 25.0, pace, (None, None, None)) == plain  # no traffic: as without
+    # lanes at 11 and 6 m/s, the exit lane empty (its change timed at the ego's 25 m/s): the exit lane is entered from
+    # start - 1.5 * 25, lane 5 from 1.5 * 6 before that, lane 4 from 1.5 * 11 before that
+    lane5 = start - 1.5 * 25.0 - 1.5 * 6.0
+    lane4 = lane5 - 1.5 * 11.0
+    expected = min((11.0 ** 2 + 2 * 1.5 * (lane4 - 300.0)) ** 0.5, (6.0 ** 2 + 2 * 1.5 * (lane5 - 300.0)) ** 0.5)
+    goal = split_goal(split, 300.0, 12.0, 25.0, pace, (11.0, 6.0, None))
+    assert goal.speed == pytest.approx((0.0, expected)) and expected < 21.0
+    assert goal.bands == plain.bands and goal.x == plain.x and goal.widen == plain.widen
+    # past where lane 5 must be entered: its speed, not below min_speed (8 m/s; without traffic 45 m / 4.5 s); a fast
+    # lane never raises the window
+    assert split_goal(split, 430.0, 12.0, 25.0, pace).speed == pytest.approx((0.0, 10.0))
+    assert split_goal(split, 430.0, 12.0, 25.0, pace, (11.0, 6.0, None)).speed == pytest.approx((0.0, 8.0))
+    assert split_goal(split, 300.0, 12.0, 25.0, pace, (80.0, 80.0, 80.0)).speed == plain.speed
 
 
 def test_a_split_out_of_reach_is_missed_and_one_within_reach_is_not():

@@ -54,7 +54,8 @@ from driveopt.sim.control import EgoKinematics
 from driveopt.sim.crossing import crossing_neighbour, lane_leaving_neighbour, may_cross, wreck_neighbour
 from driveopt.sim.lane_graph import BRANCH_DISTANCE, route_roads
 from driveopt.sim.road_frame import Motion, RoadFrame, ego_frame, vehicle_motion, wrap_angle
-from driveopt.sim.route_goal import RouteChange, find_split, lanes_to_change, missed, split_goal
+from driveopt.sim.route_goal import (RouteChange, entry_flows, find_split, lanes_to_change, missed, settle_distance,
+                                     split_goal)
 
 
 @dataclass(frozen=True)
@@ -186,7 +187,7 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
     frame, me = ego_frame(env, route)
     ahead = max(me.speed, 0.0)
     lane_preview = max(preview.lane_distance, ahead * preview.lane_time)
-    goal, route_gap = None, 0.0  # [s] the time gap the route's lane changes keep (while any remain)
+    goal, split, route_gap = None, None, 0.0  # route_gap [s]: the time gap the route's lane changes keep (while any remain)
     followed = route or getattr(ego_vehicle, "route", None)
     if followed:
         # a split up to BRANCH_DISTANCE behind counts too, for a car on a road off the route: the route's road holds
@@ -198,11 +199,8 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
             split = None
         elif split is not None and split.s < me.x:  # passed in the route's lanes: the next split, if any
             split = find_split(sim.road.network, frame, me.x)
-        if split is not None:
-            goal = split_goal(split, me.x, me.y, me.speed, preview.route_change)
-            lane_preview = min(lane_preview, max(goal.x[0] - me.x, 0.0))  # the goal leads out of the other lanes
-            if lanes_to_change(split, me.y) > 0:
-                route_gap = preview.route_change.time_gap
+        if split is not None:  # the goal (its band from settle_distance before the split) leads out of the other lanes
+            lane_preview = min(lane_preview, max(split.s - settle_distance(me.speed, preview.route_change) - me.x, 0.0))
     road = frame.road(me.x, lane_preview, max(preview.curvature_distance, ahead * preview.curvature_time),
                       behind=0.5 * me.length, per_node=preview.curvature_per_node, d=me.y,
                       gap_preview=max(preview.lane_gap_distance, ahead * preview.lane_gap_time))
@@ -230,6 +228,11 @@ def _read(env: Any, task: Any, preview: RoadPreview, period: float | None = None
             center = target_lane_center(other, frame, m.x) if preview.target_lanes else None
             neighbours.append(Neighbour(x=m.x, y=m.y, vx=m.vx, vy=m.vy, length=m.length, width=m.width, yaw=m.heading,
                                         accel=accel, lane_center=center))
+        if split is not None:
+            flows = entry_flows(split, me.x, me.y, neighbours)
+            goal = split_goal(split, me.x, me.y, me.speed, preview.route_change, flows)
+            if lanes_to_change(split, me.y) > 0:
+                route_gap = preview.route_change.time_gap
         planned = route_roads(route)
         neighbours += dead_end_walls(frame, me.x, ahead, preview, planned[-1] if planned else None)
         if period is None:

@@ -9,7 +9,9 @@ ego; :func:`split_goal` makes them a goal whose band widens with the distance st
 go (:attr:`driveopt.goal.Goal.widen`): one lane's width per :attr:`RouteChange.lane_time` seconds of travel, so a
 band far ahead accepts every lane from which it can still be reached and the change is planned while the split is
 ahead, one lane at a time. The band is required in full from :attr:`RouteChange.settle_time` before the split;
-while lanes remain to be changed the desired speed leaves time for each (:attr:`RouteChange.comfortable_lane_time`),
+while lanes remain to be changed the desired speed leaves time for each (:attr:`RouteChange.comfortable_lane_time`)
+at the speed of the traffic in it (:func:`entry_flows`: a car kept fast past slow lanes met them too late, beside one
+of their cars at its speed),
 the plans keep a time gap to the cars in the lanes (:attr:`RouteChange.time_gap`: changing lanes through slower
 traffic, a cut-in just behind a car that then brakes is what the collision ellipse alone allows), and the planner's
 ``route`` cost term counts the lanes still to change.
@@ -24,11 +26,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
 from driveopt.goal import Goal
+from driveopt.scene import Neighbour
 from driveopt.sim.lane_graph import BRANCH_DISTANCE, JOIN_DISTANCE, driving_lanes, lane_end, lane_start
 from driveopt.sim.road_frame import RoadFrame
 
@@ -43,6 +46,8 @@ class RouteChange:
     min_settle_distance: float = 10.0  # [m] ... and at least this far before it
     fast_lane_time: float = 1.0  # [s] per lane: a split further across than this pace reaches is missed
     comfortable_lane_time: float = 1.5  # [s] per lane still to change: the desired speed leaves this long for each
+    deceleration: float = 1.5  # [m/s^2] ... and low enough to slow at this rate to each lane's traffic still to enter
+    # by where entering it must begin (:func:`entry_flows`, :func:`split_goal`)
     min_speed: float = 8.0  # [m/s] ... but is not lowered below this (5 m/s held exit-v0's car too long beside the
     # traffic of the lanes it had left to cross: 36 of seeds 0-39 arrived against 38 at 8, no collision either way)
     time_gap: float = 0.2  # [s] while lanes remain, the plans keep at least this time gap to the cars in the lanes
@@ -51,7 +56,7 @@ class RouteChange:
 
     def __post_init__(self) -> None:
         for name in ("lane_time", "min_lane_distance", "settle_time", "min_settle_distance", "fast_lane_time",
-                     "comfortable_lane_time", "min_speed", "time_gap"):
+                     "comfortable_lane_time", "deceleration", "min_speed", "time_gap"):
             value = getattr(self, name)
             gap = name == "time_gap"  # [0, 10] s, as EllipseMargin's: 0 is no gap
             number = isinstance(value, (int, float)) and not isinstance(value, bool)
@@ -132,18 +137,45 @@ def settle_distance(speed: float, pace: RouteChange) -> float:
     return max(pace.settle_time * abs(speed), pace.min_settle_distance)
 
 
-def split_goal(split: Split, x: float, y: float, speed: float, pace: RouteChange = RouteChange()) -> Goal:
+def entry_flows(split: Split, x: float, y: float, neighbours: Sequence[Neighbour]) -> tuple[float | None, ...]:
+    """[m/s] for each lane still to enter from the ego centre ``y`` [m], in the order it enters them (the band's own
+    last), the mean speed along the road of the cars in it from beside the ego at ``x`` [m] to the split; None for
+    a lane with none."""
+    lanes = lanes_to_change(split, y)
+    low, high = min(split.bands, key=lambda b: _gap(y, (b,)))
+    half = 0.5 * split.lane_width
+    flows = []
+    for k in range(lanes, 0, -1):  # k lane changes before the band's first lane
+        centre = low + half - (k - 1) * split.lane_width if y < low else high - half + (k - 1) * split.lane_width
+        speeds = [max(n.vx, 0.0) for n in neighbours if abs(n.y - centre) < half and x - n.length <= n.x <= split.s]
+        flows.append(float(np.mean(speeds)) if speeds else None)
+    return tuple(flows)
+
+
+def split_goal(split: Split, x: float, y: float, speed: float, pace: RouteChange = RouteChange(),
+               flows: Sequence[float | None] = ()) -> Goal:
     """The split as a goal for the ego at (``x``, ``y``) [m], ``speed`` [m/s]: its bands, required from
     :func:`settle_distance` before the split, widening by one lane per ``pace.lane_time`` of travel before that
     (the latest pace); never deferred for a slow car in them (the route must be kept). While lanes remain to be
     changed, its speed window leaves ``pace.comfortable_lane_time`` for each of them in the distance to the band's
-    start (at least ``pace.min_speed``): a lane change into slower traffic needs time at its speed, not only road."""
+    start (at least ``pace.min_speed``): a lane change into slower traffic needs time at its speed, not only road.
+    With the speeds ``flows`` [m/s] of the traffic in the lanes still to enter (:func:`entry_flows`), the window is also
+    no faster than slowing at ``pace.deceleration`` to each lane's speed by the point where entering it must begin
+    (each change from there on taking ``pace.comfortable_lane_time`` at the lane's speed, or at ``speed`` in a lane
+    without traffic): a car that keeps its speed past slow lanes until the last metres finds itself beside one of
+    their cars at its speed."""
     lane_distance = max(pace.lane_time * abs(speed), pace.min_lane_distance)
     start = split.s - settle_distance(speed, pace)
     lanes_left = lanes_to_change(split, y)
     window = None
     if lanes_left > 0:
-        window = (0.0, max((start - x) / (lanes_left * pace.comfortable_lane_time), pace.min_speed))
+        fastest = (start - x) / (lanes_left * pace.comfortable_lane_time)
+        entry = start  # [m] where entering the lane (from the band's backwards) must begin at the latest
+        for flow in reversed(flows):
+            entry -= pace.comfortable_lane_time * (abs(speed) if flow is None else flow)
+            if flow is not None:
+                fastest = min(fastest, math.sqrt(flow * flow + 2.0 * pace.deceleration * max(entry - x, 0.0)))
+        window = (0.0, max(fastest, pace.min_speed))
     return Goal(bands=split.bands, x=(start, split.s), speed=window, lead_distance=9999.0, block_speed=9999.0,
                 widen=split.lane_width / lane_distance)
 
