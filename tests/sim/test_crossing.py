@@ -375,3 +375,33 @@ def test_a_car_whose_lanes_meet_at_an_angle_is_predicted_as_highway_env_steers_i
     positions, _ = _along_route(car(), later)
     steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
     np.testing.assert_allclose(steps, 10.0 * 0.1, rtol=0.05)
+
+
+def test_a_car_rolling_backwards_is_predicted_swinging_off_its_lane_as_highway_env_steers_it():
+    """Upstream's IDM brakes a car below 0 m/s when the car in front is too close (intersection-v0's traffic yielding
+    to the ego); its lateral controller then turns its heading away from its lane, ever faster, and its front swings
+    across the lanes beside it. The prediction is highway-env's own simulation of the car at its (negative) speed."""
+    from highway_env.vehicle.controller import ControlledVehicle
+
+    from driveopt.sim.crossing import STEER_STEP, _along_route
+
+    network = RoadNetwork()
+    network.add_lane("a", "b", StraightLane([0.0, 0.0], [50.0, 0.0], width=4.0))
+    road = Road(network=network)
+
+    def car():  # 0.3 m off its lane's centre, 3 degrees off its heading, rolling back at 1.5 m/s
+        return ControlledVehicle(road, [30.0, 0.3], heading=0.05, speed=-1.5, target_lane_index=("a", "b", 0),
+                                 target_speed=-1.5, route=[("a", "b", 0)])
+
+    times = np.arange(46) * STEER_STEP  # 3 s
+    predicted, headings = _along_route(car(), times)
+    simulated, simulated_headings = [], []
+    driven = car()
+    for _ in times:
+        simulated.append(driven.position.copy())
+        simulated_headings.append(driven.heading)
+        driven.act()
+        driven.step(STEER_STEP)
+    np.testing.assert_allclose(predicted, simulated, atol=1e-6)
+    np.testing.assert_allclose(headings, simulated_headings, atol=1e-6)
+    assert abs(simulated_headings[-1]) > np.radians(20.0), "the heading swings: backing along the lane is far off"

@@ -81,7 +81,10 @@ def _along_route(vehicle: Any, times: np.ndarray, ego: Any = None) -> tuple[np.n
     stop = math.inf if ego is None else _ego_along(lanes, np.asarray(ego.position, dtype=float), start, reach) - gap
     steered_until = -math.inf  # [s] the poses up to this time come from the vehicle's own steering
     kink = _last_kink(lanes, reach)
-    if kink is not None and speed > MIN_STEERED_SPEED and hasattr(vehicle, "steering_control"):
+    if speed < -MIN_STEERED_SPEED and hasattr(vehicle, "steering_control"):  # rolling backwards (see _steered)
+        steered_until = float(np.max(times, initial=0.0))
+        steered_t, steered_positions, steered_headings, _ = _steered(vehicle, lanes, math.inf, steered_until)
+    elif kink is not None and speed > MIN_STEERED_SPEED and hasattr(vehicle, "steering_control"):
         end = min(float(np.max(times, initial=0.0)), max(kink - start, 0.0) / speed + SETTLE_TIME)
         steered_t, steered_positions, steered_headings, along = _steered(vehicle, lanes, stop, end)
         steered_until = float(steered_t[-1])
@@ -124,7 +127,11 @@ def _steered(vehicle: Any, lanes: list[Any], stop: float, end: float) -> tuple[n
     vehicle's gains, its kinematic bicycle, one :data:`STEER_STEP` at a time) along ``lanes`` at its speed held, from
     its pose now until ``end`` [s]; its target moves to the next lane half a car before a lane's end (the lane's
     ``after_end``), and it stands once it is ``stop`` [m] along them (upstream's IDM brakes for the car in front);
-    distances along them from the first lane's start, where the vehicle is now."""
+    distances along them from the first lane's start, where the vehicle is now. A vehicle rolling backwards (upstream's
+    IDM brakes a car below 0 m/s when the car in front is too close: intersection-v0's traffic yielding to the ego) is
+    steered by the same law at its negative speed, which turns its heading away from its lane's, ever faster: its
+    front swings across the lanes beside it (a car yielding at intersection-v0 turned 38 degrees in 2.4 s at -1 m/s
+    and struck the ego passing it, predicted backing along its lane)."""
     position = np.asarray(vehicle.position, dtype=float).copy()
     heading, speed, half = float(vehicle.heading), float(vehicle.speed), 0.5 * float(vehicle.LENGTH)
     kp_lateral, kp_heading, pursuit = float(vehicle.KP_LATERAL), float(vehicle.KP_HEADING), float(vehicle.TAU_PURSUIT)
@@ -147,8 +154,8 @@ def _steered(vehicle: Any, lanes: list[Any], stop: float, end: float) -> tuple[n
     for n in range(1, int(math.ceil(end / STEER_STEP)) + 1):
         lane, longitudinal, lateral = locate()
         along = offset + longitudinal
-        v = min(speed, max(stop - along, 0.0) / STEER_STEP)  # [m/s] it stands at stop
-        if v > 0.0:
+        v = speed if speed < 0.0 else min(speed, max(stop - along, 0.0) / STEER_STEP)  # [m/s] it stands at stop
+        if v != 0.0:
             future = float(lane.heading_at(longitudinal + v * pursuit))
             heading_ref = future + float(np.clip(math.asin(float(np.clip(-kp_lateral * lateral / v, -1.0, 1.0))),
                                                  -math.pi / 4, math.pi / 4))
