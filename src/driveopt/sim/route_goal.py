@@ -145,7 +145,7 @@ def entry_flows(split: Split, x: float, y: float, neighbours: Sequence[Neighbour
     low, high = min(split.bands, key=lambda b: _gap(y, (b,)))
     half = 0.5 * split.lane_width
     flows = []
-    for k in range(lanes, 0, -1):  # k lane changes before the band's first lane
+    for k in range(lanes, 0, -1):  # the lane k - 1 lanes short of the band (k = 1: the band's own)
         centre = low + half - (k - 1) * split.lane_width if y < low else high - half + (k - 1) * split.lane_width
         speeds = [max(n.vx, 0.0) for n in neighbours if abs(n.y - centre) < half and x - n.length <= n.x <= split.s]
         flows.append(float(np.mean(speeds)) if speeds else None)
