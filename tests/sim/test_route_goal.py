@@ -36,6 +36,11 @@ def test_the_goal_exists_only_with_a_route_and_narrows_the_far_lanes_first(exit_
     perception = perceive(exit_env, Task(v_des=25.0, route=EXIT))
     goal = perception.goal
     assert goal.bands == ((22.0, 26.0),) and goal.x[1] == 500.0
+    ego, split = perception.scene.ego, find_split(exit_env.unwrapped.road.network, perception.frame, perception.scene.ego.x)
+    flows = entry_flows(split, ego.x, ego.y, perception.scene.neighbours)
+    assert any(flow is not None for flow in flows)  # the lanes to enter carry traffic, and the window slows to it
+    assert goal.speed == split_goal(split, ego.x, ego.y, perception.kinematics.speed, RouteChange(), flows).speed
+    assert goal.speed[1] < split_goal(split, ego.x, ego.y, perception.kinematics.speed).speed[1]
     split = Split(("1", "2"), ("2", "exit"), 500.0, ((22.0, 26.0),), 4.0)
     goal = split_goal(split, 175.0, 0.0, 25.0)  # at the latest one lane per 37.5 m, the band itself from 475 m
     assert goal.x == (475.0, 500.0) and goal.widen == pytest.approx(4.0 / 37.5)
