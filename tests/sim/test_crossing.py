@@ -336,13 +336,32 @@ def test_a_wreck_slides_to_a_stop_along_its_heading_as_highway_env_brakes_it():
     assert moving.path_y[8] == pytest.approx(0.0, abs=0.5) and obstacle_mask(moving) == 1.0
 
 
+def _predicted_as_simulated(car):
+    """(positions, headings) of ``car()`` (a new ControlledVehicle each call) as highway-env simulates it over 3 s,
+    asserted equal (to 1e-6) to the prediction along its route."""
+    from driveopt.sim.crossing import STEER_STEP, _along_route
+
+    times = np.arange(46) * STEER_STEP
+    predicted, headings = _along_route(car(), times)
+    simulated, simulated_headings = [], []
+    driven = car()
+    for _ in times:
+        simulated.append(driven.position.copy())
+        simulated_headings.append(driven.heading)
+        driven.act()
+        driven.step(STEER_STEP)
+    np.testing.assert_allclose(predicted, simulated, atol=1e-6)
+    np.testing.assert_allclose(headings, simulated_headings, atol=1e-6)
+    return simulated, simulated_headings
+
+
 def test_a_car_whose_lanes_meet_at_an_angle_is_predicted_as_highway_env_steers_it_through_the_joint():
     """At a joint where its lanes meet at an angle (a roundabout's entry: 47-59 degrees at roundabout-v0) a car does
     not turn the whole angle at once: its own lateral controller carries it through. The prediction is highway-env's
     own simulation of the car at its speed, step for step, where the lanes' centres are metres off."""
     from highway_env.vehicle.controller import ControlledVehicle
 
-    from driveopt.sim.crossing import STEER_STEP, _along_route
+    from driveopt.sim.crossing import _along_route
 
     network = RoadNetwork()
     network.add_lane("a", "b", StraightLane([0.0, 0.0], [50.0, 0.0], width=4.0))
@@ -355,17 +374,7 @@ def test_a_car_whose_lanes_meet_at_an_angle_is_predicted_as_highway_env_steers_i
                                     target_speed=10.0, route=[("a", "b", 0), ("b", "c", 0)])
         return vehicle
 
-    times = np.arange(46) * STEER_STEP  # 3 s
-    predicted, headings = _along_route(car(), times)
-    simulated, simulated_headings = [], []
-    driven = car()
-    for _ in times:
-        simulated.append(driven.position.copy())
-        simulated_headings.append(driven.heading)
-        driven.act()
-        driven.step(STEER_STEP)
-    np.testing.assert_allclose(predicted, simulated, atol=1e-6)
-    np.testing.assert_allclose(headings, simulated_headings, atol=1e-6)
+    simulated, simulated_headings = _predicted_as_simulated(car)
     lanes = [network.get_lane(("a", "b", 0)), network.get_lane(("b", "c", 0))]
     off_centre = [min(abs(lane.local_coordinates(p)[1]) for lane in lanes) for p in simulated]
     assert max(off_centre) > 1.0, "the lanes' centres would be metres off at the joint"
@@ -383,8 +392,6 @@ def test_a_car_rolling_backwards_is_predicted_swinging_off_its_lane_as_highway_e
     across the lanes beside it. The prediction is highway-env's own simulation of the car at its (negative) speed."""
     from highway_env.vehicle.controller import ControlledVehicle
 
-    from driveopt.sim.crossing import STEER_STEP, _along_route
-
     network = RoadNetwork()
     network.add_lane("a", "b", StraightLane([0.0, 0.0], [50.0, 0.0], width=4.0))
     road = Road(network=network)
@@ -393,15 +400,5 @@ def test_a_car_rolling_backwards_is_predicted_swinging_off_its_lane_as_highway_e
         return ControlledVehicle(road, [30.0, 0.3], heading=0.05, speed=-1.5, target_lane_index=("a", "b", 0),
                                  target_speed=-1.5, route=[("a", "b", 0)])
 
-    times = np.arange(46) * STEER_STEP  # 3 s
-    predicted, headings = _along_route(car(), times)
-    simulated, simulated_headings = [], []
-    driven = car()
-    for _ in times:
-        simulated.append(driven.position.copy())
-        simulated_headings.append(driven.heading)
-        driven.act()
-        driven.step(STEER_STEP)
-    np.testing.assert_allclose(predicted, simulated, atol=1e-6)
-    np.testing.assert_allclose(headings, simulated_headings, atol=1e-6)
+    simulated, simulated_headings = _predicted_as_simulated(car)
     assert abs(simulated_headings[-1]) > np.radians(20.0), "the heading swings: backing along the lane is far off"
