@@ -245,6 +245,20 @@ def box_contact(problem: PlanningProblem, trajectory: Trajectory) -> jnp.ndarray
     return _first(near, problem)
 
 
+def meets_later(problem: PlanningProblem, chosen: Trajectory, fallback: Trajectory, x_offset: float = 0.0) -> bool:
+    """Whether ``chosen`` meets the predicted obstacles later than ``fallback`` does, ranked as :meth:`Fallback.choose`
+    ranks its stops: by the first touch of a car's box (:func:`box_contact`), then by the first entry into its
+    ellipse (:func:`first_contact`); never meeting one is latest. Both in the road frame, whose x is the planning
+    frame's plus ``x_offset`` [m]."""
+    nodes = problem.obstacle_x.shape[1]
+
+    def meeting(trajectory: Trajectory) -> int:
+        trajectory = trajectory._replace(x=jnp.asarray(trajectory.x) - x_offset)
+        return int(box_contact(problem, trajectory)) * (nodes + 1) + int(first_contact(problem, trajectory))
+
+    return meeting(chosen) > meeting(fallback)
+
+
 def held_box_growth(problem: PlanningProblem, trajectory: Trajectory) -> jnp.ndarray:
     """[m] (2, K) growth of the collision ellipses' semi-axes for an ego (the highway-env car) whose box is turned by
     the largest of its heading now and the headings of ``trajectory`` (a stop) up to each node.

@@ -463,6 +463,35 @@ def test_box_contact_is_the_first_node_inside_the_box_the_ellipse_circumscribes(
     assert int(box_contact(problem, stop_trajectory(problem, t, 2.0, 0.0))) < len(t)  # the scene has a contact
 
 
+def test_a_plan_meets_the_traffic_later_than_the_stop_by_box_then_ellipse(small_config):
+    """``meets_later`` ranks two paths as the fallback ranks its stops: a car standing 20 m ahead in the lane is
+    touched by the stop from 12 m/s (24 m to stand) and by driving on, sooner; a change to the next lane at that speed
+    passes it beside, touching no box; the same paths shifted by the road frame's ``x_offset`` rank alike."""
+    from driveopt.fallback import box_contact, meets_later, stop_trajectory
+    from driveopt.qp import fit_positions
+    from driveopt.trajectory import evaluate
+
+    scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=12.0), road=Road(num_lanes=4), neighbours=(Neighbour(x=20.0, y=4.0),))
+    problem = build_problem(scene, small_config.basis)
+    model = make_model(small_config.basis)
+    t = np.asarray(model.t)
+    stop = stop_trajectory(problem, jnp.asarray(t), 3.0, "hold")
+    b_x, b_y = boundary_values(problem.init_x, problem.init_y, QPConfig())
+
+    def path(y_end):  # at 12 m/s, easing from the lane to ``y_end`` [m] over the first 0.8 s
+        u = np.clip(t / 0.8, 0.0, 1.0)
+        y = 4.0 + (y_end - 4.0) * u * u * (3.0 - 2.0 * u)
+        return evaluate(model, fit_positions(model, np.float32(12.0 * t)[None], np.float32(y)[None], b_x, b_y)[0])
+
+    on, beside = path(4.0), path(8.0)
+    nodes = len(t)
+    assert int(box_contact(problem, on)) < int(box_contact(problem, stop)) < nodes == int(box_contact(problem, beside))
+    assert meets_later(problem, beside, stop) and not meets_later(problem, on, stop)
+    assert not meets_later(problem, stop, stop)
+    shifted = [x._replace(x=x.x + 50.0) for x in (beside, stop)]
+    assert meets_later(problem, *shifted, x_offset=50.0) and not meets_later(problem, *shifted)
+
+
 def test_evasion_weighs_the_turned_box_of_a_car_that_stops_beside_standing_cars(small_config):
     """`vqvae`'s P2 episode 30 at 17.3 s: 6.6 m/s on a course 0.25 rad towards a lane of standing cars (body 0.12
     rad), a car standing 8.6 m ahead in its own lane. Every stop touches that car's box; the stop towards the lane

@@ -136,25 +136,71 @@ def test_the_planners_that_take_weights_are_those_that_read_a_checkpoint():
 
 
 @pytest.mark.parametrize("field", ["executes_infeasible", "braking_prediction", "approach_selection", "contact_guard",
-                                   "target_lanes"])
+                                   "target_lanes", "commits_at_crossings"])
 def test_closed_loop_flags_must_be_bools(field):
     with pytest.raises(ConfigError, match=f"loop.{field}"):
         ClosedLoop(**{field: 1})
 
 
 def test_the_closed_loop_is_driveopts_by_default_and_the_papers_in_one_value():
-    """driveopt's loop executes the safe trajectory, predicts braking and each car's lateral motion to its target lane,
-    ranks neighbours by approach, guards; the papers' turns all five off, at the given replanning period (P1's -p1
-    baselines: 5, the faithful planners: 1)."""
+    """driveopt's loop executes the safe trajectory (committing to an infeasible plan at crossings), predicts braking
+    and each car's lateral motion to its target lane, ranks neighbours by approach, guards; the papers' turns all six
+    off, at the given replanning period (P1's -p1 baselines: 5, the faithful planners: 1)."""
     assert OptimiserSpec("x", "y").loop == DRIVEOPT_LOOP == ClosedLoop(1, False, True, True, True)
-    assert DRIVEOPT_LOOP.target_lanes
+    assert DRIVEOPT_LOOP.target_lanes and DRIVEOPT_LOOP.commits_at_crossings
     assert ClosedLoop.papers(5) == ClosedLoop(5, executes_infeasible=True, braking_prediction=False,
-                                              approach_selection=False, contact_guard=False, target_lanes=False)
+                                              approach_selection=False, contact_guard=False, target_lanes=False,
+                                              commits_at_crossings=False)
     assert PAPERS_LOOP == ClosedLoop.papers(1)
     assert (DRIVEOPT_LOOP.braking_time, DRIVEOPT_LOOP.selection_time) == (BRAKING_TIME, SELECTION_TIME)
     assert (PAPERS_LOOP.braking_time, PAPERS_LOOP.selection_time) == (0.0, 0.0)
     with pytest.raises(ConfigError, match="replan_every"):
         ClosedLoop(replan_every=0)
+
+
+def test_an_infeasible_plan_is_followed_only_at_crossings_and_only_where_it_meets_the_traffic_later_than_the_stop():
+    """A car stands 20 m ahead of the ego at 12 m/s: the stop touches it, a change to the next lane at that speed does
+    not. Reported INFEASIBLE with that change chosen, the car follows the change where the car ahead is crossing
+    traffic (a PathNeighbour: it stops for nothing off its own lane) and the loop commits at crossings; in lane
+    traffic, with the papers' loop, for a SUCCESS or for a chosen plan that meets the car sooner, as before."""
+    import dataclasses
+
+    import jax.numpy as jnp
+
+    from driveopt.config import QPConfig
+    from driveopt.drivers.optimiser import OptimiserDriver
+    from driveopt.fallback import stop_trajectory
+    from driveopt.prediction import PathNeighbour
+    from driveopt.qp import boundary_values, fit_positions, make_model
+    from driveopt.trajectory import evaluate
+
+    ego = EgoState(x=0.0, y=4.0, vx=12.0)
+    standing = PathNeighbour(x=20.0, y=4.0, t=(0.0, 15.0), path_x=(20.0, 20.0), path_y=(4.0, 4.0), path_yaw=(0.0, 0.0))
+    crossing = Scene(ego=ego, road=Road(num_lanes=4), neighbours=(standing,))
+    lanes = dataclasses.replace(crossing, neighbours=(Neighbour(x=20.0, y=4.0),))
+    problem = build_problem(crossing)
+    model = make_model()
+    t = np.asarray(model.t)
+    b_x, b_y = boundary_values(problem.init_x, problem.init_y, QPConfig())
+    u = np.clip(t / 0.8, 0.0, 1.0)
+
+    def path(y_end):
+        y = 4.0 + (y_end - 4.0) * u * u * (3.0 - 2.0 * u)
+        return evaluate(model, fit_positions(model, np.float32(12.0 * t)[None], np.float32(y)[None], b_x, b_y)[0])
+
+    def result(chosen, status=PlanStatus.INFEASIBLE):  # what _commits reads of a PlanResult
+        return SimpleNamespace(status=status, trajectory=chosen, fallback=stop, x_offset=0.0, safe_trajectory=stop)
+
+    stop = stop_trajectory(problem, jnp.asarray(t), 3.0, "hold")
+    change, on = result(path(8.0)), result(path(4.0))
+    driver = OptimiserDriver(get_planner("bilevel"))
+    assert driver._commits(change, crossing, problem)
+    assert driver.followed(change, commits=True) is change.trajectory and driver.followed(change) is stop
+    assert not driver._commits(on, crossing, problem)
+    assert not driver._commits(change, lanes, build_problem(lanes))
+    assert not driver._commits(result(path(8.0), PlanStatus.SUCCESS), crossing, problem)
+    papers = OptimiserDriver(dataclasses.replace(get_planner("bilevel"), loop=PAPERS_LOOP))
+    assert not papers._commits(change, crossing, problem)
 
 
 # ---------------------------------------------------------------------------------------------- frames that jump

@@ -6,8 +6,12 @@ configuration, and turns the plan's first action period into a ``ContinuousActio
 inverse of upstream's bicycle model. It carries the sampling mean to the next call when the spec
 warm-starts, and the executed plan when its configuration weighs ``cost.consistency``. When the
 planner reports anything but SUCCESS it follows the fallback and brakes at once at the fallback's
-deceleration. How the loop runs around the planner is the spec's :class:`ClosedLoop` (``spec.loop``): with
-``executes_infeasible`` (P1) it tracks the chosen plan whatever its residual, and follows the fallback only on
+deceleration, except where it plans against crossing traffic (a :class:`~driveopt.prediction.PathNeighbour`) and
+the chosen plan meets the predicted traffic later than the fallback's stop does (``commits_at_crossings``,
+:func:`driveopt.fallback.meets_later`): crossing traffic brakes only for a car on its own lane, so a stop inside a
+junction is no harbour (at intersection-v0 a car that entered on a thin gap, found every plan infeasible a second
+later and braked in the junction was struck by the car it had passed in front of). How the loop runs around the
+planner is the spec's :class:`ClosedLoop` (``spec.loop``): with ``executes_infeasible`` (P1) it tracks the chosen plan whatever its residual, and follows the fallback only on
 NUMERICAL_ERROR. Neighbours are predicted braking-aware (:data:`driveopt.prediction.BRAKING_TIME`) unless
 ``braking_prediction`` is False (P1: constant velocity), their lateral motion ending at their target lane's centre
 unless ``target_lanes`` is False (P1: at their lateral rate), and the neighbours planned against are those that come
@@ -50,12 +54,12 @@ from driveopt.config import PlannerConfig, to_dict
 from driveopt.drivers.base import Decision, DriverSpec
 from driveopt.drivers.commands import EXACT_TRACKING, ExactTracking, FirstNodesMean
 from driveopt.drivers.latency import Latency, Synchronous, parse_latency
-from driveopt.fallback import Fallback
+from driveopt.fallback import Fallback, meets_later
 from driveopt.files import json_digest, pytree_digest
 from driveopt.method import DRIVEOPT_METHOD, Method
 from driveopt.multi_plan import Call
 from driveopt.planner import PlanResult, PlanStatus, PreviousPlan, plan, previous_plan
-from driveopt.prediction import BRAKING_TIME, SELECTION_TIME
+from driveopt.prediction import BRAKING_TIME, SELECTION_TIME, PathNeighbour
 from driveopt.problem import build_problem
 from driveopt.qp import NUM_SEGMENTS, SETPOINT_DIM
 from driveopt.sim.contact import guard
@@ -126,6 +130,8 @@ class ClosedLoop:
     command: CommandRule = EXACT_TRACKING  # how the followed plan becomes the period's command (driveopt.drivers.commands)
     target_lanes: bool = True  # a neighbour's lateral motion is predicted to end at the centre of the lane it steers to
     # (driveopt.sim.perception.RoadPreview.target_lanes; False: at its lateral rate for the whole horizon, P1)
+    commits_at_crossings: bool = True  # where crossing traffic is planned against, an INFEASIBLE plan that meets it later
+    # than the fallback's stop is followed instead of the stop (:func:`meets_later`; False: the stop, as on any road)
 
     def __post_init__(self) -> None:
         check_types(self, "loop")
@@ -136,7 +142,7 @@ class ClosedLoop:
         """The papers' loop: the chosen plan executed whatever its residual, no contact guard, constant-velocity
         prediction (lateral too) of the nearest neighbours now, a plan every ``replan_every`` policy periods."""
         return cls(replan_every=replan_every, executes_infeasible=True, braking_prediction=False,
-                   approach_selection=False, contact_guard=False, target_lanes=False)
+                   approach_selection=False, contact_guard=False, target_lanes=False, commits_at_crossings=False)
 
     @property
     def braking_time(self) -> float:
@@ -292,6 +298,7 @@ class _Call(NamedTuple):
     seconds: float  # [s] measured wall time of the call
     periods: int  # [policy periods] its compute time, rounded up (0: it takes effect at the step it started)
     ahead: int  # [policy periods] from the step it started to its plan's t = 0 (the scene it planned from)
+    commits: bool = False  # the car follows its chosen plan though INFEASIBLE (ClosedLoop.commits_at_crossings)
 
     @property
     def delivered_after(self) -> int:
@@ -390,14 +397,22 @@ class OptimiserDriver:
         previous = previous_plan(result, gap) if self.carries_plan else None
         return (result.mean if self.spec.warm_start else None), previous
 
-    def _executes_chosen(self, result: PlanResult) -> bool:
-        """Whether the car follows the chosen plan whatever its status (P1), not the safe trajectory."""
-        return self.spec.loop.executes_infeasible and result.status != PlanStatus.NUMERICAL_ERROR
+    def _executes_chosen(self, result: PlanResult, commits: bool = False) -> bool:
+        """Whether the car follows the chosen plan whatever its status (P1), or ``commits`` to it
+        (:attr:`ClosedLoop.commits_at_crossings`), not the safe trajectory."""
+        return commits or (self.spec.loop.executes_infeasible and result.status != PlanStatus.NUMERICAL_ERROR)
 
-    def followed(self, result: PlanResult) -> Any:
-        """The trajectory of ``result`` the car follows (road frame): the chosen plan (P1, unless NUMERICAL_ERROR) or the
-        safe trajectory (the plan when SUCCESS, else the fallback)."""
-        return result.trajectory if self._executes_chosen(result) else result.safe_trajectory
+    def followed(self, result: PlanResult, commits: bool = False) -> Any:
+        """The trajectory of ``result`` the car follows (road frame): the chosen plan (P1, unless NUMERICAL_ERROR; or
+        where it ``commits`` to it) or the safe trajectory (the plan when SUCCESS, else the fallback)."""
+        return result.trajectory if self._executes_chosen(result, commits) else result.safe_trajectory
+
+    def _commits(self, result: PlanResult, scene: Any, problem: Any) -> bool:
+        """Whether the car follows ``result``'s chosen plan though INFEASIBLE: with the loop's ``commits_at_crossings``,
+        where ``scene`` holds crossing traffic and the plan meets the predicted traffic later than the fallback does."""
+        return (self.spec.loop.commits_at_crossings and result.status == PlanStatus.INFEASIBLE
+                and any(isinstance(n, PathNeighbour) for n in scene.neighbours)
+                and meets_later(problem, result.trajectory, result.fallback, result.x_offset))
 
     def act(self, env: Any) -> Decision:
         call = self.prepare(env)
@@ -483,7 +498,7 @@ class OptimiserDriver:
         if guarded or not isinstance(self.spec.loop.command, ExactTracking):
             return None
         command = track(executing.world, elapsed + offset, ego_kinematics(env), self._one_step)
-        if not self._executes_chosen(executing.result) and executing.result.status != PlanStatus.SUCCESS:
+        if not self._executes_chosen(executing.result, executing.commits) and executing.result.status != PlanStatus.SUCCESS:
             command = brake_at_least(command, executing.result.fallback_deceleration, self._one_step,
                                      float(env.unwrapped.vehicle.speed))
         return command
@@ -492,7 +507,7 @@ class OptimiserDriver:
         """(the command of this step for the plan in effect, whether the contact guard replaced it)."""
         tracking = perception.tracking if perception else ego_kinematics(env)
         return self._command(self.executing.result, self.executing.world, self.executed_periods * self.period, tracking,
-                             env, perception)
+                             env, perception, self.executing.commits)
 
     def _called(self, result: PlanResult, seconds: float) -> _Call:
         """The call :meth:`prepare` started, finished with ``result`` after ``seconds`` [s] of wall time."""
@@ -500,8 +515,9 @@ class OptimiserDriver:
         index = 0 if self.executing is None else self.executing.index + 1
         periods = 0 if self.executing is None else self.spec.latency.periods(seconds, self.period)
         self.started_at = self.steps
-        world = to_world(self.followed(result), self._perception.frame)  # in world coordinates, for tracking
-        return _Call(index, result, world, scene, problem, self._perception.frame, seconds, periods, ahead)
+        commits = self._commits(result, scene, problem)
+        world = to_world(self.followed(result, commits), self._perception.frame)  # in world coordinates, for tracking
+        return _Call(index, result, world, scene, problem, self._perception.frame, seconds, periods, ahead, commits)
 
     def _predicted(self, perception: Perception, ahead: int, command: Command) -> Any:
         """The scene of ``perception`` (the road frame now) ``ahead`` policy periods later, as a plan started now meets
@@ -519,7 +535,7 @@ class OptimiserDriver:
         if ahead > 1:  # the periods after this one: as the plan in effect moves the car
             now = (self.executed_periods + 1) * self.period  # [s] the plan in effect's time after this step
             later = now + (ahead - 1) * self.period  # [s] its time where the new plan takes effect
-            followed = self.followed(self.executing.result)
+            followed = self.followed(self.executing.result, self.executing.commits)
             reading = sample_trajectory(followed, [now, later])
             x, y = x + float(reading.x[1] - reading.x[0]), y + float(reading.y[1] - reading.y[0])
             vx, vy = vx + float(reading.vx[1] - reading.vx[0]), vy + float(reading.vy[1] - reading.vy[0])
@@ -575,14 +591,15 @@ class OptimiserDriver:
                                                    lateral=np.asarray(self.previous.lateral) + shift)
 
     def _command(self, result: PlanResult, followed: Any, elapsed: float, tracking, env: Any,
-                 perception: Perception | None = None) -> tuple[Command, bool]:
+                 perception: Perception | None = None, commits: bool = False) -> tuple[Command, bool]:
         """(the command that tracks ``followed`` (:meth:`followed` of ``result`` in world coordinates) ``elapsed`` [s]
         after it was planned, whether the contact guard replaced it by braking now); ``tracking``: the ego's speed and
-        world heading; ``perception``: the world now, read when the configuration guards."""
+        world heading; ``perception``: the world now, read when the configuration guards; ``commits``: ``followed`` is
+        an INFEASIBLE plan the call commits to (:meth:`_commits`), tracked without braking now."""
         command = self.spec.loop.command(followed, elapsed, tracking, self.model)
         if self._executes_chosen(result):  # P1: the chosen plan, feasible or not
             return command, False
-        if result.status != PlanStatus.SUCCESS:  # executing the fallback: brake now, not after a ramp
+        if result.status != PlanStatus.SUCCESS and not commits:  # executing the fallback: brake now, not after a ramp
             command = brake_at_least(command, result.fallback_deceleration, self.model, float(env.unwrapped.vehicle.speed))
         guarded = False
         if self.spec.loop.contact_guard and perception is not None:
