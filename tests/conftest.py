@@ -277,3 +277,18 @@ def boxes_overlap(a: np.ndarray, b: np.ndarray) -> bool:
             if pa.max() < pb.min() or pb.max() < pa.min():
                 return False
     return True
+
+
+def lane_change(model, problem, speed: float, y_end: float, duration: float):
+    """The plan (a Trajectory of ``model``) from ``problem``'s start at ``speed`` [m/s] along the road, easing from the
+    ego's lateral position to ``y_end`` [m] over ``duration`` [s] (a smoothstep), then holding it."""
+    from driveopt.config import QPConfig
+    from driveopt.qp import boundary_values, fit_positions
+    from driveopt.trajectory import evaluate
+
+    t = np.asarray(model.t)
+    u = np.clip(t / duration, 0.0, 1.0)
+    y0 = float(problem.init_y[0])
+    y = y0 + (y_end - y0) * u * u * (3.0 - 2.0 * u)
+    b_x, b_y = boundary_values(problem.init_x, problem.init_y, QPConfig())
+    return evaluate(model, fit_positions(model, np.float32(speed * t)[None], np.float32(y)[None], b_x, b_y)[0])

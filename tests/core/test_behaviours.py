@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import RUNTIME_CHANGES, box_corners
+from conftest import RUNTIME_CHANGES, box_corners, lane_change
 
 from driveopt import EgoState, Neighbour, PlanStatus, Road, Scene, build_problem, plan
 from driveopt.config import ProjectionConfig, QPConfig
@@ -468,23 +468,13 @@ def test_a_plan_meets_the_traffic_later_than_the_stop_by_box_then_ellipse(small_
     touched by the stop from 12 m/s (24 m to stand) and by driving on, sooner; a change to the next lane at that speed
     passes it beside, touching no box; the same paths shifted by the road frame's ``x_offset`` rank alike."""
     from driveopt.fallback import box_contact, meets_later, stop_trajectory
-    from driveopt.qp import fit_positions
-    from driveopt.trajectory import evaluate
 
     scene = Scene(ego=EgoState(x=0.0, y=4.0, vx=12.0), road=Road(num_lanes=4), neighbours=(Neighbour(x=20.0, y=4.0),))
     problem = build_problem(scene, small_config.basis)
     model = make_model(small_config.basis)
-    t = np.asarray(model.t)
-    stop = stop_trajectory(problem, jnp.asarray(t), 3.0, "hold")
-    b_x, b_y = boundary_values(problem.init_x, problem.init_y, QPConfig())
-
-    def path(y_end):  # at 12 m/s, easing from the lane to ``y_end`` [m] over the first 0.8 s
-        u = np.clip(t / 0.8, 0.0, 1.0)
-        y = 4.0 + (y_end - 4.0) * u * u * (3.0 - 2.0 * u)
-        return evaluate(model, fit_positions(model, np.float32(12.0 * t)[None], np.float32(y)[None], b_x, b_y)[0])
-
-    on, beside = path(4.0), path(8.0)
-    nodes = len(t)
+    stop = stop_trajectory(problem, jnp.asarray(model.t), 3.0, "hold")
+    on, beside = (lane_change(model, problem, 12.0, y_end, 0.8) for y_end in (4.0, 8.0))
+    nodes = len(model.t)
     assert int(box_contact(problem, on)) < int(box_contact(problem, stop)) < nodes == int(box_contact(problem, beside))
     assert meets_later(problem, beside, stop) and not meets_later(problem, on, stop)
     assert not meets_later(problem, stop, stop)

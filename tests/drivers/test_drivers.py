@@ -5,7 +5,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from conftest import reset_env
+from conftest import lane_change, reset_env
 
 from driveopt.checks import ConfigError
 from driveopt.drivers.optimiser import DRIVEOPT_LOOP, PAPERS_LOOP, ClosedLoop, OptimiserSpec, adapt_to_vehicle
@@ -167,12 +167,10 @@ def test_an_infeasible_plan_is_followed_only_at_crossings_and_only_where_it_meet
 
     import jax.numpy as jnp
 
-    from driveopt.config import QPConfig
     from driveopt.drivers.optimiser import OptimiserDriver
     from driveopt.fallback import stop_trajectory
     from driveopt.prediction import PathNeighbour
-    from driveopt.qp import boundary_values, fit_positions, make_model
-    from driveopt.trajectory import evaluate
+    from driveopt.qp import make_model
 
     ego = EgoState(x=0.0, y=4.0, vx=12.0)
     standing = PathNeighbour(x=20.0, y=4.0, t=(0.0, 15.0), path_x=(20.0, 20.0), path_y=(4.0, 4.0), path_yaw=(0.0, 0.0))
@@ -180,25 +178,19 @@ def test_an_infeasible_plan_is_followed_only_at_crossings_and_only_where_it_meet
     lanes = dataclasses.replace(crossing, neighbours=(Neighbour(x=20.0, y=4.0),))
     problem = build_problem(crossing)
     model = make_model()
-    t = np.asarray(model.t)
-    b_x, b_y = boundary_values(problem.init_x, problem.init_y, QPConfig())
-    u = np.clip(t / 0.8, 0.0, 1.0)
 
-    def path(y_end):
-        y = 4.0 + (y_end - 4.0) * u * u * (3.0 - 2.0 * u)
-        return evaluate(model, fit_positions(model, np.float32(12.0 * t)[None], np.float32(y)[None], b_x, b_y)[0])
+    def result(y_end, status=PlanStatus.INFEASIBLE):  # what _commits reads of a PlanResult, a lane change chosen
+        return SimpleNamespace(status=status, trajectory=lane_change(model, problem, 12.0, y_end, 0.8), fallback=stop,
+                               x_offset=0.0, safe_trajectory=stop)
 
-    def result(chosen, status=PlanStatus.INFEASIBLE):  # what _commits reads of a PlanResult
-        return SimpleNamespace(status=status, trajectory=chosen, fallback=stop, x_offset=0.0, safe_trajectory=stop)
-
-    stop = stop_trajectory(problem, jnp.asarray(t), 3.0, "hold")
-    change, on = result(path(8.0)), result(path(4.0))
+    stop = stop_trajectory(problem, jnp.asarray(model.t), 3.0, "hold")
+    change, on = result(8.0), result(4.0)
     driver = OptimiserDriver(get_planner("bilevel"))
     assert driver._commits(change, crossing, problem)
     assert driver.followed(change, commits=True) is change.trajectory and driver.followed(change) is stop
     assert not driver._commits(on, crossing, problem)
     assert not driver._commits(change, lanes, build_problem(lanes))
-    assert not driver._commits(result(path(8.0), PlanStatus.SUCCESS), crossing, problem)
+    assert not driver._commits(result(8.0, PlanStatus.SUCCESS), crossing, problem)
     papers = OptimiserDriver(dataclasses.replace(get_planner("bilevel"), loop=PAPERS_LOOP))
     assert not papers._commits(change, crossing, problem)
 

@@ -11,9 +11,10 @@ the chosen plan meets the predicted traffic later than the fallback's stop does 
 :func:`driveopt.fallback.meets_later`): crossing traffic brakes only for a car on its own lane, so a stop inside a
 junction is no harbour (at intersection-v0 a car that entered on a thin gap, found every plan infeasible a second
 later and braked in the junction was struck by the car it had passed in front of). How the loop runs around the
-planner is the spec's :class:`ClosedLoop` (``spec.loop``): with ``executes_infeasible`` (P1) it tracks the chosen plan whatever its residual, and follows the fallback only on
-NUMERICAL_ERROR. Neighbours are predicted braking-aware (:data:`driveopt.prediction.BRAKING_TIME`) unless
-``braking_prediction`` is False (P1: constant velocity), their lateral motion ending at their target lane's centre
+planner is the spec's :class:`ClosedLoop` (``spec.loop``): with ``executes_infeasible`` (P1) it tracks the chosen
+plan whatever its residual, and follows the fallback only on NUMERICAL_ERROR. Neighbours are predicted
+braking-aware (:data:`driveopt.prediction.BRAKING_TIME`) unless ``braking_prediction`` is False (P1: constant
+velocity), their lateral motion ending at their target lane's centre
 unless ``target_lanes`` is False (P1: at their lateral rate), and the neighbours planned against are those that come
 closest within :data:`driveopt.prediction.SELECTION_TIME` unless ``approach_selection`` is False (P1: the nearest
 now). With ``replan_every`` N > 1 (P1 §V executes five control periods per plan) it
@@ -397,15 +398,19 @@ class OptimiserDriver:
         previous = previous_plan(result, gap) if self.carries_plan else None
         return (result.mean if self.spec.warm_start else None), previous
 
-    def _executes_chosen(self, result: PlanResult, commits: bool = False) -> bool:
-        """Whether the car follows the chosen plan whatever its status (P1), or ``commits`` to it
-        (:attr:`ClosedLoop.commits_at_crossings`), not the safe trajectory."""
-        return commits or (self.spec.loop.executes_infeasible and result.status != PlanStatus.NUMERICAL_ERROR)
+    def _executes_chosen(self, result: PlanResult) -> bool:
+        """Whether the car follows the chosen plan whatever its status (P1), not the safe trajectory."""
+        return self.spec.loop.executes_infeasible and result.status != PlanStatus.NUMERICAL_ERROR
+
+    def _brakes_now(self, result: PlanResult, commits: bool) -> bool:
+        """Whether the car follows ``result``'s fallback, braking at once: not SUCCESS, not executed whatever its
+        status (P1), not ``commits``."""
+        return result.status != PlanStatus.SUCCESS and not commits and not self._executes_chosen(result)
 
     def followed(self, result: PlanResult, commits: bool = False) -> Any:
         """The trajectory of ``result`` the car follows (road frame): the chosen plan (P1, unless NUMERICAL_ERROR; or
-        where it ``commits`` to it) or the safe trajectory (the plan when SUCCESS, else the fallback)."""
-        return result.trajectory if self._executes_chosen(result, commits) else result.safe_trajectory
+        where it ``commits`` to it, :meth:`_commits`) or the safe trajectory (the plan when SUCCESS, else the fallback)."""
+        return result.trajectory if commits or self._executes_chosen(result) else result.safe_trajectory
 
     def _commits(self, result: PlanResult, scene: Any, problem: Any) -> bool:
         """Whether the car follows ``result``'s chosen plan though INFEASIBLE: with the loop's ``commits_at_crossings``,
@@ -498,7 +503,7 @@ class OptimiserDriver:
         if guarded or not isinstance(self.spec.loop.command, ExactTracking):
             return None
         command = track(executing.world, elapsed + offset, ego_kinematics(env), self._one_step)
-        if not self._executes_chosen(executing.result, executing.commits) and executing.result.status != PlanStatus.SUCCESS:
+        if self._brakes_now(executing.result, executing.commits):
             command = brake_at_least(command, executing.result.fallback_deceleration, self._one_step,
                                      float(env.unwrapped.vehicle.speed))
         return command
@@ -599,7 +604,7 @@ class OptimiserDriver:
         command = self.spec.loop.command(followed, elapsed, tracking, self.model)
         if self._executes_chosen(result):  # P1: the chosen plan, feasible or not
             return command, False
-        if result.status != PlanStatus.SUCCESS and not commits:  # executing the fallback: brake now, not after a ramp
+        if self._brakes_now(result, commits):  # executing the fallback: brake now, not after a ramp
             command = brake_at_least(command, result.fallback_deceleration, self.model, float(env.unwrapped.vehicle.speed))
         guarded = False
         if self.spec.loop.contact_guard and perception is not None:
